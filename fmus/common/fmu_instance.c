@@ -1,0 +1,485 @@
+#include "fmu_instance.h"
+
+#include <math.h>
+#include <stdarg.h>
+#include <stdint.h>
+#include <stdio.h>
+#include <stdlib.h>
+#include <string.h>
+
+/* Relative tolerance between the importer's communication point and the instance time:
+ * importers accumulate t += h or compute t0 + k*h, which differ by rounding only. */
+#define TIME_TOLERANCE 1e-9
+
+static const char *state_name(FmuState state) {
+    switch (state) {
+    case STATE_INSTANTIATED: return "Instantiated";
+    case STATE_INITIALIZATION_MODE: return "InitializationMode";
+    case STATE_STEP_MODE: return "StepMode";
+    case STATE_TERMINATED: return "Terminated";
+    case STATE_ERROR: return "Error";
+    case STATE_FATAL: return "Fatal";
+    }
+    return "unknown";
+}
+
+static char *copy_string(const char *text) {
+    size_t n = strlen(text) + 1;
+    char *copy = malloc(n);
+    if (copy) memcpy(copy, text, n);
+    return copy;
+}
+
+void fmu_log_without_instance(FmuLogSink sink, FmuCallback logger, void *environment, const char *name,
+                              const char *message) {
+    FmuInstance stub;
+    if (!sink || !logger) return;
+    memset(&stub, 0, sizeof stub);
+    stub.name = (char *)(name ? name : "?");
+    stub.importer_logger = logger;
+    stub.importer_environment = environment;
+    sink(&stub, FMU_ERROR, "logStatusError", message);
+}
+
+void fmu_log(FmuInstance *instance, FmuStatus status, const char *category, const char *format, ...) {
+    va_list args;
+    if (!instance->log_sink || !instance->importer_logger) return;
+    if (status == FMU_OK && !(instance->logging_on && instance->log_events)) return;
+    va_start(args, format);
+    vsnprintf(instance->message, sizeof instance->message, format, args);
+    va_end(args);
+    instance->log_sink(instance, status, category, instance->message);
+}
+
+FmuStatus fmu_set_debug_logging(FmuInstance *instance, bool logging_on, size_t n_categories,
+                                const char *const categories[]) {
+    size_t i;
+    if (n_categories > 0 && !categories) {
+        fmu_log(instance, FMU_ERROR, "logStatusError", "SetDebugLogging: categories is NULL but nCategories = %zu",
+                n_categories);
+        return FMU_ERROR;
+    }
+    instance->logging_on = logging_on;
+    instance->log_events = n_categories == 0;
+    for (i = 0; i < n_categories; i++) {
+        if (!categories[i]) {
+            fmu_log(instance, FMU_ERROR, "logStatusError", "SetDebugLogging: category %zu is NULL", i);
+            return FMU_ERROR;
+        }
+        if (strcmp(categories[i], "logEvents") == 0) {
+            instance->log_events = true;
+        } else if (strcmp(categories[i], "logStatusWarning") != 0 && strcmp(categories[i], "logStatusError") != 0) {
+            fmu_log(instance, FMU_WARNING, "logStatusWarning",
+                    "SetDebugLogging: unknown log category '%s' (known: logEvents, logStatusWarning, logStatusError)",
+                    categories[i]);
+        }
+    }
+    return FMU_OK;
+}
+
+static void set_start_values(FmuInstance *instance) {
+    memset(&instance->v, 0, sizeof instance->v);
+    memset(&instance->internal, 0, sizeof instance->internal);
+    model_set_start_values(&instance->v);
+    instance->time = 0.0;
+    instance->start_time = 0.0;
+    instance->stop_time_defined = false;
+    instance->stop_time = 0.0;
+    instance->outputs_stale = true;
+}
+
+FmuInstance *fmu_create(const char *function, const char *name, const char *token, const char *resource_path,
+                        FmuLogSink sink, FmuCallback logger, void *environment, bool logging_on) {
+    FmuInstance *instance;
+    char message[512];
+    if (!name || name[0] == '\0') {
+        snprintf(message, sizeof message, "%s: instanceName must be a non-empty string", function);
+        fmu_log_without_instance(sink, logger, environment, "?", message);
+        return NULL;
+    }
+    if (!token || strcmp(token, INSTANTIATION_TOKEN) != 0) {
+        snprintf(message, sizeof message,
+                 "%s: wrong instantiation token/GUID '%.100s'; this FMU (%s) has '%s': the model description "
+                 "and the binary do not belong together",
+                 function, token ? token : "(null)", MODEL_IDENTIFIER_STRING, INSTANTIATION_TOKEN);
+        fmu_log_without_instance(sink, logger, environment, name, message);
+        return NULL;
+    }
+    instance = calloc(1, sizeof *instance);
+    if (!instance) return NULL;
+    instance->name = copy_string(name);
+    instance->resource_path = copy_string(resource_path ? resource_path : "");
+    if (!instance->name || !instance->resource_path) {
+        fmu_destroy(instance);
+        return NULL;
+    }
+    instance->log_sink = sink;
+    instance->importer_logger = logger;
+    instance->importer_environment = environment;
+    instance->logging_on = logging_on;
+    instance->log_events = true;
+    instance->state = STATE_INSTANTIATED;
+    set_start_values(instance);
+    fmu_log(instance, FMU_OK, "logEvents", "%s: instance '%s' of %s created", function, name,
+            MODEL_IDENTIFIER_STRING);
+    return instance;
+}
+
+void fmu_destroy(FmuInstance *instance) {
+    if (!instance) return;
+    model_free_internal(instance);
+    free(instance->name);
+    free(instance->resource_path);
+    free(instance);
+}
+
+FmuStatus fmu_reset(FmuInstance *instance) {
+    model_free_internal(instance);
+    set_start_values(instance);
+    instance->state = STATE_INSTANTIATED;
+    return FMU_OK;
+}
+
+FmuStatus fmu_check_state(FmuInstance *instance, const char *function, unsigned allowed_states) {
+    if (instance->state & allowed_states) return FMU_OK;
+    fmu_log(instance, FMU_ERROR, "logStatusError",
+            "%s: illegal call sequence: not allowed in state %s", function, state_name(instance->state));
+    return FMU_ERROR;
+}
+
+FmuStatus fmu_fail(FmuInstance *instance, FmuStatus status) {
+    if (status == FMU_ERROR) instance->state = STATE_ERROR;
+    if (status == FMU_FATAL) instance->state = STATE_FATAL;
+    return status;
+}
+
+FmuStatus fmu_check_arrays(FmuInstance *instance, const char *function, const unsigned int vr[], size_t n_vr,
+                           const void *values, size_t n_values) {
+    if (n_vr > 0 && !vr) {
+        fmu_log(instance, FMU_ERROR, "logStatusError", "%s: valueReferences is NULL but nValueReferences = %zu",
+                function, n_vr);
+        return FMU_ERROR;
+    }
+    if (n_values > 0 && !values) {
+        fmu_log(instance, FMU_ERROR, "logStatusError", "%s: values is NULL but nValues = %zu", function, n_values);
+        return FMU_ERROR;
+    }
+    if (n_values != n_vr) {
+        /* all variables are scalars: one value per value reference */
+        fmu_log(instance, FMU_ERROR, "logStatusError",
+                "%s: nValues = %zu but nValueReferences = %zu (all variables of %s are scalars)", function,
+                n_values, n_vr, MODEL_IDENTIFIER_STRING);
+        return FMU_ERROR;
+    }
+    return FMU_OK;
+}
+
+static const char *type_name(FmuType type) { return type == FMU_BOOLEAN ? "Boolean" : "Float64"; }
+
+static const char *causality_name(FmuCausality causality) {
+    switch (causality) {
+    case FMU_INDEPENDENT: return "independent";
+    case FMU_PARAMETER: return "parameter";
+    case FMU_INPUT: return "input";
+    case FMU_OUTPUT: return "output";
+    }
+    return "unknown";
+}
+
+static const FmuVariable *lookup(FmuInstance *instance, const char *function, unsigned int vr, FmuType type) {
+    const FmuVariable *variable;
+    if (vr >= N_MODEL_VARIABLES) {
+        fmu_log(instance, FMU_ERROR, "logStatusError",
+                "%s: unknown value reference %u (%s has value references 0..%d)", function, vr,
+                MODEL_IDENTIFIER_STRING, N_MODEL_VARIABLES - 1);
+        return NULL;
+    }
+    variable = &MODEL_VARIABLE_TABLE[vr];
+    if (variable->type != type) {
+        fmu_log(instance, FMU_ERROR, "logStatusError", "%s: variable '%s' (value reference %u) is %s, not %s",
+                function, variable->name, vr, type_name(variable->type), type_name(type));
+        return NULL;
+    }
+    return variable;
+}
+
+/* Which variables an importer may set in the instance's current state (FMI 2 and 3 agree here). */
+static FmuStatus check_settable(FmuInstance *instance, const char *function, const FmuVariable *variable) {
+    bool allowed;
+    switch (variable->causality) {
+    case FMU_PARAMETER:
+        allowed = variable->variability == FMU_TUNABLE
+                      ? true
+                      : (instance->state & (STATE_INSTANTIATED | STATE_INITIALIZATION_MODE)) != 0;
+        break;
+    case FMU_INPUT: allowed = true; break;
+    default: allowed = false; break;
+    }
+    if (allowed) return FMU_OK;
+    fmu_log(instance, FMU_ERROR, "logStatusError", "%s: variable '%s' (%s) cannot be set in state %s", function,
+            variable->name, causality_name(variable->causality), state_name(instance->state));
+    return FMU_ERROR;
+}
+
+static void refresh_outputs(FmuInstance *instance) {
+    if (instance->outputs_stale && instance->state != STATE_INSTANTIATED) {
+        model_update_outputs(instance);
+        instance->outputs_stale = false;
+    }
+}
+
+FmuStatus fmu_get_float64(FmuInstance *instance, const char *function, unsigned int vr, double *value) {
+    const FmuVariable *variable = lookup(instance, function, vr, FMU_FLOAT64);
+    if (!variable) return FMU_ERROR;
+    if (vr == VR_time) {
+        *value = instance->time;
+        return FMU_OK;
+    }
+    if (variable->causality == FMU_OUTPUT) refresh_outputs(instance);
+    memcpy(value, (const char *)&instance->v + variable->offset, sizeof *value);
+    return FMU_OK;
+}
+
+static FmuStatus check_range(FmuInstance *instance, const char *function, const FmuVariable *variable,
+                             double value) {
+    if (isnan(value) || isinf(value)) {
+        fmu_log(instance, FMU_ERROR, "logStatusError", "%s: variable '%s' set to %g: must be a finite number",
+                function, variable->name, value);
+        return FMU_ERROR;
+    }
+    if (value < variable->min || value > variable->max) {
+        fmu_log(instance, FMU_ERROR, "logStatusError",
+                "%s: variable '%s' = %.17g %s is out of its allowed range [%.17g, %.17g] %s", function,
+                variable->name, value, variable->unit, variable->min, variable->max, variable->unit);
+        return FMU_ERROR;
+    }
+    return FMU_OK;
+}
+
+FmuStatus fmu_set_float64(FmuInstance *instance, const char *function, unsigned int vr, double value) {
+    const FmuVariable *variable = lookup(instance, function, vr, FMU_FLOAT64);
+    if (!variable || check_settable(instance, function, variable) != FMU_OK) return FMU_ERROR;
+    if (check_range(instance, function, variable, value) != FMU_OK) return FMU_ERROR;
+    memcpy((char *)&instance->v + variable->offset, &value, sizeof value);
+    instance->outputs_stale = true;
+    return FMU_OK;
+}
+
+FmuStatus fmu_get_boolean(FmuInstance *instance, const char *function, unsigned int vr, bool *value) {
+    const FmuVariable *variable = lookup(instance, function, vr, FMU_BOOLEAN);
+    if (!variable) return FMU_ERROR;
+    if (variable->causality == FMU_OUTPUT) refresh_outputs(instance);
+    memcpy(value, (const char *)&instance->v + variable->offset, sizeof *value);
+    return FMU_OK;
+}
+
+FmuStatus fmu_set_boolean(FmuInstance *instance, const char *function, unsigned int vr, bool value) {
+    const FmuVariable *variable = lookup(instance, function, vr, FMU_BOOLEAN);
+    if (!variable || check_settable(instance, function, variable) != FMU_OK) return FMU_ERROR;
+    memcpy((char *)&instance->v + variable->offset, &value, sizeof value);
+    instance->outputs_stale = true;
+    return FMU_OK;
+}
+
+FmuStatus fmu_reject_type(FmuInstance *instance, const char *function, const char *type, size_t n_vr) {
+    if (n_vr == 0) return FMU_OK;
+    fmu_log(instance, FMU_ERROR, "logStatusError", "%s: %s has no variables of type %s", function,
+            MODEL_IDENTIFIER_STRING, type);
+    return FMU_ERROR;
+}
+
+FmuStatus fmu_enter_initialization(FmuInstance *instance, const char *function, double start_time,
+                                   bool stop_time_defined, double stop_time) {
+    if (!isfinite(start_time) || (stop_time_defined && (!isfinite(stop_time) || stop_time < start_time))) {
+        fmu_log(instance, FMU_ERROR, "logStatusError",
+                "%s: bad experiment: startTime = %g, stopTime = %g (must be finite, stopTime >= startTime)",
+                function, start_time, stop_time);
+        return FMU_ERROR;
+    }
+    instance->start_time = start_time;
+    instance->time = start_time;
+    instance->stop_time_defined = stop_time_defined;
+    instance->stop_time = stop_time;
+    instance->state = STATE_INITIALIZATION_MODE;
+    instance->outputs_stale = true;
+    return FMU_OK;
+}
+
+FmuStatus fmu_exit_initialization(FmuInstance *instance, const char *function) {
+    size_t i;
+    FmuStatus status;
+    /* Start values may have come from anywhere (an importer that never called set): check all. */
+    for (i = 0; i < N_MODEL_VARIABLES; i++) {
+        const FmuVariable *variable = &MODEL_VARIABLE_TABLE[i];
+        double value;
+        if (variable->type != FMU_FLOAT64 || (variable->causality != FMU_PARAMETER && variable->causality != FMU_INPUT))
+            continue;
+        memcpy(&value, (const char *)&instance->v + variable->offset, sizeof value);
+        if (check_range(instance, function, variable, value) != FMU_OK) return FMU_ERROR;
+    }
+    status = model_exit_initialization(instance);
+    if (status > FMU_WARNING) return status;
+    model_update_outputs(instance);
+    instance->outputs_stale = false;
+    instance->state = STATE_STEP_MODE;
+    fmu_log(instance, FMU_OK, "logEvents", "%s: initialized at t = %g s", function, instance->time);
+    return status;
+}
+
+FmuStatus fmu_do_step(FmuInstance *instance, const char *function, double current_time, double step_size) {
+    FmuStatus status;
+    double tolerance = TIME_TOLERANCE * fmax(1.0, fabs(instance->time));
+    if (!isfinite(step_size) || step_size <= 0.0) {
+        fmu_log(instance, FMU_ERROR, "logStatusError", "%s: communicationStepSize = %g s must be > 0 and finite",
+                function, step_size);
+        return FMU_ERROR;
+    }
+    if (!isfinite(current_time) || fabs(current_time - instance->time) > tolerance) {
+        fmu_log(instance, FMU_ERROR, "logStatusError",
+                "%s: currentCommunicationPoint = %.17g s does not match the instance time %.17g s", function,
+                current_time, instance->time);
+        return FMU_ERROR;
+    }
+    if (instance->stop_time_defined && current_time + step_size > instance->stop_time + tolerance) {
+        fmu_log(instance, FMU_ERROR, "logStatusError", "%s: step to t = %.17g s goes past stopTime = %.17g s",
+                function, current_time + step_size, instance->stop_time);
+        return FMU_ERROR;
+    }
+    status = model_do_step(instance, current_time, step_size);
+    if (status > FMU_WARNING) return status;
+    instance->time = current_time + step_size;
+    model_update_outputs(instance);
+    instance->outputs_stale = false;
+    return status;
+}
+
+FmuStatus fmu_terminate(FmuInstance *instance, const char *function) {
+    instance->state = STATE_TERMINATED;
+    fmu_log(instance, FMU_OK, "logEvents", "%s: terminated at t = %g s", function, instance->time);
+    return FMU_OK;
+}
+
+/* ---- FMU state snapshots ---- */
+
+#define SNAPSHOT_MAGIC 0x464d5553u /* "FMUS" */
+
+struct FmuSnapshot {
+    uint32_t magic;
+    uint32_t size;
+    char token[64];
+    FmuState state;
+    double time, start_time, stop_time;
+    bool stop_time_defined;
+    ModelVariables v;
+    ModelInternal internal;
+};
+
+FmuStatus fmu_get_state(FmuInstance *instance, const char *function, void **snapshot) {
+    FmuSnapshot *s;
+    if (!snapshot) {
+        fmu_log(instance, FMU_ERROR, "logStatusError", "%s: FMUstate pointer is NULL", function);
+        return FMU_ERROR;
+    }
+    s = *snapshot ? (FmuSnapshot *)*snapshot : calloc(1, sizeof *s);
+    if (!s) {
+        fmu_log(instance, FMU_ERROR, "logStatusError", "%s: out of memory", function);
+        return FMU_ERROR;
+    }
+    if (*snapshot && s->magic != SNAPSHOT_MAGIC) {
+        fmu_log(instance, FMU_ERROR, "logStatusError", "%s: FMUstate was not made by this FMU", function);
+        return FMU_ERROR;
+    }
+    memset(s, 0, sizeof *s);
+    s->magic = SNAPSHOT_MAGIC;
+    s->size = (uint32_t)sizeof *s;
+    snprintf(s->token, sizeof s->token, "%s", INSTANTIATION_TOKEN);
+    s->state = instance->state;
+    s->time = instance->time;
+    s->start_time = instance->start_time;
+    s->stop_time = instance->stop_time;
+    s->stop_time_defined = instance->stop_time_defined;
+    s->v = instance->v;
+    s->internal = instance->internal;
+    *snapshot = s;
+    return FMU_OK;
+}
+
+static FmuStatus check_snapshot(FmuInstance *instance, const char *function, const FmuSnapshot *s) {
+    if (!s) {
+        fmu_log(instance, FMU_ERROR, "logStatusError", "%s: FMUstate is NULL", function);
+        return FMU_ERROR;
+    }
+    if (s->magic != SNAPSHOT_MAGIC || s->size != sizeof *s || strcmp(s->token, INSTANTIATION_TOKEN) != 0) {
+        fmu_log(instance, FMU_ERROR, "logStatusError",
+                "%s: FMUstate was not made by this FMU (%s, token %s)", function, MODEL_IDENTIFIER_STRING,
+                INSTANTIATION_TOKEN);
+        return FMU_ERROR;
+    }
+    return FMU_OK;
+}
+
+FmuStatus fmu_set_state(FmuInstance *instance, const char *function, const void *snapshot) {
+    const FmuSnapshot *s = snapshot;
+    if (check_snapshot(instance, function, s) != FMU_OK) return FMU_ERROR;
+    instance->state = s->state;
+    instance->time = s->time;
+    instance->start_time = s->start_time;
+    instance->stop_time = s->stop_time;
+    instance->stop_time_defined = s->stop_time_defined;
+    instance->v = s->v;
+    instance->internal = s->internal;
+    instance->outputs_stale = true;
+    return FMU_OK;
+}
+
+FmuStatus fmu_free_state(FmuInstance *instance, const char *function, void **snapshot) {
+    (void)instance;
+    (void)function;
+    if (snapshot && *snapshot) {
+        free(*snapshot);
+        *snapshot = NULL;
+    }
+    return FMU_OK;
+}
+
+size_t fmu_serialized_state_size(void) { return sizeof(FmuSnapshot); }
+
+FmuStatus fmu_serialize_state(FmuInstance *instance, const char *function, const void *snapshot,
+                              unsigned char *bytes, size_t size) {
+    if (check_snapshot(instance, function, snapshot) != FMU_OK) return FMU_ERROR;
+    if (!bytes || size < sizeof(FmuSnapshot)) {
+        fmu_log(instance, FMU_ERROR, "logStatusError", "%s: buffer of %zu bytes is too small (need %zu)", function,
+                bytes ? size : 0, sizeof(FmuSnapshot));
+        return FMU_ERROR;
+    }
+    memcpy(bytes, snapshot, sizeof(FmuSnapshot));
+    return FMU_OK;
+}
+
+FmuStatus fmu_deserialize_state(FmuInstance *instance, const char *function, const unsigned char *bytes,
+                                size_t size, void **snapshot) {
+    FmuSnapshot *s;
+    if (!bytes || !snapshot || size != sizeof(FmuSnapshot)) {
+        fmu_log(instance, FMU_ERROR, "logStatusError",
+                "%s: serialized FMUstate has %zu bytes, expected %zu (or a NULL pointer was passed)", function, size,
+                sizeof(FmuSnapshot));
+        return FMU_ERROR;
+    }
+    s = malloc(sizeof *s);
+    if (!s) return FMU_ERROR;
+    memcpy(s, bytes, sizeof *s);
+    s->token[sizeof s->token - 1] = '\0';
+    if (check_snapshot(instance, function, s) != FMU_OK) {
+        free(s);
+        return FMU_ERROR;
+    }
+    if (*snapshot) free(*snapshot);
+    *snapshot = s;
+    return FMU_OK;
+}
+
+FmuStatus fmu_unsupported(FmuInstance *instance, const char *function, const char *why) {
+    fmu_log(instance, FMU_ERROR, "logStatusError", "%s: not supported by %s (%s)", function,
+            MODEL_IDENTIFIER_STRING, why);
+    return FMU_ERROR;
+}

@@ -1,0 +1,8 @@
+"""Model definitions: the single source of truth for every FMU's equations (see models.definition)."""
+from models.definition import ModelDefinition, Variable
+from models.mrr_estimator import MRR_ESTIMATOR
+from models.power import POWER
+
+MODELS: dict[str, ModelDefinition] = {m.identifier: m for m in (POWER, MRR_ESTIMATOR)}
+
+__all__ = ["MODELS", "ModelDefinition", "Variable", "POWER", "MRR_ESTIMATOR"]

@@ -1,0 +1,344 @@
+"""Generate an FMU's C equations, variable table and both model descriptions from its definition.
+
+Run by the CMake build (``python -m models.codegen SpindlePower build/generated/SpindlePower``).
+Writes into the output folder:
+
+- ``model_generated.h`` / ``model_generated.c``: value references, the ``ModelVariables`` struct,
+  the variable table the generic FMI wrapper uses for every get/set/range check, and
+  ``model_evaluate_equations`` (straight-line C translated instruction by instruction from
+  the casadi expression graph, so the FMU computes exactly what calibration fits);
+- ``fmi2/modelDescription.xml`` and ``fmi3/modelDescription.xml``.
+"""
+from __future__ import annotations
+
+import argparse
+import math
+import sys
+from pathlib import Path
+from xml.sax.saxutils import quoteattr
+
+import casadi as ca
+
+from models import MODELS
+from models.definition import ModelDefinition, Variable
+
+GENERATION_TOOL = "milling-twin models.codegen"
+
+# SI unit -> (base-unit exponents for <BaseUnit>, {display unit: factor}); display = factor * SI value.
+UNITS: dict[str, tuple[dict[str, int], dict[str, float]]] = {
+    "W": ({"kg": 1, "m": 2, "s": -3}, {"kW": 1e-3}),
+    "rad/s": ({"s": -1, "rad": 1}, {"rpm": 30.0 / math.pi}),
+    "W.s/rad": ({"kg": 1, "m": 2, "s": -2, "rad": -1}, {"W/rpm": math.pi / 30.0}),
+    "m3/s": ({"m": 3, "s": -1}, {"cm3/min": 6e7, "mm3/s": 1e9}),
+    "m": ({"m": 1}, {"mm": 1e3, "um": 1e6}),
+    "m/s": ({"m": 1, "s": -1}, {"mm/min": 6e4, "mm/s": 1e3}),
+    "s": ({"s": 1}, {"ms": 1e3}),
+}
+
+# casadi operation -> C expression template over operands {0}, {1}
+_BINARY = {
+    ca.OP_ADD: "{0} + {1}", ca.OP_SUB: "{0} - {1}", ca.OP_MUL: "{0} * {1}", ca.OP_DIV: "{0} / {1}",
+    ca.OP_POW: "pow({0}, {1})", ca.OP_CONSTPOW: "pow({0}, {1})", ca.OP_FMIN: "fmin({0}, {1})",
+    ca.OP_FMAX: "fmax({0}, {1})", ca.OP_ATAN2: "atan2({0}, {1})", ca.OP_LT: "(double)({0} < {1})",
+    ca.OP_LE: "(double)({0} <= {1})", ca.OP_EQ: "(double)({0} == {1})", ca.OP_NE: "(double)({0} != {1})",
+    ca.OP_AND: "(double)({0} != 0.0 && {1} != 0.0)", ca.OP_OR: "(double)({0} != 0.0 || {1} != 0.0)",
+    ca.OP_IF_ELSE_ZERO: "({0} != 0.0 ? {1} : 0.0)", ca.OP_HYPOT: "hypot({0}, {1})",
+    ca.OP_FMOD: "fmod({0}, {1})", ca.OP_COPYSIGN: "copysign({0}, {1})",
+}
+_UNARY = {
+    ca.OP_NEG: "-{0}", ca.OP_SQ: "{0} * {0}", ca.OP_TWICE: "2.0 * {0}", ca.OP_INV: "1.0 / {0}",
+    ca.OP_SQRT: "sqrt({0})", ca.OP_FABS: "fabs({0})", ca.OP_SIN: "sin({0})", ca.OP_COS: "cos({0})",
+    ca.OP_TAN: "tan({0})", ca.OP_EXP: "exp({0})", ca.OP_LOG: "log({0})", ca.OP_TANH: "tanh({0})",
+    ca.OP_ATAN: "atan({0})", ca.OP_ASIN: "asin({0})", ca.OP_ACOS: "acos({0})", ca.OP_SINH: "sinh({0})",
+    ca.OP_COSH: "cosh({0})", ca.OP_FLOOR: "floor({0})", ca.OP_CEIL: "ceil({0})", ca.OP_ERF: "erf({0})",
+    ca.OP_NOT: "(double)({0} == 0.0)", ca.OP_SIGN: "(double)(({0} > 0.0) - ({0} < 0.0))",
+    ca.OP_ASSIGN: "{0}",
+}
+
+
+def value_references(model: ModelDefinition) -> dict[str, int]:
+    """VR 0 is the independent variable ``time``; model variables follow in definition order."""
+    return {v.name: i + 1 for i, v in enumerate(model.variables)}
+
+
+def c_double(x: float) -> str:
+    if math.isinf(x):
+        return "INFINITY" if x > 0 else "-INFINITY"
+    return repr(float(x))
+
+
+def translate_equations(model: ModelDefinition) -> list[str]:
+    """C statements computing every output field of ``v`` from the argument fields of ``v``."""
+    function = model.function()
+    arguments = [v.name for v in model.arguments]
+    outputs = [v.name for v in model.of("output")]
+    lines: list[str] = []
+    for k in range(function.n_instructions()):
+        op = function.instruction_id(k)
+        ins = function.instruction_input(k)
+        outs = function.instruction_output(k)
+        if op == ca.OP_INPUT:
+            field = arguments[ins[0]]
+            lines.append(f"w[{outs[0]}] = {'(double)' if model.variable(field).type == 'Boolean' else ''}v->{field};")
+        elif op == ca.OP_OUTPUT:
+            field = outputs[outs[0]]
+            value = f"(w[{ins[0]}] != 0.0)" if model.variable(field).type == "Boolean" else f"w[{ins[0]}]"
+            lines.append(f"v->{field} = {value};")
+        elif op == ca.OP_CONST:
+            lines.append(f"w[{outs[0]}] = {c_double(function.instruction_constant(k))};")
+        elif op in _BINARY:
+            lines.append(f"w[{outs[0]}] = " + _BINARY[op].format(*(f"w[{i}]" for i in ins)) + ";")
+        elif op in _UNARY:
+            lines.append(f"w[{outs[0]}] = " + _UNARY[op].format(f"w[{ins[0]}]") + ";")
+        else:
+            raise ValueError(f"{model.identifier}: casadi operation {op} has no C translation")
+    return lines
+
+
+def _work_size(model: ModelDefinition) -> int:
+    return max(1, model.function().sz_w())
+
+
+def _c_type(v: Variable) -> str:
+    return "bool" if v.type == "Boolean" else "double"
+
+
+def generate_header(model: ModelDefinition) -> str:
+    vrs = value_references(model)
+    enum = "\n".join(f"    VR_{v.name} = {vrs[v.name]}," for v in model.variables)
+    fields = "\n".join(f"    {_c_type(v)} {v.name}; /* [{v.unit or '1'}] {v.description} */" for v in model.variables)
+    return f"""/* Generated by {GENERATION_TOOL} from models/ ({model.identifier}). Do not edit. */
+#ifndef MODEL_GENERATED_H
+#define MODEL_GENERATED_H
+
+#include <stdbool.h>
+#include "fmu_variables.h"
+
+#define MODEL_IDENTIFIER_STRING "{model.identifier}"
+#define INSTANTIATION_TOKEN "{model.instantiation_token()}"
+#define N_MODEL_VARIABLES {len(model.variables) + 1}
+
+enum {{
+    VR_time = 0,
+{enum}
+}};
+
+typedef struct {{
+{fields}
+}} ModelVariables;
+
+extern const FmuVariable MODEL_VARIABLE_TABLE[N_MODEL_VARIABLES];
+
+void model_set_start_values(ModelVariables *v);
+
+/* Outputs from parameters and inputs: the equations of models/, translated. */
+void model_evaluate_equations(ModelVariables *v);
+
+#endif
+"""
+
+
+def _table_row(model: ModelDefinition, v: Variable | None) -> str:
+    if v is None:
+        return ('    { VR_time, "time", FMU_FLOAT64, FMU_INDEPENDENT, FMU_CONTINUOUS, 0, '
+                '-INFINITY, INFINITY, "s" },')
+    lo = c_double(v.min if v.min is not None else -math.inf)
+    hi = c_double(v.max if v.max is not None else math.inf)
+    kind = "FMU_BOOLEAN" if v.type == "Boolean" else "FMU_FLOAT64"
+    return (f'    {{ VR_{v.name}, "{v.name}", {kind}, FMU_{v.causality.upper()}, '
+            f'FMU_{v.effective_variability.upper()}, offsetof(ModelVariables, {v.name}), '
+            f'{lo}, {hi}, "{v.unit}" }},')
+
+
+def generate_source(model: ModelDefinition) -> str:
+    rows = "\n".join(_table_row(model, v) for v in (None, *model.variables))
+    starts = "\n".join(
+        f"    v->{v.name} = {('true' if v.start else 'false') if v.type == 'Boolean' else c_double(v.start)};"
+        for v in model.variables if v.start is not None
+    )
+    outputs = "\n".join(f"    v->{v.name} = 0.0;" for v in model.of("output"))
+    body = "\n".join("    " + line for line in translate_equations(model))
+    return f"""/* Generated by {GENERATION_TOOL} from models/ ({model.identifier}). Do not edit. */
+#include <math.h>
+#include <stddef.h>
+#include "model_generated.h"
+
+const FmuVariable MODEL_VARIABLE_TABLE[N_MODEL_VARIABLES] = {{
+{rows}
+}};
+
+void model_set_start_values(ModelVariables *v) {{
+{starts}
+{outputs}
+}}
+
+void model_evaluate_equations(ModelVariables *v) {{
+    double w[{_work_size(model)}];
+{body}
+}}
+"""
+
+
+def _attr(name: str, value: object) -> str:
+    return f" {name}={quoteattr(str(value))}"
+
+
+def _number(x: float) -> str:
+    return repr(float(x))
+
+
+def _unit_definitions(model: ModelDefinition) -> str:
+    used = sorted({v.unit for v in model.variables if v.unit} | {"s"})  # "s": the time variable
+    unknown = [u for u in used if u not in UNITS]
+    if unknown:
+        raise ValueError(f"{model.identifier}: no unit definition for {unknown}")
+    parts = ["  <UnitDefinitions>"]
+    for unit in used:
+        base, displays = UNITS[unit]
+        parts.append(f"    <Unit{_attr('name', unit)}>")
+        parts.append("      <BaseUnit" + "".join(_attr(k, e) for k, e in base.items()) + "/>")
+        for name, factor in displays.items():
+            parts.append(f"      <DisplayUnit{_attr('name', name)}{_attr('factor', _number(factor))}/>")
+        parts.append("    </Unit>")
+    parts.append("  </UnitDefinitions>")
+    return "\n".join(parts)
+
+
+LOG_CATEGORIES = (
+    ("logEvents", "Initialization, parameter checks and other events"),
+    ("logStatusWarning", "Warnings"),
+    ("logStatusError", "Errors: illegal call sequences, bad arguments, rejected values"),
+)
+
+
+def _log_categories() -> str:
+    rows = "\n".join(f"    <Category{_attr('name', n)}{_attr('description', d)}/>" for n, d in LOG_CATEGORIES)
+    return f"  <LogCategories>\n{rows}\n  </LogCategories>"
+
+
+def _value_attrs(v: Variable, fmi: int) -> str:
+    out = ""
+    if v.type == "Float64":
+        if v.unit:
+            out += _attr("unit", v.unit)
+        if v.display_unit:
+            out += _attr("displayUnit", v.display_unit)
+        if v.min is not None:
+            out += _attr("min", _number(v.min))
+        if v.max is not None:
+            out += _attr("max", _number(v.max))
+    if v.start is not None:
+        start = ("true" if v.start else "false") if v.type == "Boolean" else _number(v.start)
+        out += _attr("start", start)
+    return out
+
+
+def _common_header(model: ModelDefinition, fmi: int) -> str:
+    token_attr = "instantiationToken" if fmi == 3 else "guid"
+    extra = "" if fmi == 3 else _attr("numberOfEventIndicators", 0)
+    return (f'<?xml version="1.0" encoding="UTF-8"?>\n<fmiModelDescription'
+            f'{_attr("fmiVersion", "3.0" if fmi == 3 else "2.0")}{_attr("modelName", model.identifier)}'
+            f'{_attr("description", model.description)}{_attr(token_attr, model.instantiation_token())}'
+            f'{_attr("generationTool", GENERATION_TOOL)}{_attr("variableNamingConvention", "flat")}{extra}>')
+
+
+def _default_experiment(model: ModelDefinition) -> str:
+    return (f"  <DefaultExperiment{_attr('startTime', '0.0')}{_attr('stopTime', _number(model.default_stop_time))}"
+            f"{_attr('stepSize', _number(model.default_step_size))}/>")
+
+
+def model_description_fmi3(model: ModelDefinition) -> str:
+    vrs = value_references(model)
+    variables = ['    <Float64 name="time" valueReference="0" causality="independent" variability="continuous"'
+                 ' unit="s" description="Simulation time"/>']
+    for v in model.variables:
+        initial = _attr("initial", "calculated") if v.causality == "output" else ""
+        variables.append(
+            f"    <{v.type}{_attr('name', v.name)}{_attr('valueReference', vrs[v.name])}"
+            f"{_attr('causality', v.causality)}{_attr('variability', v.effective_variability)}{initial}"
+            f"{_attr('description', v.description)}{_value_attrs(v, 3)}/>")
+    outputs = [f"    <Output{_attr('valueReference', vrs[v.name])}/>" for v in model.of("output")]
+    initial_unknowns = [f"    <InitialUnknown{_attr('valueReference', vrs[v.name])}/>" for v in model.of("output")]
+    return "\n".join([
+        _common_header(model, 3),
+        f"  <CoSimulation{_attr('modelIdentifier', model.identifier)}"
+        ' canHandleVariableCommunicationStepSize="true" canGetAndSetFMUState="true"'
+        ' canSerializeFMUState="true" canReturnEarlyAfterIntermediateUpdate="false"'
+        ' providesIntermediateUpdate="false" hasEventMode="false" needsExecutionTool="false"/>',
+        _unit_definitions(model), _log_categories(), _default_experiment(model),
+        "  <ModelVariables>", *variables, "  </ModelVariables>",
+        "  <ModelStructure>", *outputs, *initial_unknowns, "  </ModelStructure>",
+        "</fmiModelDescription>", ""])
+
+
+def build_description_fmi3(model: ModelDefinition, sources: list[str]) -> str:
+    files = "\n".join(f"      <SourceFile{_attr('name', name)}/>" for name in sources)
+    return "\n".join([
+        '<?xml version="1.0" encoding="UTF-8"?>',
+        '<fmiBuildDescription fmiVersion="3.0">',
+        f"  <BuildConfiguration{_attr('modelIdentifier', model.identifier)}>",
+        '    <SourceFileSet language="C99">', files, "    </SourceFileSet>",
+        "  </BuildConfiguration>", "</fmiBuildDescription>", ""])
+
+
+def model_description_fmi2(model: ModelDefinition, sources: list[str]) -> str:
+    vrs = value_references(model)
+    variables = ['    <ScalarVariable name="time" valueReference="0" causality="independent"'
+                 ' variability="continuous" description="Simulation time">\n      <Real unit="s"/>\n'
+                 '    </ScalarVariable>']
+    for v in model.variables:
+        element = "Real" if v.type == "Float64" else "Boolean"
+        initial = _attr("initial", "calculated") if v.causality == "output" else ""
+        variables.append(
+            f"    <ScalarVariable{_attr('name', v.name)}{_attr('valueReference', vrs[v.name])}"
+            f"{_attr('causality', v.causality)}{_attr('variability', v.effective_variability)}{initial}"
+            f"{_attr('description', v.description)}>\n      <{element}{_value_attrs(v, 2)}/>\n"
+            "    </ScalarVariable>")
+    index = {v.name: i + 2 for i, v in enumerate(model.variables)}  # 1-based; index 1 is time
+    unknowns = [f"      <Unknown{_attr('index', index[v.name])}/>" for v in model.of("output")]
+    files = [f"      <File{_attr('name', name)}/>" for name in sources]
+    return "\n".join([
+        _common_header(model, 2),
+        f"  <CoSimulation{_attr('modelIdentifier', model.identifier)}"
+        ' canHandleVariableCommunicationStepSize="true" canGetAndSetFMUstate="true"'
+        ' canSerializeFMUstate="true" canInterpolateInputs="false" canNotUseMemoryManagementFunctions="true">',
+        "    <SourceFiles>", *files, "    </SourceFiles>", "  </CoSimulation>",
+        _unit_definitions(model), _log_categories(), _default_experiment(model),
+        "  <ModelVariables>", *variables, "  </ModelVariables>",
+        "  <ModelStructure>", "    <Outputs>", *unknowns, "    </Outputs>",
+        "    <InitialUnknowns>", *unknowns, "    </InitialUnknowns>", "  </ModelStructure>",
+        "</fmiModelDescription>", ""])
+
+
+def write_if_changed(path: Path, text: str) -> None:
+    """Keep timestamps of unchanged files so the build does not recompile them."""
+    path.parent.mkdir(parents=True, exist_ok=True)
+    if not path.exists() or path.read_text() != text:
+        path.write_text(text)
+
+
+def generate(model: ModelDefinition, out_dir: Path, sources: list[str]) -> None:
+    """``sources``: the C files (names inside the FMU's sources/ folder) that build the binary."""
+    write_if_changed(out_dir / "model_generated.h", generate_header(model))
+    write_if_changed(out_dir / "model_generated.c", generate_source(model))
+    write_if_changed(out_dir / "fmi2" / "modelDescription.xml", model_description_fmi2(model, sources + ["fmi2_api.c"]))
+    write_if_changed(out_dir / "fmi3" / "modelDescription.xml", model_description_fmi3(model))
+    write_if_changed(out_dir / "fmi3" / "buildDescription.xml", build_description_fmi3(model, sources + ["fmi3_api.c"]))
+
+
+def main(argv: list[str] | None = None) -> int:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("model", help=f"model identifier, one of: {', '.join(MODELS)}")
+    parser.add_argument("out_dir", type=Path)
+    parser.add_argument("--sources", nargs="*", default=[],
+                        help="C files shared by both FMI versions (the FMI-version API file is added)")
+    args = parser.parse_args(argv)
+    if args.model not in MODELS:
+        print(f"error: unknown model '{args.model}'; known: {', '.join(MODELS)}", file=sys.stderr)
+        return 2
+    generate(MODELS[args.model], args.out_dir, ["model_generated.c", *args.sources])
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -1,0 +1,476 @@
+"""Loading and validating recorded machine data (CSV files).
+
+A recording is a CSV file with a header line and one row per sample.  The caller
+says which columns to use through :class:`ChannelSpec` objects; each becomes a
+channel of :class:`RecordedData`, converted to SI units (see
+:mod:`orchestrator.units`) or to booleans.
+
+Nothing is dropped, filled or guessed: every problem is a
+:class:`RecordedDataError` whose message names the file and, where it applies, the
+line (1-based line number in the file; the header is line 1, so the first data row
+is line 2) and the column.
+
+Time comes either from a column (``time_column``, converted from ``time_unit`` to
+seconds; it must be strictly increasing) or from a fixed ``sample_period`` in
+seconds (``time = row_index * sample_period``, starting at 0).
+
+Boolean channels:
+
+* ``ChannelSpec(..., above=x)``: ``True`` where the numeric column value (in the
+  channel's ``unit``, i.e. the unit of the file, *not* SI) is strictly greater
+  than ``x``.
+* ``ChannelSpec(..., match=regex)``: the column holds text; ``True`` where
+  ``re.search(regex, text)`` matches.  ``unit`` must be ``"bool"``.
+* ``ChannelSpec(..., unit="bool")`` without ``above``/``match``: the column holds
+  ``0``/``1`` or ``true``/``false`` (any case).
+"""
+
+from __future__ import annotations
+
+import csv
+import math
+import re
+from collections.abc import Sequence
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+import pandas as pd
+
+from orchestrator.units import UnitError, convert, parse_unit, si_unit_of
+
+__all__ = [
+    "ChannelSpec",
+    "RecordedData",
+    "RecordedDataError",
+    "load_recorded",
+]
+
+#: Cell texts that count as missing values (compared after stripping whitespace).
+_MISSING_TEXTS = frozenset({"", "nan", "na", "n/a", "null", "none", "-nan", "+nan"})
+_TRUE_TEXTS = frozenset({"1", "1.0", "true"})
+_FALSE_TEXTS = frozenset({"0", "0.0", "false"})
+_INTERPOLATIONS = ("linear", "hold")
+
+
+class RecordedDataError(ValueError):
+    """Invalid recorded data, an invalid request for it, or an invalid channel spec."""
+
+
+@dataclass(frozen=True)
+class ChannelSpec:
+    """One channel to load from a recording.
+
+    ``name``: channel name in :class:`RecordedData`; ``column``: header name in the
+    file; ``unit``: unit of the values in the file (a unit known to
+    :mod:`orchestrator.units`, or ``"bool"``).  At most one of ``above`` (numeric
+    threshold in ``unit``) and ``match`` (regular expression) may be set; either
+    makes the channel boolean.  The spec is checked by :func:`load_recorded`, so
+    that the error can name the file.
+    """
+
+    name: str
+    column: str
+    unit: str
+    above: float | None = None
+    match: str | None = None
+
+
+@dataclass
+class RecordedData:
+    """Recorded channels on a common time base.
+
+    ``time``: seconds, float64, strictly increasing, at least 2 samples.
+    ``channels``: float64 arrays in SI units, or bool arrays.
+    ``units``: SI unit string of each channel, or ``"bool"``.
+    """
+
+    path: Path
+    time: np.ndarray
+    channels: dict[str, np.ndarray]
+    units: dict[str, str] = field(default_factory=dict)
+
+    def __post_init__(self) -> None:
+        self.path = Path(self.path)
+        time = np.asarray(self.time, dtype=np.float64)
+        if time.ndim != 1 or time.size < 2:
+            raise RecordedDataError(
+                f"{self.path}: time must be a 1-D array with at least 2 samples, "
+                f"got shape {time.shape}"
+            )
+        if not np.all(np.isfinite(time)):
+            raise RecordedDataError(f"{self.path}: time contains non-finite values")
+        steps = np.diff(time)
+        if np.any(steps <= 0):
+            i = int(np.argmax(steps <= 0))
+            raise RecordedDataError(
+                f"{self.path}: time must be strictly increasing, but sample {i + 1} "
+                f"({float(time[i + 1])!r}) follows sample {i} ({float(time[i])!r})"
+            )
+        self.time = time
+        if set(self.units) != set(self.channels):
+            raise RecordedDataError(
+                f"{self.path}: units given for {sorted(self.units)} but channels are "
+                f"{sorted(self.channels)}"
+            )
+        for name, values in self.channels.items():
+            if values.shape != time.shape:
+                raise RecordedDataError(
+                    f"{self.path}: channel {name!r} has shape {values.shape}, "
+                    f"time has shape {time.shape}"
+                )
+            if (values.dtype == np.bool_) != (self.units[name] == "bool"):
+                raise RecordedDataError(
+                    f"{self.path}: channel {name!r} has dtype {values.dtype} but unit "
+                    f"{self.units[name]!r} (bool arrays need unit 'bool' and vice versa)"
+                )
+
+    @property
+    def t_start(self) -> float:
+        return float(self.time[0])
+
+    @property
+    def t_end(self) -> float:
+        return float(self.time[-1])
+
+    def at(
+        self, name: str, t: float | np.ndarray, interpolation: str = "linear"
+    ) -> float | bool | np.ndarray:
+        """Value of channel ``name`` at time(s) ``t`` (seconds).
+
+        ``interpolation``: ``"linear"`` or ``"hold"`` (zero-order hold: the sample at
+        or before ``t``).  Boolean channels always hold.  A scalar ``t`` gives a
+        ``float`` (or ``bool``), an array gives an array of the same shape.
+
+        ``t`` must lie in ``[t_start, t_end]``; a time beyond either end by at most
+        1e-9 of the recording's duration (floating-point round-off of a caller's
+        clock) is treated as that end.  Anything further out raises
+        :class:`RecordedDataError` naming the channel and the range.
+        """
+        if name not in self.channels:
+            raise RecordedDataError(
+                f"{self.path}: no channel {name!r}; channels: {sorted(self.channels)}"
+            )
+        if interpolation not in _INTERPOLATIONS:
+            raise RecordedDataError(
+                f"{self.path}: channel {name!r}: unknown interpolation "
+                f"{interpolation!r}, expected one of {list(_INTERPOLATIONS)}"
+            )
+        scalar = np.ndim(t) == 0
+        tt = np.asarray(t, dtype=np.float64)
+        t0, t1 = self.t_start, self.t_end
+        tol = 1e-9 * (t1 - t0)
+        bad = ~((tt >= t0 - tol) & (tt <= t1 + tol))  # also catches NaN
+        if np.any(bad):
+            first = float(tt[bad].flat[0])
+            raise RecordedDataError(
+                f"{self.path}: channel {name!r}: time {first!r} s is outside the "
+                f"recorded range [{t0!r}, {t1!r}] s"
+            )
+        tt = np.clip(tt, t0, t1)
+        values = self.channels[name]
+        if interpolation == "hold" or values.dtype == np.bool_:
+            idx = np.searchsorted(self.time, tt, side="right") - 1
+            result = values[np.clip(idx, 0, values.size - 1)]
+        else:
+            result = np.interp(tt, self.time, values)
+        if scalar:
+            item = np.asarray(result).item()
+            return bool(item) if values.dtype == np.bool_ else float(item)
+        return np.asarray(result)
+
+
+# --------------------------------------------------------------------------- loading
+
+
+def _where(path: Path, line: int | None = None, column: str | None = None) -> str:
+    parts = [str(path)]
+    if line is not None:
+        parts.append(f"line {line}")
+    if column is not None:
+        parts.append(f"column {column!r}")
+    return ", ".join(parts)
+
+
+def _check_specs(path: Path, channels: Sequence[ChannelSpec]) -> None:
+    seen: set[str] = set()
+    for spec in channels:
+        if not isinstance(spec, ChannelSpec):
+            raise RecordedDataError(
+                f"{path}: channels must be ChannelSpec objects, got {spec!r}"
+            )
+        where = f"{path}: channel {spec.name!r} (column {spec.column!r})"
+        if spec.name in seen:
+            raise RecordedDataError(f"{where}: duplicate channel name {spec.name!r}")
+        seen.add(spec.name)
+        try:
+            unit = parse_unit(spec.unit)
+        except UnitError as exc:
+            raise RecordedDataError(f"{where}: unit {spec.unit!r}: {exc}") from None
+        if spec.above is not None and spec.match is not None:
+            raise RecordedDataError(
+                f"{where}: set at most one of 'above' and 'match' "
+                f"(got above={spec.above!r}, match={spec.match!r})"
+            )
+        if spec.above is not None:
+            if unit.boolean:
+                raise RecordedDataError(
+                    f"{where}: 'above' needs a numeric unit, got unit 'bool'"
+                )
+            if not isinstance(spec.above, (int, float)) or not math.isfinite(spec.above):
+                raise RecordedDataError(
+                    f"{where}: 'above' must be a finite number, got {spec.above!r}"
+                )
+        if spec.match is not None:
+            if not unit.boolean:
+                raise RecordedDataError(
+                    f"{where}: a 'match' channel is boolean, its unit must be 'bool', "
+                    f"got {spec.unit!r}"
+                )
+            try:
+                re.compile(spec.match)
+            except re.error as exc:
+                raise RecordedDataError(
+                    f"{where}: invalid regular expression {spec.match!r}: {exc}"
+                ) from None
+
+
+@dataclass(frozen=True)
+class _Layout:
+    header: list[str]
+    row_lines: list[int]  # file line number at which each data row starts
+
+
+def _scan(path: Path) -> _Layout:
+    """Check the file's structure: exists, non-empty, header, field counts."""
+    if not path.exists():
+        raise RecordedDataError(f"{path}: file not found")
+    if not path.is_file():
+        raise RecordedDataError(f"{path}: not a regular file")
+    try:
+        with path.open("r", encoding="utf-8-sig", newline="") as fh:
+            text_start = fh.read(4096)
+            if not text_start.strip():
+                raise RecordedDataError(f"{path}: file is empty")
+            fh.seek(0)
+            reader = csv.reader(fh)
+            header: list[str] | None = None
+            row_lines: list[int] = []
+            previous_end = 0
+            for record in reader:
+                start = previous_end + 1
+                previous_end = reader.line_num
+                if header is None:
+                    header = record
+                    _check_header(path, header)
+                    continue
+                if len(record) != len(header):
+                    what = "blank line" if not record else f"{len(record)} fields"
+                    kind = "truncated line" if len(record) < len(header) else "too many fields"
+                    raise RecordedDataError(
+                        f"{_where(path, start)}: {kind}: {what}, but the header "
+                        f"(line 1) has {len(header)} fields"
+                    )
+                row_lines.append(start)
+    except UnicodeDecodeError as exc:
+        raise RecordedDataError(f"{path}: not a UTF-8 text file ({exc})") from None
+    except csv.Error as exc:
+        raise RecordedDataError(f"{_where(path, reader.line_num)}: {exc}") from None
+    if header is None:  # only whitespace beyond the first 4096 characters: unreachable
+        raise RecordedDataError(f"{path}: file is empty")
+    return _Layout(header=header, row_lines=row_lines)
+
+
+def _is_number(text: str) -> bool:
+    try:
+        float(text)
+    except ValueError:
+        return False
+    return True
+
+
+def _check_header(path: Path, header: list[str]) -> None:
+    cells = [c.strip() for c in header]
+    if not any(cells):
+        raise RecordedDataError(f"{_where(path, 1)}: header missing (line 1 is empty)")
+    if all(_is_number(c) for c in cells if c):
+        raise RecordedDataError(
+            f"{_where(path, 1)}: header missing: line 1 holds only numbers "
+            f"({', '.join(header[:5])}{', ...' if len(header) > 5 else ''})"
+        )
+
+
+def _column_index(path: Path, header: list[str], column: str, role: str) -> int:
+    hits = [i for i, name in enumerate(header) if name == column]
+    if not hits:
+        raise RecordedDataError(
+            f"{_where(path, 1, column)}: {role}: column not found in header; "
+            f"available columns: {', '.join(repr(h) for h in header)}"
+        )
+    if len(hits) > 1:
+        raise RecordedDataError(
+            f"{_where(path, 1, column)}: {role}: column appears {len(hits)} times in "
+            f"the header (fields {', '.join(str(i + 1) for i in hits)})"
+        )
+    return hits[0]
+
+
+def _missing_check(path: Path, column: str, texts: np.ndarray, lines: list[int]) -> None:
+    missing = np.array([t.strip().lower() in _MISSING_TEXTS for t in texts], dtype=bool)
+    if missing.any():
+        first = int(np.argmax(missing))
+        raise RecordedDataError(
+            f"{_where(path, lines[first], column)}: empty or NaN cell "
+            f"({texts[first]!r}); {int(missing.sum())} such cell(s) in this column"
+        )
+
+
+def _parse_numeric(path: Path, column: str, texts: np.ndarray, lines: list[int]) -> np.ndarray:
+    _missing_check(path, column, texts, lines)
+    stripped = pd.Series(texts, dtype=object).map(str.strip)
+    values = pd.to_numeric(stripped, errors="coerce").to_numpy(dtype=np.float64)
+    bad = ~np.isfinite(values)
+    if bad.any():
+        first = int(np.argmax(bad))
+        raise RecordedDataError(
+            f"{_where(path, lines[first], column)}: non-numeric or non-finite value "
+            f"{texts[first]!r}; {int(bad.sum())} such cell(s) in this column"
+        )
+    return values
+
+
+def _parse_bool(path: Path, column: str, texts: np.ndarray, lines: list[int]) -> np.ndarray:
+    _missing_check(path, column, texts, lines)
+    lowered = [t.strip().lower() for t in texts]
+    for i, t in enumerate(lowered):
+        if t not in _TRUE_TEXTS and t not in _FALSE_TEXTS:
+            raise RecordedDataError(
+                f"{_where(path, lines[i], column)}: value {texts[i]!r} is not a "
+                f"boolean (expected 0, 1, true or false)"
+            )
+    return np.array([t in _TRUE_TEXTS for t in lowered], dtype=bool)
+
+
+def load_recorded(
+    path: str | Path,
+    channels: Sequence[ChannelSpec],
+    *,
+    time_column: str | None = None,
+    time_unit: str = "s",
+    sample_period: float | None = None,
+) -> RecordedData:
+    """Load the requested channels of a CSV recording, validated and in SI units.
+
+    Exactly one of ``time_column`` (values in ``time_unit``) and ``sample_period``
+    (seconds) must be given.  Raises :class:`RecordedDataError` for any problem, with
+    the file, line and column in the message.
+    """
+    path = Path(path)
+    if (time_column is None) == (sample_period is None):
+        raise RecordedDataError(
+            f"{path}: give exactly one of time_column and sample_period "
+            f"(got time_column={time_column!r}, sample_period={sample_period!r})"
+        )
+    if sample_period is not None and (
+        isinstance(sample_period, bool)
+        or not isinstance(sample_period, (int, float))
+        or not math.isfinite(sample_period)
+        or sample_period <= 0
+    ):
+        raise RecordedDataError(
+            f"{path}: sample_period must be a positive finite number of seconds, "
+            f"got {sample_period!r}"
+        )
+    if time_column is not None:
+        try:
+            tunit = parse_unit(time_unit)
+        except UnitError as exc:
+            raise RecordedDataError(f"{path}: time_unit {time_unit!r}: {exc}") from None
+        if si_unit_of(time_unit) != "s" or tunit.boolean:
+            raise RecordedDataError(
+                f"{path}: time_unit {time_unit!r} is not a unit of time"
+            )
+    _check_specs(path, channels)
+
+    layout = _scan(path)
+    header = layout.header
+
+    needed: dict[str, int] = {}
+    if time_column is not None:
+        needed[time_column] = _column_index(path, header, time_column, "time column")
+    for spec in channels:
+        needed[spec.column] = _column_index(
+            path, header, spec.column, f"channel {spec.name!r}"
+        )
+
+    n_rows = len(layout.row_lines)
+    if n_rows < 2:
+        raise RecordedDataError(
+            f"{path}: fewer than 2 data rows (found {n_rows}); a recording needs at "
+            f"least 2 samples"
+        )
+
+    indices = sorted(set(needed.values()))
+    try:
+        frame = pd.read_csv(
+            path,
+            header=0,
+            usecols=indices,
+            dtype=str,
+            na_filter=False,
+            skip_blank_lines=False,
+            encoding="utf-8-sig",
+        )
+    except (ValueError, pd.errors.ParserError) as exc:  # ParserError is a ValueError
+        raise RecordedDataError(f"{path}: cannot be read as CSV: {exc}") from None
+    if len(frame) != n_rows or frame.shape[1] != len(indices):
+        raise RecordedDataError(  # defensive: pandas and csv disagree on the layout
+            f"{path}: pandas read {frame.shape[0]} rows x {frame.shape[1]} columns, "
+            f"expected {n_rows} x {len(indices)}; check quoting in the file"
+        )
+    texts = {
+        idx: frame.iloc[:, k].to_numpy(dtype=object) for k, idx in enumerate(indices)
+    }
+    lines = layout.row_lines
+
+    if time_column is not None:
+        raw = _parse_numeric(path, time_column, texts[needed[time_column]], lines)
+        time = np.asarray(convert(raw, time_unit, "s"), dtype=np.float64)
+        steps = np.diff(time)
+        if np.any(steps <= 0):
+            i = int(np.argmax(steps <= 0)) + 1
+            col_texts = texts[needed[time_column]]
+            raise RecordedDataError(
+                f"{_where(path, lines[i], time_column)}: time not strictly increasing: "
+                f"{col_texts[i].strip()!r} follows {col_texts[i - 1].strip()!r} "
+                f"(line {lines[i - 1]})"
+            )
+    else:
+        assert sample_period is not None
+        time = np.arange(n_rows, dtype=np.float64) * float(sample_period)
+
+    out: dict[str, np.ndarray] = {}
+    units: dict[str, str] = {}
+    for spec in channels:
+        col = texts[needed[spec.column]]
+        if spec.match is not None:
+            _missing_check(path, spec.column, col, lines)
+            pattern = re.compile(spec.match)
+            out[spec.name] = np.array(
+                [pattern.search(str(v)) is not None for v in col], dtype=bool
+            )
+            units[spec.name] = "bool"
+        elif spec.above is not None:
+            values = _parse_numeric(path, spec.column, col, lines)
+            out[spec.name] = values > spec.above
+            units[spec.name] = "bool"
+        elif parse_unit(spec.unit).boolean:
+            out[spec.name] = _parse_bool(path, spec.column, col, lines)
+            units[spec.name] = "bool"
+        else:
+            values = _parse_numeric(path, spec.column, col, lines)
+            si = si_unit_of(spec.unit)
+            out[spec.name] = np.asarray(convert(values, spec.unit, si), dtype=np.float64)
+            units[spec.name] = si
+
+    return RecordedData(path=path, time=time, channels=out, units=units)

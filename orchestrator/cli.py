@@ -1,0 +1,70 @@
+"""Command line: ``python -m orchestrator run SCENARIO [--fmu-dir DIR] [--out DIR] [--no-progress]``.
+
+Exit codes: 0 completed, 1 simulation failed, 2 invalid scenario or recorded data,
+130 interrupted (Ctrl-C).
+"""
+from __future__ import annotations
+
+import argparse
+import os
+import sys
+from pathlib import Path
+
+from orchestrator.master import RunResult, SimulationError, run
+from orchestrator.recorded import RecordedDataError
+from orchestrator.report import Report, write_report
+from orchestrator.scenario import ScenarioError, load_scenario
+from orchestrator.units import UnitError, conversion_factor
+
+FMU_DIR_ENV = "MILLING_TWIN_FMU_DIR"
+
+
+def _parser() -> argparse.ArgumentParser:
+    parser = argparse.ArgumentParser(prog="python -m orchestrator",
+                                     description="Co-simulate the milling digital twin's FMUs.")
+    sub = parser.add_subparsers(dest="command", required=True)
+    p = sub.add_parser("run", help="run a scenario file",
+                       description="Run a scenario: co-simulate, write results and the comparison report.")
+    p.add_argument("scenario", type=Path, help="scenario TOML file")
+    p.add_argument("--fmu-dir", type=Path, default=Path(os.environ.get(FMU_DIR_ENV, "build/fmus")),
+                   help=f"folder of the built FMUs (default: ${FMU_DIR_ENV} or build/fmus)")
+    p.add_argument("--out", type=Path, default=Path("runs"),
+                   help="results go to OUT/<scenario name>/ (default: runs)")
+    p.add_argument("--no-progress", action="store_true", help="no progress bar")
+    return parser
+
+
+def _summary(result: RunResult, report: Report | None) -> str:
+    lines = [f"{result.status}: {result.steps} steps to t = {result.end_time:g} s "
+             f"({result.fmu_steps} FMU steps) in {result.wall_time:.3g} s, "
+             f"{result.steps_per_second:,.0f} steps/s; {result.rows} rows"]
+    for c in report.comparisons if report else ():
+        s = 1.0 if c.unit == c.display_unit else conversion_factor(c.unit, c.display_unit)
+        rel = f"{100 * c.relative_rms:.1f} % of RMS recorded" if c.relative_rms is not None else "n/a"
+        lines.append(f"{c.simulated} vs {c.recorded} ({c.n_samples} samples): RMS error "
+                     f"{c.rms_error * s:.4g} {c.display_unit} ({rel}), mean |error| "
+                     f"{c.mean_abs_error * s:.4g}, max |error| {c.max_error * s:.4g}, "
+                     f"mean recorded {c.mean_recorded * s:.4g} {c.display_unit}")
+        lines.append(f"plot: {result.run_dir / c.plot}")
+    lines.append(f"results: {result.run_dir} (orchestrator.results.load_results)")
+    return "\n".join(lines)
+
+
+def main(argv: list[str] | None = None) -> int:
+    args = _parser().parse_args(argv)
+    try:
+        scenario = load_scenario(args.scenario, args.fmu_dir)
+    except (ScenarioError, RecordedDataError, UnitError) as exc:
+        print(f"error: {exc}", file=sys.stderr)
+        return 2
+    try:
+        result = run(scenario, args.out, progress=not args.no_progress)
+    except SimulationError as exc:
+        print(f"error: {exc}; results so far in {args.out / scenario.name}", file=sys.stderr)
+        return 1
+    except KeyboardInterrupt:
+        print(f"interrupted; results so far in {args.out / scenario.name}", file=sys.stderr)
+        return 130
+    report = write_report(scenario, result.run_dir) if scenario.compare and result.rows else None
+    print(_summary(result, report))
+    return 130 if result.status == "interrupted" else 0

@@ -1,0 +1,450 @@
+"""Fixed-grid Gauss-Seidel co-simulation master on fmpy.
+
+Semantics of :func:`run` (``base`` = the scenario's base step, ``t_k = start + k*base``):
+
+* Grid. The run covers ``n_out = floor((stop - start) / output_interval)`` output
+  intervals, i.e. ticks ``k = 0 .. N-1`` with ``N = n_out * ticks_per_output``; it
+  ends at ``t_N``, the last output time not after ``stop_time``. An instance with
+  ``step_size = m*base`` is due at the ticks ``k`` with ``k % m == 0`` and steps
+  ``doStep(t_k, t_{min(k+m, N)} - t_k)`` (so a slower instance's last step is cut
+  at ``t_N``, and ``t + h`` lands exactly on the next grid time).
+* Setup. Each instance is instantiated, its scenario parameters are set (still in
+  the Instantiated state, i.e. as start values before initialization), then all
+  enter Initialization Mode at ``start`` (FMI 2: ``setupExperiment`` first). In
+  execution order each instance's inputs are set from the values at ``start`` and
+  its outputs read, so later instances see them; then all exit Initialization
+  Mode. Inputs that nothing feeds keep their start values.
+* One tick at ``t_k``: first the outputs feeding ``delay = true`` connections are
+  copied (their values at the beginning of the tick). Then, in execution order,
+  every due instance gets its inputs set and steps:
+  recorded channels are sampled at ``t_k`` (``linear`` or ``hold``; booleans hold);
+  a non-delayed connection passes the source's latest output: sources precede
+  their targets, so a source due at ``t_k`` has already stepped to its next
+  communication point (Gauss-Seidel); a delayed connection passes the copy taken
+  at the beginning of the tick, i.e. the source's value at its previous
+  communication point. Unit factors are applied on the way. Outputs are read
+  right after the step only where connections need them.
+* Recording. The first row is at ``start`` after initialization; then one row
+  after each tick that reaches a multiple of ``output_interval``, holding every
+  recorded variable as left by its instance's latest step (for a slower instance:
+  the step covering that time).
+* Stopping. A doStep returning Discard/Error/Fatal raises :class:`SimulationError`
+  (instance, time, status) after the rows so far are written and ``run.json``
+  says ``failed: ...``. Ctrl-C (SIGINT, main thread only) or ``should_stop(t)``
+  returning True at an output row ends the run after the current tick with status
+  ``interrupted``; a second Ctrl-C raises ``KeyboardInterrupt`` at once (rows so far
+  are still written). An FMI 3 FMU asking to terminate ends the run as
+  ``terminated: ...``.
+"""
+from __future__ import annotations
+
+import ctypes
+import logging
+import math
+import shutil
+import signal
+import threading
+import time
+from collections import deque
+from collections.abc import Callable, Sequence
+from dataclasses import dataclass
+from functools import partial
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+from fmpy import extract
+from fmpy.fmi1 import FMICallException
+from fmpy.fmi2 import (FMU2Slave, defaultCallbacks, fmi2Boolean, fmi2CallbackFunctions,
+                       fmi2CallbackLoggerTYPE, fmi2Real, fmi2ValueReference)
+from fmpy.fmi3 import FMU3Slave, fmi3Boolean, fmi3Float64, fmi3ValueReference
+from fmpy.logging import addLoggerProxy
+from tqdm import tqdm
+
+from orchestrator.results import RunWriter, sha256_of
+from orchestrator.scenario import FmuInstance, Scenario
+
+__all__ = ["RunResult", "SimulationError", "run"]
+
+BLOCK_TICKS = 4096  # recorded inputs are sampled for this many ticks at a time
+_log = logging.getLogger(__name__)
+_STATUS = ["OK", "Warning", "Discard", "Error", "Fatal", "Pending"]
+
+
+class SimulationError(RuntimeError):
+    """An FMI call failed; names the instance, the time, the function and the FMI status."""
+
+    def __init__(self, instance: str, t: float, status: str, function: str = "doStep",
+                 messages: Sequence[str] = ()) -> None:
+        self.instance, self.time, self.status, self.function = instance, t, status, function
+        detail = f": {' / '.join(messages)}" if messages else ""
+        super().__init__(f"{function} of instance {instance!r} at t = {t!r} s returned {status}{detail}")
+
+    @classmethod
+    def from_call(cls, exc: FMICallException, instance: str, t: float,
+                  messages: Sequence[str]) -> "SimulationError":
+        status = _STATUS[exc.status] if 0 <= exc.status < len(_STATUS) else f"status {exc.status}"
+        return cls(instance, t, status, exc.function.removeprefix("fmi2").removeprefix("fmi3"), messages)
+
+
+@dataclass(frozen=True)
+class RunResult:
+    status: str  # "completed", "interrupted", "terminated: ..."
+    run_dir: Path
+    steps: int  # base-grid ticks done
+    fmu_steps: int  # doStep calls
+    rows: int
+    end_time: float
+    wall_time: float  # setup, stepping and writing
+    loop_wall_time: float  # stepping only
+    steps_per_second: float  # steps / loop_wall_time
+
+
+class _Slave:
+    """One FMU instance with its value-reference and value buffers built once."""
+
+    def __init__(self, inst: FmuInstance, unzip_dir: str, scenario: Scenario) -> None:
+        self.inst, self.name, self.m = inst, inst.name, inst.ticks_per_step
+        fmi3 = inst.fmi_version == 3
+        vr_t, real_t, bool_t = ((fmi3ValueReference, fmi3Float64, fmi3Boolean) if fmi3
+                                else (fmi2ValueReference, fmi2Real, fmi2Boolean))
+        cls = FMU3Slave if fmi3 else FMU2Slave
+        fmu = cls(guid=inst.instantiation_token, unzipDirectory=unzip_dir,
+                  modelIdentifier=inst.model_identifier, instanceName=inst.name)
+        self.fmu, self.fmi3 = fmu, fmi3
+        self.errors: deque[str] = deque(maxlen=3)  # the FMU's latest Discard/Error messages
+        if fmi3:
+            fmu.instantiate(logMessage=lambda env, status, category, message: self._log(status, message))
+        else:
+            # fmpy's native proxy formats the printf-style arguments before calling us
+            self._callbacks = fmi2CallbackFunctions()
+            self._callbacks.logger = fmi2CallbackLoggerTYPE(
+                lambda env, name, status, category, message: self._log(status, message))
+            self._callbacks.allocateMemory = defaultCallbacks.allocateMemory
+            self._callbacks.freeMemory = defaultCallbacks.freeMemory
+            addLoggerProxy(ctypes.byref(self._callbacks))
+            fmu.instantiate(callbacks=self._callbacks)
+
+        def vrs(names: list[str]) -> Any:
+            return (vr_t * len(names))(*(inst.variables[n].value_reference for n in names))
+
+        def is_real(name: str) -> bool:
+            return inst.variables[name].type == "real"
+
+        # Inputs: recorded channels first, then connections, per type.
+        mine = [i for i in scenario.inputs if i.target.instance == inst.name]
+        conns = [c for c in scenario.connections if c.target.instance == inst.name]
+        self.rec_real = [i for i in mine if is_real(i.target.variable)]
+        self.rec_bool = [i for i in mine if not is_real(i.target.variable)]
+        self.conn_real = [c for c in conns if is_real(c.target.variable)]
+        self.conn_bool = [c for c in conns if not is_real(c.target.variable)]
+        real_in = [x.target.variable for x in self.rec_real + self.conn_real]
+        bool_in = [x.target.variable for x in self.rec_bool + self.conn_bool]
+        # Outputs: what connections read and what is recorded.
+        wanted = [c.source.variable for c in scenario.connections if c.source.instance == inst.name]
+        self.feeds_connections = bool(wanted)
+        wanted += [r.variable for r in scenario.outputs if r.instance == inst.name]
+        wanted = list(dict.fromkeys(wanted))
+        real_out = [n for n in wanted if is_real(n)]
+        bool_out = [n for n in wanted if not is_real(n)]
+        self.out_index = {n: ("real", i) for i, n in enumerate(real_out)}
+        self.out_index.update({n: ("bool", i) for i, n in enumerate(bool_out)})
+
+        self.real_in, self.bool_in = (real_t * len(real_in))(), (bool_t * len(bool_in))()
+        self.real_out, self.bool_out = (real_t * len(real_out))(), (bool_t * len(bool_out))()
+        self.real_prev, self.bool_prev = (real_t * len(real_out))(), (bool_t * len(bool_out))()
+        self.n_rec_real, self.n_rec_bool = len(self.rec_real), len(self.rec_bool)
+        self.rec_real_rows: list = []
+        self.rec_bool_rows: list = []
+        self.conn_real_ops: list[tuple[int, Any, int, float]] = []  # filled by _wire
+        self.conn_bool_ops: list[tuple[int, Any, int]] = []
+
+        c = fmu.component
+        set_r, set_b, get_r, get_b = ((fmu.fmi3SetFloat64, fmu.fmi3SetBoolean, fmu.fmi3GetFloat64,
+                                       fmu.fmi3GetBoolean) if fmi3 else
+                                      (fmu.fmi2SetReal, fmu.fmi2SetBoolean, fmu.fmi2GetReal,
+                                       fmu.fmi2GetBoolean))
+        extra = (lambda n: (n,)) if fmi3 else (lambda n: ())  # FMI 3 repeats the value count
+        calls_in, calls_out = [], []
+        for fn, names, buf, calls in ((set_r, real_in, self.real_in, calls_in),
+                                      (set_b, bool_in, self.bool_in, calls_in),
+                                      (get_r, real_out, self.real_out, calls_out),
+                                      (get_b, bool_out, self.bool_out, calls_out)):
+            if names:
+                calls.append(partial(fn, c, vrs(names), len(names), buf, *extra(len(names))))
+        self._set_calls, self._get_calls = tuple(calls_in), tuple(calls_out)
+        if fmi3:
+            flags = [ctypes.c_bool() for _ in range(3)] + [fmi3Float64()]
+            refs = [ctypes.byref(f) for f in flags]
+            terminate = flags[1]
+
+            def do_step(t: float, h: float) -> bool:
+                fmu.fmi3DoStep(c, t, h, True, *refs)
+                return terminate.value
+        else:
+            def do_step(t: float, h: float) -> bool:
+                fmu.fmi2DoStep(c, t, h, True)
+                return False
+        self.do_step = do_step
+
+    def _log(self, status: int, message: bytes | None) -> None:
+        text = (message or b"").decode("utf-8", errors="replace").strip()
+        if status >= 2:
+            self.errors.append(text)
+        elif status == 1:
+            _log.warning("%s: %s", self.name, text)
+
+    def set_parameters(self) -> None:
+        params = self.inst.parameters
+        reals = [n for n in params if self.inst.variables[n].type == "real"]
+        bools = [n for n in params if n not in reals]
+        vr = lambda names: [self.inst.variables[n].value_reference for n in names]  # noqa: E731
+        if reals:
+            (self.fmu.setFloat64 if self.fmi3 else self.fmu.setReal)(vr(reals), [params[n] for n in reals])
+        if bools:
+            self.fmu.setBoolean(vr(bools), [params[n] for n in bools])
+
+    def set_inputs(self) -> None:
+        for call in self._set_calls:
+            call()
+
+    def get_outputs(self) -> None:
+        for call in self._get_calls:
+            call()
+
+    def snapshot(self) -> None:
+        ctypes.memmove(self.real_prev, self.real_out, ctypes.sizeof(self.real_out))
+        ctypes.memmove(self.bool_prev, self.bool_out, ctypes.sizeof(self.bool_out))
+
+    def load_block(self, scenario: Scenario, times: np.ndarray) -> None:
+        """Sample this instance's recorded inputs at ``times`` (one row per tick)."""
+        rec = scenario.recorded
+        if self.rec_real:
+            cols = [rec.at(i.channel, times, i.interpolation) * i.factor for i in self.rec_real]
+            self.rec_real_rows = np.column_stack(cols).tolist()
+        if self.rec_bool:
+            cols = [rec.at(i.channel, times, "hold") for i in self.rec_bool]
+            self.rec_bool_rows = np.column_stack(cols).tolist()
+
+    def free(self) -> None:
+        try:
+            self.fmu.terminate()
+        finally:
+            self.fmu.freeInstance()
+
+
+def _wire(slaves: dict[str, _Slave], scenario: Scenario) -> None:
+    """Give each slave its connection ops: (input position, source buffer, index[, factor])."""
+    for s in slaves.values():
+        for ops, conns, offset, real in ((s.conn_real_ops, s.conn_real, s.n_rec_real, True),
+                                         (s.conn_bool_ops, s.conn_bool, s.n_rec_bool, False)):
+            for pos, c in enumerate(conns, start=offset):
+                src = slaves[c.source.instance]
+                kind, j = src.out_index[c.source.variable]
+                buf = ((src.real_prev if c.delay else src.real_out) if real else
+                       (src.bool_prev if c.delay else src.bool_out))
+                ops.append((pos, buf, j, c.factor) if real else (pos, buf, j))
+
+
+def _feed(s: _Slave, row: int) -> None:
+    if s.n_rec_real:
+        s.real_in[: s.n_rec_real] = s.rec_real_rows[row]
+    if s.n_rec_bool:
+        s.bool_in[: s.n_rec_bool] = s.rec_bool_rows[row]
+    for pos, buf, j, factor in s.conn_real_ops:
+        s.real_in[pos] = buf[j] * factor
+    for pos, buf, j in s.conn_bool_ops:
+        s.bool_in[pos] = buf[j]
+    s.set_inputs()
+
+
+def _run_info(scenario: Scenario) -> dict[str, Any]:
+    rec = scenario.recorded
+    return {
+        "scenario": {"name": scenario.name, "path": str(scenario.path.resolve()),
+                     "sha256": sha256_of(scenario.path)},
+        "recorded": None if rec is None else {"path": str(rec.path.resolve()), "sha256": sha256_of(rec.path)},
+        "fmus": [{"instance": i.name, "path": str(i.path.resolve()), "sha256": sha256_of(i.path),
+                  "fmi_version": i.fmi_version, "model_identifier": i.model_identifier,
+                  "instantiation_token": i.instantiation_token, "step_size": i.step_size,
+                  "parameters": dict(i.parameters)} for i in scenario.instances],
+        "execution_order": list(scenario.execution_order),
+        "start_time": scenario.start_time, "stop_time": scenario.stop_time,
+        "output_interval": scenario.output_interval, "base_step": scenario.base_step,
+    }
+
+
+class _StopFlag:
+    """Set by the first Ctrl-C, which also restores the previous handler."""
+
+    def __init__(self) -> None:
+        self.set = False
+        self._previous: Any = None
+
+    def __enter__(self) -> "_StopFlag":
+        if threading.current_thread() is threading.main_thread():
+            # None: a handler not installed from Python; Python's default is the best stand-in
+            self._previous = signal.signal(signal.SIGINT, self._handle) or signal.default_int_handler
+        return self
+
+    def _handle(self, signum: int, frame: Any) -> None:
+        self.set = True
+        signal.signal(signal.SIGINT, self._previous)
+
+    def __exit__(self, *exc: object) -> None:
+        if self._previous is not None:
+            signal.signal(signal.SIGINT, self._previous)
+
+
+class _Run:
+    """The state of one run; ``run()`` is the public entry point."""
+
+    def __init__(self, scenario: Scenario, writer: RunWriter) -> None:
+        self.scenario, self.writer = scenario, writer
+        self.base, self.start = scenario.base_step, scenario.start_time
+        self.n_ticks = math.floor((scenario.stop_time - self.start) / scenario.output_interval
+                                  + 1e-9) * scenario.ticks_per_output
+        self.unzip_dirs: dict[Path, str] = {}
+        self.slaves: dict[str, _Slave] = {}
+        self.tick = 0
+        self.current = ""  # instance of the FMI call in progress, for error messages
+        self.t = self.start
+        self.status = "completed"
+        self.loop_wall = 0.0
+
+    def grid(self, k: Any) -> Any:
+        return self.start + k * self.base  # exact multiples: no drift over long runs
+
+    def setup(self) -> None:
+        scenario, start = self.scenario, self.start
+        for inst in scenario.instances:
+            self.current = inst.name
+            if inst.path not in self.unzip_dirs:
+                self.unzip_dirs[inst.path] = extract(str(inst.path))
+            self.slaves[inst.name] = _Slave(inst, self.unzip_dirs[inst.path], scenario)
+            self.slaves[inst.name].set_parameters()
+        _wire(self.slaves, scenario)
+        order = list(self.slaves.values())
+        for s in order:
+            self.current = s.name
+            if s.fmi3:
+                s.fmu.enterInitializationMode(startTime=start)
+            else:
+                s.fmu.setupExperiment(startTime=start)
+                s.fmu.enterInitializationMode()
+        for s in order:
+            self.current = s.name
+            s.load_block(scenario, np.array([start]))
+            _feed(s, 0)
+            s.get_outputs()
+        for s in order:
+            self.current = s.name
+            s.fmu.exitInitializationMode()
+            s.get_outputs()
+            s.snapshot()
+
+    def loop(self, stop: _StopFlag, bar: tqdm, should_stop: Callable[[float], bool] | None) -> None:
+        scenario, n_ticks, tpo, grid = self.scenario, self.n_ticks, self.scenario.ticks_per_output, self.grid
+        order = list(self.slaves.values())
+        delayed = [self.slaves[n] for n in dict.fromkeys(
+            c.source.instance for c in scenario.connections if c.delay)]
+        recorders = [s for s in order if s.out_index]
+        record = []
+        for r in scenario.outputs:
+            s = self.slaves[r.instance]
+            kind, j = s.out_index[r.variable]
+            record.append((s.real_out if kind == "real" else s.bool_out, j))
+        append = self.writer.append
+        append([self.start] + [buf[j] for buf, j in record])
+
+        tick = 0
+        try:
+            while tick < n_ticks and not stop.set:
+                row = tick % BLOCK_TICKS
+                if row == 0:
+                    bar.update(tick - bar.n)
+                    times = grid(np.arange(tick, min(tick + BLOCK_TICKS, n_ticks)))
+                    for s in order:
+                        s.load_block(scenario, times)
+                t = self.t = grid(tick)
+                for s in delayed:
+                    s.snapshot()
+                for s in order:
+                    if tick % s.m:
+                        continue
+                    self.current = s.name
+                    _feed(s, row)
+                    if s.do_step(t, grid(min(tick + s.m, n_ticks)) - t):
+                        self.status = f"terminated: instance {s.name!r} asked to terminate at t = {t!r} s"
+                        stop.set = True
+                    if s.feeds_connections:
+                        s.get_outputs()
+                tick += 1
+                if tick % tpo == 0:
+                    t = self.t = grid(tick)
+                    for s in recorders:
+                        self.current = s.name
+                        s.get_outputs()
+                    append([t] + [buf[j] for buf, j in record])
+                    if should_stop is not None and should_stop(t):
+                        stop.set = True
+        finally:
+            self.tick = tick
+            bar.update(tick - bar.n)
+        if stop.set and self.status == "completed":
+            self.status = "interrupted"
+
+    def close(self) -> None:
+        for s in self.slaves.values():
+            try:
+                s.free()
+            except Exception:  # a failed FMU may refuse to terminate; free the others anyway
+                pass
+        for d in self.unzip_dirs.values():
+            shutil.rmtree(d, ignore_errors=True)
+
+
+def run(scenario: Scenario, out_dir: str | Path, *, progress: bool = True,
+        should_stop: Callable[[float], bool] | None = None, flush_rows: int = 10_000,
+        flush_seconds: float = 1.0) -> RunResult:
+    """Co-simulate ``scenario``, writing results to ``out_dir/<scenario name>/``.
+
+    ``should_stop(t)`` is asked after each output row; True ends the run like Ctrl-C.
+    Raises :class:`SimulationError` when an FMI call fails (results so far are kept).
+    """
+    columns = ["time"] + [str(r) for r in scenario.outputs]
+    bools = [str(r) for r in scenario.outputs if scenario.variable(r).type == "bool"]
+    writer = RunWriter(Path(out_dir) / scenario.name, columns, bools, _run_info(scenario),
+                       flush_rows=flush_rows, flush_seconds=flush_seconds)
+    state = _Run(scenario, writer)
+    t0_wall = time.perf_counter()
+    wall = 0.0
+    try:
+        try:
+            state.setup()
+            with _StopFlag() as stop, tqdm(total=state.n_ticks, unit="step", unit_scale=True, delay=1.0,
+                                           disable=not progress, desc=scenario.name) as bar:
+                t0_loop = time.perf_counter()
+                try:
+                    state.loop(stop, bar, should_stop)
+                finally:
+                    state.loop_wall = time.perf_counter() - t0_loop
+        except FMICallException as exc:
+            slave = state.slaves.get(state.current)
+            raise SimulationError.from_call(exc, state.current, state.t,
+                                            list(slave.errors) if slave else []) from exc
+    except BaseException as exc:
+        state.status = "interrupted" if isinstance(exc, KeyboardInterrupt) else f"failed: {exc}"
+        raise
+    finally:
+        fmu_steps = sum(-(-state.tick // s.m) for s in state.slaves.values())
+        rate = state.tick / state.loop_wall if state.loop_wall > 0 else 0.0
+        wall = time.perf_counter() - t0_wall
+        try:
+            writer.finish(state.status, steps=state.tick, fmu_steps=fmu_steps,
+                          end_time=state.grid(state.tick), wall_time=wall,
+                          loop_wall_time=state.loop_wall, steps_per_second=rate)
+        finally:
+            state.close()
+    return RunResult(state.status, writer.run_dir, state.tick, fmu_steps, writer.rows_written,
+                     state.grid(state.tick), wall, state.loop_wall, rate)

@@ -1,0 +1,141 @@
+"""Simulated outputs against recorded channels: error figures, report.json and plots.
+
+For each ``[[compare]]`` pair the recorded channel is resampled (linear; booleans
+hold) onto the output times that lie inside the recording, converted to the unit of
+the simulated variable, and ``error = simulated - recorded`` gives:
+
+* ``rms_error`` = sqrt(mean(error^2)), ``mean_abs_error`` = mean(|error|),
+  ``max_error`` = max(|error|), ``mean_recorded`` = mean(recorded),
+  ``relative_rms`` = rms_error / sqrt(mean(recorded^2)) (None if the recording is all 0).
+
+Figures are in the simulated variable's unit in ``report.json`` and in the display
+unit (``[[compare]].unit``, else :func:`default_display_unit`) in the plot
+``compare_<instance>_<variable>.png``: recorded and simulated over time, and the error.
+"""
+from __future__ import annotations
+
+import json
+import math
+from dataclasses import asdict, dataclass
+from pathlib import Path
+
+import numpy as np
+import pandas as pd
+from matplotlib.figure import Figure  # no pyplot: no global figure state, Agg by default
+
+from orchestrator.results import load_results
+from orchestrator.scenario import Compare, Scenario
+from orchestrator.units import UnitError, conversion_factor
+
+__all__ = ["Comparison", "Report", "default_display_unit", "write_report"]
+
+#: Units people read more easily than the SI units the FMUs compute in.
+DISPLAY_UNITS = {"W": "kW", "m3/s": "cm3/min", "m/s": "mm/min", "rad/s": "rpm", "m": "mm"}
+
+
+def default_display_unit(unit: str) -> str:
+    return DISPLAY_UNITS.get(unit, unit)
+
+
+def _factor(from_unit: str, to_unit: str) -> float:
+    return 1.0 if from_unit == to_unit else conversion_factor(from_unit, to_unit)
+
+
+@dataclass(frozen=True)
+class Comparison:
+    simulated: str
+    recorded: str
+    unit: str  # of the figures below
+    display_unit: str  # of the plot
+    n_samples: int
+    rms_error: float
+    mean_abs_error: float
+    max_error: float
+    mean_recorded: float
+    relative_rms: float | None
+    plot: str  # file name in the run folder
+
+
+@dataclass(frozen=True)
+class Report:
+    path: Path  # report.json
+    comparisons: tuple[Comparison, ...]
+
+
+def _compare(scenario: Scenario, pair: Compare, results: pd.DataFrame, run_dir: Path) -> Comparison:
+    rec = scenario.recorded
+    assert rec is not None  # load_scenario guarantees [recorded] when there is a [[compare]]
+    var = scenario.variable(pair.simulated)
+    unit = var.unit
+    times = results["time"].to_numpy(dtype=float)
+    inside = (times >= rec.t_start) & (times <= rec.t_end)
+    t = times[inside]
+    simulated = results[str(pair.simulated)].to_numpy(dtype=float)[inside]
+    recorded = np.asarray(rec.at(pair.recorded, t), dtype=float) * _factor(rec.units[pair.recorded], unit)
+    error = simulated - recorded
+    n = int(t.size)
+    rms = float(np.sqrt(np.mean(error**2))) if n else math.nan
+    rms_recorded = float(np.sqrt(np.mean(recorded**2))) if n else 0.0
+    display = pair.display_unit or default_display_unit(unit)
+    try:
+        scale = _factor(unit, display)
+    except UnitError:  # only possible for a default display unit that does not fit
+        display, scale = unit, 1.0
+    comparison = Comparison(
+        simulated=str(pair.simulated), recorded=pair.recorded, unit=unit, display_unit=display,
+        n_samples=n, rms_error=rms,
+        mean_abs_error=float(np.mean(np.abs(error))) if n else math.nan,
+        max_error=float(np.max(np.abs(error))) if n else math.nan,
+        mean_recorded=float(np.mean(recorded)) if n else math.nan,
+        relative_rms=rms / rms_recorded if rms_recorded > 0 else None,
+        plot=f"compare_{pair.simulated.instance}_{pair.simulated.variable}.png",
+    )
+    _plot(run_dir / comparison.plot, comparison, t, simulated, recorded, scale, scenario.name)
+    return comparison
+
+
+def _plot(path: Path, c: Comparison, t: np.ndarray, simulated: np.ndarray, recorded: np.ndarray,
+          s: float, title: str) -> None:
+    """``s`` scales values from ``c.unit`` to ``c.display_unit``."""
+    fig = Figure(figsize=(10, 6), layout="constrained")
+    top, bottom = fig.subplots(2, 1, sharex=True, height_ratios=[3, 1])
+    simulated, recorded = simulated * s, recorded * s
+    top.plot(t, recorded, label=f"recorded: {c.recorded}", color="tab:gray", linewidth=1.0)
+    top.plot(t, simulated, label=f"simulated: {c.simulated}", color="tab:blue", linewidth=1.0)
+    top.set_ylabel(f"{c.simulated.split('.', 1)[1]} [{c.display_unit}]")
+    rel = f"{100 * c.relative_rms:.1f} %" if c.relative_rms is not None else "n/a"
+    top.set_title(f"{title}: {c.simulated} vs {c.recorded}\nRMS error {c.rms_error * s:.4g} "
+                  f"{c.display_unit} ({rel} of RMS recorded), mean |error| "
+                  f"{c.mean_abs_error * s:.4g}, max |error| {c.max_error * s:.4g} {c.display_unit}")
+    top.legend(loc="best")
+    top.grid(True, alpha=0.3)
+    bottom.plot(t, simulated - recorded, color="tab:red", linewidth=1.0)
+    bottom.axhline(0.0, color="black", linewidth=0.5)
+    bottom.set_ylabel(f"error [{c.display_unit}]")
+    bottom.set_xlabel("time [s]")
+    bottom.grid(True, alpha=0.3)
+    fig.savefig(path, dpi=100)
+
+
+def write_report(scenario: Scenario, run_dir: str | Path, results: pd.DataFrame | None = None) -> Report:
+    """Compare every ``[[compare]]`` pair of ``scenario`` with the results in ``run_dir``;
+    writes report.json and one PNG per pair there."""
+    run_dir = Path(run_dir)
+    results = load_results(run_dir) if results is None else results
+    comparisons = tuple(_compare(scenario, pair, results, run_dir) for pair in scenario.compare)
+    path = run_dir / "report.json"
+    doc = {"scenario": scenario.name, "comparisons": [asdict(c) for c in comparisons]}
+    tmp = path.with_name(".report.json.tmp")
+    tmp.write_text(json.dumps(_nan_to_none(doc), indent=2))
+    tmp.replace(path)
+    return Report(path, comparisons)
+
+
+def _nan_to_none(value: object) -> object:
+    if isinstance(value, float) and not math.isfinite(value):
+        return None
+    if isinstance(value, dict):
+        return {k: _nan_to_none(v) for k, v in value.items()}
+    if isinstance(value, list):
+        return [_nan_to_none(v) for v in value]
+    return value

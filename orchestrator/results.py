@@ -1,0 +1,143 @@
+"""Incremental results of a run, safe against the process dying at any moment.
+
+A run folder holds::
+
+    run.json                      provenance and status (see RunWriter)
+    chunks/chunk_000001.parquet   rows in time order, one file per flush
+    chunks/chunk_000002.parquet   ...
+
+Every file is written to a temporary name in its final folder and then renamed with
+``os.replace``, so a chunk or ``run.json`` is either complete or absent. Chunks are
+flushed every ``flush_rows`` rows, after ``flush_seconds`` of wall time since the last
+flush (checked when a row arrives), and at the end. ``load_results`` therefore reads a
+consistent prefix of the run even if it was killed (its ``run.json`` then still says
+``"running"``).
+"""
+from __future__ import annotations
+
+import datetime as _dt
+import hashlib
+import json
+import os
+import platform
+import time
+from collections.abc import Sequence
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import pandas as pd
+import pyarrow as pa
+import pyarrow.parquet as pq
+
+__all__ = ["RunWriter", "load_results", "read_run_info", "sha256_of", "software_versions"]
+
+CHUNK_DIR = "chunks"
+RUN_INFO = "run.json"
+
+
+def sha256_of(path: str | Path) -> str:
+    digest = hashlib.sha256()
+    with open(path, "rb") as fh:
+        for block in iter(lambda: fh.read(1 << 20), b""):
+            digest.update(block)
+    return digest.hexdigest()
+
+
+def software_versions() -> dict[str, str]:
+    import fmpy
+
+    return {"python": platform.python_version(), "fmpy": fmpy.__version__, "numpy": np.__version__,
+            "pandas": pd.__version__, "pyarrow": pa.__version__}
+
+
+def _now() -> str:
+    return _dt.datetime.now(_dt.timezone.utc).isoformat(timespec="milliseconds")
+
+
+def _replace_atomically(path: Path, write: Any) -> None:
+    tmp = path.with_name(f".{path.name}.tmp")
+    with open(tmp, "wb") as fh:
+        write(fh)
+        fh.flush()
+        os.fsync(fh.fileno())
+    os.replace(tmp, path)
+
+
+class RunWriter:
+    """Writes the rows of one run into ``run_dir`` (created; earlier results there are removed).
+
+    ``columns``: "time" first, then "instance.variable"; ``bool_columns``: those stored
+    as booleans. ``info``: provenance for ``run.json`` (scenario, FMUs, ...), to which
+    the writer adds versions, wall times, status, rows written and ``extra`` of
+    :meth:`finish`.
+    """
+
+    def __init__(self, run_dir: str | Path, columns: Sequence[str], bool_columns: Sequence[str] = (),
+                 info: dict[str, Any] | None = None, flush_rows: int = 10_000,
+                 flush_seconds: float = 1.0) -> None:
+        self.run_dir = Path(run_dir)
+        self.columns = list(columns)
+        self._bool = np.array([c in set(bool_columns) for c in self.columns])
+        self._buffer = np.empty((flush_rows, len(self.columns)))
+        self._fill = 0
+        self._flush_seconds = flush_seconds
+        self._last_flush = time.monotonic()
+        self.chunks = 0
+        self.rows_written = 0
+        chunk_dir = self.run_dir / CHUNK_DIR
+        chunk_dir.mkdir(parents=True, exist_ok=True)
+        for stale in [*chunk_dir.iterdir(), *self.run_dir.glob("compare_*.png"),
+                      self.run_dir / "report.json"]:
+            if stale.is_file():
+                stale.unlink()
+        self.info = {**(info or {}), "columns": self.columns, "bool_columns": list(bool_columns),
+                     "versions": software_versions(), "start_wall_time": _now(),
+                     "end_wall_time": None, "status": "running", "rows_written": 0}
+        self._write_info()
+
+    def append(self, row: Sequence[float]) -> None:
+        self._buffer[self._fill] = row
+        self._fill += 1
+        if self._fill == len(self._buffer) or time.monotonic() - self._last_flush >= self._flush_seconds:
+            self.flush()
+
+    def flush(self) -> None:
+        self._last_flush = time.monotonic()
+        if self._fill == 0:
+            return
+        block = self._buffer[: self._fill]
+        arrays = [pa.array(block[:, i].astype(bool) if self._bool[i] else block[:, i])
+                  for i in range(len(self.columns))]
+        table = pa.Table.from_arrays(arrays, names=self.columns)
+        self.chunks += 1
+        path = self.run_dir / CHUNK_DIR / f"chunk_{self.chunks:06d}.parquet"
+        _replace_atomically(path, lambda fh: pq.write_table(table, fh))
+        self.rows_written += self._fill
+        self._fill = 0
+
+    def finish(self, status: str, **extra: Any) -> None:
+        """Flush the remaining rows and record the final ``status`` and ``extra`` in run.json."""
+        self.flush()
+        self.info.update(extra, status=status, end_wall_time=_now())
+        self._write_info()
+
+    def _write_info(self) -> None:
+        self.info["rows_written"] = self.rows_written
+        text = json.dumps(self.info, indent=2, default=str).encode()
+        _replace_atomically(self.run_dir / RUN_INFO, lambda fh: fh.write(text))
+
+
+def read_run_info(run_dir: str | Path) -> dict[str, Any]:
+    return json.loads((Path(run_dir) / RUN_INFO).read_text())
+
+
+def load_results(run_dir: str | Path) -> pd.DataFrame:
+    """All chunks of a run in order: column ``time`` first, then "instance.variable"."""
+    run_dir = Path(run_dir)
+    chunks = sorted((run_dir / CHUNK_DIR).glob("chunk_*.parquet"),
+                    key=lambda p: int(p.stem.split("_")[1]))
+    if not chunks:
+        columns = read_run_info(run_dir)["columns"] if (run_dir / RUN_INFO).exists() else ["time"]
+        return pd.DataFrame({c: pd.Series(dtype=float) for c in columns})
+    return pa.concat_tables([pq.read_table(p) for p in chunks]).to_pandas()

@@ -1,0 +1,563 @@
+"""Scenario files: which FMUs to co-simulate, how they are fed and what is recorded.
+
+A scenario is a TOML file, parsed by :func:`load_scenario` into frozen dataclasses
+and validated against the FMUs' model descriptions and the recorded data. Every
+problem is a :class:`ScenarioError` whose message starts with the scenario file and
+the TOML key, e.g. ``scenarios/x.toml: [fmus.power].parameters.c9: unknown ...``.
+
+Format (all times in seconds; paths are relative to the scenario file's folder)::
+
+    [scenario]
+    name = "umich_power"        # letters, digits, "_", "-", "."; names the run folder
+    description = "..."         # optional
+    start_time = 0.0            # optional, default 0
+    stop_time = 100.0           # optional if [recorded] is given: default its last time
+    output_interval = 0.1       # outputs are recorded on this grid
+
+    [fmus.power]                # instance "power"; instances are listed in file order
+    fmu = "SpindlePower"        # <fmu_dir>/SpindlePower.fmu (fmi = 3) or
+                                # <fmu_dir>/SpindlePower_fmi2.fmu (fmi = 2);
+                                # a value ending in ".fmu" is a path instead
+    fmi = 3                     # 2 or 3, default 3
+    step_size = 0.01
+    [fmus.power.parameters]     # causality "parameter" only
+    P_standby = 0.0                       # plain number: the variable's own (SI) unit
+    P_idle = { value = 0.1, unit = "kW" } # converted by orchestrator.units
+
+    [recorded]                  # optional
+    file = "data/experiment_01.csv"
+    sample_period = 0.1         # or: time_column = "t", time_unit = "s"
+    [recorded.channels]         # unit: of the file's values (default "1"); above/match
+    spindle_speed = { column = "S1_ActualVelocity", unit = "rev/s" }   # make booleans,
+    cutting = { column = "Machining_Process", match = "^Layer" }       # see recorded.py
+    spindle_on = { column = "S1_ActualVelocity", unit = "rev/s", above = 1.0 }
+
+    [[inputs]]                  # recorded channel -> FMU input
+    from = "spindle_speed"
+    to = "power.spindle_speed"
+    interpolation = "linear"    # or "hold"; boolean channels always hold
+
+    [[connections]]             # FMU output -> FMU input
+    from = "mrr.mrr"
+    to = "power.mrr"
+    delay = false               # true: value of the previous communication point
+
+    [outputs]
+    record = ["power.P_total"]  # default: every output of every instance
+
+    [[compare]]                 # optional, for the report
+    simulated = "power.P_total"
+    recorded = "spindle_power"
+    unit = "kW"                 # optional display unit of the plot
+
+Rules checked here: every reference names an existing instance, variable or channel
+(candidates are listed otherwise); parameters are ``parameter`` variables and lie within
+the FMU's min/max; inputs and connections target ``input`` variables
+of type Real/Float64 or Boolean, each input at most once; units of connected
+variables (and of a channel and the input it feeds) have the same dimension, and
+the factor between them is applied by the master; booleans connect only to
+booleans. Step sizes are positive; the base step is their greatest common divisor
+(computed on the decimal values, to 1e-9 s) and must be at least 1/10000 of the
+largest step; ``output_interval`` must be a multiple of it. Connections with
+``delay = false`` must not form a cycle between instances (an algebraic loop; the
+check is per instance, not per variable dependency). The execution order is the
+topological order of instances along those connections, ties broken by file order.
+"""
+from __future__ import annotations
+
+import math
+import re
+import tomllib
+from collections.abc import Mapping, Sequence
+from dataclasses import dataclass, field
+from fractions import Fraction
+from pathlib import Path
+from typing import Any, NoReturn
+
+from fmpy import read_model_description
+
+from orchestrator.recorded import ChannelSpec, RecordedData, RecordedDataError, load_recorded
+from orchestrator.units import UnitError, conversion_factor
+
+__all__ = [
+    "Compare", "Connection", "FmuInstance", "Ref", "RecordedInput", "Scenario",
+    "ScenarioError", "Variable", "load_scenario",
+]
+
+MAX_STEP_RATIO = 10_000  # largest step / base step; beyond it steps are incommensurate
+_SUPPORTED_TYPES = {"Real": "real", "Float64": "real", "Boolean": "bool"}
+_NAME_RE = re.compile(r"^[A-Za-z0-9_.-]+$")
+
+
+class ScenarioError(ValueError):
+    """An invalid scenario; the message names the scenario file and the TOML key."""
+
+    def __init__(self, path: Path | str, key: str, message: str) -> None:
+        self.path, self.key, self.detail = Path(path), key, message
+        super().__init__(f"{path}: {key}: {message}" if key else f"{path}: {message}")
+
+
+@dataclass(frozen=True)
+class Variable:
+    """An FMU variable as far as the orchestrator cares. ``type``: "real", "bool" or
+    the FMI type name when unsupported; ``unit``: "" when undeclared, "bool" for booleans."""
+
+    name: str
+    value_reference: int
+    type: str
+    causality: str
+    variability: str
+    unit: str
+    min: float | None = None
+    max: float | None = None
+
+
+@dataclass(frozen=True)
+class Ref:
+    """``instance.variable``."""
+
+    instance: str
+    variable: str
+
+    def __str__(self) -> str:
+        return f"{self.instance}.{self.variable}"
+
+
+@dataclass(frozen=True)
+class FmuInstance:
+    name: str
+    path: Path
+    fmi_version: int
+    step_size: float
+    ticks_per_step: int  # step_size / base step
+    model_identifier: str
+    instantiation_token: str
+    parameters: Mapping[str, float | bool]  # SI values, by variable name
+    variables: Mapping[str, Variable] = field(repr=False, compare=False)
+
+
+@dataclass(frozen=True)
+class RecordedInput:
+    channel: str
+    target: Ref
+    interpolation: str
+    factor: float  # SI channel value * factor = value in the input's unit
+
+
+@dataclass(frozen=True)
+class Connection:
+    source: Ref
+    target: Ref
+    delay: bool
+    factor: float  # source value * factor = value in the target's unit
+
+
+@dataclass(frozen=True)
+class Compare:
+    simulated: Ref
+    recorded: str
+    display_unit: str | None
+
+
+@dataclass(frozen=True)
+class Scenario:
+    path: Path
+    name: str
+    description: str
+    start_time: float
+    stop_time: float
+    output_interval: float
+    base_step: float
+    ticks_per_output: int  # output_interval / base step
+    instances: tuple[FmuInstance, ...]  # in execution order
+    recorded: RecordedData | None = field(repr=False, compare=False)
+    inputs: tuple[RecordedInput, ...]
+    connections: tuple[Connection, ...]
+    outputs: tuple[Ref, ...]
+    compare: tuple[Compare, ...]
+
+    @property
+    def execution_order(self) -> tuple[str, ...]:
+        return tuple(inst.name for inst in self.instances)
+
+    def instance(self, name: str) -> FmuInstance:
+        return next(inst for inst in self.instances if inst.name == name)
+
+    def variable(self, ref: Ref) -> Variable:
+        return self.instance(ref.instance).variables[ref.variable]
+
+
+class _Ctx:
+    """Error reporting and typed access to TOML values, all naming file and key."""
+
+    def __init__(self, path: Path) -> None:
+        self.path = path
+
+    def fail(self, key: str, message: str) -> NoReturn:
+        raise ScenarioError(self.path, key, message)
+
+    def table(self, value: Any, key: str, allowed: Sequence[str]) -> dict[str, Any]:
+        if not isinstance(value, dict):
+            self.fail(key, f"expected a table, got {type(value).__name__} {value!r}")
+        for name in value:
+            if name not in allowed:
+                self.fail(f"{key}.{name}" if key else name,
+                          f"unknown key {name!r}; known keys: {', '.join(allowed)}")
+        return value
+
+    def number(self, table: dict, key: str, name: str, default: Any = ..., positive: bool = False) -> Any:
+        if name not in table:
+            if default is ...:
+                self.fail(f"{key}.{name}", "missing required key")
+            return default
+        value = table[name]
+        if isinstance(value, bool) or not isinstance(value, (int, float)) or not math.isfinite(value):
+            self.fail(f"{key}.{name}", f"expected a finite number, got {value!r}")
+        if positive and value <= 0:
+            self.fail(f"{key}.{name}", f"must be > 0, got {value!r}")
+        return float(value)
+
+    def string(self, table: dict, key: str, name: str, default: Any = ...) -> Any:
+        if name not in table:
+            if default is ...:
+                self.fail(f"{key}.{name}", "missing required key")
+            return default
+        if not isinstance(table[name], str):
+            self.fail(f"{key}.{name}", f"expected a string, got {table[name]!r}")
+        return table[name]
+
+
+def _factor(from_unit: str, to_unit: str) -> float:
+    # Identical strings need no table entry (e.g. "W.s/rad" is unknown to units.py).
+    return 1.0 if from_unit == to_unit else conversion_factor(from_unit, to_unit)
+
+
+def _variables(md: Any) -> dict[str, Variable]:
+    out = {}
+    for v in md.modelVariables:
+        unit = v.unit or (v.declaredType.unit if v.declaredType is not None else None) or ""
+        kind = _SUPPORTED_TYPES.get(v.type, v.type) if not v.dimensions else f"{v.type}[]"
+        bound = lambda x: float(x) if x is not None and kind == "real" else None  # noqa: E731
+        out[v.name] = Variable(v.name, v.valueReference, kind, v.causality, v.variability,
+                               "bool" if kind == "bool" else unit, bound(v.min), bound(v.max))
+    return out
+
+
+def _load_fmu(ctx: _Ctx, name: str, table: dict, fmu_dir: Path) -> tuple[dict, Path, Any]:
+    key = f"[fmus.{name}]"
+    ctx.table(table, key, ("fmu", "fmi", "step_size", "parameters"))
+    fmu = ctx.string(table, key, "fmu")
+    fmi = table.get("fmi", 3)
+    if fmi not in (2, 3) or isinstance(fmi, bool):
+        ctx.fail(f"{key}.fmi", f"must be 2 or 3, got {fmi!r}")
+    if fmu.endswith(".fmu"):
+        path = ctx.path.parent / fmu
+    else:
+        path = fmu_dir / (f"{fmu}.fmu" if fmi == 3 else f"{fmu}_fmi2.fmu")
+    if not path.is_file():
+        found = sorted(p.stem for p in fmu_dir.glob("*.fmu")) if fmu_dir.is_dir() else []
+        where = (f"available in {fmu_dir}: {', '.join(found)}" if found else
+                 f"{fmu_dir} holds no FMUs" if fmu_dir.is_dir() else
+                 f"{fmu_dir} does not exist (build the FMUs first)")
+        ctx.fail(f"{key}.fmu", f"FMU {fmu!r} not found: looked for {path}; {where}")
+    try:
+        md = read_model_description(str(path))
+    except Exception as exc:  # fmpy raises plain Exceptions for broken archives
+        ctx.fail(f"{key}.fmu", f"cannot read the model description of {path}: {exc}")
+    if not md.fmiVersion.startswith(f"{fmi}."):
+        ctx.fail(f"{key}.fmi", f"{path} is an FMI {md.fmiVersion} FMU, not FMI {fmi}")
+    if md.coSimulation is None:
+        ctx.fail(f"{key}.fmu", f"{path} does not support co-simulation")
+    return table, path, md
+
+
+def _parameters(ctx: _Ctx, inst: str, table: Any, variables: Mapping[str, Variable], model: str) -> dict:
+    key = f"[fmus.{inst}].parameters"
+    if not isinstance(table, dict):
+        ctx.fail(key, f"expected a table, got {table!r}")
+    known = [v.name for v in variables.values() if v.causality == "parameter"]
+    values: dict[str, float | bool] = {}
+    for name, raw in table.items():
+        k = f"{key}.{name}"
+        var = variables.get(name)
+        if var is None or var.causality != "parameter":
+            what = "unknown variable" if var is None else f"{var.causality} variable"
+            ctx.fail(k, f"{what} {name!r} in {model}; known parameters: {', '.join(known)}")
+        if var.type not in ("real", "bool"):
+            ctx.fail(k, f"parameter {name!r} has unsupported type {var.type}")
+        unit = None
+        if isinstance(raw, dict):
+            ctx.table(raw, k, ("value", "unit"))
+            unit = ctx.string(raw, k, "unit")
+            raw = raw.get("value")
+        if var.type == "bool":
+            if not isinstance(raw, bool) or unit not in (None, "bool"):
+                ctx.fail(k, f"{name!r} is Boolean: give true or false, got {raw!r}")
+            values[name] = raw
+            continue
+        if isinstance(raw, bool) or not isinstance(raw, (int, float)) or not math.isfinite(raw):
+            ctx.fail(k, f"expected a finite number, got {raw!r}")
+        try:
+            values[name] = value = float(raw) * (1.0 if unit is None else _factor(unit, var.unit))
+        except UnitError as exc:
+            ctx.fail(k, f"unit {unit!r} does not fit {name!r} (unit {var.unit!r}): {exc}")
+        if (var.min is not None and value < var.min) or (var.max is not None and value > var.max):
+            unit_text = f" {var.unit}" if var.unit else ""
+            ctx.fail(k, f"{value!r}{unit_text} is outside the range [{var.min!r}, {var.max!r}]"
+                        f"{unit_text} that {model} allows for {name!r}")
+    return values
+
+
+def _base_step(ctx: _Ctx, steps: dict[str, float]) -> tuple[float, dict[str, int]]:
+    """The gcd of the step sizes and each step as a multiple of it."""
+    # Rationals of the decimal values (to 1e-9 s), so that 0.1 and 0.3 give exactly 0.1.
+    fracs = {n: Fraction(repr(s)).limit_denominator(10**9) for n, s in steps.items()}
+    denominator = math.lcm(*(f.denominator for f in fracs.values()))
+    base = Fraction(math.gcd(*(int(f * denominator) for f in fracs.values())), denominator)
+    ratios = {n: int(f / base) for n, f in fracs.items()}
+    worst = max(ratios, key=ratios.__getitem__)
+    off_grid = any(abs(steps[n] / float(base) - r) > 1e-6 * r for n, r in ratios.items())
+    if off_grid or ratios[worst] > MAX_STEP_RATIO:
+        listing = ", ".join(f"{n}: {s!r}" for n, s in steps.items())
+        ctx.fail(f"[fmus.{worst}].step_size",
+                 f"step sizes ({listing}) are not integer multiples of a common base step of at "
+                 f"least 1/{MAX_STEP_RATIO} of the largest (their gcd is {float(base)!r} s)")
+    return float(base), ratios
+
+
+def _recorded(ctx: _Ctx, table: Any) -> RecordedData:
+    key = "[recorded]"
+    ctx.table(table, key, ("file", "sample_period", "time_column", "time_unit", "channels"))
+    file = ctx.path.parent / ctx.string(table, key, "file")
+    sample_period = ctx.number(table, key, "sample_period", None, positive=True)
+    time_column = ctx.string(table, key, "time_column", None)
+    time_unit = ctx.string(table, key, "time_unit", "s")
+    if (sample_period is None) == (time_column is None):
+        ctx.fail(key, "give exactly one of sample_period and time_column")
+    channels = table.get("channels", {})
+    if not isinstance(channels, dict):
+        ctx.fail("[recorded.channels]", f"expected a table, got {channels!r}")
+    specs = []
+    for name, spec in channels.items():
+        k = f"[recorded.channels].{name}"
+        ctx.table(spec, k, ("column", "unit", "above", "match"))
+        match = ctx.string(spec, k, "match", None)
+        specs.append(ChannelSpec(name, ctx.string(spec, k, "column"),
+                                 ctx.string(spec, k, "unit", "bool" if match else "1"),
+                                 above=ctx.number(spec, k, "above", None), match=match))
+    try:
+        data = load_recorded(file, specs, time_column=time_column, time_unit=time_unit,
+                             sample_period=sample_period)
+    except RecordedDataError as exc:
+        culprit = next((s.name for s in specs if f"channel {s.name!r}" in str(exc)), None)
+        ctx.fail(f"[recorded.channels].{culprit}" if culprit else
+                 "[recorded].time_column" if "time column" in str(exc) else "[recorded].file", str(exc))
+    return data
+
+
+def _resolve(ctx: _Ctx, key: str, text: Any, instances: Mapping[str, FmuInstance],
+             causality: str | None) -> tuple[Ref, Variable]:
+    """Look up "instance.variable"; ``causality`` None accepts any."""
+    if not isinstance(text, str) or "." not in text:
+        ctx.fail(key, f"expected \"instance.variable\", got {text!r}")
+    inst_name, var_name = text.split(".", 1)
+    inst = instances.get(inst_name)
+    if inst is None:
+        ctx.fail(key, f"unknown instance {inst_name!r}; instances: {', '.join(instances)}")
+    candidates = [v.name for v in inst.variables.values()
+                  if causality is None or v.causality == causality]
+    var = inst.variables.get(var_name)
+    what = f"{causality}s" if causality else "variables"
+    if var is None:
+        ctx.fail(key, f"unknown variable {var_name!r} in {inst_name} ({inst.model_identifier}); "
+                      f"known {what}: {', '.join(candidates)}")
+    if causality is not None and var.causality != causality:
+        ctx.fail(key, f"{text} is {_a(var.causality)}, not {_a(causality)}; {what} of {inst_name}: "
+                      f"{', '.join(candidates)}")
+    if var.type not in ("real", "bool"):
+        ctx.fail(key, f"{text} has unsupported type {var.type} (only Real/Float64 and Boolean)")
+    return Ref(inst_name, var_name), var
+
+
+def _a(word: str) -> str:
+    return f"an {word}" if word[0] in "aeiou" else f"a {word}"
+
+
+def _array(ctx: _Ctx, doc: dict, name: str, allowed: Sequence[str]) -> list[tuple[str, dict]]:
+    items = doc.get(name, [])
+    if not isinstance(items, list):
+        ctx.fail(f"[[{name}]]", "expected an array of tables ([[...]])")
+    return [(f"[[{name}]][{i}]", ctx.table(item, f"[[{name}]][{i}]", allowed))
+            for i, item in enumerate(items)]
+
+
+def _execution_order(ctx: _Ctx, names: list[str], conns: list[tuple[str, Connection]]) -> list[str]:
+    edges = [(key, c) for key, c in conns if not c.delay]
+    placed: list[str] = []
+    while len(placed) < len(names):
+        ready = [n for n in names if n not in placed and not any(
+            c.target.instance == n and c.source.instance not in placed for _, c in edges)]
+        if not ready:
+            _report_loop(ctx, [n for n in names if n not in placed], edges)
+        placed.append(ready[0])
+    return placed
+
+
+def _report_loop(ctx: _Ctx, remaining: list[str], edges: list[tuple[str, Connection]]) -> NoReturn:
+    # Every remaining instance has an incoming edge from another remaining one: walk
+    # backwards along them until an instance repeats; that stretch is a cycle.
+    path: list[tuple[str, Connection]] = []
+    node = remaining[0]
+    visited = [node]
+    while True:
+        key, conn = next((k, c) for k, c in edges
+                         if c.target.instance == node and c.source.instance in remaining)
+        path.append((key, conn))
+        node = conn.source.instance
+        if node in visited:
+            cycle = path[visited.index(node):][::-1]
+            break
+        visited.append(node)
+    listing = ", ".join(f"{c.source} -> {c.target} ({k})" for k, c in cycle)
+    ctx.fail(cycle[0][0], f"algebraic loop between instances through {listing}; set "
+                          f"delay = true on one of these connections to break it")
+
+
+def load_scenario(path: str | Path, fmu_dir: str | Path) -> Scenario:
+    """Parse and validate a scenario file; FMU names are resolved in ``fmu_dir``."""
+    path, fmu_dir = Path(path), Path(fmu_dir)
+    ctx = _Ctx(path)
+    try:
+        doc = tomllib.loads(path.read_text(encoding="utf-8"))
+    except FileNotFoundError:
+        ctx.fail("", "scenario file not found")
+    except (tomllib.TOMLDecodeError, UnicodeDecodeError) as exc:
+        ctx.fail("", f"invalid TOML: {exc}")
+    ctx.table(doc, "", ("scenario", "fmus", "recorded", "inputs", "connections", "outputs", "compare"))
+
+    sc = ctx.table(doc.get("scenario"), "[scenario]", (
+        "name", "description", "start_time", "stop_time", "output_interval"))
+    name = ctx.string(sc, "[scenario]", "name")
+    if not _NAME_RE.match(name):
+        ctx.fail("[scenario].name", f"{name!r}: use only letters, digits, '_', '-' and '.'")
+    start = ctx.number(sc, "[scenario]", "start_time", 0.0)
+    output_interval = ctx.number(sc, "[scenario]", "output_interval", positive=True)
+
+    fmus = doc.get("fmus")
+    if not isinstance(fmus, dict) or not fmus:
+        ctx.fail("[fmus]", "define at least one FMU instance as [fmus.<name>]")
+    loaded = {}
+    for inst in fmus:
+        if not _NAME_RE.match(inst) or "." in inst:
+            ctx.fail(f"[fmus.{inst}]", "instance names use only letters, digits, '_' and '-'")
+        table, fmu_path, md = _load_fmu(ctx, inst, fmus[inst], fmu_dir)
+        loaded[inst] = (table, fmu_path, md, ctx.number(table, f"[fmus.{inst}]", "step_size", positive=True))
+    base, ratios = _base_step(ctx, {n: v[3] for n, v in loaded.items()})
+    ticks_per_output = round(output_interval / base)
+    if ticks_per_output < 1 or abs(output_interval / base - ticks_per_output) > 1e-6 * ticks_per_output:
+        ctx.fail("[scenario].output_interval",
+                 f"{output_interval!r} s is not an integer multiple of the base step {base!r} s")
+    instances: dict[str, FmuInstance] = {}
+    for inst, (table, fmu_path, md, step) in loaded.items():
+        variables = _variables(md)
+        model = md.coSimulation.modelIdentifier
+        params = _parameters(ctx, inst, table.get("parameters", {}), variables, model)
+        instances[inst] = FmuInstance(inst, fmu_path, int(md.fmiVersion[0]), step, ratios[inst],
+                                      model, md.guid, params, variables)
+
+    recorded = _recorded(ctx, doc["recorded"]) if "recorded" in doc else None
+    if "stop_time" in sc:
+        stop = ctx.number(sc, "[scenario]", "stop_time")
+    elif recorded is not None:
+        stop = recorded.t_end
+    else:
+        ctx.fail("[scenario].stop_time", "missing required key (no [recorded] data to default to)")
+    if stop < start + output_interval:
+        ctx.fail("[scenario].stop_time", f"{stop!r} must be at least start_time + output_interval")
+
+    fed: dict[Ref, str] = {}
+
+    def feed(key: str, ref: Ref) -> None:
+        if ref in fed:
+            ctx.fail(f"{key}.to", f"input {ref} is already fed by {fed[ref]}")
+        fed[ref] = key
+
+    inputs = []
+    for key, item in _array(ctx, doc, "inputs", ("from", "to", "interpolation")):
+        channel = ctx.string(item, key, "from")
+        if recorded is None or channel not in recorded.channels:
+            known = ", ".join(recorded.channels) if recorded else "none (no [recorded] section)"
+            ctx.fail(f"{key}.from", f"unknown recorded channel {channel!r}; channels: {known}")
+        ref, var = _resolve(ctx, f"{key}.to", item.get("to"), instances, "input")
+        interpolation = ctx.string(item, key, "interpolation", "linear")
+        if interpolation not in ("linear", "hold"):
+            ctx.fail(f"{key}.interpolation", f"expected \"linear\" or \"hold\", got {interpolation!r}")
+        try:
+            factor = _factor(recorded.units[channel], var.unit)
+        except UnitError as exc:
+            ctx.fail(f"{key}.to", f"channel {channel!r} ({recorded.units[channel]}) cannot feed "
+                                  f"{ref} ({var.unit or 'no unit'}): {exc}")
+        feed(key, ref)
+        inputs.append(RecordedInput(channel, ref, interpolation, factor))
+    if inputs:
+        lo, hi = recorded.t_start, recorded.t_end
+        if start < lo - 1e-9 or stop > hi + 1e-9:
+            ctx.fail("[scenario].stop_time" if stop > hi else "[scenario].start_time",
+                     f"simulated time [{start!r}, {stop!r}] s exceeds the recorded data [{lo!r}, {hi!r}] s")
+
+    conns = []
+    for key, item in _array(ctx, doc, "connections", ("from", "to", "delay")):
+        src, svar = _resolve(ctx, f"{key}.from", item.get("from"), instances, "output")
+        dst, dvar = _resolve(ctx, f"{key}.to", item.get("to"), instances, "input")
+        delay = item.get("delay", False)
+        if not isinstance(delay, bool):
+            ctx.fail(f"{key}.delay", f"expected true or false, got {delay!r}")
+        try:
+            factor = _factor(svar.unit, dvar.unit)
+        except UnitError as exc:
+            ctx.fail(f"{key}.to", f"unit mismatch: {src} ({svar.unit or 'no unit'}) -> "
+                                  f"{dst} ({dvar.unit or 'no unit'}): {exc}")
+        feed(key, dst)
+        conns.append((key, Connection(src, dst, delay, factor)))
+
+    out_table = ctx.table(doc.get("outputs", {}), "[outputs]", ("record",))
+    if "record" in out_table:
+        names = out_table["record"]
+        if not isinstance(names, list):
+            ctx.fail("[outputs].record", "expected an array of \"instance.variable\" strings")
+        outputs = [_resolve(ctx, f"[outputs].record[{i}]", s, instances, None)[0]
+                   for i, s in enumerate(names)]
+    else:
+        outputs = [Ref(i.name, v.name) for i in instances.values()
+                   for v in i.variables.values() if v.causality == "output" and v.type in ("real", "bool")]
+
+    compares = []
+    for key, item in _array(ctx, doc, "compare", ("simulated", "recorded", "unit")):
+        ref, var = _resolve(ctx, f"{key}.simulated", item.get("simulated"), instances, None)
+        channel = ctx.string(item, key, "recorded")
+        if recorded is None or channel not in recorded.channels:
+            known = ", ".join(recorded.channels) if recorded else "none (no [recorded] section)"
+            ctx.fail(f"{key}.recorded", f"unknown recorded channel {channel!r}; channels: {known}")
+        display = ctx.string(item, key, "unit", None)
+        try:
+            _factor(recorded.units[channel], var.unit)
+        except UnitError as exc:
+            ctx.fail(f"{key}.recorded", f"cannot compare {ref} ({var.unit or 'no unit'}) with "
+                                        f"channel {channel!r} ({recorded.units[channel]}): {exc}")
+        try:
+            if display is not None:
+                _factor(var.unit, display)
+        except UnitError as exc:
+            ctx.fail(f"{key}.unit", f"display unit {display!r} does not fit {ref}: {exc}")
+        if ref not in outputs:
+            outputs.append(ref)
+        compares.append(Compare(ref, channel, display))
+
+    order = _execution_order(ctx, list(instances), conns)
+    return Scenario(
+        path=path, name=name, description=ctx.string(sc, "[scenario]", "description", ""),
+        start_time=start, stop_time=stop, output_interval=output_interval, base_step=base,
+        ticks_per_output=ticks_per_output, instances=tuple(instances[n] for n in order),
+        recorded=recorded, inputs=tuple(inputs), connections=tuple(c for _, c in conns),
+        outputs=tuple(dict.fromkeys(outputs)), compare=tuple(compares),
+    )

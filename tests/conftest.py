@@ -1,0 +1,175 @@
+"""Shared fixtures: the repository root, the built FMUs, and a small two-FMU scenario."""
+from __future__ import annotations
+
+import os
+from collections.abc import Callable
+from pathlib import Path
+
+import pytest
+
+REPO_ROOT = Path(__file__).resolve().parents[1]
+FMU_NAMES = ("SpindlePower", "MrrEstimator")
+
+# Five samples, 0.1 s apart. Speed in rev/s, feed in mm/s, recorded power in kW.
+CASE_CSV = """\
+speed,vx,vy,process,power
+0,0,0,Prep,0.1
+10,3,4,Layer 1 Up,0.38
+20,6,8,Layer 1 Up,0.47
+20,6,8,Repositioning,0.36
+0,0,0,End,0.1
+"""
+
+# "power" is listed before "mrr" on purpose: the execution order must still be mrr, power.
+CASE_TOML = """\
+[scenario]
+name = "case"
+output_interval = 0.1
+
+[fmus.power]
+fmu = "SpindlePower"
+fmi = 3
+step_size = 0.1
+[fmus.power.parameters]
+P_standby = 100.0
+P_idle = { value = 0.2, unit = "kW" }
+c1 = 0.5
+c2 = 1000.0
+c3 = 1.0
+
+[fmus.mrr]
+fmu = "MrrEstimator"
+fmi = 3
+step_size = 0.1
+[fmus.mrr.parameters]
+width_of_cut = { value = 5.0, unit = "mm" }
+depth_of_cut = { value = 2.0, unit = "mm" }
+
+[recorded]
+file = "data.csv"
+sample_period = 0.1
+[recorded.channels]
+speed = { column = "speed", unit = "rev/s" }
+spindle_on = { column = "speed", unit = "rev/s", above = 1.0 }
+vx = { column = "vx", unit = "mm/s" }
+vy = { column = "vy", unit = "mm/s" }
+cutting = { column = "process", match = "^Layer" }
+power = { column = "power", unit = "kW" }
+
+[[inputs]]
+from = "speed"
+to = "power.spindle_speed"
+interpolation = "hold"
+
+[[inputs]]
+from = "spindle_on"
+to = "power.spindle_on"
+
+[[inputs]]
+from = "vx"
+to = "mrr.feed_velocity_x"
+
+[[inputs]]
+from = "vy"
+to = "mrr.feed_velocity_y"
+
+[[inputs]]
+from = "cutting"
+to = "mrr.cutting"
+
+[[connections]]
+from = "mrr.mrr"
+to = "power.mrr"
+delay = false
+
+[outputs]
+record = ["power.P_total", "mrr.mrr", "power.spindle_on"]
+
+[[compare]]
+simulated = "power.P_total"
+recorded = "power"
+"""
+
+
+@pytest.fixture(scope="session")
+def repo_root() -> Path:
+    return REPO_ROOT
+
+
+@pytest.fixture(scope="session")
+def fmu_dir() -> Path:
+    """The built FMUs; missing ones fail the test (the test command builds first)."""
+    path = Path(os.environ.get("MILLING_TWIN_FMU_DIR", REPO_ROOT / "build" / "fmus"))
+    missing = [f"{n}{suffix}.fmu" for n in FMU_NAMES for suffix in ("", "_fmi2")
+               if not (path / f"{n}{suffix}.fmu").is_file()]
+    if missing:
+        pytest.fail(f"FMUs missing in {path}: {', '.join(missing)}; build them with "
+                    f"cmake -S {REPO_ROOT} -B {REPO_ROOT / 'build'} && cmake --build {REPO_ROOT / 'build'}")
+    return path
+
+
+@pytest.fixture
+def make_case(tmp_path: Path) -> Callable[..., Path]:
+    """Write the two-FMU case into tmp_path; ``edits`` are (old, new) text replacements
+    of the TOML (each must apply), ``csv`` replaces the data. Returns the TOML path."""
+
+    def make(*edits: tuple[str, str], csv: str = CASE_CSV, name: str = "case.toml") -> Path:
+        text = CASE_TOML
+        for old, new in edits:
+            assert old in text, f"edit does not apply: {old!r}"
+            text = text.replace(old, new, 1)
+        (tmp_path / "data.csv").write_text(csv)
+        path = tmp_path / name
+        path.write_text(text)
+        return path
+
+    return make
+
+
+LONG_TOML = """\
+[scenario]
+name = "long"
+stop_time = 100000.0
+output_interval = 0.01
+[fmus.power]
+fmu = "SpindlePower"
+step_size = 0.001
+[fmus.power.parameters]
+P_standby = 100.0
+P_idle = 200.0
+[outputs]
+record = ["power.P_total", "power.spindle_on"]
+"""
+# Inputs keep their start values (speed 0, mrr 0, spindle on): P_total = 100 + 200 W.
+LONG_P_TOTAL = 300.0
+
+
+@pytest.fixture
+def long_run(tmp_path: Path, fmu_dir: Path):
+    """Start the CLI on a run of ~10 minutes in a subprocess; yields (process, run folder)
+    once the first chunk is on disk. The process is killed at teardown if still alive."""
+    import subprocess
+    import sys
+    import time
+
+    scenario = tmp_path / "long.toml"
+    scenario.write_text(LONG_TOML)
+    out = tmp_path / "runs"
+    # TMPDIR: a killed run cannot remove its extracted FMUs; keep them in pytest's tmp_path
+    proc = subprocess.Popen(
+        [sys.executable, "-m", "orchestrator", "run", str(scenario), "--fmu-dir", str(fmu_dir),
+         "--out", str(out), "--no-progress"],
+        cwd=REPO_ROOT, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
+        env={**os.environ, "TMPDIR": str(tmp_path)})
+    run_dir = out / "long"
+    deadline = time.monotonic() + 60
+    try:
+        while not list((run_dir / "chunks").glob("chunk_*.parquet")):
+            assert proc.poll() is None, f"run ended early: {proc.communicate()}"
+            assert time.monotonic() < deadline, "no chunk within 60 s"
+            time.sleep(0.05)
+        yield proc, run_dir
+    finally:
+        if proc.poll() is None:
+            proc.kill()
+        proc.communicate()

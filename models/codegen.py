@@ -21,18 +21,19 @@ import casadi as ca
 
 from models import MODELS
 from models.definition import ModelDefinition, Variable
+from models.units import BASE_DIMENSIONS, parse_unit, si_unit_of
 
 GENERATION_TOOL = "milling-twin models.codegen"
 
-# SI unit -> (base-unit exponents for <BaseUnit>, {display unit: factor}); display = factor * SI value.
-UNITS: dict[str, tuple[dict[str, int], dict[str, float]]] = {
-    "W": ({"kg": 1, "m": 2, "s": -3}, {"kW": 1e-3}),
-    "rad/s": ({"s": -1, "rad": 1}, {"rpm": 30.0 / math.pi}),
-    "W.s/rad": ({"kg": 1, "m": 2, "s": -2, "rad": -1}, {"W/rpm": math.pi / 30.0}),
-    "m3/s": ({"m": 3, "s": -1}, {"cm3/min": 6e7, "mm3/s": 1e9}),
-    "m": ({"m": 1}, {"mm": 1e3, "um": 1e6}),
-    "m/s": ({"m": 1, "s": -1}, {"mm/min": 6e4, "mm/s": 1e3}),
-    "s": ({"s": 1}, {"ms": 1e3}),
+# SI unit -> the display units its model-description <Unit> offers (dimensions and factors: models.units).
+DISPLAY_UNITS: dict[str, tuple[str, ...]] = {
+    "W": ("kW",),
+    "rad/s": ("rpm",),
+    "W.s/rad": ("W/rpm",),
+    "m3/s": ("cm3/min", "mm3/s"),
+    "m": ("mm", "um"),
+    "m/s": ("mm/min", "mm/s"),
+    "s": ("ms",),
 }
 
 # casadi operation -> C expression template over operands {0}, {1}
@@ -189,16 +190,18 @@ def _number(x: float) -> str:
 
 def _unit_definitions(model: ModelDefinition) -> str:
     used = sorted({v.unit for v in model.variables if v.unit} | {"s"})  # "s": the time variable
-    unknown = [u for u in used if u not in UNITS]
-    if unknown:
-        raise ValueError(f"{model.identifier}: no unit definition for {unknown}")
     parts = ["  <UnitDefinitions>"]
     for unit in used:
-        base, displays = UNITS[unit]
+        si = parse_unit(unit)
+        if si.factor != 1.0 or si_unit_of(unit) != unit:
+            raise ValueError(f"{model.identifier}: unit '{unit}' is not the SI unit of its dimension")
+        base = {name: e for name, e in zip(BASE_DIMENSIONS, si.dimensions) if e != 0}
+        displays = [v.display_unit for v in model.variables if v.unit == unit and v.display_unit]
         parts.append(f"    <Unit{_attr('name', unit)}>")
         parts.append("      <BaseUnit" + "".join(_attr(k, e) for k, e in base.items()) + "/>")
-        for name, factor in displays.items():
-            parts.append(f"      <DisplayUnit{_attr('name', name)}{_attr('factor', _number(factor))}/>")
+        for name in dict.fromkeys([*displays, *DISPLAY_UNITS.get(unit, ())]):
+            # FMI: display value = factor * value; models.units: SI value = factor * display value
+            parts.append(f"      <DisplayUnit{_attr('name', name)}{_attr('factor', _number(float(f'{1.0 / parse_unit(name).factor:.15g}')))}/>")
         parts.append("    </Unit>")
     parts.append("  </UnitDefinitions>")
     return "\n".join(parts)

@@ -14,7 +14,7 @@ from orchestrator.master import RunResult, SimulationError, run
 from orchestrator.recorded import RecordedDataError
 from orchestrator.report import Report, write_report
 from orchestrator.scenario import ScenarioError, load_scenario
-from orchestrator.units import UnitError, conversion_factor
+from models.units import UnitError, conversion_factor
 
 FMU_DIR_ENV = "MILLING_TWIN_FMU_DIR"
 

@@ -25,7 +25,7 @@ from matplotlib.figure import Figure  # no pyplot: no global figure state, Agg b
 
 from orchestrator.results import load_results
 from orchestrator.scenario import Compare, Scenario
-from orchestrator.units import UnitError, conversion_factor
+from models.units import UnitError, conversion_factor
 
 __all__ = ["Comparison", "Report", "default_display_unit", "write_report"]
 

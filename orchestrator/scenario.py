@@ -22,7 +22,7 @@ Format (all times in seconds; paths are relative to the scenario file's folder):
     step_size = 0.01
     [fmus.power.parameters]     # causality "parameter" only
     P_standby = 0.0                       # plain number: the variable's own (SI) unit
-    P_idle = { value = 0.1, unit = "kW" } # converted by orchestrator.units
+    P_idle = { value = 0.1, unit = "kW" } # converted by models.units
 
     [recorded]                  # optional
     file = "data/experiment_01.csv"
@@ -77,7 +77,7 @@ from typing import Any, NoReturn
 from fmpy import read_model_description
 
 from orchestrator.recorded import ChannelSpec, RecordedData, RecordedDataError, load_recorded
-from orchestrator.units import UnitError, conversion_factor
+from models.units import UnitError, conversion_factor
 
 __all__ = [
     "Compare", "Connection", "FmuInstance", "Ref", "RecordedInput", "Scenario",

@@ -1,4 +1,4 @@
-"""Tests for orchestrator.units."""
+"""Tests for models.units."""
 
 from __future__ import annotations
 
@@ -8,7 +8,7 @@ import math
 import numpy as np
 import pytest
 
-from orchestrator.units import (
+from models.units import (
     UNITS,
     Unit,
     UnitError,

@@ -240,6 +240,18 @@ FmuStatus fmu_get_float64(FmuInstance *instance, const char *function, unsigned 
     return FMU_OK;
 }
 
+/* The shortest of %.15g..%.17g that reads back as `value`: the range [0.1, 3] of the model
+ * description is reported as written there, not as [0.10000000000000001, 3]. */
+static const char *format_number(char buffer[32], double value) {
+    int precision;
+    for (precision = 15; precision < 17; precision++) {
+        snprintf(buffer, 32, "%.*g", precision, value);
+        if (strtod(buffer, NULL) == value) return buffer;
+    }
+    snprintf(buffer, 32, "%.17g", value);
+    return buffer;
+}
+
 static FmuStatus check_range(FmuInstance *instance, const char *function, const FmuVariable *variable,
                              double value) {
     if (isnan(value) || isinf(value)) {
@@ -248,9 +260,12 @@ static FmuStatus check_range(FmuInstance *instance, const char *function, const 
         return FMU_ERROR;
     }
     if (value < variable->min || value > variable->max) {
+        char text[3][32];
+        const char *space = variable->unit[0] != '\0' ? " " : ""; /* no stray blanks for unitless variables */
         fmu_log(instance, FMU_ERROR, "logStatusError",
-                "%s: variable '%s' = %.17g %s is out of its allowed range [%.17g, %.17g] %s", function,
-                variable->name, value, variable->unit, variable->min, variable->max, variable->unit);
+                "%s: variable '%s' = %s%s%s is out of its allowed range [%s, %s]%s%s", function, variable->name,
+                format_number(text[0], value), space, variable->unit, format_number(text[1], variable->min),
+                format_number(text[2], variable->max), space, variable->unit);
         return FMU_ERROR;
     }
     return FMU_OK;
@@ -328,7 +343,9 @@ FmuStatus fmu_exit_initialization(FmuInstance *instance, const char *function) {
 
 FmuStatus fmu_do_step(FmuInstance *instance, const char *function, double current_time, double step_size) {
     FmuStatus status;
-    double tolerance = TIME_TOLERANCE * fmax(1.0, fabs(instance->time));
+    char text[2][32];
+    /* never so loose that a whole (small) step could go unnoticed */
+    double tolerance = fmin(TIME_TOLERANCE * fmax(1.0, fabs(instance->time)), 0.25 * fabs(step_size));
     if (!isfinite(step_size) || step_size <= 0.0) {
         fmu_log(instance, FMU_ERROR, "logStatusError", "%s: communicationStepSize = %g s must be > 0 and finite",
                 function, step_size);
@@ -336,13 +353,14 @@ FmuStatus fmu_do_step(FmuInstance *instance, const char *function, double curren
     }
     if (!isfinite(current_time) || fabs(current_time - instance->time) > tolerance) {
         fmu_log(instance, FMU_ERROR, "logStatusError",
-                "%s: currentCommunicationPoint = %.17g s does not match the instance time %.17g s", function,
-                current_time, instance->time);
+                "%s: currentCommunicationPoint = %s s does not match the instance time %s s", function,
+                format_number(text[0], current_time), format_number(text[1], instance->time));
         return FMU_ERROR;
     }
     if (instance->stop_time_defined && current_time + step_size > instance->stop_time + tolerance) {
-        fmu_log(instance, FMU_ERROR, "logStatusError", "%s: step to t = %.17g s goes past stopTime = %.17g s",
-                function, current_time + step_size, instance->stop_time);
+        fmu_log(instance, FMU_ERROR, "logStatusError", "%s: step to t = %s s goes past stopTime = %s s",
+                function, format_number(text[0], current_time + step_size),
+                format_number(text[1], instance->stop_time));
         return FMU_ERROR;
     }
     status = model_do_step(instance, current_time, step_size);

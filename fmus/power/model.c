@@ -14,7 +14,7 @@ FmuStatus model_do_step(FmuInstance *instance, double time, double step_size) {
         /* The cutting term is zero with the spindle off; the importer probably wired MRR wrongly. */
         instance->internal.warned_cutting_without_spindle = true;
         fmu_log(instance, FMU_WARNING, "logStatusWarning",
-                "fmiDoStep: t = %g s: input 'mrr' = %g m3/s > 0 while 'spindle_on' is false; cutting power is 0 "
+                "doStep: t = %g s: input 'mrr' = %g m3/s > 0 while 'spindle_on' is false; cutting power is 0 "
                 "(reported once)", time, instance->v.mrr);
         return FMU_WARNING;
     }

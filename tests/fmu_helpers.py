@@ -1,0 +1,443 @@
+"""Shared helpers of the FMU tests (tests/test_fmu_*.py): where the built FMUs are, which ones are
+expected, and a thin driver over fmpy's low-level FMU2Slave/FMU3Slave that captures the FMU's log
+messages and returns the FMI status of each call instead of hiding warnings.
+
+Imported as ``from fmu_helpers import ...`` (pytest's default ``prepend`` import mode puts tests/
+on sys.path); the sanitizer test also runs this module as a script in a subprocess (see the end).
+"""
+from __future__ import annotations
+
+import atexit
+import ctypes
+import os
+import shutil
+import sys
+import tempfile
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Callable, Iterable, Sequence
+
+import numpy as np
+
+REPO = Path(__file__).resolve().parents[1]
+if str(REPO) not in sys.path:  # `models` when this module runs as a script (sanitizer subprocess)
+    sys.path.insert(0, str(REPO))
+
+from fmpy import calloc, extract, free, read_model_description  # noqa: E402
+from fmpy.fmi1 import FMICallException  # noqa: E402
+from fmpy.fmi2 import (  # noqa: E402
+    FMU2Slave,
+    fmi2CallbackAllocateMemoryTYPE,
+    fmi2CallbackFreeMemoryTYPE,
+    fmi2CallbackFunctions,
+    fmi2CallbackLoggerTYPE,
+    fmi2True,
+)
+from fmpy.fmi3 import FMU3Slave, fmi3Boolean, fmi3Float64  # noqa: E402
+
+OK, WARNING, DISCARD, ERROR, FATAL = 0, 1, 2, 3, 4
+
+ENV_FMU_DIR = "MILLING_TWIN_FMU_DIR"
+
+
+def repo_root() -> Path:
+    return REPO
+
+
+def fmu_dir() -> Path:
+    """Folder of the built FMUs: $MILLING_TWIN_FMU_DIR, else <repo>/build/fmus."""
+    return Path(os.environ.get(ENV_FMU_DIR, REPO / "build" / "fmus"))
+
+
+def fmu_file_name(identifier: str, fmi_version: int) -> str:
+    return f"{identifier}.fmu" if fmi_version == 3 else f"{identifier}_fmi{fmi_version}.fmu"
+
+
+def split_fmu_name(path: Path | str) -> tuple[str, int]:
+    """``SpindlePower.fmu`` -> ("SpindlePower", 3); ``SpindlePower_fmi2.fmu`` -> ("SpindlePower", 2)."""
+    stem = Path(path).name.removesuffix(".fmu")
+    if stem.endswith("_fmi2"):
+        return stem.removesuffix("_fmi2"), 2
+    return stem, 3
+
+
+def expected_fmus(folder: Path | None = None) -> list[Path]:
+    """The FMUs the build must produce: every model in models.MODELS, FMI 3.0 and FMI 2.0."""
+    from models import MODELS
+
+    folder = fmu_dir() if folder is None else folder
+    return [folder / fmu_file_name(identifier, version) for identifier in MODELS for version in (3, 2)]
+
+
+def all_fmus(folder: Path | None = None) -> list[Path]:
+    """Expected FMUs plus whatever else lies in the folder, sorted. Missing ones are kept in the list so
+    the tests parametrized over it fail (``require_fmu``) instead of being skipped for lack of parameters."""
+    folder = fmu_dir() if folder is None else folder
+    found = set(folder.glob("*.fmu")) if folder.is_dir() else set()
+    return sorted(found | set(expected_fmus(folder)))
+
+
+def fmu_id(path: Path) -> str:
+    return path.name.removesuffix(".fmu")
+
+
+def require_fmu(path: Path) -> Path:
+    """Fail (never skip) when the FMU was not built: the test command always builds first."""
+    import pytest
+
+    folder = path.parent
+    if not folder.is_dir() or not any(folder.glob("*.fmu")):
+        pytest.fail(f"no FMUs in {folder}: build first (cmake --build build) or set {ENV_FMU_DIR}")
+    if not path.is_file():
+        pytest.fail(f"{path} was not built")
+    return path
+
+
+# ---- extracted FMUs, shared by all tests of a process ----
+
+_EXTRACTED: dict[Path, str] = {}
+
+
+def _remove_extracted() -> None:
+    for folder in _EXTRACTED.values():
+        shutil.rmtree(folder, ignore_errors=True)
+    _EXTRACTED.clear()
+
+
+atexit.register(_remove_extracted)
+
+
+def extracted(path: Path) -> str:
+    """The FMU unzipped once per process (removed at exit)."""
+    path = Path(path).resolve()
+    if path not in _EXTRACTED:
+        _EXTRACTED[path] = extract(str(path), unzipdir=tempfile.mkdtemp(prefix=f"{path.stem}_"))
+    return _EXTRACTED[path]
+
+
+# ---- log capture ----
+
+
+@dataclass(frozen=True)
+class LogMessage:
+    status: int
+    category: str
+    message: str
+    raw: str = ""  # FMI 2: the message as the FMU passed it, a printf format with '%' and '#' escaped
+
+
+def _text(value: bytes | None) -> str:
+    return "" if value is None else value.decode("utf-8", errors="replace")
+
+
+def unescape_fmi2_message(raw: str) -> str:
+    """An FMI 2 log message is a printf format in which '#' delimits value references: a literal '%' or '#'
+    comes as '%%' or '##'. Returns the text; raises ValueError on an unescaped '%' or '#' (an importer
+    would read missing printf arguments or take it for a value reference)."""
+    marked = raw.replace("%%", "\0").replace("##", "\1")
+    if "%" in marked or "#" in marked:
+        raise ValueError(f"unescaped '%' or '#' in FMI 2 log message {raw!r}")
+    return marked.replace("\0", "%").replace("\1", "#")
+
+
+def fmi2_callbacks(sink: list[LogMessage]) -> fmi2CallbackFunctions:
+    """fmi2CallbackFunctions whose logger appends to ``sink``. fmpy's native printf proxy (addLoggerProxy)
+    is not used: it keeps the Python logger in one global, so with two instances every message would go to
+    the logger installed last. The message carries no printf arguments from our FMUs, so unescaping
+    ``%%`` and ``##`` gives what printf would print."""
+
+    def logger(environment, instance_name, status, category, message):  # noqa: ARG001
+        raw = _text(message)
+        sink.append(LogMessage(int(status), _text(category), unescape_fmi2_message(raw), raw))
+
+    callbacks = fmi2CallbackFunctions()
+    callbacks.logger = fmi2CallbackLoggerTYPE(logger)
+    callbacks.allocateMemory = fmi2CallbackAllocateMemoryTYPE(calloc)
+    callbacks.freeMemory = fmi2CallbackFreeMemoryTYPE(free)
+    return callbacks
+
+
+def fmi3_logger(sink: list[LogMessage]) -> Callable:
+    """A Python function for FMU3Slave.instantiate(logMessage=...) that appends to ``sink``."""
+
+    def log_message(environment, status, category, message):  # noqa: ARG001
+        sink.append(LogMessage(int(status), _text(category), _text(message)))
+
+    return log_message
+
+
+def status_of(call: Callable[[], object]) -> int:
+    """Status of an fmpy call: fmpy raises FMICallException for Discard/Error/Fatal, returns otherwise."""
+    try:
+        call()
+    except FMICallException as exception:
+        return exception.status
+    return OK
+
+
+# ---- a driver for one FMU instance ----
+
+
+class Slave:
+    """One instance of a co-simulation FMU through fmpy's FMU2Slave/FMU3Slave, with its log captured.
+
+    Variables are addressed by name. ``step`` returns the FMI status (Warning included, which fmpy's
+    doStep swallows); the other calls raise fmpy's FMICallException on Error like fmpy does.
+    """
+
+    def __init__(self, path: Path | str, instance_name: str = "instance", guid: str | None = None,
+                 unzipdir: str | None = None):
+        self.path = Path(path)
+        self.identifier, self.fmi_version = split_fmu_name(self.path)
+        self.unzipdir = unzipdir or extracted(self.path)
+        self.md = read_model_description(self.unzipdir)
+        assert self.md.coSimulation.modelIdentifier == self.identifier
+        self.variables = {v.name: v for v in self.md.modelVariables}
+        self.vr = {v.name: v.valueReference for v in self.md.modelVariables}
+        self.messages: list[LogMessage] = []
+        cls = FMU3Slave if self.fmi_version == 3 else FMU2Slave
+        self.fmu = cls(guid=self.md.guid if guid is None else guid, modelIdentifier=self.identifier,
+                       unzipDirectory=self.unzipdir, instanceName=instance_name)
+        self.prefix = f"fmi{self.fmi_version}"
+        self._callbacks = None
+        self.time = 0.0
+        self.library_loaded = True
+
+    # -- lifetime --
+    def instantiate(self, logging_on: bool = False) -> None:
+        self.time = 0.0
+        if self.fmi_version == 3:
+            self.fmu.instantiate(loggingOn=logging_on, logMessage=fmi3_logger(self.messages))
+        else:
+            self._callbacks = fmi2_callbacks(self.messages)
+            self.fmu.instantiate(callbacks=self._callbacks, loggingOn=logging_on)
+
+    def free_instance(self) -> None:
+        """Frees the instance only; the library stays loaded (see ``unload``)."""
+        if self.fmu.component:
+            getattr(self.fmu, f"{self.prefix}FreeInstance")(self.fmu.component)
+            self.fmu.component = None
+
+    def unload(self) -> None:
+        self.free_instance()
+        if self.library_loaded:
+            self.fmu.freeLibrary()
+            self.library_loaded = False
+
+    def __enter__(self) -> "Slave":
+        return self
+
+    def __exit__(self, *exc) -> None:
+        self.unload()
+
+    # -- modes --
+    def enter_initialization(self, start_time: float = 0.0, stop_time: float | None = None) -> None:
+        if self.fmi_version == 3:
+            self.fmu.enterInitializationMode(startTime=start_time, stopTime=stop_time)
+        else:
+            self.fmu.setupExperiment(startTime=start_time, stopTime=stop_time)
+            self.fmu.enterInitializationMode()
+        self.time = start_time
+
+    def exit_initialization(self) -> None:
+        self.fmu.exitInitializationMode()
+
+    def initialize(self, values: dict[str, float] | None = None, start_time: float = 0.0) -> None:
+        self.enter_initialization(start_time)
+        if values:
+            self.set(values)
+        self.exit_initialization()
+
+    def step(self, step_size: float, current_time: float | None = None) -> int:
+        """One doStep from ``current_time`` (default: the time reached so far); returns the status."""
+        t = self.time if current_time is None else current_time
+        try:
+            if self.fmi_version == 3:
+                flags = [fmi3Boolean() for _ in range(3)]
+                last = fmi3Float64()
+                status = self.fmu.fmi3DoStep(self.fmu.component, t, step_size, fmi3Boolean(True),
+                                             *(ctypes.byref(f) for f in flags), ctypes.byref(last))
+            else:
+                status = self.fmu.fmi2DoStep(self.fmu.component, t, step_size, fmi2True)
+        except FMICallException as exception:
+            return exception.status
+        if status <= WARNING:
+            self.time = t + step_size
+        return status
+
+    def set_state(self, state) -> None:
+        """setFMUstate, then continue from the restored time (read back from the FMU)."""
+        self.fmu.setFMUState(state)
+        self.time = float(self.get(["time"])[0])
+
+    # -- values --
+    def is_boolean(self, name: str) -> bool:
+        return self.variables[name].type == "Boolean"
+
+    def set(self, values: dict[str, float | bool]) -> None:
+        reals = {n: float(v) for n, v in values.items() if not self.is_boolean(n)}
+        booleans = {n: bool(v) for n, v in values.items() if self.is_boolean(n)}
+        if reals:
+            self.set_real([self.vr[n] for n in reals], list(reals.values()))
+        if booleans:
+            vrs = [self.vr[n] for n in booleans]
+            self.fmu.setBoolean(vrs, list(booleans.values()))
+
+    def set_real(self, vrs: Sequence[int], values: Sequence[float]) -> None:
+        if self.fmi_version == 3:
+            self.fmu.setFloat64(list(vrs), list(values))
+        else:
+            self.fmu.setReal(list(vrs), list(values))
+
+    def get_real(self, vrs: Sequence[int], n_values: int | None = None) -> list[float]:
+        if self.fmi_version == 3:
+            return self.fmu.getFloat64(list(vrs), nValues=n_values)
+        return self.fmu.getReal(list(vrs))
+
+    def get(self, names: Iterable[str]) -> np.ndarray:
+        names = list(names)
+        return np.array(self.get_real([self.vr[n] for n in names]), dtype=float)
+
+    # -- log --
+    def errors(self) -> list[str]:
+        return [m.message for m in self.messages if m.status == ERROR]
+
+    def warnings(self) -> list[str]:
+        return [m.message for m in self.messages if m.status == WARNING]
+
+    def last_error(self) -> str:
+        errors = self.errors()
+        assert errors, f"no error was logged; log: {self.messages}"
+        return errors[-1]
+
+
+# ---- model data ----
+
+
+def model_of(path: Path | str):
+    from models import MODELS
+
+    identifier, _ = split_fmu_name(path)
+    return MODELS[identifier]
+
+
+def random_arguments(model, count: int, rng: np.random.Generator) -> dict[str, np.ndarray]:
+    """``count`` random points of every parameter and input, uniform within [min, max] (booleans 0/1).
+    The first rows are the corners min and max, and every Boolean combination is represented."""
+    values: dict[str, np.ndarray] = {}
+    for v in model.arguments:
+        if v.type == "Boolean":
+            column = rng.integers(0, 2, count).astype(float)
+            column[:2] = [0.0, 1.0]
+        else:
+            column = rng.uniform(v.min, v.max, count)
+            column[:2] = [v.min, v.max]
+        values[v.name] = column
+    return values
+
+
+def row(values: dict[str, np.ndarray], i: int) -> dict[str, float]:
+    return {name: float(column[i]) for name, column in values.items()}
+
+
+def output_names(model) -> list[str]:
+    return [v.name for v in model.of("output")]
+
+
+def expected_outputs(model, values: dict[str, np.ndarray | float]) -> np.ndarray:
+    """Model outputs from the casadi definition as an array (points x outputs)."""
+    result = model.evaluate(**values)
+    return np.stack([np.atleast_1d(result[name]) for name in output_names(model)], axis=-1)
+
+
+def assert_close(actual, expected, rtol: float = 1e-12, what: str = "") -> None:
+    np.testing.assert_allclose(np.asarray(actual, dtype=float), np.asarray(expected, dtype=float),
+                               rtol=rtol, atol=0.0, err_msg=what)
+
+
+# ---- a full exercise of one FMU, run in-process or under the sanitizers in a subprocess ----
+# (no import of models/ here: the sanitizer subprocess loads only fmpy and the FMU)
+
+
+def simulate_points(path: Path, values: dict[str, Sequence[float]], outputs: Sequence[str],
+                    step_size: float = 1e-3) -> np.ndarray:
+    """One instance: every point set in turn (parameters are tunable), one doStep each, outputs read
+    after the step. The first point is also read in initialization mode. Returns (points x outputs)."""
+    values = {name: np.asarray(column, dtype=float) for name, column in values.items()}
+    count = len(next(iter(values.values())))
+    result = np.empty((count, len(outputs)))
+    with Slave(path) as slave:
+        slave.instantiate()
+        slave.enter_initialization()
+        slave.set(row(values, 0))
+        init_outputs = slave.get(outputs)
+        slave.exit_initialization()
+        assert np.array_equal(init_outputs, slave.get(outputs)), "outputs changed when leaving initialization"
+        for i in range(count):
+            slave.set(row(values, i))
+            status = slave.step(step_size)
+            assert status in (OK, WARNING), f"doStep at point {i} returned {status}: {slave.messages[-3:]}"
+            result[i] = slave.get(outputs)
+        assert slave.get(["time"])[0] == slave.time
+        slave.fmu.terminate()
+    return result
+
+
+def bad_calls(path: Path) -> list[str]:
+    """A tour of rejected calls on one instance (each followed by reset); returns the error messages."""
+    with Slave(path) as slave:
+        variables = slave.md.modelVariables
+        parameter = next(v for v in variables if v.causality == "parameter" and v.max is not None)
+        real_input = next(v for v in variables if v.causality == "input" and v.type != "Boolean")
+        output = next(v for v in variables if v.causality == "output")
+        slave.instantiate()
+        statuses = {"doStep before initialization": slave.step(1e-3)}
+        slave.fmu.reset()
+        too_big = float(parameter.max) * 2 + 1
+        statuses["out of range"] = status_of(lambda: slave.set({parameter.name: too_big}))
+        slave.fmu.reset()
+        statuses["nan"] = status_of(lambda: slave.set({real_input.name: float("nan")}))
+        slave.fmu.reset()
+        statuses["unknown vr"] = status_of(lambda: slave.set_real([10_000], [0.0]))
+        slave.fmu.reset()
+        statuses["set output"] = status_of(lambda: slave.set({output.name: 1.0}))
+        slave.fmu.reset()
+        slave.initialize()
+        statuses["wrong time"] = slave.step(1e-3, current_time=0.5)
+        slave.fmu.reset()
+        slave.initialize()
+        statuses["zero step"] = slave.step(0.0)
+        statuses["in error state"] = slave.step(1e-3)
+        slave.fmu.reset()
+        slave.initialize()
+        state = slave.fmu.getFMUState()
+        data = slave.fmu.serializeFMUState(state)
+        statuses["short state"] = status_of(lambda: slave.fmu.deserializeFMUState(data[:-1]))
+        slave.fmu.reset()
+        slave.initialize()
+        restored = slave.fmu.deserializeFMUState(data)
+        slave.set_state(restored)
+        slave.fmu.freeFMUState(restored)
+        slave.fmu.freeFMUState(state)
+        assert slave.step(1e-3) == OK
+        bad = {name: s for name, s in statuses.items() if s != ERROR}
+        assert not bad, f"{path.name}: expected Error from {bad}"
+        return slave.errors()
+
+
+if __name__ == "__main__":
+    # python fmu_helpers.py JOB.json: the sanitizer test's subprocess. JOB.json holds
+    # {"<fmu path>": {"values": {name: [...]}, "outputs": [names]}}; the results are written back to
+    # JOB.json's "results" as {"<fmu path>": {"outputs": [[...]], "errors": [...]}}.
+    import json
+
+    job_file = Path(sys.argv[1])
+    job = json.loads(job_file.read_text())
+    results = {}
+    for fmu_path, spec in job["fmus"].items():
+        outputs = simulate_points(Path(fmu_path), spec["values"], spec["outputs"])
+        results[fmu_path] = {"outputs": outputs.tolist(), "errors": bad_calls(Path(fmu_path))}
+    job["results"] = results
+    job_file.write_text(json.dumps(job))
+    _remove_extracted()
+    print(f"exercised {len(results)} FMUs")

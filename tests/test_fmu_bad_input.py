@@ -1,0 +1,548 @@
+"""Rejected calls and values, the error state, FMU state snapshots and instance independence, on both
+FMI versions of every FMU. Each rejected call must return the documented status and log a message
+naming the function and the problem (captured through the importer's logger callback)."""
+from __future__ import annotations
+
+import ctypes
+import math
+from pathlib import Path
+
+import numpy as np
+import pytest
+from fmpy.fmi1 import FMICallException
+from fmpy.fmi3 import fmi3Float64, fmi3ValueReference
+
+from fmu_helpers import (
+    ERROR,
+    OK,
+    WARNING,
+    Slave,
+    all_fmus,
+    assert_close,
+    expected_outputs,
+    fmu_id,
+    model_of,
+    output_names,
+    random_arguments,
+    require_fmu,
+    row,
+    split_fmu_name,
+    status_of,
+)
+
+FMUS = all_fmus()
+POWER_FMUS = [p for p in FMUS if split_fmu_name(p)[0] == "SpindlePower"]
+FMI3_FMUS = [p for p in FMUS if split_fmu_name(p)[1] == 3]
+
+# Per model: out-of-range values (variable, value, the message's "= value ... [min, max] unit" part),
+# a Float64 input for NaN/Inf, a Boolean input.
+CASES = {
+    "SpindlePower": {
+        "out_of_range": [
+            ("c3", 10.0, "= 10 is out of its allowed range [0.1, 3]"),
+            ("c3", 0.05, "= 0.05 is out of its allowed range [0.1, 3]"),
+            ("P_idle", -1.0, "= -1 W is out of its allowed range [0, 100000] W"),
+            ("c2", 1.5e6, "= 1500000 W is out of its allowed range [0, 1000000] W"),
+            ("mrr", -1e-9, "= -1e-09 m3/s is out of its allowed range [0, 0.01] m3/s"),
+            ("spindle_speed", 10000.5, "= 10000.5 rad/s is out of its allowed range [-10000, 10000] rad/s"),
+        ],
+        "real_input": "mrr",
+        "boolean_input": "spindle_on",
+    },
+    "MrrEstimator": {
+        "out_of_range": [
+            ("width_of_cut", 1.0, "= 1 m is out of its allowed range [0, 0.5] m"),
+            ("depth_of_cut", -0.1, "= -0.1 m is out of its allowed range [0, 0.2] m"),
+            ("feed_velocity_x", 11.0, "= 11 m/s is out of its allowed range [-10, 10] m/s"),
+            ("feed_velocity_y", -10.25, "= -10.25 m/s is out of its allowed range [-10, 10] m/s"),
+        ],
+        "real_input": "feed_velocity_x",
+        "boolean_input": "cutting",
+    },
+}
+
+OUT_OF_RANGE = [(p, case) for p in FMUS for case in CASES[split_fmu_name(p)[0]]["out_of_range"]]
+
+
+@pytest.fixture(params=FMUS, ids=fmu_id)
+def fmu(request) -> Path:
+    return require_fmu(request.param)
+
+
+@pytest.fixture
+def slave(fmu: Path):
+    with Slave(fmu) as s:
+        s.instantiate()
+        yield s
+
+
+def set_name(slave: Slave) -> str:
+    return f"{slave.prefix}SetReal" if slave.fmi_version == 2 else "fmi3SetFloat64"
+
+
+def get_name(slave: Slave) -> str:
+    return f"{slave.prefix}GetReal" if slave.fmi_version == 2 else "fmi3GetFloat64"
+
+
+def run_points(slave: Slave, points: list[dict], step_size: float = 1e-3) -> np.ndarray:
+    names = output_names(model_of(slave.path))
+    rows = []
+    for point in points:
+        slave.set(point)
+        assert slave.step(step_size) in (OK, WARNING), slave.messages[-2:]
+        rows.append(slave.get(names))
+    return np.array(rows)
+
+
+def random_points(fmu: Path, count: int, seed: int) -> list[dict]:
+    values = random_arguments(model_of(fmu), count, np.random.default_rng(seed))
+    return [row(values, i) for i in range(count)]
+
+
+# ---- call sequence ----
+
+
+def test_do_step_before_initialization_is_an_illegal_call(slave: Slave) -> None:
+    p = slave.prefix
+    assert slave.step(1e-3) == ERROR
+    assert slave.messages[-1].category == "logStatusError"
+    assert slave.last_error() == f"{p}DoStep: illegal call sequence: not allowed in state Instantiated"
+    assert len(slave.errors()) == 1
+
+
+def test_do_step_in_initialization_mode_is_an_illegal_call(slave: Slave) -> None:
+    slave.enter_initialization()
+    assert slave.step(1e-3) == ERROR
+    assert slave.last_error() == f"{slave.prefix}DoStep: illegal call sequence: not allowed in state InitializationMode"
+
+
+def test_fmpy_raises_with_the_error_status(slave: Slave) -> None:
+    with pytest.raises(FMICallException) as raised:
+        slave.fmu.doStep(0.0, 1e-3)
+    assert raised.value.status == ERROR
+    assert raised.value.function == f"{slave.prefix}DoStep"
+    assert "illegal call sequence" in slave.last_error()
+
+
+# ---- doStep arguments ----
+
+
+def test_wrong_communication_point_is_rejected(slave: Slave) -> None:
+    slave.initialize()
+    assert slave.step(1e-3) == OK
+    assert slave.step(1e-3, current_time=0.5) == ERROR
+    assert slave.last_error() == (f"{slave.prefix}DoStep: currentCommunicationPoint = 0.5 s does not match "
+                                  "the instance time 0.001 s")
+
+
+def test_communication_point_rounding_is_tolerated(slave: Slave) -> None:
+    slave.initialize()
+    t = 0.0
+    for _ in range(10):  # t += h accumulates rounding; 0.1 + 0.2 != 0.3
+        assert slave.step(0.1, current_time=t) == OK
+        t += 0.1
+    assert slave.get(["time"])[0] == pytest.approx(1.0, rel=1e-15)
+    assert not slave.errors()
+
+
+@pytest.mark.parametrize("step_size", [0.0, -1e-3, math.nan, math.inf])
+def test_non_positive_step_size_is_rejected(slave: Slave, step_size: float) -> None:
+    slave.initialize()
+    assert slave.step(step_size) == ERROR
+    text = {0.0: "0", -1e-3: "-0.001", math.inf: "inf"}.get(step_size, "nan")
+    assert slave.last_error() == f"{slave.prefix}DoStep: communicationStepSize = {text} s must be > 0 and finite"
+    assert slave.get(["time"])[0] == 0.0
+
+
+def test_step_past_stop_time_is_rejected(slave: Slave) -> None:
+    slave.enter_initialization(stop_time=0.002)
+    slave.exit_initialization()
+    assert slave.step(1e-3) == OK
+    assert slave.step(1e-3) == OK
+    assert slave.step(1e-3) == ERROR
+    assert "goes past stopTime" in slave.last_error()
+
+
+# ---- values ----
+
+
+@pytest.mark.parametrize("value", [math.nan, math.inf, -math.inf], ids=["nan", "inf", "-inf"])
+@pytest.mark.parametrize("mode", ["initialization", "step"])
+def test_nan_and_inf_inputs_are_rejected(slave: Slave, value: float, mode: str) -> None:
+    name = CASES[slave.identifier]["real_input"]
+    slave.enter_initialization()
+    if mode == "step":
+        slave.exit_initialization()
+    before = slave.get([name])[0]
+    assert status_of(lambda: slave.set({name: value})) == ERROR
+    assert slave.last_error() == f"{set_name(slave)}: variable '{name}' set to {value}: must be a finite number"
+    assert slave.get([name])[0] == before  # not applied
+
+
+@pytest.mark.parametrize("fmu, case", OUT_OF_RANGE, ids=[f"{fmu_id(p)}-{c[0]}={c[1]:g}" for p, c in OUT_OF_RANGE])
+def test_out_of_range_values_are_rejected_with_their_range(fmu: Path, case: tuple) -> None:
+    name, value, text = case
+    with Slave(require_fmu(fmu)) as slave:
+        slave.instantiate()
+        assert status_of(lambda: slave.set({name: value})) == ERROR
+        assert slave.last_error() == f"{set_name(slave)}: variable '{name}' {text}"
+        slave.fmu.reset()
+        slave.initialize()  # the rejected value was not applied: start values pass the checks
+        assert len(slave.errors()) == 1
+
+
+def test_range_limits_themselves_are_accepted(fmu: Path) -> None:
+    model = model_of(fmu)
+    with Slave(fmu) as slave:
+        slave.instantiate()
+        for bound in ("min", "max"):
+            point = {v.name: getattr(v, bound) for v in model.arguments if v.type != "Boolean"}
+            slave.set(point)
+        slave.initialize()
+        assert slave.step(1e-3) in (OK, WARNING)
+        assert not slave.errors()
+
+
+def test_setting_an_output_or_time_is_rejected(slave: Slave) -> None:
+    output = output_names(model_of(slave.path))[0]
+    assert status_of(lambda: slave.set({output: 1.0})) == ERROR
+    assert slave.last_error() == f"{set_name(slave)}: variable '{output}' (output) cannot be set in state Instantiated"
+    slave.fmu.reset()
+    slave.initialize()
+    assert status_of(lambda: slave.set_real([0], [1.0])) == ERROR
+    assert slave.last_error() == f"{set_name(slave)}: variable 'time' (independent) cannot be set in state StepMode"
+
+
+@pytest.mark.parametrize("which", ["next", "large", "max"])
+def test_unknown_value_reference_is_rejected(slave: Slave, which: str) -> None:
+    slave.initialize()
+    n = len(slave.vr) - 1  # value references 0 (time) .. n
+    assert n == len(model_of(slave.path).variables)
+    vr = {"next": n + 1, "large": 999, "max": 2**32 - 1}[which]
+    assert status_of(lambda: slave.get_real([vr])) == ERROR
+    assert slave.last_error() == (f"{get_name(slave)}: unknown value reference {vr} ({slave.identifier} has "
+                                  f"value references 0..{n})")
+    slave.fmu.reset()
+    assert status_of(lambda: slave.set_real([1, vr], [0.0, 0.0])) == ERROR
+    assert f"unknown value reference {vr}" in slave.last_error()
+
+
+def test_wrong_type_for_a_value_reference_is_rejected(slave: Slave) -> None:
+    case = CASES[slave.identifier]
+    real, boolean = case["real_input"], case["boolean_input"]
+    slave.initialize()
+    assert status_of(lambda: slave.fmu.getBoolean([slave.vr[real]])) == ERROR
+    assert slave.last_error() == (f"{slave.prefix}GetBoolean: variable '{real}' (value reference "
+                                  f"{slave.vr[real]}) is Float64, not Boolean")
+    slave.fmu.reset()
+    assert status_of(lambda: slave.set_real([slave.vr[boolean]], [1.0])) == ERROR
+    assert slave.last_error() == (f"{set_name(slave)}: variable '{boolean}' (value reference "
+                                  f"{slave.vr[boolean]}) is Boolean, not Float64")
+    slave.fmu.reset()
+    integer = "Integer" if slave.fmi_version == 2 else "Int32"
+    setter = getattr(slave.fmu, f"set{integer}")
+    assert status_of(lambda: setter([slave.vr[real]], [1])) == ERROR
+    assert slave.last_error() == f"{slave.prefix}Set{integer}: {slave.identifier} has no variables of type {integer}"
+
+
+@pytest.mark.parametrize("fmu3", FMI3_FMUS, ids=fmu_id)
+def test_fmi3_value_count_must_match_the_value_references(fmu3: Path) -> None:
+    with Slave(require_fmu(fmu3)) as slave:
+        slave.instantiate()
+        slave.initialize()
+        assert status_of(lambda: slave.get_real([1, 2], n_values=3)) == ERROR
+        assert slave.last_error() == (f"fmi3GetFloat64: nValues = 3 but nValueReferences = 2 (all variables of "
+                                      f"{slave.identifier} are scalars)")
+        slave.fmu.reset()
+        slave.initialize()
+        vrs = (fmi3ValueReference * 2)(1, 2)
+        values = (fmi3Float64 * 1)(0.1)
+        assert status_of(lambda: slave.fmu.fmi3SetFloat64(slave.fmu.component, vrs, 2, values, 1)) == ERROR
+        assert "fmi3SetFloat64: nValues = 1 but nValueReferences = 2" in slave.last_error()
+        slave.fmu.reset()
+        slave.initialize()
+        assert status_of(lambda: slave.fmu.fmi3GetFloat64(slave.fmu.component, None, 1, values, 1)) == ERROR
+        assert slave.last_error() == "fmi3GetFloat64: valueReferences is NULL but nValueReferences = 1"
+
+
+@pytest.mark.parametrize("wrong", ["{00000000-0000-0000-0000-000000000000}", "", "%s%n#1#%"],
+                         ids=["zeros", "empty", "printf"])
+def test_wrong_instantiation_token_is_refused(fmu: Path, wrong: str) -> None:
+    """The token is echoed in the message: in FMI 2 its '%' and '#' must arrive escaped (checked by the
+    test logger), or the importer's printf would read arguments that were never passed."""
+    model = model_of(fmu)
+    with Slave(fmu, guid=wrong) as slave:
+        with pytest.raises(Exception, match="Failed to instantiate"):
+            slave.instantiate()
+        assert slave.fmu.component is None
+        function = "fmi2Instantiate" if slave.fmi_version == 2 else "fmi3InstantiateCoSimulation"
+        assert slave.last_error() == (f"{function}: wrong instantiation token/GUID '{wrong}'; this FMU "
+                                      f"({model.identifier}) has '{model.instantiation_token()}': the model "
+                                      "description and the binary do not belong together")
+
+
+# ---- the error state ----
+
+
+def test_after_an_error_only_reset_free_get_and_state_calls_work(slave: Slave) -> None:
+    model = model_of(slave.path)
+    p = slave.prefix
+    name = CASES[slave.identifier]["real_input"]
+    points = random_points(slave.path, 6, seed=9)
+    slave.initialize(points[0])
+    run_points(slave, points[:2])
+    assert status_of(lambda: slave.set({name: math.nan})) == ERROR
+    n_errors = len(slave.errors())
+
+    assert slave.step(1e-3) == ERROR
+    assert slave.last_error() == f"{p}DoStep: illegal call sequence: not allowed in state Error"
+    assert status_of(lambda: slave.set({name: 0.0})) == ERROR
+    assert slave.last_error() == f"{set_name(slave)}: illegal call sequence: not allowed in state Error"
+    assert status_of(lambda: slave.fmu.terminate()) == ERROR
+    assert slave.last_error() == f"{p}Terminate: illegal call sequence: not allowed in state Error"
+    assert status_of(lambda: slave.fmu.exitInitializationMode()) == ERROR
+    assert slave.last_error() == f"{p}ExitInitializationMode: illegal call sequence: not allowed in state Error"
+    assert len(slave.errors()) == n_errors + 4
+
+    # get and FMU state calls still work: the outputs of the last good step
+    assert_close(slave.get(output_names(model)), expected_outputs(model, points[1])[0])
+    state = slave.fmu.getFMUState()
+    slave.fmu.freeFMUState(state)
+    assert len(slave.errors()) == n_errors + 4
+
+    assert slave.fmu.reset() == OK
+    slave.initialize(points[2])
+    actual = run_points(slave, points[2:])
+    assert_close(actual, expected_outputs(model, {k: np.array([p[k] for p in points[2:]]) for k in points[2]}))
+    assert slave.get(["time"])[0] == pytest.approx(4e-3)
+    assert len(slave.errors()) == n_errors + 4
+
+
+def test_an_fmu_state_from_before_an_error_restores_the_instance(slave: Slave) -> None:
+    """FMI 2.0 4.2.4 / FMI 3.0: after Error, setting a previously retrieved FMU state is the alternative to reset."""
+    model = model_of(slave.path)
+    points = random_points(slave.path, 8, seed=12)
+    slave.initialize(points[0])
+    run_points(slave, points[:3])
+    state = slave.fmu.getFMUState()
+    reference = run_points(slave, points[3:])
+    slave.set_state(state)
+    assert slave.step(-1.0) == ERROR
+    assert slave.step(1e-3) == ERROR and "not allowed in state Error" in slave.last_error()
+    slave.set_state(state)
+    assert np.array_equal(run_points(slave, points[3:]), reference)
+    assert_close(reference, expected_outputs(model, {k: np.array([p[k] for p in points[3:]]) for k in points[0]}))
+    slave.fmu.freeFMUState(state)
+
+
+def test_reset_restores_start_values(slave: Slave) -> None:
+    model = model_of(slave.path)
+    points = random_points(slave.path, 3, seed=4)
+    slave.initialize(points[2])
+    run_points(slave, points[2:])
+    slave.fmu.reset()
+    slave.initialize()
+    assert slave.get(["time"])[0] == 0.0
+    names = [v.name for v in model.arguments if v.type != "Boolean"]
+    assert_close(slave.get(names), [model.variable(n).start for n in names])
+    assert_close(slave.get(output_names(model)), expected_outputs(model, {})[0])
+
+
+# ---- FMU state ----
+
+
+def _power_points_with_a_warning(fmu: Path, count: int) -> list[dict]:
+    points = random_points(fmu, count, seed=21)
+    if split_fmu_name(fmu)[0] == "SpindlePower":
+        for point in points:
+            point["spindle_on"] = 1.0
+        points[count - 3].update(spindle_on=0.0, mrr=2e-6)  # after the snapshot: warns (once) again
+    return points
+
+
+def test_get_and_set_fmu_state_rolls_back_bit_identically(fmu: Path) -> None:
+    points = _power_points_with_a_warning(fmu, 12)
+    with Slave(fmu, "fresh") as fresh:
+        fresh.instantiate()
+        fresh.initialize(points[0])
+        reference = run_points(fresh, points)
+
+    with Slave(fmu, "rolled back") as slave:
+        slave.instantiate()
+        slave.initialize(points[0])
+        first = run_points(slave, points[:6])
+        state = slave.fmu.getFMUState()
+        rest = run_points(slave, points[6:])
+        warnings = len(slave.warnings())
+        for attempt in range(3):
+            slave.set_state(state)
+            assert slave.get(["time"])[0] == pytest.approx(6e-3)
+            again = run_points(slave, points[6:])
+            assert np.array_equal(again, rest), f"attempt {attempt}"
+        assert len(slave.warnings()) == 4 * warnings  # the warned-once flag is part of the state
+        slave.fmu.freeFMUState(state)
+        assert not slave.errors()
+    assert np.array_equal(np.vstack([first, rest]), reference)
+
+
+def test_fmu_state_is_overwritten_in_place_when_reused(fmu: Path) -> None:
+    points = random_points(fmu, 4, seed=5)
+    with Slave(fmu) as slave:
+        slave.instantiate()
+        slave.initialize(points[0])
+        state = slave.fmu.getFMUState()
+        run_points(slave, points[:2])
+        address = state.value
+        getattr(slave.fmu, f"{slave.prefix}Get{'FMUstate' if slave.fmi_version == 2 else 'FMUState'}")(
+            slave.fmu.component, ctypes.byref(state))
+        assert state.value == address
+        after_two = run_points(slave, points[2:])
+        slave.set_state(state)
+        assert slave.get(["time"])[0] == pytest.approx(2e-3)
+        assert np.array_equal(run_points(slave, points[2:]), after_two)
+        slave.fmu.freeFMUState(state)
+        assert not state
+
+
+def test_serialized_fmu_state_round_trip(fmu: Path) -> None:
+    points = _power_points_with_a_warning(fmu, 10)
+    with Slave(fmu, "first") as first, Slave(fmu, "second") as second:
+        first.instantiate()
+        first.initialize(points[0])
+        run_points(first, points[:5])
+        state = first.fmu.getFMUState()
+        data = first.fmu.serializeFMUState(state)
+        first.fmu.freeFMUState(state)
+        assert isinstance(data, bytes) and len(data) > 0
+        reference = run_points(first, points[5:])
+
+        restored = first.fmu.deserializeFMUState(data)
+        assert first.fmu.serializeFMUState(restored) == data
+        first.set_state(restored)
+        first.fmu.freeFMUState(restored)
+        assert np.array_equal(run_points(first, points[5:]), reference)
+
+        second.instantiate()  # a fresh instance continues from the other one's state
+        state = second.fmu.deserializeFMUState(data)
+        second.set_state(state)
+        second.fmu.freeFMUState(state)
+        assert second.get(["time"])[0] == pytest.approx(5e-3)
+        assert np.array_equal(run_points(second, points[5:]), reference)
+        assert not first.errors() and not second.errors()
+
+
+def test_corrupt_serialized_state_is_rejected(fmu: Path) -> None:
+    with Slave(fmu) as slave:
+        slave.instantiate()
+        slave.initialize()
+        state = slave.fmu.getFMUState()
+        data = slave.fmu.serializeFMUState(state)
+        slave.fmu.freeFMUState(state)
+        p = slave.prefix
+        function = f"{p}DeSerializeFMUstate" if slave.fmi_version == 2 else "fmi3DeserializeFMUState"
+        assert status_of(lambda: slave.fmu.deserializeFMUState(data[:-1])) == ERROR
+        assert slave.last_error() == (f"{function}: serialized FMUstate has {len(data) - 1} bytes, expected "
+                                      f"{len(data)} (or a NULL pointer was passed)")
+        slave.fmu.reset()
+        assert status_of(lambda: slave.fmu.deserializeFMUState(bytes(len(data)))) == ERROR
+        assert slave.last_error().startswith(f"{function}: FMUstate was not made by this FMU ({slave.identifier}")
+
+
+def test_two_instances_stepped_interleaved_equal_each_alone(fmu: Path) -> None:
+    a_points = random_points(fmu, 15, seed=31)
+    b_points = random_points(fmu, 15, seed=32)
+    alone, warnings = {}, {}
+    for name, points in (("a", a_points), ("b", b_points)):
+        with Slave(fmu, name) as slave:
+            slave.instantiate()
+            slave.initialize(points[0])
+            alone[name] = run_points(slave, points)
+            warnings[name] = slave.warnings()
+    with Slave(fmu, "a") as a, Slave(fmu, "b") as b:
+        a.instantiate()
+        b.instantiate()
+        a.initialize(a_points[0])
+        b.initialize(b_points[0])
+        rows = {"a": [], "b": []}
+        for pa, pb in zip(a_points, b_points):
+            a.set(pa)  # both set before either steps: a shared global would mix them
+            b.set(pb)
+            assert a.step(1e-3) in (OK, WARNING)
+            assert b.step(2e-3) in (OK, WARNING)
+            rows["a"].append(a.get(output_names(model_of(fmu))))
+            rows["b"].append(b.get(output_names(model_of(fmu))))
+        assert b.get(["time"])[0] == pytest.approx(2 * a.get(["time"])[0])
+        assert np.array_equal(np.array(rows["a"]), alone["a"])
+        assert np.array_equal(np.array(rows["b"]), alone["b"])
+        assert len(a.warnings()) == len(warnings["a"]) and len(b.warnings()) == len(warnings["b"])
+        if a.identifier == "SpindlePower":  # each instance warns once for itself
+            assert len(warnings["a"]) == len(warnings["b"]) == 1
+        assert status_of(lambda: a.set({CASES[a.identifier]["real_input"]: math.nan})) == ERROR
+        assert b.step(2e-3) in (OK, WARNING)  # an error of one instance leaves the other alone
+        assert not b.errors()
+
+
+# ---- SpindlePower's own check ----
+
+
+@pytest.fixture(params=POWER_FMUS, ids=fmu_id)
+def power(request):
+    with Slave(require_fmu(request.param)) as s:
+        s.instantiate()
+        yield s
+
+
+def test_power_warns_once_when_material_is_removed_with_the_spindle_off(power: Slave) -> None:
+    power.initialize({"spindle_on": True, "mrr": 1e-6, "spindle_speed": 100.0})
+    assert power.step(1e-3) == OK
+    power.set({"spindle_on": False})
+    assert power.step(1e-3) == WARNING
+    assert len(power.messages) == 1
+    message = power.messages[0]
+    assert message.status == WARNING and message.category == "logStatusWarning"
+    assert "t = 0.001 s: input 'mrr' = 1e-06 m3/s > 0 while 'spindle_on' is false" in message.message
+    assert "reported once" in message.message
+    assert_close(power.get(["P_total", "P_spindle", "P_cutting"]), [500.0, 0.0, 0.0])
+    for _ in range(5):
+        assert power.step(1e-3) == OK
+    assert len(power.messages) == 1
+    power.fmu.reset()  # a new run warns again
+    power.initialize({"spindle_on": False, "mrr": 2e-6})
+    assert power.step(1e-3) == WARNING
+    assert len(power.warnings()) == 2 and not power.errors()
+
+
+def test_power_does_not_warn_without_material_removal(power: Slave) -> None:
+    power.initialize({"spindle_on": False, "mrr": 0.0, "spindle_speed": 50.0})
+    for _ in range(3):
+        assert power.step(1e-3) == OK
+    power.set({"spindle_on": True, "mrr": 3e-6})
+    assert power.step(1e-3) == OK
+    assert power.messages == []
+
+
+# ---- logging ----
+
+
+def test_events_are_logged_only_with_debug_logging_on(fmu: Path) -> None:
+    point = {**random_points(fmu, 3, seed=2)[2], CASES[split_fmu_name(fmu)[0]]["boolean_input"]: 1.0}
+    with Slave(fmu, "quiet") as quiet, Slave(fmu, "verbose") as verbose:
+        for slave, logging_on in ((quiet, False), (verbose, True)):
+            slave.instantiate(logging_on=logging_on)
+            slave.initialize(point)
+            run_points(slave, [point])
+            slave.fmu.terminate()
+        assert quiet.messages == []
+        events = [m for m in verbose.messages if m.status == OK]
+        assert [m.category for m in events] == ["logEvents"] * 3
+        p = verbose.prefix
+        instantiate = "fmi2Instantiate" if p == "fmi2" else "fmi3InstantiateCoSimulation"
+        assert events[0].message == f"{instantiate}: instance 'verbose' of {verbose.identifier} created"
+        assert events[1].message == f"{p}ExitInitializationMode: initialized at t = 0 s"
+        assert events[2].message == f"{p}Terminate: terminated at t = 0.001 s"
+        verbose.fmu.reset()
+        verbose.fmu.setDebugLogging(True, ["logStatusError"])  # events off, errors still reported
+        verbose.messages.clear()
+        verbose.initialize()
+        assert verbose.messages == []
+        assert verbose.step(0.0) == ERROR and len(verbose.errors()) == 1

@@ -1,0 +1,67 @@
+"""Many instantiate / initialize / step / free cycles of each FMU in one process: the resident memory
+must not grow with the number of cycles (leaks; valgrind in ctest covers the C-level detail)."""
+from __future__ import annotations
+
+import gc
+import os
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from fmu_helpers import OK, WARNING, Slave, all_fmus, fmu_id, model_of, output_names, require_fmu
+
+CYCLES = 2000
+WARM_UP = 200
+MAX_GROWTH = 1 << 20  # bytes; a leaked instance per cycle adds ~2 MB over 1,800 cycles, 4 snapshots ~2.5 MB
+SNAPSHOTS = 4  # FMU states per cycle: a leaked snapshot (a few hundred bytes) must add up past MAX_GROWTH
+PAGE_SIZE = os.sysconf("SC_PAGE_SIZE")
+
+
+def resident_bytes() -> int:
+    with open("/proc/self/statm") as statm:
+        return int(statm.read().split()[1]) * PAGE_SIZE
+
+
+def one_cycle(slave: Slave, point: dict, outputs: list[str], expected: np.ndarray) -> None:
+    """instantiate .. free on the already loaded library, touching every kind of call that allocates."""
+    slave.messages.clear()
+    slave.instantiate()
+    slave.initialize(point)
+    for _ in range(5):
+        assert slave.step(1e-3) in (OK, WARNING)
+    for _ in range(SNAPSHOTS):
+        state = slave.fmu.getFMUState()
+        data = slave.fmu.serializeFMUState(state)
+        restored = slave.fmu.deserializeFMUState(data)
+        slave.set_state(restored)
+        slave.fmu.freeFMUState(restored)
+        slave.fmu.freeFMUState(state)
+    assert slave.step(1e-3) in (OK, WARNING)
+    values = slave.get(outputs)
+    slave.fmu.terminate()
+    slave.free_instance()
+    slave.time = 0.0
+    assert np.array_equal(values, expected)
+
+
+@pytest.mark.parametrize("fmu", all_fmus(), ids=fmu_id)
+def test_repeated_lifecycles_do_not_grow_memory(fmu: Path) -> None:
+    require_fmu(fmu)
+    model = model_of(fmu)
+    outputs = output_names(model)
+    point = {v.name: (v.min + v.max) / 3 if v.type != "Boolean" else 1.0 for v in model.arguments}
+    expected = np.stack([model.evaluate(**point)[n] for n in outputs]).astype(float)
+    slave = Slave(fmu, "cycled")  # one extracted folder, the library loaded once
+    try:
+        for _ in range(WARM_UP):
+            one_cycle(slave, point, outputs, expected)
+        gc.collect()
+        after_warm_up = resident_bytes()
+        for _ in range(CYCLES - WARM_UP):
+            one_cycle(slave, point, outputs, expected)
+        gc.collect()
+        growth = resident_bytes() - after_warm_up
+    finally:
+        slave.unload()
+    assert growth < MAX_GROWTH, f"{fmu.name}: RSS grew by {growth / 1024:.0f} KiB over {CYCLES - WARM_UP} cycles"

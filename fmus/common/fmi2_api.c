@@ -89,21 +89,13 @@ fmi2Status fmi2Reset(fmi2Component c) {
 }
 
 fmi2Status fmi2GetReal(fmi2Component c, const fmi2ValueReference vr[], size_t nvr, fmi2Real value[]) {
-    size_t i;
     BEGIN("fmi2GetReal", STATES_GET);
-    if (fmu_check_arrays(INSTANCE, function, vr, nvr, value, nvr) != FMU_OK) RETURN(FMU_ERROR);
-    for (i = 0; i < nvr; i++)
-        if (fmu_get_float64(INSTANCE, function, vr[i], &value[i]) != FMU_OK) RETURN(FMU_ERROR);
-    return fmi2OK;
+    RETURN(fmu_get_float64s(INSTANCE, function, vr, nvr, value, nvr));
 }
 
 fmi2Status fmi2SetReal(fmi2Component c, const fmi2ValueReference vr[], size_t nvr, const fmi2Real value[]) {
-    size_t i;
     BEGIN("fmi2SetReal", STATES_SET);
-    if (fmu_check_arrays(INSTANCE, function, vr, nvr, value, nvr) != FMU_OK) RETURN(FMU_ERROR);
-    for (i = 0; i < nvr; i++)
-        if (fmu_set_float64(INSTANCE, function, vr[i], value[i]) != FMU_OK) RETURN(FMU_ERROR);
-    return fmi2OK;
+    RETURN(fmu_set_float64s(INSTANCE, function, vr, nvr, value, nvr));
 }
 
 fmi2Status fmi2GetBoolean(fmi2Component c, const fmi2ValueReference vr[], size_t nvr, fmi2Boolean value[]) {

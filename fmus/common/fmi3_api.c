@@ -98,22 +98,14 @@ fmi3Status fmi3Reset(fmi3Instance c) {
 
 fmi3Status fmi3GetFloat64(fmi3Instance c, const fmi3ValueReference vr[], size_t nvr, fmi3Float64 values[],
                           size_t nValues) {
-    size_t i;
     BEGIN("fmi3GetFloat64", STATES_GET);
-    if (fmu_check_arrays(INSTANCE, function, vr, nvr, values, nValues) != FMU_OK) RETURN(FMU_ERROR);
-    for (i = 0; i < nvr; i++)
-        if (fmu_get_float64(INSTANCE, function, vr[i], &values[i]) != FMU_OK) RETURN(FMU_ERROR);
-    return fmi3OK;
+    RETURN(fmu_get_float64s(INSTANCE, function, vr, nvr, values, nValues));
 }
 
 fmi3Status fmi3SetFloat64(fmi3Instance c, const fmi3ValueReference vr[], size_t nvr, const fmi3Float64 values[],
                           size_t nValues) {
-    size_t i;
     BEGIN("fmi3SetFloat64", STATES_SET);
-    if (fmu_check_arrays(INSTANCE, function, vr, nvr, values, nValues) != FMU_OK) RETURN(FMU_ERROR);
-    for (i = 0; i < nvr; i++)
-        if (fmu_set_float64(INSTANCE, function, vr[i], values[i]) != FMU_OK) RETURN(FMU_ERROR);
-    return fmi3OK;
+    RETURN(fmu_set_float64s(INSTANCE, function, vr, nvr, values, nValues));
 }
 
 fmi3Status fmi3GetBoolean(fmi3Instance c, const fmi3ValueReference vr[], size_t nvr, fmi3Boolean values[],

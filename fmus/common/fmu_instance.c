@@ -296,6 +296,25 @@ FmuStatus fmu_set_boolean(FmuInstance *instance, const char *function, unsigned 
     return FMU_OK;
 }
 
+/* Array forms used by the FMI functions: the standard's checks on the arrays, then one by one. */
+FmuStatus fmu_get_float64s(FmuInstance *instance, const char *function, const unsigned int vr[], size_t n_vr,
+                           double values[], size_t n_values) {
+    size_t i;
+    if (fmu_check_arrays(instance, function, vr, n_vr, values, n_values) != FMU_OK) return FMU_ERROR;
+    for (i = 0; i < n_vr; i++)
+        if (fmu_get_float64(instance, function, vr[i], &values[i]) != FMU_OK) return FMU_ERROR;
+    return FMU_OK;
+}
+
+FmuStatus fmu_set_float64s(FmuInstance *instance, const char *function, const unsigned int vr[], size_t n_vr,
+                           const double values[], size_t n_values) {
+    size_t i;
+    if (fmu_check_arrays(instance, function, vr, n_vr, values, n_values) != FMU_OK) return FMU_ERROR;
+    for (i = 0; i < n_vr; i++)
+        if (fmu_set_float64(instance, function, vr[i], values[i]) != FMU_OK) return FMU_ERROR;
+    return FMU_OK;
+}
+
 FmuStatus fmu_reject_type(FmuInstance *instance, const char *function, const char *type, size_t n_vr) {
     if (n_vr == 0) return FMU_OK;
     fmu_log(instance, FMU_ERROR, "logStatusError", "%s: %s has no variables of type %s", function,

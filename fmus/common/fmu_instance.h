@@ -82,6 +82,10 @@ FmuStatus fmu_get_float64(FmuInstance *instance, const char *function, unsigned 
 FmuStatus fmu_set_float64(FmuInstance *instance, const char *function, unsigned int vr, double value);
 FmuStatus fmu_get_boolean(FmuInstance *instance, const char *function, unsigned int vr, bool *value);
 FmuStatus fmu_set_boolean(FmuInstance *instance, const char *function, unsigned int vr, bool value);
+FmuStatus fmu_get_float64s(FmuInstance *instance, const char *function, const unsigned int vr[], size_t n_vr,
+                           double values[], size_t n_values);
+FmuStatus fmu_set_float64s(FmuInstance *instance, const char *function, const unsigned int vr[], size_t n_vr,
+                           const double values[], size_t n_values);
 FmuStatus fmu_reject_type(FmuInstance *instance, const char *function, const char *type_name, size_t n_vr);
 
 /* Mode changes. */

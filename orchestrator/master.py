@@ -103,7 +103,8 @@ class RunResult:
 class _Slave:
     """One FMU instance with its value-reference and value buffers built once."""
 
-    def __init__(self, inst: FmuInstance, unzip_dir: str, scenario: Scenario) -> None:
+    def __init__(self, inst: FmuInstance, unzip_dir: str, scenario: Scenario,
+                 fmi2_loggers: dict[bytes, Callable[[int, bytes | None], None]]) -> None:
         self.inst, self.name, self.m = inst, inst.name, inst.ticks_per_step
         fmi3 = inst.fmi_version == 3
         vr_t, real_t, bool_t = ((fmi3ValueReference, fmi3Float64, fmi3Boolean) if fmi3
@@ -116,10 +117,13 @@ class _Slave:
         if fmi3:
             fmu.instantiate(logMessage=lambda env, status, category, message: self._log(status, message))
         else:
-            # fmpy's native proxy formats the printf-style arguments before calling us
+            # fmpy's native proxy formats the printf-style arguments before calling us, but it
+            # keeps only the logger installed last: route each message by its instance name.
+            fmi2_loggers[inst.name.encode()] = self._log
             self._callbacks = fmi2CallbackFunctions()
             self._callbacks.logger = fmi2CallbackLoggerTYPE(
-                lambda env, name, status, category, message: self._log(status, message))
+                lambda env, name, status, category, message:
+                    fmi2_loggers.get(name or b"", self._log)(status, message))
             self._callbacks.allocateMemory = defaultCallbacks.allocateMemory
             self._callbacks.freeMemory = defaultCallbacks.freeMemory
             addLoggerProxy(ctypes.byref(self._callbacks))
@@ -306,6 +310,7 @@ class _Run:
                                   + 1e-9) * scenario.ticks_per_output
         self.unzip_dirs: dict[Path, str] = {}
         self.slaves: dict[str, _Slave] = {}
+        self.fmi2_loggers: dict[bytes, Callable[[int, bytes | None], None]] = {}
         self.tick = 0
         self.current = ""  # instance of the FMI call in progress, for error messages
         self.t = self.start
@@ -321,7 +326,7 @@ class _Run:
             self.current = inst.name
             if inst.path not in self.unzip_dirs:
                 self.unzip_dirs[inst.path] = extract(str(inst.path))
-            self.slaves[inst.name] = _Slave(inst, self.unzip_dirs[inst.path], scenario)
+            self.slaves[inst.name] = _Slave(inst, self.unzip_dirs[inst.path], scenario, self.fmi2_loggers)
             self.slaves[inst.name].set_parameters()
         _wire(self.slaves, scenario)
         order = list(self.slaves.values())

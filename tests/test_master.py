@@ -107,15 +107,29 @@ def test_sigint_interrupts_cleanly(make_case, fmu_dir, tmp_path):
     assert len(load_results(result.run_dir)) == result.steps + 1
 
 
-def test_failing_fmu_call_keeps_results(make_case, fmu_dir, tmp_path):
+@pytest.mark.parametrize("fmi", [3, 2])
+def test_failing_fmu_call_keeps_results(make_case, fmu_dir, tmp_path, fmi):
     # 2000 rev/s = 12566 rad/s is beyond the 1e4 rad/s that SpindlePower accepts
     csv = "speed,vx,vy,process,power\n0,0,0,Prep,0\n10,3,4,Prep,0\n2000,0,0,Prep,0\n0,0,0,Prep,0\n"
-    scenario = load_scenario(make_case(csv=csv), fmu_dir)
+    edits = [("fmi = 3", f"fmi = {fmi}")] * 2
+    scenario = load_scenario(make_case(*edits, csv=csv), fmu_dir)
     with pytest.raises(SimulationError) as info:
         run(scenario, tmp_path / "runs", progress=False)
     err = info.value
     assert (err.instance, err.status) == ("power", "Error") and err.time == pytest.approx(0.2)
     assert "'power'" in str(err) and "t = 0.2" in str(err) and "spindle_speed" in str(err)
     run_dir = tmp_path / "runs" / "case"
-    assert read_run_info(run_dir)["status"].startswith("failed: SetFloat64 of instance 'power'")
+    assert read_run_info(run_dir)["status"].startswith(
+        f"failed: {'SetFloat64' if fmi == 3 else 'SetReal'} of instance 'power'")
     check(load_results(run_dir), "time", [0.0, 0.1, 0.2])
+
+
+def test_fmi2_messages_reach_the_instance_that_logged_them(make_case, fmu_dir, tmp_path):
+    # fmpy's FMI 2 logger proxy keeps only the logger installed last ('power', instantiated
+    # after 'mrr' in execution order): mrr's own rejection message must still be attached.
+    csv = "speed,vx,vy,process,power\n0,0,0,Prep,0\n10,20000,0,Prep,0\n0,0,0,Prep,0\n"
+    scenario = load_scenario(make_case(*[("fmi = 3", "fmi = 2")] * 2, csv=csv), fmu_dir)
+    with pytest.raises(SimulationError) as info:
+        run(scenario, tmp_path / "runs", progress=False)
+    assert info.value.instance == "mrr"
+    assert "fmi2SetReal: variable 'feed_velocity_x' = 20 m/s is out of its allowed range" in str(info.value)

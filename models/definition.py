@@ -15,7 +15,7 @@ from typing import Callable, Literal, Mapping
 import casadi as ca
 import numpy as np
 
-VariableType = Literal["Float64", "Boolean"]
+VariableType = Literal["Float64", "Int32", "Boolean"]
 Causality = Literal["parameter", "input", "output"]
 Variability = Literal["fixed", "tunable", "continuous", "discrete"]
 
@@ -30,7 +30,7 @@ class Variable:
     description: str
     unit: str = ""
     display_unit: str = ""
-    start: float | bool | None = None
+    start: float | int | bool | None = None
     min: float | None = None
     max: float | None = None
     variability: Variability | None = None
@@ -41,20 +41,41 @@ class Variable:
             return self.variability
         if self.causality == "parameter":
             return "tunable"
-        return "discrete" if self.type == "Boolean" else "continuous"
+        return "continuous" if self.type == "Float64" else "discrete"
+
+
+@dataclass(frozen=True)
+class State:
+    """A state the model keeps between steps (not an FMI variable); SI ``unit``."""
+
+    name: str
+    description: str
+    unit: str = ""
+    start: float = 0.0
 
 
 Equations = Callable[[Mapping[str, ca.SX]], dict[str, ca.SX]]
+# (parameters, inputs and states by name, step size h) -> the states at the end of the step
+StateUpdate = Callable[[Mapping[str, ca.SX], ca.SX], dict[str, ca.SX]]
 
 
 @dataclass(frozen=True)
 class ModelDefinition:
-    """A model: identifier, variables and the equations giving every output from parameters and inputs."""
+    """A model: identifier, variables, states, the equations giving every output from parameters,
+    inputs and states, and (for models with states) the update of the states over one step of
+    size h with inputs held constant over the step (what a co-simulation step does)."""
 
     identifier: str
     description: str
     variables: tuple[Variable, ...]
-    equations: Equations
+    equations: Equations | None
+    states: tuple[State, ...] = ()
+    update: StateUpdate | None = None
+    # Outputs and states that the model's C code (model.c) computes itself, because casadi cannot
+    # express them (searches, buffers, grids); models/ then holds a reference implementation and a
+    # test proves the two equal. Everything else is generated from the expressions here.
+    native_outputs: tuple[str, ...] = ()
+    native_states: tuple[str, ...] = ()
     default_step_size: float = 1e-3
     default_stop_time: float = 10.0
     _cache: dict = field(default_factory=dict, compare=False, repr=False)
@@ -69,16 +90,46 @@ class ModelDefinition:
         raise KeyError(f"{self.identifier} has no variable '{name}'")
 
     @property
-    def arguments(self) -> tuple[Variable, ...]:
-        """The equations' arguments in order: parameters, then inputs."""
-        return self.of("parameter") + self.of("input")
+    def arguments(self) -> tuple[Variable | State, ...]:
+        """The equations' arguments in order: parameters, inputs, then states."""
+        return self.of("parameter") + self.of("input") + self.states
+
+    @property
+    def computed_outputs(self) -> tuple[Variable, ...]:
+        """Outputs given by ``equations`` (generated into C), in definition order."""
+        return tuple(v for v in self.of("output") if v.name not in self.native_outputs)
+
+    @property
+    def updated_states(self) -> tuple[State, ...]:
+        """States given by ``update`` (generated into C), in definition order."""
+        return tuple(s for s in self.states if s.name not in self.native_states)
+
+    def _symbols(self) -> dict[str, ca.SX]:
+        return {v.name: ca.SX.sym(v.name) for v in self.arguments}
+
+    def update_function(self) -> ca.Function:
+        """The state update as a casadi Function (arguments..., h) -> new states."""
+        if "update" not in self._cache:
+            symbols, h = self._symbols(), ca.SX.sym("h")
+            new = self.update(symbols, h) if self.update else {}
+            expected = {s.name for s in self.updated_states}
+            if set(new) != expected:
+                raise ValueError(f"{self.identifier}: update gives {sorted(new)}, states are {sorted(expected)}")
+            self._cache["update"] = ca.Function(
+                f"{self.identifier}_update",
+                [symbols[v.name] for v in self.arguments] + [h],
+                [new[s.name] for s in self.updated_states],
+                [v.name for v in self.arguments] + ["h"],
+                [s.name for s in self.updated_states],
+            )
+        return self._cache["update"]
 
     def function(self) -> ca.Function:
         """The equations as one casadi Function (arguments -> outputs), scalar in and out."""
         if "function" not in self._cache:
-            symbols = {v.name: ca.SX.sym(v.name) for v in self.arguments}
-            outputs = self.equations(symbols)
-            expected = {v.name for v in self.of("output")}
+            symbols = self._symbols()
+            outputs = self.equations(symbols) if self.equations else {}
+            expected = {v.name for v in self.computed_outputs}
             if set(outputs) != expected:
                 raise ValueError(
                     f"{self.identifier}: equations give {sorted(outputs)}, outputs are {sorted(expected)}"
@@ -86,9 +137,9 @@ class ModelDefinition:
             self._cache["function"] = ca.Function(
                 self.identifier,
                 [symbols[v.name] for v in self.arguments],
-                [outputs[v.name] for v in self.of("output")],
+                [outputs[v.name] for v in self.computed_outputs],
                 [v.name for v in self.arguments],
-                [v.name for v in self.of("output")],
+                [v.name for v in self.computed_outputs],
             )
         return self._cache["function"]
 
@@ -96,29 +147,36 @@ class ModelDefinition:
         """Start values of parameters and inputs (booleans as 0.0/1.0)."""
         return {v.name: float(v.start) for v in self.arguments if v.start is not None}
 
-    def evaluate(self, **values: float | np.ndarray) -> dict[str, np.ndarray]:
-        """Numeric evaluation on numpy arrays (broadcast); missing arguments take their start values."""
-        args = {**self.defaults(), **values}
-        missing = [v.name for v in self.arguments if v.name not in args]
+    def _evaluate(self, function: ca.Function, names: list[str], extra: dict[str, float | np.ndarray],
+                  values: dict[str, float | np.ndarray]) -> dict[str, np.ndarray]:
+        args = {**self.defaults(), **values, **extra}
+        expected = [v.name for v in self.arguments] + list(extra)
+        missing = [name for name in expected if name not in args]
         if missing:
             raise ValueError(f"{self.identifier}: no value for {', '.join(missing)}")
-        unknown = sorted(set(values) - {v.name for v in self.arguments})
+        unknown = sorted(set(values) - set(expected))
         if unknown:
             raise ValueError(f"{self.identifier}: unknown argument(s) {', '.join(unknown)}")
-        arrays = np.broadcast_arrays(*[np.asarray(args[v.name], dtype=float) for v in self.arguments])
+        arrays = np.broadcast_arrays(*[np.asarray(args[name], dtype=float) for name in expected])
         shape = arrays[0].shape
         flat = [a.reshape(1, -1) for a in arrays]
-        count = flat[0].shape[1]
-        result = self.function().map(count)(*flat)
+        result = function.map(flat[0].shape[1])(*flat)
         result = result if isinstance(result, (list, tuple)) else [result]
-        return {
-            v.name: np.asarray(r, dtype=float).reshape(shape)
-            for v, r in zip(self.of("output"), result)
-        }
+        return {name: np.asarray(r, dtype=float).reshape(shape) for name, r in zip(names, result)}
+
+    def evaluate(self, **values: float | np.ndarray) -> dict[str, np.ndarray]:
+        """Outputs on numpy arrays (broadcast); missing arguments take their start values."""
+        return self._evaluate(self.function(), [v.name for v in self.computed_outputs], {}, values)
+
+    def step(self, h: float | np.ndarray, **values: float | np.ndarray) -> dict[str, np.ndarray]:
+        """The states after one step of size ``h`` with the given parameters, inputs and states."""
+        return self._evaluate(self.update_function(), [s.name for s in self.updated_states], {"h": h}, values)
 
     def instantiation_token(self) -> str:
         """A GUID that changes whenever the variables or equations change."""
-        function = self.function()
-        fingerprint = repr(self.variables) + str(function(*function.sx_in())) + self.identifier
+        function, update = self.function(), self.update_function()
+        fingerprint = (repr(self.variables) + repr(self.states) + repr(self.native_outputs)
+                       + repr(self.native_states) + str(function(*function.sx_in()))
+                       + str(update(*update.sx_in())) + self.identifier)
         digest = hashlib.sha256(fingerprint.encode()).hexdigest()
         return "{" + str(uuid.UUID(digest[:32])) + "}"

@@ -242,7 +242,11 @@ def test_wrong_type_for_a_value_reference_is_rejected(slave: Slave) -> None:
     integer = "Integer" if slave.fmi_version == 2 else "Int32"
     setter = getattr(slave.fmu, f"set{integer}")
     assert status_of(lambda: setter([slave.vr[real]], [1])) == ERROR
-    assert slave.last_error() == f"{slave.prefix}Set{integer}: {slave.identifier} has no variables of type {integer}"
+    assert slave.last_error() == (f"{slave.prefix}Set{integer}: variable '{real}' (value reference "
+                                  f"{slave.vr[real]}) is Float64, not Int32")
+    slave.fmu.reset()
+    assert status_of(lambda: slave.fmu.setString([slave.vr[real]], ["x"])) == ERROR
+    assert slave.last_error() == f"{slave.prefix}SetString: {slave.identifier} has no variables of type String"
 
 
 @pytest.mark.parametrize("fmu3", FMI3_FMUS, ids=fmu_id)
@@ -441,8 +445,13 @@ def test_corrupt_serialized_state_is_rejected(fmu: Path) -> None:
         p = slave.prefix
         function = f"{p}DeSerializeFMUstate" if slave.fmi_version == 2 else "fmi3DeserializeFMUState"
         assert status_of(lambda: slave.fmu.deserializeFMUState(data[:-1])) == ERROR
-        assert slave.last_error() == (f"{function}: serialized FMUstate has {len(data) - 1} bytes, expected "
-                                      f"{len(data)} (or a NULL pointer was passed)")
+        # these models keep no heap data, so the whole state is the fixed-size header
+        assert slave.last_error() == (f"{function}: serialized FMUstate has {len(data) - 1} bytes, at least "
+                                      f"{len(data)} expected (or a NULL pointer was passed)")
+        slave.fmu.reset()
+        assert status_of(lambda: slave.fmu.deserializeFMUState(data + b"\0")) == ERROR
+        assert slave.last_error() == (f"{function}: serialized FMUstate has {len(data) + 1} bytes, expected "
+                                      f"{len(data)}")
         slave.fmu.reset()
         assert status_of(lambda: slave.fmu.deserializeFMUState(bytes(len(data)))) == ERROR
         assert slave.last_error().startswith(f"{function}: FMUstate was not made by this FMU ({slave.identifier}")

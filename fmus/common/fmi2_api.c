@@ -119,20 +119,25 @@ fmi2Status fmi2SetBoolean(fmi2Component c, const fmi2ValueReference vr[], size_t
     return fmi2OK;
 }
 
-/* The models have no Integer or String variables: any value reference of those types is unknown. */
 fmi2Status fmi2GetInteger(fmi2Component c, const fmi2ValueReference vr[], size_t nvr, fmi2Integer value[]) {
+    size_t i;
     BEGIN("fmi2GetInteger", STATES_GET);
-    (void)vr;
-    (void)value;
-    RETURN(fmu_reject_type(INSTANCE, function, "Integer", nvr));
+    if (fmu_check_arrays(INSTANCE, function, vr, nvr, value, nvr) != FMU_OK) RETURN(FMU_ERROR);
+    for (i = 0; i < nvr; i++)
+        if (fmu_get_int32(INSTANCE, function, vr[i], &value[i]) != FMU_OK) RETURN(FMU_ERROR);
+    return fmi2OK;
 }
 
 fmi2Status fmi2SetInteger(fmi2Component c, const fmi2ValueReference vr[], size_t nvr, const fmi2Integer value[]) {
+    size_t i;
     BEGIN("fmi2SetInteger", STATES_SET);
-    (void)vr;
-    (void)value;
-    RETURN(fmu_reject_type(INSTANCE, function, "Integer", nvr));
+    if (fmu_check_arrays(INSTANCE, function, vr, nvr, value, nvr) != FMU_OK) RETURN(FMU_ERROR);
+    for (i = 0; i < nvr; i++)
+        if (fmu_set_int32(INSTANCE, function, vr[i], value[i]) != FMU_OK) RETURN(FMU_ERROR);
+    return fmi2OK;
 }
+
+/* The models have no String variables: any value reference of that type is unknown. */
 
 fmi2Status fmi2GetString(fmi2Component c, const fmi2ValueReference vr[], size_t nvr, fmi2String value[]) {
     BEGIN("fmi2GetString", STATES_GET);
@@ -165,10 +170,7 @@ fmi2Status fmi2FreeFMUstate(fmi2Component c, fmi2FMUstate *FMUstate) {
 
 fmi2Status fmi2SerializedFMUstateSize(fmi2Component c, fmi2FMUstate FMUstate, size_t *size) {
     BEGIN("fmi2SerializedFMUstateSize", STATES_ANY);
-    (void)FMUstate;
-    if (!size) RETURN(fmu_unsupported(INSTANCE, function, "size is NULL"));
-    *size = fmu_serialized_state_size();
-    return fmi2OK;
+    RETURN(fmu_serialized_state_size(INSTANCE, function, FMUstate, size));
 }
 
 fmi2Status fmi2SerializeFMUstate(fmi2Component c, fmi2FMUstate FMUstate, fmi2Byte serializedState[], size_t size) {

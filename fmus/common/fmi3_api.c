@@ -128,7 +128,27 @@ fmi3Status fmi3SetBoolean(fmi3Instance c, const fmi3ValueReference vr[], size_t 
     return fmi3OK;
 }
 
-/* The models have only Float64 and Boolean variables: any value reference of another type is unknown. */
+fmi3Status fmi3GetInt32(fmi3Instance c, const fmi3ValueReference vr[], size_t nvr, fmi3Int32 values[],
+                        size_t nValues) {
+    size_t i;
+    BEGIN("fmi3GetInt32", STATES_GET);
+    if (fmu_check_arrays(INSTANCE, function, vr, nvr, values, nValues) != FMU_OK) RETURN(FMU_ERROR);
+    for (i = 0; i < nvr; i++)
+        if (fmu_get_int32(INSTANCE, function, vr[i], &values[i]) != FMU_OK) RETURN(FMU_ERROR);
+    return fmi3OK;
+}
+
+fmi3Status fmi3SetInt32(fmi3Instance c, const fmi3ValueReference vr[], size_t nvr, const fmi3Int32 values[],
+                        size_t nValues) {
+    size_t i;
+    BEGIN("fmi3SetInt32", STATES_SET);
+    if (fmu_check_arrays(INSTANCE, function, vr, nvr, values, nValues) != FMU_OK) RETURN(FMU_ERROR);
+    for (i = 0; i < nvr; i++)
+        if (fmu_set_int32(INSTANCE, function, vr[i], values[i]) != FMU_OK) RETURN(FMU_ERROR);
+    return fmi3OK;
+}
+
+/* The models have only Float64, Int32 and Boolean variables: any value reference of another type is unknown. */
 #define REJECT_GET(Name, T)                                                                                   \
     fmi3Status fmi3Get##Name(fmi3Instance c, const fmi3ValueReference vr[], size_t nvr, T values[], size_t nValues) { \
         BEGIN("fmi3Get" #Name, STATES_GET);                                                                   \
@@ -149,7 +169,6 @@ REJECT_GET_SET(Int8, fmi3Int8)
 REJECT_GET_SET(UInt8, fmi3UInt8)
 REJECT_GET_SET(Int16, fmi3Int16)
 REJECT_GET_SET(UInt16, fmi3UInt16)
-REJECT_GET_SET(Int32, fmi3Int32)
 REJECT_GET_SET(UInt32, fmi3UInt32)
 REJECT_GET_SET(Int64, fmi3Int64)
 REJECT_GET_SET(UInt64, fmi3UInt64)
@@ -198,10 +217,7 @@ fmi3Status fmi3FreeFMUState(fmi3Instance c, fmi3FMUState *FMUState) {
 
 fmi3Status fmi3SerializedFMUStateSize(fmi3Instance c, fmi3FMUState FMUState, size_t *size) {
     BEGIN("fmi3SerializedFMUStateSize", STATES_ANY);
-    (void)FMUState;
-    if (!size) RETURN(fmu_unsupported(INSTANCE, function, "size is NULL"));
-    *size = fmu_serialized_state_size();
-    return fmi3OK;
+    RETURN(fmu_serialized_state_size(INSTANCE, function, FMUState, size));
 }
 
 fmi3Status fmi3SerializeFMUState(fmi3Instance c, fmi3FMUState FMUState, fmi3Byte serializedState[], size_t size) {

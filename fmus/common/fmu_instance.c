@@ -125,9 +125,29 @@ FmuInstance *fmu_create(const char *function, const char *name, const char *toke
     return instance;
 }
 
+static void free_heap(FmuInstance *instance) {
+    free(instance->heap);
+    instance->heap = NULL;
+    instance->heap_size = 0;
+}
+
+FmuStatus fmu_allocate_heap(FmuInstance *instance, const char *function, size_t count) {
+    double *heap = count > 0 ? calloc(count, sizeof *heap) : NULL;
+    if (count > 0 && !heap) {
+        fmu_log(instance, FMU_ERROR, "logStatusError", "%s: out of memory for %zu values (%zu MB)", function, count,
+                count * sizeof *heap >> 20);
+        return FMU_ERROR;
+    }
+    free_heap(instance);
+    instance->heap = heap;
+    instance->heap_size = count;
+    return FMU_OK;
+}
+
 void fmu_destroy(FmuInstance *instance) {
     if (!instance) return;
     model_free_internal(instance);
+    free_heap(instance);
     free(instance->name);
     free(instance->resource_path);
     free(instance);
@@ -135,6 +155,7 @@ void fmu_destroy(FmuInstance *instance) {
 
 FmuStatus fmu_reset(FmuInstance *instance) {
     model_free_internal(instance);
+    free_heap(instance);
     set_start_values(instance);
     instance->state = STATE_INSTANTIATED;
     return FMU_OK;
@@ -174,7 +195,14 @@ FmuStatus fmu_check_arrays(FmuInstance *instance, const char *function, const un
     return FMU_OK;
 }
 
-static const char *type_name(FmuType type) { return type == FMU_BOOLEAN ? "Boolean" : "Float64"; }
+static const char *type_name(FmuType type) {
+    switch (type) {
+    case FMU_FLOAT64: return "Float64";
+    case FMU_INT32: return "Int32";
+    case FMU_BOOLEAN: return "Boolean";
+    }
+    return "unknown";
+}
 
 static const char *causality_name(FmuCausality causality) {
     switch (causality) {
@@ -280,6 +308,23 @@ FmuStatus fmu_set_float64(FmuInstance *instance, const char *function, unsigned 
     return FMU_OK;
 }
 
+FmuStatus fmu_get_int32(FmuInstance *instance, const char *function, unsigned int vr, int32_t *value) {
+    const FmuVariable *variable = lookup(instance, function, vr, FMU_INT32);
+    if (!variable) return FMU_ERROR;
+    if (variable->causality == FMU_OUTPUT) refresh_outputs(instance);
+    memcpy(value, (const char *)&instance->v + variable->offset, sizeof *value);
+    return FMU_OK;
+}
+
+FmuStatus fmu_set_int32(FmuInstance *instance, const char *function, unsigned int vr, int32_t value) {
+    const FmuVariable *variable = lookup(instance, function, vr, FMU_INT32);
+    if (!variable || check_settable(instance, function, variable) != FMU_OK) return FMU_ERROR;
+    if (check_range(instance, function, variable, (double)value) != FMU_OK) return FMU_ERROR;
+    memcpy((char *)&instance->v + variable->offset, &value, sizeof value);
+    instance->outputs_stale = true;
+    return FMU_OK;
+}
+
 FmuStatus fmu_get_boolean(FmuInstance *instance, const char *function, unsigned int vr, bool *value) {
     const FmuVariable *variable = lookup(instance, function, vr, FMU_BOOLEAN);
     if (!variable) return FMU_ERROR;
@@ -346,9 +391,15 @@ FmuStatus fmu_exit_initialization(FmuInstance *instance, const char *function) {
     for (i = 0; i < N_MODEL_VARIABLES; i++) {
         const FmuVariable *variable = &MODEL_VARIABLE_TABLE[i];
         double value;
-        if (variable->type != FMU_FLOAT64 || (variable->causality != FMU_PARAMETER && variable->causality != FMU_INPUT))
+        if (variable->type == FMU_BOOLEAN || (variable->causality != FMU_PARAMETER && variable->causality != FMU_INPUT))
             continue;
-        memcpy(&value, (const char *)&instance->v + variable->offset, sizeof value);
+        if (variable->type == FMU_INT32) {
+            int32_t integer;
+            memcpy(&integer, (const char *)&instance->v + variable->offset, sizeof integer);
+            value = (double)integer;
+        } else {
+            memcpy(&value, (const char *)&instance->v + variable->offset, sizeof value);
+        }
         if (check_range(instance, function, variable, value) != FMU_OK) return FMU_ERROR;
     }
     status = model_exit_initialization(instance);
@@ -400,35 +451,46 @@ FmuStatus fmu_terminate(FmuInstance *instance, const char *function) {
 
 #define SNAPSHOT_MAGIC 0x464d5553u /* "FMUS" */
 
+/* A snapshot is one block: this header, then heap_size doubles. Serialization is the block. */
 struct FmuSnapshot {
     uint32_t magic;
-    uint32_t size;
+    uint32_t reserved;
+    uint64_t bytes;                 /* size of the whole block */
     char token[64];
     FmuState state;
     double time, start_time, stop_time;
     bool stop_time_defined;
     ModelVariables v;
     ModelInternal internal;
+    uint64_t heap_size;
+    double heap[];
 };
+
+static size_t snapshot_bytes(size_t heap_size) { return sizeof(FmuSnapshot) + heap_size * sizeof(double); }
 
 FmuStatus fmu_get_state(FmuInstance *instance, const char *function, void **snapshot) {
     FmuSnapshot *s;
+    size_t bytes = snapshot_bytes(instance->heap_size);
     if (!snapshot) {
         fmu_log(instance, FMU_ERROR, "logStatusError", "%s: FMUstate pointer is NULL", function);
         return FMU_ERROR;
     }
-    s = *snapshot ? (FmuSnapshot *)*snapshot : calloc(1, sizeof *s);
-    if (!s) {
-        fmu_log(instance, FMU_ERROR, "logStatusError", "%s: out of memory", function);
-        return FMU_ERROR;
-    }
-    if (*snapshot && s->magic != SNAPSHOT_MAGIC) {
+    s = *snapshot;
+    if (s && (s->magic != SNAPSHOT_MAGIC)) {
         fmu_log(instance, FMU_ERROR, "logStatusError", "%s: FMUstate was not made by this FMU", function);
         return FMU_ERROR;
     }
+    if (!s || s->bytes != bytes) { /* reuse the importer's state in place when the size still fits */
+        FmuSnapshot *resized = realloc(s, bytes);
+        if (!resized) {
+            fmu_log(instance, FMU_ERROR, "logStatusError", "%s: out of memory", function);
+            return FMU_ERROR;
+        }
+        s = resized;
+    }
     memset(s, 0, sizeof *s);
     s->magic = SNAPSHOT_MAGIC;
-    s->size = (uint32_t)sizeof *s;
+    s->bytes = bytes;
     snprintf(s->token, sizeof s->token, "%s", INSTANTIATION_TOKEN);
     s->state = instance->state;
     s->time = instance->time;
@@ -437,6 +499,8 @@ FmuStatus fmu_get_state(FmuInstance *instance, const char *function, void **snap
     s->stop_time_defined = instance->stop_time_defined;
     s->v = instance->v;
     s->internal = instance->internal;
+    s->heap_size = instance->heap_size;
+    if (instance->heap_size) memcpy(s->heap, instance->heap, instance->heap_size * sizeof(double));
     *snapshot = s;
     return FMU_OK;
 }
@@ -446,7 +510,8 @@ static FmuStatus check_snapshot(FmuInstance *instance, const char *function, con
         fmu_log(instance, FMU_ERROR, "logStatusError", "%s: FMUstate is NULL", function);
         return FMU_ERROR;
     }
-    if (s->magic != SNAPSHOT_MAGIC || s->size != sizeof *s || strcmp(s->token, INSTANTIATION_TOKEN) != 0) {
+    if (s->magic != SNAPSHOT_MAGIC || strncmp(s->token, INSTANTIATION_TOKEN, sizeof s->token) != 0 ||
+        s->bytes != snapshot_bytes(s->heap_size)) {
         fmu_log(instance, FMU_ERROR, "logStatusError",
                 "%s: FMUstate was not made by this FMU (%s, token %s)", function, MODEL_IDENTIFIER_STRING,
                 INSTANTIATION_TOKEN);
@@ -458,6 +523,9 @@ static FmuStatus check_snapshot(FmuInstance *instance, const char *function, con
 FmuStatus fmu_set_state(FmuInstance *instance, const char *function, const void *snapshot) {
     const FmuSnapshot *s = snapshot;
     if (check_snapshot(instance, function, s) != FMU_OK) return FMU_ERROR;
+    if (s->heap_size != instance->heap_size && fmu_allocate_heap(instance, function, s->heap_size) != FMU_OK)
+        return FMU_ERROR;
+    if (s->heap_size) memcpy(instance->heap, s->heap, s->heap_size * sizeof(double));
     instance->state = s->state;
     instance->time = s->time;
     instance->start_time = s->start_time;
@@ -479,37 +547,50 @@ FmuStatus fmu_free_state(FmuInstance *instance, const char *function, void **sna
     return FMU_OK;
 }
 
-size_t fmu_serialized_state_size(void) { return sizeof(FmuSnapshot); }
+FmuStatus fmu_serialized_state_size(FmuInstance *instance, const char *function, const void *snapshot,
+                                    size_t *size) {
+    if (check_snapshot(instance, function, snapshot) != FMU_OK) return FMU_ERROR;
+    if (!size) {
+        fmu_log(instance, FMU_ERROR, "logStatusError", "%s: size is NULL", function);
+        return FMU_ERROR;
+    }
+    *size = (size_t)((const FmuSnapshot *)snapshot)->bytes;
+    return FMU_OK;
+}
 
 FmuStatus fmu_serialize_state(FmuInstance *instance, const char *function, const void *snapshot,
                               unsigned char *bytes, size_t size) {
-    if (check_snapshot(instance, function, snapshot) != FMU_OK) return FMU_ERROR;
-    if (!bytes || size < sizeof(FmuSnapshot)) {
+    const FmuSnapshot *s = snapshot;
+    if (check_snapshot(instance, function, s) != FMU_OK) return FMU_ERROR;
+    if (!bytes || size < s->bytes) {
         fmu_log(instance, FMU_ERROR, "logStatusError", "%s: buffer of %zu bytes is too small (need %zu)", function,
-                bytes ? size : 0, sizeof(FmuSnapshot));
+                bytes ? size : 0, (size_t)s->bytes);
         return FMU_ERROR;
     }
-    memcpy(bytes, snapshot, sizeof(FmuSnapshot));
+    memcpy(bytes, s, (size_t)s->bytes);
     return FMU_OK;
 }
 
 FmuStatus fmu_deserialize_state(FmuInstance *instance, const char *function, const unsigned char *bytes,
                                 size_t size, void **snapshot) {
-    FmuSnapshot *s;
-    if (!bytes || !snapshot || size != sizeof(FmuSnapshot)) {
+    FmuSnapshot header, *s;
+    if (!bytes || !snapshot || size < sizeof header) {
         fmu_log(instance, FMU_ERROR, "logStatusError",
-                "%s: serialized FMUstate has %zu bytes, expected %zu (or a NULL pointer was passed)", function, size,
-                sizeof(FmuSnapshot));
+                "%s: serialized FMUstate has %zu bytes, at least %zu expected (or a NULL pointer was passed)",
+                function, size, sizeof header);
         return FMU_ERROR;
     }
-    s = malloc(sizeof *s);
+    memcpy(&header, bytes, sizeof header);
+    header.token[sizeof header.token - 1] = '\0';
+    if (check_snapshot(instance, function, &header) != FMU_OK) return FMU_ERROR;
+    if (size != header.bytes) {
+        fmu_log(instance, FMU_ERROR, "logStatusError", "%s: serialized FMUstate has %zu bytes, expected %zu",
+                function, size, (size_t)header.bytes);
+        return FMU_ERROR;
+    }
+    s = malloc(size);
     if (!s) return FMU_ERROR;
-    memcpy(s, bytes, sizeof *s);
-    s->token[sizeof s->token - 1] = '\0';
-    if (check_snapshot(instance, function, s) != FMU_OK) {
-        free(s);
-        return FMU_ERROR;
-    }
+    memcpy(s, bytes, size);
     if (*snapshot) free(*snapshot);
     *snapshot = s;
     return FMU_OK;

@@ -7,6 +7,7 @@
 
 #include <stdbool.h>
 #include <stddef.h>
+#include <stdint.h>
 #include "config.h"
 
 typedef enum { FMU_OK = 0, FMU_WARNING = 1, FMU_DISCARD = 2, FMU_ERROR = 3, FMU_FATAL = 4 } FmuStatus;
@@ -48,7 +49,9 @@ struct FmuInstance {
     double stop_time;
     bool outputs_stale;             /* inputs or parameters changed since outputs were computed */
     ModelVariables v;
-    ModelInternal internal;         /* model state that is not a variable (config.h) */
+    ModelInternal internal;         /* model state that is not a variable (config.h), flat */
+    double *heap;                   /* model data sized at initialization (fmu_allocate_heap) */
+    size_t heap_size;               /* number of doubles in heap */
     char message[1024];             /* scratch for formatting log messages; per instance, no globals */
 };
 
@@ -80,6 +83,8 @@ FmuStatus fmu_check_arrays(FmuInstance *instance, const char *function, const un
 /* Checked access to one variable; `function` names the FMI call in messages. */
 FmuStatus fmu_get_float64(FmuInstance *instance, const char *function, unsigned int vr, double *value);
 FmuStatus fmu_set_float64(FmuInstance *instance, const char *function, unsigned int vr, double value);
+FmuStatus fmu_get_int32(FmuInstance *instance, const char *function, unsigned int vr, int32_t *value);
+FmuStatus fmu_set_int32(FmuInstance *instance, const char *function, unsigned int vr, int32_t value);
 FmuStatus fmu_get_boolean(FmuInstance *instance, const char *function, unsigned int vr, bool *value);
 FmuStatus fmu_set_boolean(FmuInstance *instance, const char *function, unsigned int vr, bool value);
 FmuStatus fmu_get_float64s(FmuInstance *instance, const char *function, const unsigned int vr[], size_t n_vr,
@@ -100,13 +105,18 @@ typedef struct FmuSnapshot FmuSnapshot;
 FmuStatus fmu_get_state(FmuInstance *instance, const char *function, void **snapshot);
 FmuStatus fmu_set_state(FmuInstance *instance, const char *function, const void *snapshot);
 FmuStatus fmu_free_state(FmuInstance *instance, const char *function, void **snapshot);
-size_t fmu_serialized_state_size(void);
+FmuStatus fmu_serialized_state_size(FmuInstance *instance, const char *function, const void *snapshot,
+                                    size_t *size);
 FmuStatus fmu_serialize_state(FmuInstance *instance, const char *function, const void *snapshot,
                               unsigned char *bytes, size_t size);
 FmuStatus fmu_deserialize_state(FmuInstance *instance, const char *function, const unsigned char *bytes,
                                 size_t size, void **snapshot);
 
 FmuStatus fmu_unsupported(FmuInstance *instance, const char *function, const char *why);
+
+/* Model data whose size is known only at initialization (a grid, a history buffer): `count`
+ * doubles, zeroed, owned by the instance, copied into FMU states and their serialization. */
+FmuStatus fmu_allocate_heap(FmuInstance *instance, const char *function, size_t count);
 
 /* ---- Hooks each model implements in its model.c ---- */
 
@@ -117,8 +127,8 @@ FmuStatus model_exit_initialization(FmuInstance *instance);
 FmuStatus model_do_step(FmuInstance *instance, double time, double step_size);
 /* Compute outputs from the current parameters, inputs and internal state. */
 void model_update_outputs(FmuInstance *instance);
-/* Release what ModelInternal owns (on reset and free). FMU state snapshots copy ModelInternal
- * by value, so a model whose internal state owns memory must deep-copy it in its own hooks. */
+/* Release what ModelInternal owns (on reset and free). FMU states copy ModelInternal by value:
+ * memory a model needs belongs in the instance heap (fmu_allocate_heap), not behind pointers. */
 void model_free_internal(FmuInstance *instance);
 
 #endif

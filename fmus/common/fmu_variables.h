@@ -5,7 +5,7 @@
 
 #include <stddef.h>
 
-typedef enum { FMU_FLOAT64, FMU_BOOLEAN } FmuType;
+typedef enum { FMU_FLOAT64, FMU_INT32, FMU_BOOLEAN } FmuType;
 typedef enum { FMU_INDEPENDENT, FMU_PARAMETER, FMU_INPUT, FMU_OUTPUT } FmuCausality;
 typedef enum { FMU_FIXED, FMU_TUNABLE, FMU_CONTINUOUS, FMU_DISCRETE } FmuVariability;
 
@@ -16,7 +16,7 @@ typedef struct {
     FmuCausality causality;
     FmuVariability variability;
     size_t offset;              /* of the value in ModelVariables */
-    double min, max;            /* allowed range (Float64), checked on every set and at initialization */
+    double min, max;            /* allowed range (Float64, Int32), checked on every set and at initialization */
     const char *unit;
 } FmuVariable;
 

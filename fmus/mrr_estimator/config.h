@@ -1,6 +1,6 @@
 /* MrrEstimator: identifiers, value references and variables are generated from
  * models/mrr_estimator.py (model_generated.h). The model is algebraic: its hooks are
- * fmus/common/algebraic_model.c and it keeps nothing between steps. */
+ * fmus/common/generated_model.c and it keeps nothing between steps. */
 #ifndef CONFIG_H
 #define CONFIG_H
 

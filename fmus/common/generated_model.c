@@ -1,5 +1,6 @@
-/* Model hooks for models whose outputs are algebraic in parameters and inputs (no state between
- * steps): the generated equations are all there is. A model with state writes its own model.c. */
+/* Model hooks for models that are entirely their models/ definition: outputs from the generated
+ * equations, states (if any) from the generated update. A model with more to do (checks, memory,
+ * code that casadi cannot express) writes its own model.c. */
 #include "fmu_instance.h"
 
 FmuStatus model_exit_initialization(FmuInstance *instance) {
@@ -8,7 +9,8 @@ FmuStatus model_exit_initialization(FmuInstance *instance) {
 }
 
 FmuStatus model_do_step(FmuInstance *instance, double time, double step_size) {
-    (void)instance, (void)time, (void)step_size;
+    (void)time;
+    model_update_states(&instance->v, step_size);
     return FMU_OK;
 }
 

@@ -2,7 +2,8 @@
 from models.definition import ModelDefinition, Variable
 from models.mrr_estimator import MRR_ESTIMATOR
 from models.power import POWER
+from models.vibration import VIBRATION
 
-MODELS: dict[str, ModelDefinition] = {m.identifier: m for m in (POWER, MRR_ESTIMATOR)}
+MODELS: dict[str, ModelDefinition] = {m.identifier: m for m in (POWER, MRR_ESTIMATOR, VIBRATION)}
 
-__all__ = ["MODELS", "ModelDefinition", "Variable", "POWER", "MRR_ESTIMATOR"]
+__all__ = ["MODELS", "ModelDefinition", "Variable", "POWER", "MRR_ESTIMATOR", "VIBRATION"]

@@ -120,7 +120,7 @@ class ModelDefinition:
                 [symbols[v.name] for v in self.arguments] + [h],
                 [new[s.name] for s in self.updated_states],
                 [v.name for v in self.arguments] + ["h"],
-                [s.name for s in self.updated_states],
+                [f"{s.name}_next" for s in self.updated_states],
             )
         return self._cache["update"]
 

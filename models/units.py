@@ -98,6 +98,7 @@ _POWER: Final = _d(kg=1, m=2, s=-3)
 _FORCE: Final = _d(kg=1, m=1, s=-2)
 _TORQUE: Final = _d(kg=1, m=2, s=-2)
 _POWER_PER_ANGULAR_VELOCITY: Final = _d(kg=1, m=2, s=-2, rad=-1)
+_STIFFNESS: Final = _d(kg=1, s=-2)
 _VOLUME_FLOW: Final = _d(m=3, s=-1)
 _CURRENT: Final = _d(a=1)
 _VOLTAGE: Final = _d(kg=1, m=2, s=-3, a=-1)
@@ -117,6 +118,7 @@ _DIMENSION_NAMES: Final[dict[tuple[int, ...], str]] = {
     _FORCE: "force",
     _TORQUE: "torque",
     _POWER_PER_ANGULAR_VELOCITY: "power per angular velocity",
+    _STIFFNESS: "stiffness",
     _VOLUME_FLOW: "volume flow rate",
     _CURRENT: "electric current",
     _VOLTAGE: "voltage",
@@ -137,6 +139,7 @@ SI_UNITS: Final[dict[tuple[int, ...], str]] = {
     _FORCE: "N",
     _TORQUE: "N.m",
     _POWER_PER_ANGULAR_VELOCITY: "W.s/rad",
+    _STIFFNESS: "N/m",
     _VOLUME_FLOW: "m3/s",
     _CURRENT: "A",
     _VOLTAGE: "V",
@@ -160,6 +163,7 @@ def _table() -> dict[str, Unit]:
         ("N", _FORCE, 1.0),
         ("N.m", _TORQUE, 1.0),
         ("W.s/rad", _POWER_PER_ANGULAR_VELOCITY, 1.0),
+        ("N/m", _STIFFNESS, 1.0),
         ("m3/s", _VOLUME_FLOW, 1.0),
         ("1", _DIMENSIONLESS, 1.0),
         ("A", _CURRENT, 1.0),
@@ -189,6 +193,8 @@ def _table() -> dict[str, Unit]:
         ("mm3/min", _VOLUME_FLOW, 1e-9 / 60.0),
         ("kHz", _FREQUENCY, 1e3),
         ("W/rpm", _POWER_PER_ANGULAR_VELOCITY, 60.0 / _TWO_PI),
+        ("N/um", _STIFFNESS, 1e6),
+        ("N/mm", _STIFFNESS, 1e3),
         ("%", _DIMENSIONLESS, 0.01),
     ]
     table = {name: Unit(name, dims, factor) for name, dims, factor in entries}

@@ -15,7 +15,7 @@ from typing import Callable, Literal, Mapping
 import casadi as ca
 import numpy as np
 
-VariableType = Literal["Float64", "Int32", "Boolean"]
+VariableType = Literal["Float64", "Int32", "Boolean", "String"]
 Causality = Literal["parameter", "input", "output"]
 Variability = Literal["fixed", "tunable", "continuous", "discrete"]
 
@@ -30,7 +30,7 @@ class Variable:
     description: str
     unit: str = ""
     display_unit: str = ""
-    start: float | int | bool | None = None
+    start: float | int | bool | str | None = None
     min: float | None = None
     max: float | None = None
     variability: Variability | None = None
@@ -42,6 +42,10 @@ class Variable:
         if self.causality == "parameter":
             return "tunable"
         return "continuous" if self.type == "Float64" else "discrete"
+
+
+#: Capacity of a String variable in the FMU, terminating NUL included (a longer value is rejected).
+STRING_CAPACITY = 4096
 
 
 @dataclass(frozen=True)
@@ -91,8 +95,10 @@ class ModelDefinition:
 
     @property
     def arguments(self) -> tuple[Variable | State, ...]:
-        """The equations' arguments in order: parameters, inputs, then states."""
-        return self.of("parameter") + self.of("input") + self.states
+        """The equations' arguments in order: parameters, inputs, then states (Strings are no
+        arguments: only a model's C code reads them, e.g. a file name)."""
+        numeric = tuple(v for v in self.of("parameter") + self.of("input") if v.type != "String")
+        return numeric + self.states
 
     @property
     def computed_outputs(self) -> tuple[Variable, ...]:

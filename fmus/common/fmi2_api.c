@@ -137,20 +137,22 @@ fmi2Status fmi2SetInteger(fmi2Component c, const fmi2ValueReference vr[], size_t
     return fmi2OK;
 }
 
-/* The models have no String variables: any value reference of that type is unknown. */
-
 fmi2Status fmi2GetString(fmi2Component c, const fmi2ValueReference vr[], size_t nvr, fmi2String value[]) {
+    size_t i;
     BEGIN("fmi2GetString", STATES_GET);
-    (void)vr;
-    (void)value;
-    RETURN(fmu_reject_type(INSTANCE, function, "String", nvr));
+    if (fmu_check_arrays(INSTANCE, function, vr, nvr, value, nvr) != FMU_OK) RETURN(FMU_ERROR);
+    for (i = 0; i < nvr; i++)
+        if (fmu_get_string(INSTANCE, function, vr[i], &value[i]) != FMU_OK) RETURN(FMU_ERROR);
+    return fmi2OK;
 }
 
 fmi2Status fmi2SetString(fmi2Component c, const fmi2ValueReference vr[], size_t nvr, const fmi2String value[]) {
+    size_t i;
     BEGIN("fmi2SetString", STATES_SET);
-    (void)vr;
-    (void)value;
-    RETURN(fmu_reject_type(INSTANCE, function, "String", nvr));
+    if (fmu_check_arrays(INSTANCE, function, vr, nvr, value, nvr) != FMU_OK) RETURN(FMU_ERROR);
+    for (i = 0; i < nvr; i++)
+        if (fmu_set_string(INSTANCE, function, vr[i], value[i]) != FMU_OK) RETURN(FMU_ERROR);
+    return fmi2OK;
 }
 
 fmi2Status fmi2GetFMUstate(fmi2Component c, fmi2FMUstate *FMUstate) {

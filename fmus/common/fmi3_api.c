@@ -148,7 +148,27 @@ fmi3Status fmi3SetInt32(fmi3Instance c, const fmi3ValueReference vr[], size_t nv
     return fmi3OK;
 }
 
-/* The models have only Float64, Int32 and Boolean variables: any value reference of another type is unknown. */
+fmi3Status fmi3GetString(fmi3Instance c, const fmi3ValueReference vr[], size_t nvr, fmi3String values[],
+                         size_t nValues) {
+    size_t i;
+    BEGIN("fmi3GetString", STATES_GET);
+    if (fmu_check_arrays(INSTANCE, function, vr, nvr, values, nValues) != FMU_OK) RETURN(FMU_ERROR);
+    for (i = 0; i < nvr; i++)
+        if (fmu_get_string(INSTANCE, function, vr[i], &values[i]) != FMU_OK) RETURN(FMU_ERROR);
+    return fmi3OK;
+}
+
+fmi3Status fmi3SetString(fmi3Instance c, const fmi3ValueReference vr[], size_t nvr, const fmi3String values[],
+                         size_t nValues) {
+    size_t i;
+    BEGIN("fmi3SetString", STATES_SET);
+    if (fmu_check_arrays(INSTANCE, function, vr, nvr, values, nValues) != FMU_OK) RETURN(FMU_ERROR);
+    for (i = 0; i < nvr; i++)
+        if (fmu_set_string(INSTANCE, function, vr[i], values[i]) != FMU_OK) RETURN(FMU_ERROR);
+    return fmi3OK;
+}
+
+/* The models have only Float64, Int32, Boolean and String variables: any value reference of another type is unknown. */
 #define REJECT_GET(Name, T)                                                                                   \
     fmi3Status fmi3Get##Name(fmi3Instance c, const fmi3ValueReference vr[], size_t nvr, T values[], size_t nValues) { \
         BEGIN("fmi3Get" #Name, STATES_GET);                                                                   \
@@ -172,7 +192,6 @@ REJECT_GET_SET(UInt16, fmi3UInt16)
 REJECT_GET_SET(UInt32, fmi3UInt32)
 REJECT_GET_SET(Int64, fmi3Int64)
 REJECT_GET_SET(UInt64, fmi3UInt64)
-REJECT_GET_SET(String, fmi3String)
 
 fmi3Status fmi3GetBinary(fmi3Instance c, const fmi3ValueReference vr[], size_t nvr, size_t valueSizes[],
                          fmi3Binary values[], size_t nValues) {

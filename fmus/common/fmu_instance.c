@@ -200,6 +200,7 @@ static const char *type_name(FmuType type) {
     case FMU_FLOAT64: return "Float64";
     case FMU_INT32: return "Int32";
     case FMU_BOOLEAN: return "Boolean";
+    case FMU_STRING: return "String";
     }
     return "unknown";
 }
@@ -321,6 +322,34 @@ FmuStatus fmu_set_int32(FmuInstance *instance, const char *function, unsigned in
     if (!variable || check_settable(instance, function, variable) != FMU_OK) return FMU_ERROR;
     if (check_range(instance, function, variable, (double)value) != FMU_OK) return FMU_ERROR;
     memcpy((char *)&instance->v + variable->offset, &value, sizeof value);
+    instance->outputs_stale = true;
+    return FMU_OK;
+}
+
+FmuStatus fmu_get_string(FmuInstance *instance, const char *function, unsigned int vr, const char **value) {
+    const FmuVariable *variable = lookup(instance, function, vr, FMU_STRING);
+    if (!variable) return FMU_ERROR;
+    *value = (const char *)&instance->v + variable->offset;
+    return FMU_OK;
+}
+
+FmuStatus fmu_set_string(FmuInstance *instance, const char *function, unsigned int vr, const char *value) {
+    const FmuVariable *variable = lookup(instance, function, vr, FMU_STRING);
+    size_t length;
+    if (!variable || check_settable(instance, function, variable) != FMU_OK) return FMU_ERROR;
+    if (!value) {
+        fmu_log(instance, FMU_ERROR, "logStatusError", "%s: variable '%s' set to NULL: must be a string", function,
+                variable->name);
+        return FMU_ERROR;
+    }
+    length = strlen(value);
+    if (length >= FMU_STRING_CAPACITY) {
+        fmu_log(instance, FMU_ERROR, "logStatusError",
+                "%s: variable '%s' set to a string of %zu characters: at most %d are allowed", function,
+                variable->name, length, FMU_STRING_CAPACITY - 1);
+        return FMU_ERROR;
+    }
+    memcpy((char *)&instance->v + variable->offset, value, length + 1);
     instance->outputs_stale = true;
     return FMU_OK;
 }

@@ -86,6 +86,9 @@ FmuStatus fmu_set_float64(FmuInstance *instance, const char *function, unsigned 
 FmuStatus fmu_get_int32(FmuInstance *instance, const char *function, unsigned int vr, int32_t *value);
 FmuStatus fmu_set_int32(FmuInstance *instance, const char *function, unsigned int vr, int32_t value);
 FmuStatus fmu_get_boolean(FmuInstance *instance, const char *function, unsigned int vr, bool *value);
+/* Strings live in ModelVariables (FMU_STRING_CAPACITY bytes each); get returns a pointer to it. */
+FmuStatus fmu_get_string(FmuInstance *instance, const char *function, unsigned int vr, const char **value);
+FmuStatus fmu_set_string(FmuInstance *instance, const char *function, unsigned int vr, const char *value);
 FmuStatus fmu_set_boolean(FmuInstance *instance, const char *function, unsigned int vr, bool value);
 FmuStatus fmu_get_float64s(FmuInstance *instance, const char *function, const unsigned int vr[], size_t n_vr,
                            double values[], size_t n_values);

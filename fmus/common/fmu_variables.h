@@ -5,7 +5,7 @@
 
 #include <stddef.h>
 
-typedef enum { FMU_FLOAT64, FMU_INT32, FMU_BOOLEAN } FmuType;
+typedef enum { FMU_FLOAT64, FMU_INT32, FMU_BOOLEAN, FMU_STRING } FmuType;
 typedef enum { FMU_INDEPENDENT, FMU_PARAMETER, FMU_INPUT, FMU_OUTPUT } FmuCausality;
 typedef enum { FMU_FIXED, FMU_TUNABLE, FMU_CONTINUOUS, FMU_DISCRETE } FmuVariability;
 

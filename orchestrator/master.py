@@ -8,12 +8,12 @@ Semantics of :func:`run` (``base`` = the scenario's base step, ``t_k = start + k
   ``step_size = m*base`` is due at the ticks ``k`` with ``k % m == 0`` and steps
   ``doStep(t_k, t_{min(k+m, N)} - t_k)`` (so a slower instance's last step is cut
   at ``t_N``, and ``t + h`` lands exactly on the next grid time).
-* Setup. Each instance is instantiated, its scenario parameters are set (still in
-  the Instantiated state, i.e. as start values before initialization), then all
+* Setup. Each instance is instantiated, its scenario parameters and constant inputs
+  are set (still in the Instantiated state, i.e. as start values before initialization), then all
   enter Initialization Mode at ``start`` (FMI 2: ``setupExperiment`` first). In
   execution order each instance's inputs are set from the values at ``start`` and
   its outputs read, so later instances see them; then all exit Initialization
-  Mode. Inputs that nothing feeds keep their start values.
+  Mode. Inputs that nothing feeds keep their start (or constant scenario) values.
 * One tick at ``t_k``: first the outputs feeding ``delay = true`` connections are
   copied (their values at the beginning of the tick). Then, in execution order,
   every due instance gets its inputs set and steps:
@@ -199,14 +199,16 @@ class _Slave:
             _log.warning("%s: %s", self.name, text)
 
     def set_parameters(self) -> None:
-        params = self.inst.parameters
-        reals = [n for n in params if self.inst.variables[n].type == "real"]
-        bools = [n for n in params if n not in reals]
+        """Parameters and constant inputs, as start values (before initialization)."""
+        params = {**self.inst.parameters, **self.inst.inputs}
+        kinds = {n: self.inst.variables[n].type for n in params}
         vr = lambda names: [self.inst.variables[n].value_reference for n in names]  # noqa: E731
-        if reals:
-            (self.fmu.setFloat64 if self.fmi3 else self.fmu.setReal)(vr(reals), [params[n] for n in reals])
-        if bools:
-            self.fmu.setBoolean(vr(bools), [params[n] for n in bools])
+        for kind, setter in (("real", self.fmu.setFloat64 if self.fmi3 else self.fmu.setReal),
+                             ("int", self.fmu.setInt32 if self.fmi3 else self.fmu.setInteger),
+                             ("bool", self.fmu.setBoolean)):
+            names = [n for n in params if kinds[n] == kind]
+            if names:
+                setter(vr(names), [params[n] for n in names])
 
     def set_inputs(self) -> None:
         for call in self._set_calls:
@@ -271,7 +273,7 @@ def _run_info(scenario: Scenario) -> dict[str, Any]:
         "fmus": [{"instance": i.name, "path": str(i.path.resolve()), "sha256": sha256_of(i.path),
                   "fmi_version": i.fmi_version, "model_identifier": i.model_identifier,
                   "instantiation_token": i.instantiation_token, "step_size": i.step_size,
-                  "parameters": dict(i.parameters)} for i in scenario.instances],
+                  "parameters": dict(i.parameters), "inputs": dict(i.inputs)} for i in scenario.instances],
         "execution_order": list(scenario.execution_order),
         "start_time": scenario.start_time, "stop_time": scenario.stop_time,
         "output_interval": scenario.output_interval, "base_step": scenario.base_step,

@@ -23,6 +23,8 @@ Format (all times in seconds; paths are relative to the scenario file's folder):
     [fmus.power.parameters]     # causality "parameter" only
     P_standby = 0.0                       # plain number: the variable's own (SI) unit
     P_idle = { value = 0.1, unit = "kW" } # converted by models.units
+    [fmus.power.inputs]         # optional: constant values of inputs that nothing else feeds
+    spindle_speed = { value = 6000, unit = "rpm" }   # (set with the parameters, before initialization)
 
     [recorded]                  # optional
     file = "data/experiment_01.csv"
@@ -52,11 +54,12 @@ Format (all times in seconds; paths are relative to the scenario file's folder):
 
 Rules checked here: every reference names an existing instance, variable or channel
 (candidates are listed otherwise); parameters are ``parameter`` variables and lie within
-the FMU's min/max; inputs and connections target ``input`` variables
-of type Real/Float64 or Boolean, each input at most once; units of connected
-variables (and of a channel and the input it feeds) have the same dimension, and
-the factor between them is applied by the master; booleans connect only to
-booleans. Step sizes are positive; the base step is their greatest common divisor
+the FMU's min/max (Integer/Int32 ones take TOML integers); an instance's constant
+``inputs`` are ``input`` variables within min/max that nothing else feeds; inputs and
+connections target ``input`` variables of type Real/Float64 or Boolean, each input at
+most once; units of connected variables (and of a channel and the input it feeds)
+have the same dimension, and the factor between them is applied by the master;
+booleans connect only to booleans. Step sizes are positive; the base step is their greatest common divisor
 (computed on the decimal values, to 1e-9 s) and must be at least 1/10000 of the
 largest step; ``output_interval`` must be a multiple of it. Connections with
 ``delay = false`` must not form a cycle between instances (an algebraic loop; the
@@ -85,7 +88,7 @@ __all__ = [
 ]
 
 MAX_STEP_RATIO = 10_000  # largest step / base step; beyond it steps are incommensurate
-_SUPPORTED_TYPES = {"Real": "real", "Float64": "real", "Boolean": "bool"}
+_SUPPORTED_TYPES = {"Real": "real", "Float64": "real", "Boolean": "bool", "Integer": "int", "Int32": "int"}
 _NAME_RE = re.compile(r"^[A-Za-z0-9_.-]+$")
 
 
@@ -132,8 +135,9 @@ class FmuInstance:
     ticks_per_step: int  # step_size / base step
     model_identifier: str
     instantiation_token: str
-    parameters: Mapping[str, float | bool]  # SI values, by variable name
+    parameters: Mapping[str, float | bool | int]  # SI values, by variable name
     variables: Mapping[str, Variable] = field(repr=False, compare=False)
+    inputs: Mapping[str, float | bool | int] = field(default_factory=dict)  # constant inputs, SI
 
 
 @dataclass(frozen=True)
@@ -237,7 +241,7 @@ def _variables(md: Any) -> dict[str, Variable]:
     for v in md.modelVariables:
         unit = v.unit or (v.declaredType.unit if v.declaredType is not None else None) or ""
         kind = _SUPPORTED_TYPES.get(v.type, v.type) if not v.dimensions else f"{v.type}[]"
-        bound = lambda x: float(x) if x is not None and kind == "real" else None  # noqa: E731
+        bound = lambda x: float(x) if x is not None and kind in ("real", "int") else None  # noqa: E731
         out[v.name] = Variable(v.name, v.valueReference, kind, v.causality, v.variability,
                                "bool" if kind == "bool" else unit, bound(v.min), bound(v.max))
     return out
@@ -245,7 +249,7 @@ def _variables(md: Any) -> dict[str, Variable]:
 
 def _load_fmu(ctx: _Ctx, name: str, table: dict, fmu_dir: Path) -> tuple[dict, Path, Any]:
     key = f"[fmus.{name}]"
-    ctx.table(table, key, ("fmu", "fmi", "step_size", "parameters"))
+    ctx.table(table, key, ("fmu", "fmi", "step_size", "parameters", "inputs"))
     fmu = ctx.string(table, key, "fmu")
     fmi = table.get("fmi", 3)
     if fmi not in (2, 3) or isinstance(fmi, bool):
@@ -271,20 +275,23 @@ def _load_fmu(ctx: _Ctx, name: str, table: dict, fmu_dir: Path) -> tuple[dict, P
     return table, path, md
 
 
-def _parameters(ctx: _Ctx, inst: str, table: Any, variables: Mapping[str, Variable], model: str) -> dict:
-    key = f"[fmus.{inst}].parameters"
+def _parameters(ctx: _Ctx, inst: str, table: Any, variables: Mapping[str, Variable], model: str,
+                causality: str = "parameter") -> dict:
+    """``[fmus.<inst>].parameters`` (or ``.inputs`` with causality "input"): values by name, SI."""
+    section = "parameters" if causality == "parameter" else "inputs"
+    key = f"[fmus.{inst}].{section}"
     if not isinstance(table, dict):
         ctx.fail(key, f"expected a table, got {table!r}")
-    known = [v.name for v in variables.values() if v.causality == "parameter"]
-    values: dict[str, float | bool] = {}
+    known = [v.name for v in variables.values() if v.causality == causality]
+    values: dict[str, float | bool | int] = {}
     for name, raw in table.items():
         k = f"{key}.{name}"
         var = variables.get(name)
-        if var is None or var.causality != "parameter":
+        if var is None or var.causality != causality:
             what = "unknown variable" if var is None else f"{var.causality} variable"
-            ctx.fail(k, f"{what} {name!r} in {model}; known parameters: {', '.join(known)}")
-        if var.type not in ("real", "bool"):
-            ctx.fail(k, f"parameter {name!r} has unsupported type {var.type}")
+            ctx.fail(k, f"{what} {name!r} in {model}; known {section}: {', '.join(known)}")
+        if var.type not in ("real", "bool", "int"):
+            ctx.fail(k, f"{causality} {name!r} has unsupported type {var.type}")
         unit = None
         if isinstance(raw, dict):
             ctx.table(raw, k, ("value", "unit"))
@@ -293,6 +300,14 @@ def _parameters(ctx: _Ctx, inst: str, table: Any, variables: Mapping[str, Variab
         if var.type == "bool":
             if not isinstance(raw, bool) or unit not in (None, "bool"):
                 ctx.fail(k, f"{name!r} is Boolean: give true or false, got {raw!r}")
+            values[name] = raw
+            continue
+        if var.type == "int":
+            if isinstance(raw, bool) or not isinstance(raw, int) or unit is not None:
+                ctx.fail(k, f"{name!r} is an integer: give a whole number without unit, got {raw!r}")
+            if (var.min is not None and raw < var.min) or (var.max is not None and raw > var.max):
+                ctx.fail(k, f"{raw!r} is outside the range [{var.min:g}, {var.max:g}] that {model} allows "
+                            f"for {name!r}")
             values[name] = raw
             continue
         if isinstance(raw, bool) or not isinstance(raw, (int, float)) or not math.isfinite(raw):
@@ -462,8 +477,9 @@ def load_scenario(path: str | Path, fmu_dir: str | Path) -> Scenario:
         variables = _variables(md)
         model = md.coSimulation.modelIdentifier
         params = _parameters(ctx, inst, table.get("parameters", {}), variables, model)
+        constants = _parameters(ctx, inst, table.get("inputs", {}), variables, model, "input")
         instances[inst] = FmuInstance(inst, fmu_path, int(md.fmiVersion[0]), step, ratios[inst],
-                                      model, md.guid, params, variables)
+                                      model, md.guid, params, variables, constants)
 
     recorded = _recorded(ctx, doc["recorded"]) if "recorded" in doc else None
     if "stop_time" in sc:
@@ -475,7 +491,8 @@ def load_scenario(path: str | Path, fmu_dir: str | Path) -> Scenario:
     if stop < start + output_interval:
         ctx.fail("[scenario].stop_time", f"{stop!r} must be at least start_time + output_interval")
 
-    fed: dict[Ref, str] = {}
+    fed: dict[Ref, str] = {Ref(i.name, n): f"[fmus.{i.name}].inputs.{n}" for i in instances.values()
+                           for n in i.inputs}
 
     def feed(key: str, ref: Ref) -> None:
         if ref in fed:

@@ -250,3 +250,70 @@ def test_self_loop(tmp_path, fmu_dir):
 def test_scenario_file_missing(tmp_path, fmu_dir):
     msg = error_of(tmp_path / "none.toml", fmu_dir)
     assert "scenario file not found" in msg
+
+
+# ---- constant inputs ([fmus.<name>.inputs]) and integer parameters ----
+
+CONSTANT_INPUTS = ('[fmus.mrr.parameters]', '[fmus.mrr.inputs]\nfeed_velocity_y = { value = 600.0, unit = "mm/min" }\n'
+                                            'cutting = true\n[fmus.mrr.parameters]')
+
+
+def test_constant_inputs(make_case, fmu_dir):
+    sc = load_scenario(make_case(CONSTANT_INPUTS, ('[[inputs]]\nfrom = "vy"\nto = "mrr.feed_velocity_y"\n', ""),
+                                 ('[[inputs]]\nfrom = "cutting"\nto = "mrr.cutting"\n', "")), fmu_dir)
+    assert sc.instance("mrr").inputs == {"feed_velocity_y": pytest.approx(0.01), "cutting": True}
+    assert sc.instance("power").inputs == {}
+
+
+def test_constant_input_fed_by_a_channel_too(make_case, fmu_dir):
+    msg = error_of(make_case(CONSTANT_INPUTS), fmu_dir)
+    assert "[[inputs]][3].to: input mrr.feed_velocity_y is already fed by [fmus.mrr].inputs.feed_velocity_y" in msg
+
+
+def test_constant_input_errors(make_case, fmu_dir):
+    msg = error_of(make_case(('[fmus.mrr.parameters]', '[fmus.mrr.inputs]\nwidth_of_cut = 1.0\n[fmus.mrr.parameters]')),
+                   fmu_dir)
+    assert "[fmus.mrr].inputs.width_of_cut: parameter variable 'width_of_cut' in MrrEstimator; known inputs: " \
+           "feed_velocity_x, feed_velocity_y, cutting" in msg
+    msg = error_of(make_case(('[fmus.mrr.parameters]', '[fmus.mrr.inputs]\nfeed_velocity_x = { value = 11, unit = "m/s" }'
+                                                       '\n[fmus.mrr.parameters]')), fmu_dir)
+    assert "[fmus.mrr].inputs.feed_velocity_x: 11.0 m/s is outside the range [-10.0, 10.0] m/s" in msg
+
+
+INTEGER_TOML = """\
+[scenario]
+name = "integers"
+stop_time = 0.001
+output_interval = 0.0005
+[fmus.force]
+fmu = "CuttingForce"
+step_size = 0.0001
+[fmus.force.parameters]
+n_flutes = 3
+[fmus.force.inputs]
+spindle_speed = { value = 6000, unit = "rpm" }
+feed_velocity_x = { value = 900, unit = "mm/min" }
+"""
+
+
+def test_integer_parameters(tmp_path, fmu_dir):
+    path = tmp_path / "integers.toml"
+    path.write_text(INTEGER_TOML)
+    sc = load_scenario(path, fmu_dir)
+    assert sc.instance("force").parameters == {"n_flutes": 3}
+    assert sc.instance("force").inputs == pytest.approx({"spindle_speed": 200 * math.pi, "feed_velocity_x": 0.015})
+    for value, expected in (("3.0", "'n_flutes' is an integer: give a whole number without unit, got 3.0"),
+                            ("7", "7 is outside the range [1, 6] that CuttingForce allows for 'n_flutes'")):
+        path.write_text(INTEGER_TOML.replace("n_flutes = 3", f"n_flutes = {value}"))
+        assert f"[fmus.force].parameters.n_flutes: {expected}" in error_of(path, fmu_dir)
+
+
+def test_constant_inputs_and_integer_parameters_reach_the_fmu(tmp_path, fmu_dir):
+    from orchestrator.master import run
+    from orchestrator.results import load_results
+
+    path = tmp_path / "integers.toml"
+    path.write_text(INTEGER_TOML)
+    result = run(load_scenario(path, fmu_dir), tmp_path / "runs", progress=False)
+    feed_per_tooth = load_results(result.run_dir)["force.feed_per_tooth"].to_numpy()
+    assert feed_per_tooth == pytest.approx(0.015 / (3 * 100.0))  # 900 mm/min, 3 flutes, 100 rev/s

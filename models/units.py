@@ -99,6 +99,7 @@ _FORCE: Final = _d(kg=1, m=1, s=-2)
 _TORQUE: Final = _d(kg=1, m=2, s=-2)
 _POWER_PER_ANGULAR_VELOCITY: Final = _d(kg=1, m=2, s=-2, rad=-1)
 _STIFFNESS: Final = _d(kg=1, s=-2)
+_PRESSURE: Final = _d(kg=1, m=-1, s=-2)
 _VOLUME_FLOW: Final = _d(m=3, s=-1)
 _CURRENT: Final = _d(a=1)
 _VOLTAGE: Final = _d(kg=1, m=2, s=-3, a=-1)
@@ -119,6 +120,7 @@ _DIMENSION_NAMES: Final[dict[tuple[int, ...], str]] = {
     _TORQUE: "torque",
     _POWER_PER_ANGULAR_VELOCITY: "power per angular velocity",
     _STIFFNESS: "stiffness",
+    _PRESSURE: "pressure",
     _VOLUME_FLOW: "volume flow rate",
     _CURRENT: "electric current",
     _VOLTAGE: "voltage",
@@ -140,6 +142,7 @@ SI_UNITS: Final[dict[tuple[int, ...], str]] = {
     _TORQUE: "N.m",
     _POWER_PER_ANGULAR_VELOCITY: "W.s/rad",
     _STIFFNESS: "N/m",
+    _PRESSURE: "N/m2",
     _VOLUME_FLOW: "m3/s",
     _CURRENT: "A",
     _VOLTAGE: "V",
@@ -164,6 +167,7 @@ def _table() -> dict[str, Unit]:
         ("N.m", _TORQUE, 1.0),
         ("W.s/rad", _POWER_PER_ANGULAR_VELOCITY, 1.0),
         ("N/m", _STIFFNESS, 1.0),
+        ("N/m2", _PRESSURE, 1.0),
         ("m3/s", _VOLUME_FLOW, 1.0),
         ("1", _DIMENSIONLESS, 1.0),
         ("A", _CURRENT, 1.0),
@@ -195,6 +199,8 @@ def _table() -> dict[str, Unit]:
         ("W/rpm", _POWER_PER_ANGULAR_VELOCITY, 60.0 / _TWO_PI),
         ("N/um", _STIFFNESS, 1e6),
         ("N/mm", _STIFFNESS, 1e3),
+        ("N/mm2", _PRESSURE, 1e6),
+        ("MPa", _PRESSURE, 1e6),
         ("%", _DIMENSIONLESS, 0.01),
     ]
     table = {name: Unit(name, dims, factor) for name, dims, factor in entries}

@@ -334,7 +334,12 @@ def model_of(path: Path | str):
 
 def random_arguments(model, count: int, rng: np.random.Generator) -> dict[str, np.ndarray]:
     """``count`` random points of every parameter and input, uniform within [min, max] (booleans 0/1).
-    The first rows are the corners min and max, and every Boolean combination is represented."""
+    The first rows are the corners min and max, and every Boolean combination is represented.
+    A model whose reference module (NATIVE_REFERENCES) has its own ``random_arguments`` gets those:
+    valid operating points of that model, with fixed parameters constant."""
+    native = native_reference(model)
+    if native is not None and hasattr(native, "random_arguments"):
+        return native.random_arguments(count, rng)
     values: dict[str, np.ndarray] = {}
     for v in model.of("parameter") + model.of("input"):
         if v.type == "Boolean":
@@ -363,10 +368,41 @@ def points_of(values: dict[str, np.ndarray]) -> list[dict[str, float]]:
     return [row(values, i) for i in range(count)]
 
 
+# Models with outputs or states computed by their own C code (``native_outputs``/``native_states``)
+# -> the module of models/ with the Python reference implementation of that code, providing
+# ``reference_trajectory(points, step_size)`` (the protocol of the function below) and
+# ``initial_outputs(values)`` (outputs before any step, points x outputs, like expected_outputs).
+# A module may also provide ``random_arguments(count, rng)`` when not every point of the box of ranges is
+# valid for its model (a tool larger than the stock, a path that jumps): random_arguments uses it.
+NATIVE_REFERENCES = {"CuttingForce": "models.cutting_force", "Workpiece": "models.workpiece"}
+
+
+def native_reference(model):
+    """The reference module of a model with native parts (see NATIVE_REFERENCES), else None."""
+    if not (model.native_states or model.native_outputs):
+        return None
+    if model.identifier not in NATIVE_REFERENCES:
+        raise AssertionError(f"{model.identifier} computes {model.native_states + model.native_outputs} in C: "
+                             "register the module of its reference implementation in NATIVE_REFERENCES")
+    import importlib
+
+    return importlib.import_module(NATIVE_REFERENCES[model.identifier])
+
+
+def keeps_heap_data(model) -> bool:
+    """Models with native parts keep their data (buffers, grids) in the instance heap, so their FMU
+    state is longer than the wrapper's fixed-size header; the others' state is the header alone."""
+    return bool(model.native_states or model.native_outputs)
+
+
 def reference_trajectory(model, points: Sequence[dict[str, float]], step_size: float) -> np.ndarray:
     """What an FMU generated from ``model`` must give for: initialize with points[0], then for
     each point set it and do one step of ``step_size``, reading the outputs after the step.
-    States follow ``model.step`` from their start values (points x outputs)."""
+    States follow ``model.step`` from their start values (points x outputs); models with native
+    parts follow their reference implementation (NATIVE_REFERENCES)."""
+    native = native_reference(model)
+    if native is not None:
+        return np.asarray(native.reference_trajectory(points, step_size), dtype=float)
     states = {s.name: s.start for s in model.states}
     rows = []
     for point in points:
@@ -386,7 +422,11 @@ def output_names(model) -> list[str]:
 
 
 def expected_outputs(model, values: dict[str, np.ndarray | float]) -> np.ndarray:
-    """Model outputs from the casadi definition as an array (points x outputs)."""
+    """Model outputs from the casadi definition as an array (points x outputs); for models with
+    native parts, the outputs before any step from their reference implementation."""
+    native = native_reference(model)
+    if native is not None:
+        return np.asarray(native.initial_outputs(values), dtype=float)
     result = model.evaluate(**values)
     return np.stack([np.atleast_1d(result[name]) for name in output_names(model)], axis=-1)
 

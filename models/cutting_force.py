@@ -1,0 +1,332 @@
+"""Mechanistic milling force of a flat end mill (Altintas' linear edge-force model), with
+helix lag, runout and regenerative chip thickness.
+
+Conventions (Altintas, *Manufacturing Automation*, 2nd ed., Cambridge University Press 2012, ch. 2.4):
+
+* Machine frame x, y, z; z along the tool axis towards the spindle. The spindle turns clockwise seen
+  from the spindle (M3). The immersion angle ``phi`` of a cutting-edge point is measured clockwise
+  from +y, so with the feed along +x the edge is at the front of the tool at ``phi = pi/2`` and the
+  chip thickness is ``f_t*sin(phi)`` (up-milling from ``phi = 0``, slotting is ``0 .. pi``).
+* Any feed direction: the static chip is ``T_tooth*(v_x*sin(phi) + v_y*cos(phi))`` (the feed per
+  tooth projected on the edge's radial direction, ``T_tooth = 2*pi/(N*omega)``), which is
+  ``f_t*sin(phi + theta_feed)`` with ``theta_feed = atan2(v_y, v_x)``. The engagement window
+  ``entry_angle .. exit_angle`` is given **relative to the feed direction** (Altintas' angles with
+  the feed along +x): an edge point cuts where ``phi + theta_feed`` lies clockwise from entry to
+  exit, both taken modulo 2*pi (entry = exit: no engagement). Slotting is always ``0 .. pi``,
+  down-milling a half-immersion cut ``pi/2 .. pi``, up-milling ``0 .. pi/2``.
+* Edge point of flute j (0 .. N-1) at height z above the tool tip (z in 0 .. axial_depth):
+  ``phi = angle + j*2*pi/N - z*tan(helix)/R``, a right-hand helix lagging behind the tip; ``angle``
+  is the spindle angle (a state advanced by ``omega*h`` each step, output as ``spindle_angle``).
+* Chip thickness: ``h = max(0, static + dx*sin(phi) + dy*cos(phi) + r_j - r_(j-1))`` with
+  ``dx, dy`` the tool displacement now minus one tooth period ago (regeneration: the surface the
+  previous flute left) and ``r_j = runout_offset*cos(runout_angle - j*2*pi/N)`` the radius change
+  of flute j from an offset tool axis (Altintas' runout model, ch. 2.6).
+* Element forces on the tool over a slice of height dz, only where h > 0 inside the window:
+  ``dFt = Ktc*h*dz + Kte*dz``, ``dFr = Krc*h*dz + Kre*dz``, ``dFa = Kac*h*dz + Kae*dz``, projected
+  ``dFx = -dFt*cos(phi) - dFr*sin(phi)``, ``dFy = dFt*sin(phi) - dFr*cos(phi)``, ``dFz = dFa``.
+  ``Fx, Fy, Fz`` are the force **on the tool** (what the vibration FMU takes as its input); a
+  dynamometer under the workpiece measures the reaction, ``-F``, in its own axes.
+* ``torque = sum(dFt*(R + r_j))`` is the cutting torque the spindle supplies, ``power = torque*omega``.
+
+The tool is discretized into ``AXIAL_SLICES`` slices of equal height and ``MAX_FLUTES`` flutes, of
+which the first ``n_flutes`` are active; the expression graph is generated into the FMU's C code.
+Below ``OMEGA_MIN`` the spindle counts as stopped: there is no chip and all forces are 0.
+
+The delayed displacements (one tooth period ago) come from a history of the displacement inputs
+kept by the FMU's C code (``fmus/force/model.c``): they are the model's ``native_states``.
+:class:`ForceReference` below is the reference implementation the tests hold the C code to.
+"""
+from __future__ import annotations
+
+import bisect
+import math
+from collections import deque
+from typing import Mapping, Sequence
+
+import casadi as ca
+import numpy as np
+
+from models.definition import ModelDefinition, State, Variable
+
+AXIAL_SLICES = 16
+MAX_FLUTES = 6
+OMEGA_MIN = 1.0  # rad/s (9.5 rpm): below it the spindle counts as stopped
+TWO_PI = 2.0 * math.pi
+
+# Al7075-T6 with a cemented-carbide end mill, dry: the row "[190]" of Table 5 in
+# "Milling Force Model for Aviation Aluminum Alloy: Academic Insight and Perspective Analysis",
+# Chinese Journal of Mechanical Engineering 34 (2021), doi:10.1186/s10033-021-00536-9
+# (Ktc 767.01 N/mm2, Kte 27.7 N/mm, Krc 168.8 N/mm2, Kre 26.6 N/mm, Kac 222 N/mm2, Kae 0.7 N/mm).
+AL7075_CARBIDE = {"Ktc": 767.01e6, "Krc": 168.8e6, "Kac": 222.0e6, "Kte": 27.7e3, "Kre": 26.6e3, "Kae": 0.7e3}
+
+
+def _tooth_period(v: Mapping[str, ca.SX]) -> tuple[ca.SX, ca.SX]:
+    """(spindle turning, tooth period) with the period finite however slow the spindle."""
+    turning = v["spindle_speed"] >= OMEGA_MIN
+    return turning, TWO_PI / (v["n_flutes"] * ca.fmax(v["spindle_speed"], OMEGA_MIN))
+
+
+def _wrap(angle: ca.SX) -> ca.SX:
+    """angle modulo 2*pi, in [0, 2*pi)."""
+    return angle - TWO_PI * ca.floor(angle / TWO_PI)
+
+
+def equations(v: Mapping[str, ca.SX]) -> dict[str, ca.SX]:
+    turning, period = _tooth_period(v)
+    vx, vy = v["feed_velocity_x"], v["feed_velocity_y"]
+    feed_angle = ca.atan2(vy, vx)
+    radius = v["tool_diameter"] / 2
+    lag_per_height = ca.tan(v["helix_angle"]) / radius
+    dz = v["axial_depth"] / AXIAL_SLICES
+    width = _wrap(v["exit_angle"] - v["entry_angle"])
+    dx = v["displacement_x"] - v["delayed_displacement_x"]
+    dy = v["displacement_y"] - v["delayed_displacement_y"]
+    pitch = TWO_PI / v["n_flutes"]
+    fx = fy = fz = torque = 0
+    for j in range(MAX_FLUTES):
+        active = v["n_flutes"] > j
+        runout = v["runout_offset"] * (ca.cos(v["runout_angle"] - j * pitch)
+                                       - ca.cos(v["runout_angle"] - (j - 1) * pitch))
+        flute_radius = radius + v["runout_offset"] * ca.cos(v["runout_angle"] - j * pitch)
+        for k in range(AXIAL_SLICES):
+            z = (k + 0.5) * dz
+            phi = v["angle"] + j * pitch - z * lag_per_height
+            s, c = ca.sin(phi), ca.cos(phi)
+            h = period * (vx * s + vy * c) + dx * s + dy * c + runout
+            engaged = _wrap(phi + feed_angle - v["entry_angle"]) < width
+            cutting = ca.logic_and(ca.logic_and(active, turning), ca.logic_and(engaged, h > 0))
+            ft = ca.if_else(cutting, (v["Ktc"] * h + v["Kte"]) * dz, 0)
+            fr = ca.if_else(cutting, (v["Krc"] * h + v["Kre"]) * dz, 0)
+            fa = ca.if_else(cutting, (v["Kac"] * h + v["Kae"]) * dz, 0)
+            fx = fx - ft * c - fr * s
+            fy = fy + ft * s - fr * c
+            fz = fz + fa
+            torque = torque + ft * flute_radius
+    speed = ca.if_else(turning, v["spindle_speed"], 0)
+    return {
+        "Fx": fx, "Fy": fy, "Fz": fz, "torque": torque, "power": torque * speed,
+        "spindle_angle": v["angle"],
+        "feed_per_tooth": ca.if_else(turning, period * ca.sqrt(vx ** 2 + vy ** 2), 0),
+    }
+
+
+def update(v: Mapping[str, ca.SX], h: ca.SX) -> dict[str, ca.SX]:
+    """The spindle turns at the held speed over the step; the angle stays in [0, 2*pi)."""
+    return {"angle": _wrap(v["angle"] + v["spindle_speed"] * h)}
+
+
+def _deg(x: float) -> float:
+    return math.radians(x)
+
+
+CUTTING_FORCE = ModelDefinition(
+    identifier="CuttingForce",
+    description="Mechanistic milling force of a flat end mill: edge-force model, helix, runout, regenerative chip",
+    default_step_size=1e-5,
+    default_stop_time=0.1,
+    equations=equations,
+    update=update,
+    native_states=("delayed_displacement_x", "delayed_displacement_y"),
+    states=(
+        State("angle", "Spindle angle: flute 0 at the tool tip, clockwise from +y", unit="rad"),
+        State("delayed_displacement_x", "Tool displacement in x one tooth period ago (model.c)", unit="m"),
+        State("delayed_displacement_y", "Tool displacement in y one tooth period ago (model.c)", unit="m"),
+    ),
+    variables=(
+        Variable("Ktc", "Float64", "parameter", "Tangential cutting coefficient", unit="N/m2",
+                 display_unit="N/mm2", start=AL7075_CARBIDE["Ktc"], min=0.0, max=1e10),
+        Variable("Krc", "Float64", "parameter", "Radial cutting coefficient", unit="N/m2",
+                 display_unit="N/mm2", start=AL7075_CARBIDE["Krc"], min=-1e10, max=1e10),
+        Variable("Kac", "Float64", "parameter", "Axial cutting coefficient (force on the tool along +z)",
+                 unit="N/m2", display_unit="N/mm2", start=AL7075_CARBIDE["Kac"], min=-1e10, max=1e10),
+        Variable("Kte", "Float64", "parameter", "Tangential edge coefficient", unit="N/m",
+                 display_unit="N/mm", start=AL7075_CARBIDE["Kte"], min=0.0, max=1e6),
+        Variable("Kre", "Float64", "parameter", "Radial edge coefficient", unit="N/m",
+                 display_unit="N/mm", start=AL7075_CARBIDE["Kre"], min=-1e6, max=1e6),
+        Variable("Kae", "Float64", "parameter", "Axial edge coefficient", unit="N/m",
+                 display_unit="N/mm", start=AL7075_CARBIDE["Kae"], min=-1e6, max=1e6),
+        Variable("tool_diameter", "Float64", "parameter", "Tool diameter", unit="m", display_unit="mm",
+                 start=0.01, min=1e-4, max=0.5),
+        Variable("helix_angle", "Float64", "parameter", "Helix angle of the flutes (right-hand)", unit="rad",
+                 display_unit="deg", start=_deg(30.0), min=0.0, max=_deg(80.0)),
+        Variable("n_flutes", "Int32", "parameter", f"Number of flutes (1 .. {MAX_FLUTES}), evenly spaced",
+                 start=2, min=1, max=MAX_FLUTES, variability="fixed"),
+        Variable("runout_offset", "Float64", "parameter", "Radial offset of the tool axis (runout)",
+                 unit="m", display_unit="um", start=0.0, min=0.0, max=1e-3),
+        Variable("runout_angle", "Float64", "parameter",
+                 "Direction of the runout offset: flute j's radius is R + offset*cos(angle - j*2*pi/N)",
+                 unit="rad", display_unit="deg", start=0.0, min=-TWO_PI, max=TWO_PI),
+        Variable("history_size", "Int32", "parameter",
+                 "Samples of displacement history kept for the regenerative chip (must span one tooth period)",
+                 start=16384, min=16, max=1048576, variability="fixed"),
+        Variable("spindle_speed", "Float64", "input", "Spindle speed (clockwise seen from the spindle, M3)",
+                 unit="rad/s", display_unit="rpm", start=0.0, min=0.0, max=1e4),
+        Variable("feed_velocity_x", "Float64", "input", "Feed velocity of the tool relative to the workpiece in x",
+                 unit="m/s", display_unit="mm/min", start=0.0, min=-10.0, max=10.0),
+        Variable("feed_velocity_y", "Float64", "input", "Feed velocity of the tool relative to the workpiece in y",
+                 unit="m/s", display_unit="mm/min", start=0.0, min=-10.0, max=10.0),
+        Variable("axial_depth", "Float64", "input", "Axial depth of cut a_p", unit="m", display_unit="mm",
+                 start=0.003, min=0.0, max=0.1),
+        Variable("entry_angle", "Float64", "input", "Angle where a flute enters the cut, relative to the feed",
+                 unit="rad", display_unit="deg", start=0.0, min=-TWO_PI, max=TWO_PI),
+        Variable("exit_angle", "Float64", "input", "Angle where a flute leaves the cut, relative to the feed",
+                 unit="rad", display_unit="deg", start=math.pi, min=-TWO_PI, max=TWO_PI),
+        Variable("displacement_x", "Float64", "input", "Tool tip displacement in x (vibration)",
+                 unit="m", display_unit="um", start=0.0, min=-0.01, max=0.01),
+        Variable("displacement_y", "Float64", "input", "Tool tip displacement in y (vibration)",
+                 unit="m", display_unit="um", start=0.0, min=-0.01, max=0.01),
+        Variable("Fx", "Float64", "output", "Cutting force on the tool in x", unit="N"),
+        Variable("Fy", "Float64", "output", "Cutting force on the tool in y", unit="N"),
+        Variable("Fz", "Float64", "output", "Cutting force on the tool in z (along the axis, towards the spindle)",
+                 unit="N"),
+        Variable("torque", "Float64", "output", "Cutting torque on the spindle", unit="N.m"),
+        Variable("power", "Float64", "output", "Cutting power, torque times spindle speed", unit="W",
+                 display_unit="kW"),
+        Variable("spindle_angle", "Float64", "output", "Angle of flute 0 at the tool tip, clockwise from +y",
+                 unit="rad", display_unit="deg"),
+        Variable("feed_per_tooth", "Float64", "output", "Feed per tooth f_t = |v_feed|*2*pi/(N*omega)",
+                 unit="m", display_unit="mm"),
+    ),
+)
+
+
+# ---- closed forms (Altintas, Manufacturing Automation, 2nd ed., eqs. 2.85-2.87 form) ----
+
+
+def mean_forces(Ktc: float, Krc: float, Kac: float, Kte: float, Kre: float, Kae: float, n_flutes: int,
+                axial_depth: float, feed_per_tooth: float, entry_angle: float = 0.0,
+                exit_angle: float = math.pi) -> dict[str, float]:
+    """Forces on the tool averaged over a revolution, feed along +x, no runout or vibration, for a
+    window inside ``0 .. pi`` (where ``f_t*sin(phi) >= 0``): the integral of the element forces over
+    the immersion, times N/(2*pi). Independent of the helix (a full revolution sweeps every slice
+    over the whole window). SI units; also ``torque_per_radius`` (mean torque / tool radius)."""
+    if not 0.0 <= entry_angle <= exit_angle <= math.pi:
+        raise ValueError(f"window {entry_angle}..{exit_angle} rad is not inside 0..pi")
+    N, a, c = n_flutes, axial_depth, feed_per_tooth
+
+    def at(phi: float) -> np.ndarray:
+        fx = (c / 4 * (Ktc * math.cos(2 * phi) - Krc * (2 * phi - math.sin(2 * phi)))
+              + (-Kte * math.sin(phi) + Kre * math.cos(phi)))
+        fy = (c / 4 * (Ktc * (2 * phi - math.sin(2 * phi)) + Krc * math.cos(2 * phi))
+              - (Kte * math.cos(phi) + Kre * math.sin(phi)))
+        fz = -Kac * c * math.cos(phi) + Kae * phi
+        ft = -Ktc * c * math.cos(phi) + Kte * phi
+        return np.array([fx, fy, fz, ft])
+
+    fx, fy, fz, ft = N * a / (2 * math.pi) * (at(exit_angle) - at(entry_angle))
+    return {"Fx": fx, "Fy": fy, "Fz": fz, "torque_per_radius": ft}
+
+
+def mean_slot_forces(Ktc: float, Krc: float, Kac: float, Kte: float, Kre: float, Kae: float, n_flutes: int,
+                     axial_depth: float, feed_per_tooth: float) -> dict[str, float]:
+    """Mean forces on the tool in slotting (window 0 .. pi, feed along +x), Altintas' identification
+    formulae, linear in the feed per tooth c (SI units)::
+
+        Fx = -N*a*Krc*c/4 - N*a*Kre/pi
+        Fy = +N*a*Ktc*c/4 + N*a*Kte/pi
+        Fz = +N*a*Kac*c/pi + N*a*Kae/2
+    """
+    N, a, c = n_flutes, axial_depth, feed_per_tooth
+    return {"Fx": -N * a * Krc * c / 4 - N * a * Kre / math.pi,
+            "Fy": N * a * Ktc * c / 4 + N * a * Kte / math.pi,
+            "Fz": N * a * Kac * c / math.pi + N * a * Kae / 2,
+            "torque_per_radius": N * a * Ktc * c / math.pi + N * a * Kte / 2}
+
+
+# ---- reference implementation of the FMU's native part (fmus/force/model.c) ----
+
+
+class HistoryTooShort(RuntimeError):
+    """The displacement history does not reach one tooth period back (the FMU's doStep fails)."""
+
+
+class ForceReference:
+    """The FMU step by step, in Python: the displacement history (a ring of ``history_size``
+    samples ``(t, x, y)`` taken at each doStep from the inputs at its start), the delayed
+    displacement by linear interpolation at ``t - T_tooth`` over those samples and the current
+    inputs at ``t`` (before the oldest sample: its value, "no regeneration yet"), the generated
+    equations and the spindle-angle update. Same operations in the same order as model.c."""
+
+    def __init__(self, values: Mapping[str, float], start_time: float = 0.0):
+        self.model = CUTTING_FORCE
+        names = {v.name for v in self.model.of("parameter") + self.model.of("input")}
+        self.values = {k: x for k, x in {**self.model.defaults(), **values}.items() if k in names}
+        self.time = start_time
+        self.history: deque[tuple[float, float, float]] = deque(maxlen=int(self.values["history_size"]))
+        self.angle = 0.0
+
+    def set(self, values: Mapping[str, float]) -> None:
+        self.values.update(values)
+
+    def tooth_period(self) -> float:
+        omega = max(self.values["spindle_speed"], OMEGA_MIN)
+        return TWO_PI / (float(int(self.values["n_flutes"])) * omega)
+
+    def delayed(self) -> tuple[float, float]:
+        x, y = self.values["displacement_x"], self.values["displacement_y"]
+        samples = list(self.history) + [(self.time, x, y)]
+        td = self.time - self.tooth_period()
+        if td <= samples[0][0]:
+            return samples[0][1], samples[0][2]
+        i = bisect.bisect_right([s[0] for s in samples], td) - 1
+        (t0, x0, y0), (t1, x1, y1) = samples[i], samples[i + 1]
+        w = (td - t0) / (t1 - t0)
+        return x0 + w * (x1 - x0), y0 + w * (y1 - y0)
+
+    def outputs(self) -> np.ndarray:
+        dx, dy = self.delayed()
+        result = self.model.evaluate(**self.values, angle=self.angle,
+                                     delayed_displacement_x=dx, delayed_displacement_y=dy)
+        return np.array([float(result[v.name]) for v in self.model.of("output")])
+
+    def step(self, h: float) -> np.ndarray:
+        v = self.values
+        self.history.append((self.time, v["displacement_x"], v["displacement_y"]))
+        end = self.time + h
+        if (len(self.history) == self.history.maxlen and v["spindle_speed"] >= OMEGA_MIN
+                and v["axial_depth"] > 0 and self.history[0][0] > end - self.tooth_period()):
+            raise HistoryTooShort(f"history of {len(self.history)} samples does not reach one tooth period back")
+        new = self.model.step(h, **v, angle=self.angle, delayed_displacement_x=0.0,
+                              delayed_displacement_y=0.0)
+        self.angle = float(new["angle"])
+        self.time = end
+        return self.outputs()
+
+
+def reference_trajectory(points: Sequence[Mapping[str, float]], step_size: float) -> np.ndarray:
+    """Outputs after each step when initialized with points[0], then each point set and stepped
+    (the protocol of tests/fmu_helpers.py): points x outputs."""
+    reference = ForceReference(points[0])
+    rows = []
+    for point in points:
+        reference.set(point)
+        rows.append(reference.step(step_size))
+    return np.array(rows)
+
+
+def initial_native_states(values: Mapping[str, float | np.ndarray]) -> dict[str, float | np.ndarray]:
+    """The native states before any step: no history yet, so the delayed displacement is the
+    current one (no regeneration)."""
+    defaults = CUTTING_FORCE.defaults()
+    return {"delayed_displacement_x": values.get("displacement_x", defaults["displacement_x"]),
+            "delayed_displacement_y": values.get("displacement_y", defaults["displacement_y"])}
+
+
+def initial_outputs(values: Mapping[str, float | np.ndarray]) -> np.ndarray:
+    """Outputs before any step (initialization), points x outputs: the spindle angle at its start
+    value and the delayed displacement equal to the current one."""
+    result = CUTTING_FORCE.evaluate(**{"angle": 0.0, **initial_native_states(values), **values})
+    return np.stack([np.atleast_1d(result[v.name]) for v in CUTTING_FORCE.of("output")], axis=-1)
+
+
+def identify_slot_coefficients(feeds_per_tooth: Sequence[float], Fx: Sequence[float], Fy: Sequence[float],
+                               Fz: Sequence[float], n_flutes: int, axial_depth: float) -> dict[str, float]:
+    """The six coefficients from mean slotting forces on the tool at several feeds per tooth (SI):
+    Altintas' identification, a least-squares line per axis inverted through :func:`mean_slot_forces`."""
+    c = np.asarray(feeds_per_tooth, dtype=float)
+    if c.size < 2 or np.ptp(c) == 0:
+        raise ValueError("identification needs at least two different feeds per tooth")
+    (sx, ix), (sy, iy), (sz, iz) = (np.polyfit(c, np.asarray(f, dtype=float), 1) for f in (Fx, Fy, Fz))
+    na = n_flutes * axial_depth
+    return {"Ktc": 4 * sy / na, "Krc": -4 * sx / na, "Kac": math.pi * sz / na,
+            "Kte": math.pi * iy / na, "Kre": -math.pi * ix / na, "Kae": 2 * iz / na}

@@ -1,0 +1,516 @@
+"""Workpiece and cutter engagement: a Z-map of the stock cut by a flat, bull-nose or ball end mill.
+
+The stock is a block ``[stock_x_min, +stock_length] x [stock_y_min, +stock_width] x
+[stock_z_min, +stock_height]``, represented as a height field (Z-map): ``nx x ny`` cells of
+``dx x dy`` with ``nx = ceil(stock_length / resolution)`` (so ``dx <= resolution``; the grid fits the
+block exactly), each holding the height of the material above its centre. Heights only decrease;
+a cell cut down to the bottom of the block is empty.
+
+Per step (the tool tip held at the inputs' previous value at the start and moved in a straight
+line to their current value) the FMU (``fmus/workpiece/model.c``) and :class:`ZMap` below, the same
+algorithm in numpy, do:
+
+1. **Removal** under the swept tool: the move is split into ``n`` sub-segments so that none descends
+   more than ``min(dx, dy)/4`` (``n = 1`` for a move without horizontal travel: a plunge is exact).
+   For each sub-segment a -> b, every cell whose centre c lies within the tool radius ``R`` of the
+   horizontal segment is lowered to the tool's lower surface there: ``z(t*) + g(d)``, where ``t*``
+   is the segment parameter of the point closest to c, ``d`` the distance to it and ``g`` the
+   profile of the end (0 on the flat bottom ``d <= R - r_c``, ``r_c - sqrt(r_c^2 - (d - R + r_c)^2)``
+   on the corner of radius ``r_c``). Only cells in the bounding box of the sub-segment widened by
+   ``R`` are visited: the cost per step is proportional to the area swept, never to the stock.
+   The removed volume is the sum of the height drops times ``dx*dy``; ``mrr`` = volume / step size.
+   A cell is cut whole when its centre enters the tool: when the feed per step is below a cell,
+   ``mrr`` alternates between 0 and a few cells' worth from step to step; its running mean, and
+   the removed volume (the sum of ``mrr * h``), are right. Average over ``dx / feed per step`` steps
+   (or step the FMU less often) where a smooth value is wanted.
+
+2. **Engagement** at the new position, against the stock after the removal, in the tool frame of
+   Altintas (Manufacturing Automation): feed along +x_t (the direction of the last horizontal move,
+   +x before the first), the immersion angle phi measured clockwise from +y_t seen from above (the
+   rotation of an M3 spindle), a point of the circle of radius r at ``r (sin phi, cos phi)`` in
+   (x_t, y_t). An edge element at angle phi and height z above the tip (where the cutter radius is
+   ``r(z)``) is *in material* when the stock column one cell outside the cutting circle, at radius
+   ``r(z) + delta`` (``delta = min(dx, dy)``) in the direction phi, reaches above it. The offset
+   keeps the test out of the cells this and earlier steps lowered (cells are cut by their centres,
+   which may lie up to ``delta/sqrt(2)`` inside the circle). Only the front half ``0 <= phi <= pi`` is
+   tested: behind the cutter is the surface it has just cut. A run of consecutive engaged angle
+   samples counts only if one of its test points lies laterally inside the cutter's circle by more
+   than half a cell diagonal: otherwise the cutter merely touches a wall parallel to the feed (a
+   pass retracing an earlier one cuts nothing and is not engaged). Within about ``sqrt(2 R delta)``
+   of the end of an earlier cut, a retrace still sees that cut's end wall.
+
+   - ``entry_angle`` / ``exit_angle``: the first and last engaged angle. ``M + 1`` angles
+     ``phi_m = m pi / M`` (``M = ceil(pi R / delta)``, about one cell of arc) are each tested over
+     ``K + 1`` heights of the profile (``K = ceil(pi/2 r_c / delta)`` points along the corner arc plus
+     the cylinder above it); the first and last engaged sample are refined by 10 bisections towards
+     their non-engaged neighbour. The test circle lies ``delta`` outside the cutter, so an angle phi
+     found there is taken back to the cutter's circle at the same lateral position (exact for a
+     wall parallel to the feed): ``cos(angle) = clamp((r_top + delta) / r_top * cos(phi), -1, 1)``.
+     Slotting gives exactly (0, pi); half immersion down milling (pi/2, pi).
+   - ``axial_depth``: the largest engaged height over all angle samples (exact where the stock top
+     is flat: the column's height, not a sample height).
+   - ``radial_depth``: ``r_top (cos(entry) - cos(exit))``, the width across the feed of the cutter's
+     circle between entry and exit, ``r_top`` its radius at the top of the cut (``axial_depth``).
+   - the **engagement map** ``engagement_z{i}_a{jj}`` (``N_Z x N_THETA`` = 8 x 24 scalar Float64
+     variables, 0 or 1): row i is the height ``(i + 1/2) axial_depth / N_Z`` above the tip (the rows
+     divide the engaged height, so the force model's slice height is ``axial_depth / N_Z``),
+     column jj the angle ``(jj + 1/2) 2 pi / N_THETA``; columns of the back half are 0.
+
+The map is in the feed frame and does not rotate with the spindle, so the spindle angle is not
+needed: the force model places the flutes (``flute_count``, ``helix_angle``: carried here so that the
+tool is described in one place) on it. ``spindle_speed`` is used only to warn (once) when material
+is removed while the spindle stands still. Angles assume M3 (clockwise); for M4 the same engagement
+in the convention mirrored for counter-clockwise rotation is entry' = pi - exit, exit' = pi - entry.
+
+All outputs are those of the last step: zero in initialization mode and until the first doStep.
+"""
+from __future__ import annotations
+
+import math
+from typing import Mapping, Sequence
+
+import numpy as np
+
+from models.definition import ModelDefinition, Variable
+
+N_Z = 8                 # rows of the engagement map (slices of the engaged height)
+N_THETA = 24            # columns of the engagement map (15 degree sectors of the full circle)
+MAX_CELLS = 20_000_000  # memory cap of the Z-map: 160 MB of heights (and as much per FMU state)
+MIN_CELLS_ACROSS_TOOL = 4.0  # resolution <= tool_diameter / 4
+DESCEND_PER_SUBSEGMENT = 0.25  # times min(dx, dy)
+FEED_DIRECTION_MIN_TRAVEL = 1e-3  # times min(dx, dy): shorter horizontal moves keep the feed direction
+SPINDLE_STOPPED = 2 * math.pi / 60  # rad/s (1 rpm): slower counts as stopped for the warning
+N_BISECTIONS = 10  # refinement of entry and exit between two angle samples (to 1/1024 of their spacing)
+
+_MM = "mm"
+
+
+def map_name(i: int, j: int) -> str:
+    return f"engagement_z{i}_a{j:02d}"
+
+
+MAP_NAMES = tuple(map_name(i, j) for i in range(N_Z) for j in range(N_THETA))
+SCALAR_OUTPUTS = ("axial_depth", "radial_depth", "entry_angle", "exit_angle", "mrr")
+OUTPUTS = SCALAR_OUTPUTS + MAP_NAMES
+
+
+def _variables() -> tuple[Variable, ...]:
+    def length(name, description, start, lo, hi, causality="parameter", variability="fixed"):
+        return Variable(name, "Float64", causality, description, unit="m", display_unit=_MM, start=start,
+                        min=lo, max=hi, variability=variability if causality == "parameter" else None)
+
+    variables = [
+        length("stock_x_min", "Stock block: smallest x (corner of the block)", 0.0, -10.0, 10.0),
+        length("stock_y_min", "Stock block: smallest y", 0.0, -10.0, 10.0),
+        length("stock_z_min", "Stock block: bottom z", 0.0, -10.0, 10.0),
+        length("stock_length", "Stock block: size in x", 0.1, 1e-3, 2.0),
+        length("stock_width", "Stock block: size in y", 0.06, 1e-3, 2.0),
+        length("stock_height", "Stock block: size in z", 0.03, 1e-3, 2.0),
+        length("resolution", "Z-map cell size (largest; cells are fitted to the block, dx <= resolution)",
+               0.25e-3, 1e-5, 0.02),
+        length("tool_diameter", "Cutter diameter D", 0.01, 1e-4, 0.1),
+        length("corner_radius", "Corner radius of the end: 0 flat end mill, D/2 ball end mill", 0.0, 0.0, 0.05),
+        Variable("flute_count", "Int32", "parameter", "Number of flutes (for the force model; not used by the Z-map)",
+                 start=2, min=1, max=20, variability="fixed"),
+        Variable("helix_angle", "Float64", "parameter",
+                 "Helix angle of the flutes (for the force model; not used by the Z-map)",
+                 unit="rad", display_unit="deg", start=math.radians(30.0), min=0.0, max=math.radians(70.0),
+                 variability="fixed"),
+        length("flute_length", "Cutting length of the flutes: deeper engagement warns (the shank rubs)",
+               0.022, 1e-4, 0.3),
+        Variable("max_tool_speed", "Float64", "parameter",
+                 "Fastest plausible tool motion: a faster jump between steps is an error (glitch or wrong units)",
+                 unit="m/s", display_unit="mm/min", start=2.0, min=1e-3, max=100.0),
+        length("tool_x", "Tool tip (lowest point of the cutter) x", 0.0, -10.0, 10.0, causality="input"),
+        length("tool_y", "Tool tip y", 0.0, -10.0, 10.0, causality="input"),
+        length("tool_z", "Tool tip z", 0.05, -10.0, 10.0, causality="input"),
+        Variable("spindle_speed", "Float64", "input",
+                 "Spindle speed (only checked: removing material with the spindle stopped warns)",
+                 unit="rad/s", display_unit="rpm", start=0.0, min=-1e4, max=1e4),
+        Variable("axial_depth", "Float64", "output", "Axial depth of cut: engaged height above the tool tip",
+                 unit="m", display_unit=_MM),
+        Variable("radial_depth", "Float64", "output", "Radial depth of cut: engaged width across the feed",
+                 unit="m", display_unit=_MM),
+        Variable("entry_angle", "Float64", "output",
+                 "First engaged immersion angle (clockwise from +y of the feed frame; slotting 0)",
+                 unit="rad", display_unit="deg"),
+        Variable("exit_angle", "Float64", "output", "Last engaged immersion angle (slotting pi)",
+                 unit="rad", display_unit="deg"),
+        Variable("mrr", "Float64", "output", "Material removal rate: volume removed in the last step / step size",
+                 unit="m3/s", display_unit="cm3/min"),
+    ]
+    for i in range(N_Z):
+        for j in range(N_THETA):
+            variables.append(Variable(
+                map_name(i, j), "Float64", "output",
+                f"Engagement map: 1 if the edge at height ({i}+1/2)/{N_Z} of axial_depth and immersion angle "
+                f"({j}+1/2)*{360 // N_THETA} deg is in material, else 0"))
+    return tuple(variables)
+
+
+WORKPIECE = ModelDefinition(
+    identifier="Workpiece",
+    description="Z-map stock cut by a flat, bull-nose or ball end mill: depths, angles, MRR and engagement map",
+    default_step_size=1e-3,
+    default_stop_time=10.0,
+    equations=None,
+    variables=_variables(),
+    native_outputs=OUTPUTS,
+)
+
+PARAMETERS = tuple(v.name for v in WORKPIECE.of("parameter"))
+INPUTS = tuple(v.name for v in WORKPIECE.of("input"))
+
+
+class WorkpieceError(ValueError):
+    """A parameter set or a step the FMU rejects; the message is the one the FMU logs (after its prefix)."""
+
+
+def _g(number: float) -> str:
+    """A number as the FMU's messages print it (C's %g)."""
+    return "%g" % number
+
+
+def validate(p: Mapping[str, float]) -> tuple[int, int]:
+    """The checks of exitInitializationMode beyond the variable ranges; returns the grid (nx, ny)."""
+    diameter, corner = p["tool_diameter"], p["corner_radius"]
+    if corner > 0.5 * diameter:
+        raise WorkpieceError(
+            f"corner_radius = {_g(corner)} m is larger than tool_diameter/2 = {_g(0.5 * diameter)} m "
+            "(0: flat end mill, tool_diameter/2: ball end mill)")
+    if diameter > p["stock_length"] or diameter > p["stock_width"]:
+        raise WorkpieceError(
+            f"the tool is larger than the stock: tool_diameter = {_g(diameter)} m, stock_length = "
+            f"{_g(p['stock_length'])} m, stock_width = {_g(p['stock_width'])} m")
+    resolution = p["resolution"]
+    if diameter < MIN_CELLS_ACROSS_TOOL * resolution:
+        raise WorkpieceError(
+            f"resolution = {_g(resolution)} m is too coarse for tool_diameter = {_g(diameter)} m: the Z-map needs "
+            f"at least {MIN_CELLS_ACROSS_TOOL:g} cells across the tool (resolution <= "
+            f"{_g(diameter / MIN_CELLS_ACROSS_TOOL)} m)")
+    nx_real = _cell_count(p["stock_length"], resolution)
+    ny_real = _cell_count(p["stock_width"], resolution)
+    if nx_real * ny_real > MAX_CELLS:
+        finest = _finest_resolution(p["stock_length"], p["stock_width"])
+        raise WorkpieceError(
+            f"resolution = {_g(resolution)} m is too fine for the stock: {nx_real:.0f} x {ny_real:.0f} cells, more "
+            f"than the limit of {MAX_CELLS} cells ({MAX_CELLS * 8 / 1e6:.0f} MB); use resolution >= {_g(finest)} m")
+    return int(nx_real), int(ny_real)
+
+
+def _finest_resolution(length: float, width: float) -> float:
+    """The finest resolution whose grid (cells rounded up per side) fits MAX_CELLS, with a margin."""
+    even = math.sqrt(length * width / MAX_CELLS)
+    return even * (1.0 + ((length + width) / even + 1.0) / MAX_CELLS)
+
+
+def _cell_count(size: float, resolution: float) -> float:
+    """Cells along one side: the fewest of at most ``resolution`` (a millionth of a cell of slack)."""
+    return math.ceil(size / resolution - 1e-6)
+
+
+class ZMap:
+    """The FMU's algorithm in numpy (see the module docstring), operation for operation: the FMU's
+    outputs equal these to the last bit on the same inputs."""
+
+    def __init__(self, parameters: Mapping[str, float], position: Sequence[float]):
+        p = {**WORKPIECE.defaults(), **parameters}
+        unknown = set(parameters) - set(PARAMETERS) - set(INPUTS)
+        if unknown:
+            raise ValueError(f"unknown parameters {sorted(unknown)}")
+        self.p = p
+        self.nx, self.ny = validate(p)
+        self.x0, self.y0, self.z0 = p["stock_x_min"], p["stock_y_min"], p["stock_z_min"]
+        self.dx = p["stock_length"] / self.nx
+        self.dy = p["stock_width"] / self.ny
+        self.top = self.z0 + p["stock_height"]
+        self.radius = 0.5 * p["tool_diameter"]
+        self.corner = p["corner_radius"]
+        self.flat = self.radius - self.corner
+        self.delta = min(self.dx, self.dy)
+        self.half_diagonal = 0.5 * math.sqrt(self.dx * self.dx + self.dy * self.dy)
+        self.heights = np.full((self.ny, self.nx), self.top)
+        # angle samples of the front half and profile samples (height, radius) along the corner arc
+        self.n_angles = math.ceil(math.pi * self.radius / self.delta)
+        self.cos_phi = np.array([math.cos(self._angle(m)) for m in range(self.n_angles + 1)])
+        self.sin_phi = np.array([math.sin(self._angle(m)) for m in range(self.n_angles + 1)])
+        self.n_corner = math.ceil(0.5 * math.pi * self.corner / self.delta) if self.corner > 0 else 0
+        arc = 0.5 * math.pi / self.n_corner if self.n_corner else 0.0
+        self.profile_z = np.array([self.corner * (1.0 - math.cos(k * arc)) for k in range(self.n_corner)]
+                                  + [self.corner])
+        self.profile_r = np.array([self.flat + self.corner * math.sin(k * arc) for k in range(self.n_corner)]
+                                  + [self.radius])
+        self.profile_next = np.append(self.profile_z[1:], math.inf)
+        column = 2.0 * math.pi / N_THETA
+        front = [j for j in range(N_THETA) if (j + 0.5) * column < math.pi]
+        self.map_columns = np.array(front)
+        self.map_angles = np.array([(j + 0.5) * column for j in front])
+        self.map_cos = np.array([math.cos((j + 0.5) * column) for j in front])
+        self.map_sin = np.array([math.sin((j + 0.5) * column) for j in front])
+        self.position = tuple(float(c) for c in position)
+        self.feed = (1.0, 0.0)
+        self.removed_volume = 0.0
+        self.warnings: list[str] = []
+        self._warned_spindle = self._warned_shank = False
+        self.outputs = dict.fromkeys(OUTPUTS, 0.0)
+
+    # ---- removal ----
+
+    def _remove_segment(self, a: tuple[float, float, float], b: tuple[float, float, float], volume: float) -> float:
+        ax, ay, az = a
+        bx, by, bz = b
+        sx, sy, sz = bx - ax, by - ay, bz - az
+        length2 = sx * sx + sy * sy
+        if min(az, bz) >= self.top:
+            return volume
+        r = self.radius
+        i_lo = max(math.floor((min(ax, bx) - r - self.x0) / self.dx - 0.5), 0)
+        i_hi = min(math.ceil((max(ax, bx) + r - self.x0) / self.dx - 0.5), self.nx - 1)
+        j_lo = max(math.floor((min(ay, by) - r - self.y0) / self.dy - 0.5), 0)
+        j_hi = min(math.ceil((max(ay, by) + r - self.y0) / self.dy - 0.5), self.ny - 1)
+        if i_lo > i_hi or j_lo > j_hi:
+            return volume
+        cx = self.x0 + (np.arange(i_lo, i_hi + 1, dtype=float) + 0.5) * self.dx
+        cy = self.y0 + (np.arange(j_lo, j_hi + 1, dtype=float) + 0.5) * self.dy
+        cx, cy = np.broadcast_arrays(cx[None, :], cy[:, None])
+        if length2 > 0.0:
+            t = ((cx - ax) * sx + (cy - ay) * sy) / length2
+            t = np.where(t < 0.0, 0.0, np.where(t > 1.0, 1.0, t))
+            qx, qy, zt = ax + t * sx, ay + t * sy, az + t * sz
+        else:
+            qx, qy, zt = np.full(cx.shape, ax), np.full(cx.shape, ay), np.full(cx.shape, min(az, bz))
+        ex, ey = cx - qx, cy - qy
+        d2 = ex * ex + ey * ey
+        inside = d2 <= r * r
+        zc = zt
+        if self.corner > 0.0:
+            on_corner = d2 > self.flat * self.flat
+            e = np.sqrt(np.where(on_corner, d2, 0.0)) - self.flat
+            lift = self.corner - np.sqrt(np.maximum(self.corner * self.corner - e * e, 0.0))
+            zc = np.where(on_corner, zt + lift, zt)
+        zc = np.where(zc < self.z0, self.z0, zc)
+        block = self.heights[j_lo:j_hi + 1, i_lo:i_hi + 1]
+        cut = inside & (zc < block)
+        drops = np.where(cut, block - zc, 0.0).ravel()
+        if drops.size:
+            volume = float(np.cumsum(np.concatenate(([volume], drops)))[-1])  # the C loop's order
+        block[cut] = zc[cut]
+        return volume
+
+    def _remove(self, start: tuple[float, float, float], end: tuple[float, float, float]) -> float:
+        sx, sy, sz = (e - s for s, e in zip(start, end))
+        n = 1
+        if sx * sx + sy * sy > 0.0:
+            n = max(1, math.ceil(abs(sz) / (DESCEND_PER_SUBSEGMENT * self.delta)))
+        volume, a = 0.0, start
+        for k in range(1, n + 1):
+            f = k / n
+            b = end if k == n else (start[0] + sx * f, start[1] + sy * f, start[2] + sz * f)
+            volume = self._remove_segment(a, b, volume)
+            a = b
+        return volume
+
+    # ---- engagement ----
+
+    def _height_minus(self, px: np.ndarray, py: np.ndarray, z: float) -> np.ndarray:
+        """Stock height at the points minus z; -inf outside the block."""
+        fi = np.floor((px - self.x0) / self.dx)
+        fj = np.floor((py - self.y0) / self.dy)
+        inside = (fi >= 0) & (fi < self.nx) & (fj >= 0) & (fj < self.ny)
+        i = np.where(inside, fi, 0).astype(np.int64)
+        j = np.where(inside, fj, 0).astype(np.int64)
+        return np.where(inside, self.heights[j, i] - z, -np.inf)
+
+    def _direction(self, cos_a: np.ndarray, sin_a: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        fx, fy = self.feed
+        return sin_a * fx - cos_a * fy, sin_a * fy + cos_a * fx
+
+    def _angle(self, m: int) -> float:
+        """Angle sample m of the front half (m / n_angles of pi: exactly 0 and pi at the ends)."""
+        return m / self.n_angles * math.pi
+
+    def _engaged_at(self, phi: float) -> bool:
+        """Any profile sample at angle phi in material (the test of the scan, at one angle)."""
+        x, y, z = self.position
+        ux, uy = self._direction(math.cos(phi), math.sin(phi))
+        rho = self.profile_r + self.delta
+        return bool(np.any(self._height_minus(x + rho * ux, y + rho * uy, z) > self.profile_z))
+
+    def _boundary(self, inside: float, outside: float) -> float:
+        """The engaged angle next to the boundary between samples ``inside`` (engaged) and ``outside``."""
+        for _ in range(N_BISECTIONS):
+            middle = 0.5 * (inside + outside)
+            if self._engaged_at(middle):
+                inside = middle
+            else:
+                outside = middle
+        return inside
+
+    def _engagement(self) -> dict[str, float]:
+        x, y, z = self.position
+        out = dict.fromkeys(OUTPUTS, 0.0)
+        if z >= self.top:
+            return out
+        ux, uy = self._direction(self.cos_phi, self.sin_phi)           # angles
+        rho = self.profile_r + self.delta                              # profile samples
+        px = x + rho[None, :] * ux[:, None]
+        py = y + rho[None, :] * uy[:, None]
+        height = self._height_minus(px, py, z)
+        engaged = height > self.profile_z[None, :]
+        top = np.where(engaged, np.minimum(height, self.profile_next[None, :]), -np.inf).max(axis=1)
+        # a sample whose test point lies beside the cutter's circle (its lateral offset within half a
+        # cell diagonal of the radius, or beyond) only touches a wall: runs of such samples are no cut
+        lateral = np.abs(rho[None, :] * self.cos_phi[:, None])
+        cutting = np.any(engaged & (lateral < self.profile_r[None, :] - self.half_diagonal), axis=1)
+        first, last, axial, m = -1, -1, -math.inf, 0
+        while m <= self.n_angles:  # runs of consecutive engaged samples
+            if top[m] == -math.inf:
+                m += 1
+                continue
+            start, run_top, run_cutting = m, -math.inf, False
+            while m <= self.n_angles and top[m] > -math.inf:
+                run_top = max(run_top, float(top[m]))
+                run_cutting = run_cutting or bool(cutting[m])
+                m += 1
+            if run_cutting:
+                first = start if first < 0 else first
+                last = m - 1
+                axial = max(axial, run_top)
+        if first < 0:
+            return out
+        entry, exit_ = self._angle(first), self._angle(last)
+        if first > 0:
+            entry = self._boundary(entry, self._angle(first - 1))
+        if last < self.n_angles:
+            exit_ = self._boundary(exit_, self._angle(last + 1))
+        # the test circle is delta outside the cutter: where it meets a wall parallel to the feed, the
+        # cutter meets it at the same lateral position
+        r_top = self._radius_at(axial)
+        widen = (r_top + self.delta) / r_top
+        cos_entry = min(max(widen * math.cos(entry), -1.0), 1.0)
+        cos_exit = min(max(widen * math.cos(exit_), -1.0), 1.0)
+        out["axial_depth"] = axial
+        out["entry_angle"] = math.acos(cos_entry)
+        out["exit_angle"] = math.acos(cos_exit)
+        out["radial_depth"] = r_top * (cos_entry - cos_exit)
+        zi = (np.arange(N_Z, dtype=float) + 0.5) * (axial / N_Z)
+        ri = np.array([self._radius_at(float(h)) for h in zi]) + self.delta
+        mx, my = self._direction(self.map_cos, self.map_sin)
+        height = self._height_minus(x + ri[:, None] * mx[None, :], y + ri[:, None] * my[None, :], z)
+        in_window = (self.map_angles >= out["entry_angle"]) & (self.map_angles <= out["exit_angle"])
+        in_material = (height > zi[:, None]) & in_window[None, :]
+        for i in range(N_Z):
+            for k, j in enumerate(self.map_columns):
+                out[map_name(i, int(j))] = 1.0 if in_material[i, k] else 0.0
+        return out
+
+    def _radius_at(self, height: float) -> float:
+        """Cutter radius at ``height`` above the tip."""
+        if height >= self.corner:
+            return self.radius
+        rise = self.corner - height
+        return self.flat + math.sqrt(max(self.corner * self.corner - rise * rise, 0.0))
+
+    # ---- one step ----
+
+    def step(self, position: Sequence[float], step_size: float, spindle_speed: float = 0.0,
+             max_tool_speed: float | None = None) -> dict[str, float]:
+        """Move the tool tip in a straight line to ``position`` over ``step_size``; returns the outputs."""
+        end = tuple(float(c) for c in position)
+        start = self.position
+        sx, sy, sz = (e - s for s, e in zip(start, end))
+        travel = math.sqrt(sx * sx + sy * sy + sz * sz)
+        limit = self.p["max_tool_speed"] if max_tool_speed is None else max_tool_speed
+        if travel > limit * step_size:
+            raise WorkpieceError(
+                f"the tool tip moved {_g(travel)} m in {_g(step_size)} s ({_g(travel / step_size)} m/s), faster than "
+                f"max_tool_speed = {_g(limit)} m/s: a jump in tool_x, tool_y, tool_z (a glitch, or not in m?)")
+        volume = self._remove(start, end)
+        horizontal = math.sqrt(sx * sx + sy * sy)
+        if horizontal > FEED_DIRECTION_MIN_TRAVEL * self.delta:
+            self.feed = (sx / horizontal, sy / horizontal)
+        self.position = end
+        self.removed_volume += volume * (self.dx * self.dy)
+        out = self._engagement()
+        out["mrr"] = volume * (self.dx * self.dy) / step_size
+        if volume > 0.0 and abs(spindle_speed) < SPINDLE_STOPPED and not self._warned_spindle:
+            self._warned_spindle = True
+            self.warnings.append("spindle")
+        if out["axial_depth"] > self.p["flute_length"] and not self._warned_shank:
+            self._warned_shank = True
+            self.warnings.append("shank")
+        self.outputs = out
+        return out
+
+
+# ---- what the generic FMU tests (tests/fmu_helpers.py) use for this model ----
+
+
+def initial_outputs(values: Mapping[str, float | np.ndarray]) -> np.ndarray:
+    """Outputs in initialization mode (before any step): all 0 (points x outputs)."""
+    count = max([np.size(v) for v in values.values()] + [1])
+    return np.zeros((count, len(OUTPUTS)))
+
+
+def reference_trajectory(points: Sequence[Mapping[str, float]], step_size: float) -> np.ndarray:
+    """What the FMU gives when initialized with points[0] and, for each point, set to it and stepped
+    by ``step_size`` (points x outputs, in the order of OUTPUTS)."""
+    first = {**WORKPIECE.defaults(), **points[0]}
+    zmap = ZMap({n: first[n] for n in PARAMETERS}, (first["tool_x"], first["tool_y"], first["tool_z"]))
+    rows = []
+    for point in points:
+        point = {**first, **{n: v for n, v in point.items() if WORKPIECE.variable(n).effective_variability != "fixed"}}
+        out = zmap.step((point["tool_x"], point["tool_y"], point["tool_z"]), step_size, point["spindle_speed"],
+                        point["max_tool_speed"])
+        rows.append([out[n] for n in OUTPUTS])
+    return np.array(rows)
+
+
+def random_arguments(count: int, rng: np.random.Generator) -> dict[str, np.ndarray]:
+    """Random valid operating points for the generic FMU tests (random points of the whole box of
+    ranges are not valid for this model: the tool must fit the stock and the path must be a path).
+    A random small block, tool (flat, ball or bull-nose) and depth; the tool ramps into the block
+    from its -x side, then slots back and forth inside it in passes 1.1 tool diameters apart, with a
+    random feed of 0.05 .. 0.4 mm per point (at most 0.4 m/s at 1 ms steps). Fixed parameters are
+    constant columns."""
+    diameter = rng.uniform(4e-3, 8e-3)
+    parameters = {
+        "stock_x_min": rng.uniform(-0.05, 0.05), "stock_y_min": rng.uniform(-0.05, 0.05),
+        "stock_z_min": rng.uniform(-0.05, 0.05), "stock_length": rng.uniform(0.02, 0.04),
+        "stock_width": rng.uniform(0.015, 0.03), "stock_height": rng.uniform(0.008, 0.015),
+        "resolution": rng.uniform(0.4e-3, 0.8e-3), "tool_diameter": diameter,
+        "corner_radius": float(rng.choice([0.0, 0.5 * diameter, rng.uniform(0.0, 0.5 * diameter)])),
+        "flute_count": float(rng.integers(2, 5)), "helix_angle": rng.uniform(0.0, 0.8),
+        "flute_length": 3 * diameter,
+    }
+    radius = 0.5 * diameter
+    top = parameters["stock_z_min"] + parameters["stock_height"]
+    depth = rng.uniform(0.2, 0.9) * min(diameter, parameters["stock_height"])
+    x_lo = parameters["stock_x_min"] + radius + 0.5e-3
+    x_hi = parameters["stock_x_min"] + parameters["stock_length"] - radius - 0.5e-3
+    x, y = x_lo - diameter, parameters["stock_y_min"] + rng.uniform(0.7, 1.5) * radius
+    z, direction, phase, target = top, 1.0, "ramp", 0.0
+    path = []
+    for _ in range(count):
+        path.append((x, y, z))
+        feed = rng.uniform(0.05e-3, 0.4e-3)
+        if phase == "ramp":  # into the block from the -x side, descending
+            z = max(z - 0.5 * feed, top - depth)
+            x += feed
+            phase = "pass" if z == top - depth else phase
+        elif phase == "pass":
+            x += direction * feed
+            if (x >= x_hi) if direction > 0 else (x <= x_lo):
+                phase, target = "shift", y + 1.1 * diameter
+        else:  # across to the next pass
+            y += feed
+            if y >= target:
+                phase, direction = "pass", -direction
+    values = {n: np.full(count, float(v)) for n, v in parameters.items()}
+    values["max_tool_speed"] = rng.uniform(1.0, 3.0, count)
+    values["tool_x"] = np.array([p[0] for p in path])
+    values["tool_y"] = np.array([p[1] for p in path])
+    values["tool_z"] = np.array([p[2] for p in path])
+    values["spindle_speed"] = rng.uniform(500.0, 2000.0, count)
+    return values
+

@@ -1,0 +1,393 @@
+"""Slot milling: the CuttingForce FMU against measured Kistler forces.
+
+    .venv/bin/python -m orchestrator.validation.slot_milling [--data DIR] [--scenario FILE]
+        [--fmu-dir DIR] [--out DIR]
+
+The data (five DynoWare exports, 6000 rpm, 2 flutes, 3 mm axial depth, full slot, feeds 300 ...
+1500 mm/min, forces at 10 kHz) have no licence to redistribute: they stay outside the repository.
+Their folder is ``--data DIR``, else ``$MILLING_TWIN_SLOT_DATA``, else
+``../shared/data/slot_milling_forces`` beside the repository; when it is missing the script says
+where to put the files and exits with status 2.
+
+For each recording the scenario (default ``scenarios/slot_milling.toml``) is run through the
+orchestrator with the spindle speed, feed and axial depth taken from the file name
+(``6-n6000f300ap3ae25.csv``: n rpm, f mm/min, ap mm, ae mm) as the force instance's constant inputs,
+then compared with the recording:
+
+* mean force per axis over the whole recording against the simulated mean over whole
+  revolutions: relative error ``(simulated - recorded) / |recorded|``;
+* the per-revolution waveform: the recording folded at the spindle period (all revolutions
+  averaged), the simulation's waveform over its spindle angle; one phase shift for all three axes,
+  the one maximizing their summed correlation (the recording's spindle phase is unknown), then per
+  axis ``r2 = 1 - sum((rec - sim)^2) / sum((rec - mean(rec))^2)`` (waveform and its mean; negative
+  when the simulation is worse than the recorded mean) and ``r2_shape`` = squared correlation
+  (shape only, insensitive to offset and scale).
+
+Axes: the files' Fy column is the feed direction and Fx the cross-feed (as the source's scripts
+treat them), so recorded (Fx, Fy, Fz) is compared with simulated (Fy, Fx, Fz), signs unchanged:
+with positive coefficients the mechanistic means on the tool (Fx < 0 along the feed, Fy > 0, Fz > 0)
+have the recorded signs. That is the force on the workpiece (what a dynamometer measures) in a
+right-handed frame with z pointing down (Kistler's convention), x_dyn = -y and y_dyn = -x.
+
+Two coefficient sets are run: the scenario's (literature priors; the workpiece material of the
+recordings is not stated) and the six coefficients identified from these five recorded means
+(Altintas' linear regression, ``models.cutting_force.identify_slot_coefficients``): the latter's
+mean errors are in-sample, its waveform r2 is not fitted. Writes ``slot_milling.json`` and PNG
+plots into ``<out>/slot_milling/`` (the runs themselves into ``<out>/slot_milling/runs/``).
+"""
+from __future__ import annotations
+
+import argparse
+import json
+import math
+import os
+import re
+import sys
+from dataclasses import dataclass, replace
+from pathlib import Path
+
+import numpy as np
+import pandas as pd
+from matplotlib.figure import Figure
+
+from models.cutting_force import CUTTING_FORCE, identify_slot_coefficients, mean_slot_forces
+from orchestrator.master import SimulationError, run
+from orchestrator.recorded import RecordedDataError
+from orchestrator.results import load_results
+from orchestrator.scenario import Scenario, ScenarioError, load_scenario
+from models.units import UnitError
+
+REPO = Path(__file__).resolve().parents[2]
+DATA_ENV = "MILLING_TWIN_SLOT_DATA"
+DEFAULT_DATA = REPO.parent / "shared" / "data" / "slot_milling_forces"
+DEFAULT_SCENARIO = REPO / "scenarios" / "slot_milling.toml"
+FMU_DIR_ENV = "MILLING_TWIN_FMU_DIR"
+INSTANCE = "force"  # the CuttingForce instance of the scenario
+SOURCE = ("github.com/leekunhwee/ForceCalculation, commit 3fda341, folder 'General/Flat end milling' "
+          "(files 6-n6000f300ap3ae25.csv ... 6-n6000f1500ap3ae25.csv)")
+# recorded column -> simulated output (model frame), see the module docstring
+AXES = {"Fx": "Fy", "Fy": "Fx", "Fz": "Fz"}
+COEFFICIENTS = ("Ktc", "Krc", "Kac", "Kte", "Kre", "Kae")
+_NAME = re.compile(r"n(?P<rpm>\d+(?:\.\d+)?)f(?P<feed>\d+(?:\.\d+)?)ap(?P<ap>\d+(?:\.\d+)?)ae(?P<ae>\d+(?:\.\d+)?)")
+FINE = 3600  # points of the simulated waveform per revolution (0.1 deg)
+
+
+class DataMissing(RuntimeError):
+    """The recordings are not where they were looked for; the message says where to put them."""
+
+
+def data_dir(option: str | Path | None = None) -> Path:
+    """``option``, else $MILLING_TWIN_SLOT_DATA, else ../shared/data/slot_milling_forces beside the repo;
+    raises DataMissing (saying where the files go) if it holds no recording."""
+    folder = Path(option) if option else Path(os.environ[DATA_ENV]) if os.environ.get(DATA_ENV) else DEFAULT_DATA
+    if not folder.is_dir() or not any(_NAME.search(p.name) for p in folder.glob("*.csv")):
+        how = ("--data" if option else f"${DATA_ENV}" if os.environ.get(DATA_ENV) else "the default location")
+        raise DataMissing(
+            f"no slot-milling recordings in {folder} (from {how}). Put the five DynoWare CSV exports of {SOURCE} "
+            f"into {DEFAULT_DATA} (beside this repository), or pass --data DIR or set {DATA_ENV}=DIR. "
+            "They have no licence to redistribute: never copy them into the repository.")
+    return folder
+
+
+@dataclass(frozen=True)
+class Recording:
+    path: Path
+    rpm: float
+    feed: float  # mm/min
+    axial_depth: float  # mm
+    radial_depth: float  # mm
+    sample_rate: float  # Hz
+    time: np.ndarray
+    forces: np.ndarray  # samples x (Fx, Fy, Fz) of the file, N
+
+    @property
+    def label(self) -> str:
+        return f"f{self.feed:g}"
+
+
+def read_recording(path: Path) -> Recording:
+    """A DynoWare CSV export: header lines, ``Time,Fx,Fy,Fz``, a unit line ``s,N,N,N``, then data."""
+    match = _NAME.search(path.stem)
+    if not match:
+        raise ValueError(f"{path}: the file name does not give the conditions as n<rpm>f<feed>ap<mm>ae<mm>")
+    lines = path.read_text(encoding="utf-8", errors="replace").splitlines()
+    start = next((i for i, line in enumerate(lines) if line.replace(" ", "").startswith("Time,Fx,Fy,Fz")), None)
+    if start is None:
+        raise ValueError(f"{path}: no 'Time,Fx,Fy,Fz' header line")
+    units = [u.strip() for u in lines[start + 1].split(",")]
+    if units[:4] != ["s", "N", "N", "N"]:
+        raise ValueError(f"{path}: line {start + 2}: expected units s,N,N,N, got {lines[start + 1]!r}")
+    data = np.loadtxt(lines[start + 2:], delimiter=",", ndmin=2)
+    if data.shape[1] < 4 or len(data) < 100:
+        raise ValueError(f"{path}: expected at least 100 rows of Time,Fx,Fy,Fz, got {data.shape}")
+    t = data[:, 0]
+    dt = np.diff(t)
+    if np.any(dt <= 0) or np.ptp(dt) > 1e-6 * np.mean(dt) + 1e-9:
+        raise ValueError(f"{path}: time is not uniformly increasing")
+    rate = next((float(line.split(",")[1]) for line in lines[:start] if line.startswith("Sampling rate")),
+                1.0 / float(np.mean(dt)))
+    if abs(rate * np.mean(dt) - 1.0) > 1e-6:
+        raise ValueError(f"{path}: sampling rate {rate} Hz does not match the time column")
+    return Recording(path, float(match["rpm"]), float(match["feed"]), float(match["ap"]), float(match["ae"]),
+                     rate, t, data[:, 1:4])
+
+
+def read_recordings(folder: Path) -> list[Recording]:
+    recordings = [read_recording(p) for p in sorted(folder.glob("*.csv")) if _NAME.search(p.name)]
+    return sorted(recordings, key=lambda r: r.feed)
+
+
+def _n_flutes(scenario: Scenario) -> int:
+    inst = scenario.instance(INSTANCE)
+    return int(inst.parameters.get("n_flutes", 2))
+
+
+def _check_scenario(scenario: Scenario) -> None:
+    if INSTANCE not in scenario.execution_order or scenario.instance(INSTANCE).model_identifier != "CuttingForce":
+        raise ScenarioError(scenario.path, f"[fmus.{INSTANCE}]", "the slot-milling validation needs a CuttingForce "
+                                                                 f"instance named {INSTANCE!r}")
+    wanted = {f"{INSTANCE}.{n}" for n in ("Fx", "Fy", "Fz", "spindle_angle")}
+    missing = wanted - {str(r) for r in scenario.outputs}
+    if missing:
+        raise ScenarioError(scenario.path, "[outputs].record", f"must record {', '.join(sorted(missing))}")
+
+
+def simulate(scenario: Scenario, recording: Recording, out_dir: Path, coefficients: dict | None = None,
+             tag: str = "") -> pd.DataFrame:
+    """Run ``scenario`` at the recording's conditions (constant inputs of the force instance)."""
+    inst = scenario.instance(INSTANCE)
+    inputs = {**inst.inputs, "spindle_speed": recording.rpm * 2 * math.pi / 60,
+              "feed_velocity_x": recording.feed / 60_000, "feed_velocity_y": 0.0,
+              "axial_depth": recording.axial_depth / 1000}
+    force = replace(inst, inputs=inputs, parameters={**inst.parameters, **(coefficients or {})})
+    case = replace(scenario, name=f"{recording.label}{tag}",
+                   instances=tuple(force if i.name == INSTANCE else i for i in scenario.instances))
+    result = run(case, out_dir, progress=False)
+    if result.status != "completed":
+        raise SimulationError(INSTANCE, result.end_time, result.status)
+    return load_results(result.run_dir)
+
+
+def recorded_waveform(recording: Recording) -> tuple[np.ndarray, np.ndarray, int]:
+    """Mean and standard deviation over revolutions (points per revolution x 3), number of revolutions."""
+    per_rev = recording.sample_rate * 60.0 / recording.rpm
+    points = round(per_rev)
+    if abs(per_rev - points) > 1e-9 * per_rev:
+        raise ValueError(f"{recording.path}: {per_rev} samples per revolution is not an integer")
+    revs = len(recording.forces) // points
+    folded = recording.forces[: revs * points].reshape(revs, points, 3)
+    return folded.mean(axis=0), folded.std(axis=0), revs
+
+
+def simulated_waveform(results: pd.DataFrame, rpm: float) -> tuple[np.ndarray, np.ndarray]:
+    """The simulated forces in the recorded axes over the last whole revolutions, as a function of
+    the spindle angle on FINE points per revolution, and their mean over those revolutions."""
+    t = results["time"].to_numpy()
+    period = 60.0 / rpm
+    revs = math.floor((t[-1] - t[0]) / period + 1e-9)
+    if revs < 1:
+        raise ValueError(f"the simulation covers {t[-1] - t[0]} s, less than one revolution ({period} s)")
+    last = t >= t[-1] - revs * period + 1e-12
+    angle = results[f"{INSTANCE}.spindle_angle"].to_numpy()[last]
+    forces = np.column_stack([results[f"{INSTANCE}.{AXES[a]}"].to_numpy()[last] for a in ("Fx", "Fy", "Fz")])
+    order = np.argsort(angle, kind="stable")
+    grid = np.arange(FINE) * 2 * math.pi / FINE
+    wave = np.column_stack([np.interp(grid, angle[order], forces[order, k], period=2 * math.pi) for k in range(3)])
+    return wave, forces.mean(axis=0)
+
+
+def align(recorded: np.ndarray, simulated_fine: np.ndarray) -> tuple[int, np.ndarray]:
+    """The shift (in FINE steps) of the simulated waveform that best matches the recorded one (summed
+    correlation of the three axes), and the simulated waveform at the recorded points so shifted."""
+    points = len(recorded)
+    index = (np.arange(FINE)[:, None] + np.round(np.arange(points) * FINE / points).astype(int)[None, :]) % FINE
+    candidates = simulated_fine[index]  # shifts x points x axes
+    rec = recorded - recorded.mean(axis=0)
+    sim = candidates - candidates.mean(axis=1, keepdims=True)
+    norm = np.sqrt((sim ** 2).sum(axis=1)) * np.sqrt((rec ** 2).sum(axis=0))
+    correlation = np.where(norm > 0, (sim * rec[None]).sum(axis=1) / np.where(norm > 0, norm, 1), 0.0)
+    shift = int(np.argmax(correlation.sum(axis=1)))
+    return shift, candidates[shift]
+
+
+def waveform_scores(recorded: np.ndarray, simulated: np.ndarray) -> tuple[list[float], list[float]]:
+    """Per axis: r2 (coefficient of determination of the recorded waveform) and squared correlation."""
+    r2, shape = [], []
+    for k in range(recorded.shape[1]):
+        rec, sim = recorded[:, k], simulated[:, k]
+        total = float(np.sum((rec - rec.mean()) ** 2))
+        r2.append(1.0 - float(np.sum((rec - sim) ** 2)) / total if total > 0 else math.nan)
+        shape.append(float(np.corrcoef(rec, sim)[0, 1] ** 2) if np.std(sim) > 0 and total > 0 else math.nan)
+    return r2, shape
+
+
+def compare(recording: Recording, results: pd.DataFrame) -> dict:
+    rec_wave, rec_std, revs = recorded_waveform(recording)
+    sim_fine, sim_mean = simulated_waveform(results, recording.rpm)
+    shift, sim_wave = align(rec_wave, sim_fine)
+    rec_mean = recording.forces.mean(axis=0)
+    r2, shape = waveform_scores(rec_wave, sim_wave)
+    axes = list(AXES)
+    return {
+        "recorded_mean_N": dict(zip(axes, rec_mean.tolist())),
+        "simulated_mean_N": dict(zip(axes, sim_mean.tolist())),
+        "mean_relative_error": dict(zip(axes, ((sim_mean - rec_mean) / np.abs(rec_mean)).tolist())),
+        "waveform_r2": dict(zip(axes, r2)),
+        "waveform_r2_shape": dict(zip(axes, shape)),
+        "phase_shift_deg": shift * 360.0 / FINE,
+        "revolutions_averaged": revs,
+        "_waves": (rec_wave, rec_std, sim_wave),
+    }
+
+
+def _plot_waveforms(path: Path, title: str, cases: list[tuple[str, Recording, dict]]) -> None:
+    fig = Figure(figsize=(12, 2.6 * len(cases) + 0.8), layout="constrained")
+    grid = fig.subplots(len(cases), 3, squeeze=False, sharex=True)
+    for row, (label, recording, result) in enumerate(cases):
+        rec_wave, rec_std, sim_wave = result["_waves"]
+        angle = np.arange(len(rec_wave)) * 360.0 / len(rec_wave)
+        for k, axis in enumerate(AXES):
+            ax = grid[row][k]
+            ax.fill_between(angle, rec_wave[:, k] - rec_std[:, k], rec_wave[:, k] + rec_std[:, k], color="tab:gray",
+                            alpha=0.25, linewidth=0)
+            ax.plot(angle, rec_wave[:, k], color="tab:gray", label="recorded (mean of revolutions, ±1 std)")
+            ax.plot(angle, sim_wave[:, k], color="tab:blue", label=f"simulated {INSTANCE}.{AXES[axis]}")
+            ax.set_title(f"{label}: {axis}  r2 {result['waveform_r2'][axis]:.2f}, "
+                         f"mean err {100 * result['mean_relative_error'][axis]:+.0f} %", fontsize=9)
+            ax.grid(True, alpha=0.3)
+            if k == 0:
+                ax.set_ylabel("force [N]")
+            if row == len(cases) - 1:
+                ax.set_xlabel("spindle angle [deg]")
+    grid[0][0].legend(loc="best", fontsize=7)
+    fig.suptitle(title)
+    fig.savefig(path, dpi=90)
+
+
+def _plot_means(path: Path, recordings: list[Recording], sets: dict[str, list[dict]], n_flutes: int) -> None:
+    fig = Figure(figsize=(12, 3.6), layout="constrained")
+    axes = fig.subplots(1, 3)
+    ft = [r.feed / (r.rpm * n_flutes) for r in recordings]
+    styles = {"prior": ("tab:orange", "s"), "identified": ("tab:blue", "^")}
+    for k, axis in enumerate(AXES):
+        ax = axes[k]
+        ax.plot(ft, [c["recorded_mean_N"][axis] for c in sets["prior"]], "ko-", label="recorded")
+        for name, cases in sets.items():
+            color, marker = styles[name]
+            ax.plot(ft, [c["simulated_mean_N"][axis] for c in cases], marker=marker, color=color, linestyle="--",
+                    label=f"simulated, {name} coefficients")
+        ax.set_title(f"mean {axis} (recorded) = simulated {AXES[axis]}")
+        ax.set_xlabel("feed per tooth [mm]")
+        ax.set_ylabel("force [N]")
+        ax.grid(True, alpha=0.3)
+    axes[0].legend(fontsize=7)
+    fig.savefig(path, dpi=90)
+
+
+def validate(data: Path, scenario_path: Path, fmu_dir: Path, out: Path) -> dict:
+    """Run and compare every recording with both coefficient sets; writes JSON and plots, returns the JSON."""
+    recordings = read_recordings(data)
+    scenario = load_scenario(scenario_path, fmu_dir)
+    _check_scenario(scenario)
+    n_flutes = _n_flutes(scenario)
+    folder = out / "slot_milling"
+    folder.mkdir(parents=True, exist_ok=True)
+    runs = folder / "runs"
+    for r in recordings:
+        if r.rpm != recordings[0].rpm or r.axial_depth != recordings[0].axial_depth:
+            raise ValueError(f"{r.path}: the identification needs one spindle speed and axial depth for all files")
+    ft = [r.feed / (r.rpm * n_flutes) / 1000 for r in recordings]  # m per tooth
+    means = np.array([r.forces.mean(axis=0) for r in recordings])  # recorded axes
+    model_means = {AXES[a]: means[:, k] for k, a in enumerate(AXES)}  # model axes
+    identified = identify_slot_coefficients(ft, model_means["Fx"], model_means["Fy"], model_means["Fz"], n_flutes,
+                                            recordings[0].axial_depth / 1000)
+    prior = {name: scenario.instance(INSTANCE).parameters.get(name, CUTTING_FORCE.variable(name).start)
+             for name in COEFFICIENTS}
+    sets: dict[str, list[dict]] = {}
+    for name, coefficients in (("prior", None), ("identified", identified)):
+        sets[name] = []
+        for r in recordings:
+            result = compare(r, simulate(scenario, r, runs, coefficients, "" if name == "prior" else "_identified"))
+            sets[name].append(result)
+    doc = {
+        "data": str(data), "source": SOURCE, "scenario": str(scenario_path),
+        "axes": {f"recorded {a}": f"simulated {INSTANCE}.{s}" for a, s in AXES.items()},
+        "coefficients": {
+            "prior": prior,
+            "identified_from_recorded_means": identified,
+            "units": "Ktc, Krc, Kac in N/m2; Kte, Kre, Kae in N/m",
+        },
+        "cases": [],
+    }
+    for i, r in enumerate(recordings):
+        closed = mean_slot_forces(**identified, n_flutes=n_flutes, axial_depth=r.axial_depth / 1000,
+                                  feed_per_tooth=ft[i])
+        doc["cases"].append({
+            "file": r.path.name, "spindle_speed_rpm": r.rpm, "feed_mm_per_min": r.feed,
+            "feed_per_tooth_mm": ft[i] * 1000, "axial_depth_mm": r.axial_depth,
+            "prior": {k: v for k, v in sets["prior"][i].items() if not k.startswith("_")},
+            "identified": {k: v for k, v in sets["identified"][i].items() if not k.startswith("_")},
+            "identified_closed_form_mean_N": {a: closed[AXES[a]] for a in AXES},
+        })
+    for name in sets:
+        cases = [(r.label, r, sets[name][i]) for i, r in enumerate(recordings)]
+        _plot_waveforms(folder / f"waveforms_{name}.png",
+                        f"slot milling, per-revolution forces, {name} coefficients", cases)
+    _plot_means(folder / "means.png", recordings, sets, n_flutes)
+    (folder / "slot_milling.json").write_text(json.dumps(_finite(doc), indent=2))
+    return doc
+
+
+def _finite(value: object) -> object:
+    if isinstance(value, float) and not math.isfinite(value):
+        return None
+    if isinstance(value, dict):
+        return {k: _finite(v) for k, v in value.items()}
+    if isinstance(value, (list, tuple)):
+        return [_finite(v) for v in value]
+    return value
+
+
+def summary(doc: dict) -> str:
+    lines = []
+    for name in ("prior", "identified"):
+        lines.append(f"{name} coefficients: mean relative error (Fx, Fy, Fz of the recording) | waveform r2 | "
+                     "r2 of the shape")
+        for case in doc["cases"]:
+            c = case[name]
+            err = ", ".join(f"{100 * c['mean_relative_error'][a]:+6.1f} %" for a in AXES)
+            r2 = ", ".join(f"{c['waveform_r2'][a]:5.2f}" for a in AXES)
+            shape = ", ".join(f"{c['waveform_r2_shape'][a]:4.2f}" for a in AXES)
+            lines.append(f"  {case['feed_mm_per_min']:6.0f} mm/min ({case['feed_per_tooth_mm']:.3f} mm/tooth): "
+                         f"{err} | {r2} | {shape}")
+    return "\n".join(lines)
+
+
+def main(argv: list[str] | None = None) -> int:
+    parser = argparse.ArgumentParser(prog="python -m orchestrator.validation.slot_milling",
+                                     description=__doc__.splitlines()[0])
+    parser.add_argument("--data", type=Path, help=f"folder of the recordings (default: ${DATA_ENV} or {DEFAULT_DATA})")
+    parser.add_argument("--scenario", type=Path, default=DEFAULT_SCENARIO)
+    parser.add_argument("--fmu-dir", type=Path, default=Path(os.environ.get(FMU_DIR_ENV, REPO / "build" / "fmus")))
+    parser.add_argument("--out", type=Path, default=REPO / "runs", help="results go to OUT/slot_milling/")
+    args = parser.parse_args(argv)
+    try:
+        data = data_dir(args.data)
+        doc = validate(data, args.scenario, args.fmu_dir, args.out)
+    except DataMissing as exc:
+        print(f"error: {exc}", file=sys.stderr)
+        return 2
+    except (ScenarioError, RecordedDataError, UnitError, ValueError) as exc:
+        print(f"error: {exc}", file=sys.stderr)
+        return 2
+    except SimulationError as exc:
+        print(f"error: {exc}", file=sys.stderr)
+        return 1
+    print(summary(doc))
+    print(f"results: {args.out / 'slot_milling'} (slot_milling.json, means.png, waveforms_prior.png, "
+          "waveforms_identified.png)")
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -1,0 +1,340 @@
+"""CuttingForce against closed forms and physics, both FMI versions: Altintas' mean forces, the
+regenerative chip (history ring, delayed displacement, a displacement step lasting one tooth period),
+the chatter onset of the force/vibration loop at Altintas' stability limit, and the step size."""
+from __future__ import annotations
+
+import math
+import re
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from fmu_helpers import ERROR, OK, WARNING, Slave, assert_close, fmu_dir, fmu_id, require_fmu
+from models.cutting_force import (
+    AL7075_CARBIDE,
+    CUTTING_FORCE,
+    OMEGA_MIN,
+    TWO_PI,
+    identify_slot_coefficients,
+    mean_forces,
+    mean_slot_forces,
+    reference_trajectory,
+)
+
+REPO = Path(__file__).resolve().parents[1]
+FMUS = [fmu_dir() / "CuttingForce.fmu", fmu_dir() / "CuttingForce_fmi2.fmu"]
+RPM = 6000.0
+OMEGA = RPM * TWO_PI / 60
+OUTPUTS = ["Fx", "Fy", "Fz", "torque", "power", "spindle_angle", "feed_per_tooth"]
+
+
+@pytest.fixture(params=FMUS, ids=fmu_id)
+def fmu(request) -> Path:
+    return require_fmu(request.param)
+
+
+def test_constants_of_model_c_equal_the_model() -> None:
+    source = (REPO / "fmus" / "force" / "model.c").read_text()
+    defines = dict(re.findall(r"#define (\w+) ([0-9.eE+-]+)", source))
+    assert float(defines["OMEGA_MIN"]) == OMEGA_MIN
+    assert float(defines["TWO_PI"]) == TWO_PI
+
+
+def test_coefficient_units() -> None:
+    from models.units import convert
+
+    assert convert(767.01, "N/mm2", "N/m2") == pytest.approx(767.01e6, rel=1e-15)
+    assert convert(1.0, "MPa", "N/mm2") == 1.0
+    assert CUTTING_FORCE.variable("Ktc").unit == "N/m2" and CUTTING_FORCE.variable("Kte").unit == "N/m"
+
+
+def test_slot_closed_form_is_the_general_one_and_identification_inverts_it() -> None:
+    coefficients = {"Ktc": 1.8e9, "Krc": 6e8, "Kac": -3e8, "Kte": 3e4, "Kre": 4e4, "Kae": 5e3}
+    slot = mean_slot_forces(**coefficients, n_flutes=3, axial_depth=0.004, feed_per_tooth=8e-5)
+    general = mean_forces(**coefficients, n_flutes=3, axial_depth=0.004, feed_per_tooth=8e-5)
+    assert slot == pytest.approx(general, rel=1e-12)
+    feeds = [2e-5, 5e-5, 1e-4, 1.5e-4]
+    means = [mean_slot_forces(**coefficients, n_flutes=3, axial_depth=0.004, feed_per_tooth=c) for c in feeds]
+    identified = identify_slot_coefficients(feeds, *([m[a] for m in means] for a in ("Fx", "Fy", "Fz")),
+                                            n_flutes=3, axial_depth=0.004)
+    assert identified == pytest.approx(coefficients, rel=1e-9)
+
+
+# ---- mean forces over whole revolutions: the FMU against Altintas' closed forms ----
+
+CASES = {
+    # name: (parameters, feed direction [deg], feed per tooth [m], window [rad])
+    "slot_straight_flutes": ({"n_flutes": 2, "helix_angle": 0.0}, 0.0, 1e-4, (0.0, math.pi)),
+    "slot_helix30_3_flutes_titanium_like": (
+        {"n_flutes": 3, "helix_angle": math.radians(30), "Ktc": 1.8e9, "Krc": 6e8, "Kac": 4e8, "Kte": 3e4,
+         "Kre": 4e4, "Kae": 5e3}, 0.0, 5e-5, (0.0, math.pi)),
+    "half_immersion_down_milling_helix30_feed_at_120deg": (
+        {"n_flutes": 4, "helix_angle": math.radians(30)}, 120.0, 8e-5, (math.pi / 2, math.pi)),
+}
+
+
+def revolution_mean(fmu: Path, parameters: dict, inputs: dict, steps_per_revolution: int) -> np.ndarray:
+    """Outputs averaged over one revolution sampled at the midpoints of steps_per_revolution equal
+    angle intervals (a first half step, then whole steps): the midpoint rule of the period integral."""
+    h = TWO_PI / OMEGA / steps_per_revolution
+    rows = []
+    with Slave(fmu) as slave:
+        slave.instantiate()
+        slave.initialize({**parameters, **inputs})
+        assert slave.step(h / 2) == OK
+        rows.append(slave.get(OUTPUTS))
+        for _ in range(steps_per_revolution - 1):
+            assert slave.step(h) == OK
+            rows.append(slave.get(OUTPUTS))
+    return np.mean(rows, axis=0)
+
+
+@pytest.mark.parametrize("case", CASES)
+def test_mean_forces_equal_the_closed_form(fmu: Path, case: str) -> None:
+    parameters, direction, feed_per_tooth, (entry, exit_) = CASES[case]
+    parameters = {"axial_depth": 0.003, "tool_diameter": 0.01, **parameters}
+    n = parameters["n_flutes"]
+    speed = feed_per_tooth * n * OMEGA / TWO_PI
+    theta = math.radians(direction)
+    inputs = {"spindle_speed": OMEGA, "feed_velocity_x": speed * math.cos(theta),
+              "feed_velocity_y": speed * math.sin(theta), "entry_angle": entry, "exit_angle": exit_}
+    mean = dict(zip(OUTPUTS, revolution_mean(fmu, {k: v for k, v in parameters.items() if k != "axial_depth"},
+                                             {**inputs, "axial_depth": parameters["axial_depth"]}, 2000)))
+    coefficients = {k: parameters.get(k, AL7075_CARBIDE[k]) for k in AL7075_CARBIDE}
+    closed = mean_forces(**coefficients, n_flutes=n, axial_depth=0.003, feed_per_tooth=feed_per_tooth,
+                         entry_angle=entry, exit_angle=exit_)
+    # the closed form has the feed along +x: rotate it into the feed direction
+    fx = closed["Fx"] * math.cos(theta) - closed["Fy"] * math.sin(theta)
+    fy = closed["Fx"] * math.sin(theta) + closed["Fy"] * math.cos(theta)
+    torque = closed["torque_per_radius"] * 0.005
+    expected = {"Fx": fx, "Fy": fy, "Fz": closed["Fz"], "torque": torque, "power": torque * OMEGA}
+    for name, value in expected.items():
+        assert mean[name] == pytest.approx(value, rel=1e-3), f"{case}: mean {name}"
+    assert mean["feed_per_tooth"] == pytest.approx(feed_per_tooth, rel=1e-12)
+    if case.startswith("slot"):  # and Altintas' slotting formulae themselves
+        slot = mean_slot_forces(**coefficients, n_flutes=n, axial_depth=0.003, feed_per_tooth=feed_per_tooth)
+        assert [mean["Fx"], mean["Fy"], mean["Fz"]] == pytest.approx([slot["Fx"], slot["Fy"], slot["Fz"]], rel=1e-3)
+
+
+# ---- regenerative chip thickness ----
+
+SLOT = {"n_flutes": 2, "spindle_speed": OMEGA, "feed_velocity_x": 0.02, "axial_depth": 0.003}
+PERIOD = TWO_PI / (2 * OMEGA)  # tooth period, 5 ms
+
+
+def test_history_ring_and_delayed_displacement_equal_the_reference(fmu: Path) -> None:
+    """A vibrating tool (x, y sinusoids at 900 Hz) for 800 steps of 10 us through a ring of 600 samples:
+    the heap grows (256, 512, 600 samples), the ring wraps while the tooth period (500 samples) stays
+    covered; outputs equal ForceReference. An FMU state from before the growth replays bit-identically."""
+    h, steps = 1e-5, 800
+    t = h * np.arange(steps)
+    points = [{**SLOT, "history_size": 600, "displacement_x": 2e-5 * math.sin(TWO_PI * 900 * ti),
+               "displacement_y": 1e-5 * math.cos(TWO_PI * 900 * ti + 0.3)} for ti in t]
+    rows = []
+    with Slave(fmu) as slave:
+        slave.instantiate()
+        slave.initialize(points[0])
+        for k, point in enumerate(points):
+            if k == 300:
+                state = slave.fmu.getFMUState()
+            slave.set(point, include_fixed=False)
+            assert slave.step(h) == OK
+            rows.append(slave.get(OUTPUTS))
+        slave.set_state(state)
+        slave.fmu.freeFMUState(state)
+        replay = []
+        for point in points[300:]:
+            slave.set(point, include_fixed=False)
+            assert slave.step(h) == OK
+            replay.append(slave.get(OUTPUTS))
+    assert np.array_equal(np.array(replay), np.array(rows[300:]))
+    expected = reference_trajectory(points, h)
+    assert_close(np.array(rows), expected, what="outputs")
+    without = reference_trajectory([{**p, "displacement_x": 0.0, "displacement_y": 0.0} for p in points], h)
+    assert np.sqrt(np.mean((expected[:, 0] - without[:, 0]) ** 2)) > 0.05 * np.sqrt(np.mean(without[:, 0] ** 2))
+
+
+def test_a_displacement_step_changes_the_chip_for_one_tooth_period(fmu: Path) -> None:
+    """The tool moves 5 um towards the feed at t0 and stays: the chip is thicker until the next flute
+    cuts the surface this one leaves, one tooth period later; then the forces are those of no offset
+    (a static offset is no regeneration)."""
+    h, steps, jump = 1e-5, 1500, 600
+    rows = {}
+    for offset in (0.0, 5e-6):
+        out = []
+        with Slave(fmu) as slave:
+            slave.instantiate()
+            slave.initialize(SLOT)
+            for k in range(steps):
+                if k == jump:
+                    slave.set({"displacement_x": offset})
+                assert slave.step(h) == OK
+                out.append(slave.get(["Fx", "Fy", "Fz"]))
+        rows[offset] = np.array(out)
+    t = h * np.arange(1, steps + 1)
+    t0 = jump * h
+    during = (t > t0 + h) & (t < t0 + PERIOD - h)
+    after = t > t0 + PERIOD + h
+    assert np.array_equal(rows[0.0][t <= t0], rows[5e-6][t <= t0])
+    assert np.array_equal(rows[0.0][after], rows[5e-6][after])
+    change = rows[5e-6][during] - rows[0.0][during]
+    assert np.all(np.sqrt(np.mean(change ** 2, axis=0)) > 0.02 * np.sqrt(np.mean(rows[0.0] ** 2, axis=0)))
+
+
+def test_a_history_shorter_than_the_tooth_period_is_an_error(fmu: Path) -> None:
+    with Slave(fmu) as slave:
+        slave.instantiate()
+        slave.initialize({**SLOT, "history_size": 100})
+        statuses = [slave.step(1e-5) for _ in range(100)]
+        assert statuses[:99] == [OK] * 99 and statuses[99] == ERROR
+        message = slave.last_error()
+        assert message.startswith("doStep: t = 0.00099 s: the displacement history"), message
+        for part in ("history_size = 100 samples", "shorter than one tooth period 2*pi/(n_flutes*spindle_speed) = "
+                     "0.005 s", "n_flutes = 2", "spindle_speed = 628.319 rad/s", "set history_size to at least 502"):
+            assert part in message, message
+
+
+def test_a_stopped_spindle_feeding_into_the_cut_warns_once_and_cuts_nothing(fmu: Path) -> None:
+    with Slave(fmu) as slave:
+        slave.instantiate()
+        slave.initialize({**SLOT, "spindle_speed": 0.5})
+        assert slave.step(1e-3) == WARNING
+        assert slave.step(1e-3) == OK
+        assert slave.get(["Fx", "Fy", "Fz", "torque", "power", "feed_per_tooth"]).tolist() == [0.0] * 6
+        assert len(slave.warnings()) == 1
+        assert "spindle_speed = 0.5 rad/s is below 1 rad/s (stopped) while the tool feeds at 0.02 m/s into the cut " \
+               "(axial_depth = 0.003 m): no chip, the forces are 0 (reported once)" in slave.warnings()[0]
+
+
+# ---- the force/vibration loop through the orchestrator ----
+
+LOOP_TOML = """\
+[scenario]
+name = "{name}"
+stop_time = {stop}
+output_interval = 1e-5
+[fmus.force]
+fmu = "CuttingForce"
+fmi = {fmi}
+step_size = {h}
+[fmus.force.parameters]
+n_flutes = 2
+[fmus.force.inputs]
+spindle_speed = {{ value = 6000.0, unit = "rpm" }}
+feed_velocity_x = {{ value = 1200.0, unit = "mm/min" }}
+axial_depth = {depth}
+"""
+VIBRATION_TOML = """\
+[fmus.vibration]
+fmu = "ToolVibration"
+fmi = {fmi}
+step_size = {h}
+[fmus.vibration.parameters]
+n_modes_x = 1
+n_modes_y = 1
+frequency_x1 = {f}
+frequency_y1 = {f}
+damping_x1 = {zeta}
+damping_y1 = {zeta}
+stiffness_x1 = {k}
+stiffness_y1 = {k}
+[[connections]]
+from = "force.Fx"
+to = "vibration.force_x"
+[[connections]]
+from = "force.Fy"
+to = "vibration.force_y"
+[[connections]]
+from = "vibration.tip_displacement_x"
+to = "force.displacement_x"
+delay = true
+[[connections]]
+from = "vibration.tip_displacement_y"
+to = "force.displacement_y"
+delay = true
+[outputs]
+record = ["force.Fx", "force.Fy", "force.Fz", "vibration.tip_displacement_x", "vibration.tip_displacement_y"]
+"""
+MODE = {"f": 922.0, "zeta": 0.011, "k": 1.34e6}  # Altintas' single-mode tool (Manufacturing Automation, ch. 3)
+
+
+def stability_limit(rpm: float, n_flutes: int, f: float, zeta: float, k: float, Ktc: float, Krc: float) -> float:
+    """Altintas' zeroth-order (average directional factor) critical axial depth of slotting at ``rpm``
+    for a tool with the same single mode in x and y (Manufacturing Automation, 2nd ed., sec. 3.4)."""
+    kr = Krc / Ktc
+    alpha = np.array([[-kr * math.pi, -math.pi], [math.pi, -kr * math.pi]])  # slot directional factors
+    omega = np.linspace(0.8, 1.3, 200001) * TWO_PI * f
+    r = omega / (TWO_PI * f)
+    G = 1.0 / (k * (1 - r ** 2 + 2j * zeta * r))
+    limits = []
+    for eigenvalue in np.linalg.eigvals(alpha):
+        lam = -1.0 / (eigenvalue * G)
+        kappa = lam.imag / lam.real
+        depth = -TWO_PI * lam.real * (1 + kappa ** 2) / (n_flutes * Ktc)
+        phase = math.pi - 2 * np.arctan(kappa)
+        for lobe in range(60):
+            speed = 60.0 / (n_flutes * (phase + TWO_PI * lobe) / omega)
+            ok = depth > 0
+            order = np.argsort(speed[ok])
+            s, d = speed[ok][order], depth[ok][order]
+            if s[0] <= rpm <= s[-1]:
+                limits.append(float(np.interp(rpm, s, d)))
+    return min(limits)
+
+
+def run_loop(tmp_path: Path, fmi: int, depth: float, h: float, stop: float, vibration: bool = True):
+    """Slotting at 6000 rpm, 0.1 mm per tooth, through the orchestrator: the force FMU alone or in a
+    loop with ToolVibration (force -> vibration, displacement -> force one step delayed)."""
+    from orchestrator.master import run
+    from orchestrator.results import load_results
+    from orchestrator.scenario import load_scenario
+
+    name = f"loop{int(vibration)}_fmi{fmi}_{depth:.3g}_{h:g}".replace(".", "p").replace("-", "m")
+    path = tmp_path / f"{name}.toml"
+    text = LOOP_TOML + (VIBRATION_TOML if vibration else '[outputs]\nrecord = ["force.Fx", "force.Fy", "force.Fz"]\n')
+    path.write_text(text.format(name=name, stop=stop, fmi=fmi, h=h, depth=depth, **MODE))
+    result = run(load_scenario(path, fmu_dir()), tmp_path / "runs", progress=False)
+    assert result.status == "completed"
+    return load_results(result.run_dir)
+
+
+FMI_VERSIONS = [pytest.param(3, id="fmi3"), pytest.param(2, id="fmi2")]
+
+
+@pytest.fixture(scope="module")
+def critical_depth() -> float:
+    return stability_limit(RPM, 2, MODE["f"], MODE["zeta"], MODE["k"], AL7075_CARBIDE["Ktc"], AL7075_CARBIDE["Krc"])
+
+
+@pytest.mark.parametrize("fmi", FMI_VERSIONS)
+def test_chatter_sets_in_at_altintas_stability_limit(tmp_path: Path, fmi: int, critical_depth: float) -> None:
+    """Slotting at 6000 rpm with the flexible single-mode tool: the vibration settles at 0.8 of the
+    zeroth-order critical depth (0.040 mm here) and grows at 1.3 of it."""
+    assert critical_depth == pytest.approx(3.98e-5, rel=0.01)
+    require_fmu(fmu_dir() / ("ToolVibration.fmu" if fmi == 3 else "ToolVibration_fmi2.fmu"))
+    growth = {}
+    for factor in (0.8, 1.3):
+        results = run_loop(tmp_path, fmi, factor * critical_depth, 1e-5, 0.2)
+        t, x = results["time"].to_numpy(), results["vibration.tip_displacement_x"].to_numpy()
+        window = [np.ptp(x[(t >= s) & (t < s + 0.05)]) for s in (0.1, 0.15)]
+        growth[factor] = window[1] / window[0]
+    assert growth[0.8] < 1.01, growth
+    assert growth[1.3] > 1.5, growth
+
+
+@pytest.mark.parametrize("fmi", FMI_VERSIONS)
+def test_halving_the_step_changes_the_force_waveform_by_less_than_one_percent(
+        tmp_path: Path, fmi: int, critical_depth: float) -> None:
+    """At the recommended step of 10 us: the force/vibration loop (one-step delay on the displacement) at
+    0.75 of the critical depth, where regeneration matters, and the force alone in a 3 mm slot."""
+    require_fmu(fmu_dir() / ("ToolVibration.fmu" if fmi == 3 else "ToolVibration_fmi2.fmu"))
+    for depth, vibration, tolerance in ((0.75 * critical_depth, True, 0.01), (0.003, False, 1e-9)):
+        coarse = run_loop(tmp_path, fmi, depth, 1e-5, 0.2, vibration)
+        fine = run_loop(tmp_path, fmi, depth, 5e-6, 0.2, vibration)
+        assert np.allclose(coarse["time"], fine["time"], rtol=0, atol=1e-12)
+        for axis in ("Fx", "Fy", "Fz"):
+            a, b = coarse[f"force.{axis}"].to_numpy(), fine[f"force.{axis}"].to_numpy()
+            change = np.sqrt(np.mean((a - b) ** 2)) / np.sqrt(np.mean(b ** 2))
+            print(f"depth {depth * 1e3:.3g} mm, vibration {vibration}, {axis}: halving the step changes it by {100 * change:.3g} % RMS")
+            assert change < tolerance, (depth, axis, change)

@@ -1,0 +1,468 @@
+"""Workpiece (Z-map) FMU, both FMI versions: equal to the numpy reference models.workpiece.ZMap to the
+last bit on several tool paths; removed volumes against the exact volumes of straight slots within
+the stated resolution error; entry and exit angles, depths and the engagement map for slotting and
+side milling; rejected configurations and steps with their logged messages; per-step cost
+independent of the stock size."""
+from __future__ import annotations
+
+import math
+import time
+from pathlib import Path
+from typing import Sequence
+
+import numpy as np
+import pytest
+
+from fmu_helpers import ERROR, OK, WARNING, Slave, fmu_dir, fmu_id, require_fmu, status_of
+from models.workpiece import (MAP_NAMES, N_THETA, N_Z, OUTPUTS, WORKPIECE, WorkpieceError, ZMap, map_name,
+                              validate)
+
+FMUS = [fmu_dir() / "Workpiece.fmu", fmu_dir() / "Workpiece_fmi2.fmu"]
+MM = 1e-3
+H = 1e-3            # step size [s]
+SPINDLE = 1000.0    # rad/s (~9550 rpm)
+DEFAULTS = WORKPIECE.defaults()
+TOP = DEFAULTS["stock_z_min"] + DEFAULTS["stock_height"]  # 30 mm
+
+
+@pytest.fixture(params=FMUS, ids=fmu_id)
+def fmu(request) -> Path:
+    return require_fmu(request.param)
+
+
+# ---- paths and runs ----
+
+
+def polyline(waypoints: Sequence[Sequence[float]], feed: float) -> list[tuple[float, float, float]]:
+    """Points along straight lines through the waypoints [m], at most ``feed`` [m] apart."""
+    points = [tuple(float(c) for c in waypoints[0])]
+    for a, b in zip(waypoints[:-1], waypoints[1:]):
+        a, b = np.asarray(a, dtype=float), np.asarray(b, dtype=float)
+        n = max(1, math.ceil(float(np.linalg.norm(b - a)) / feed))
+        points += [tuple(a + (b - a) * (k / n)) for k in range(1, n + 1)]
+    return points
+
+
+def chain(*pieces: list, link_feed: float = 1.0 * MM) -> list:
+    """The pieces one after the other, joined by straight moves of at most ``link_feed`` per step."""
+    points = list(pieces[0])
+    for piece in pieces[1:]:
+        if tuple(points[-1]) != tuple(piece[0]):
+            points += polyline([points[-1], piece[0]], link_feed)[1:]
+        points += list(piece[1:])
+    return points
+
+
+def arc(center: Sequence[float], radius: float, start: float, end: float, z: float, feed: float) -> list:
+    n = max(1, math.ceil(abs(end - start) * radius / feed))
+    return [(center[0] + radius * math.cos(a), center[1] + radius * math.sin(a), z)
+            for a in np.linspace(start, end, n + 1)]
+
+
+def run_fmu(path: Path, parameters: dict, points: Sequence[Sequence[float]], spindle: float = SPINDLE,
+            outputs: Sequence[str] = OUTPUTS) -> tuple[np.ndarray, Slave]:
+    """Initialize at points[0], then one step of H to each point; outputs after each step."""
+    rows = []
+    slave = Slave(path)
+    slave.instantiate()
+    x, y, z = points[0]
+    slave.initialize({**parameters, "tool_x": x, "tool_y": y, "tool_z": z, "spindle_speed": spindle})
+    for x, y, z in points:
+        slave.set({"tool_x": x, "tool_y": y, "tool_z": z})
+        assert slave.step(H) in (OK, WARNING), slave.messages[-3:]
+        rows.append(slave.get(outputs))
+    return np.array(rows), slave
+
+
+def run_reference(parameters: dict, points: Sequence[Sequence[float]], spindle: float = SPINDLE,
+                  outputs: Sequence[str] = OUTPUTS) -> tuple[np.ndarray, ZMap]:
+    zmap = ZMap(parameters, points[0])
+    rows = []
+    for point in points:
+        out = zmap.step(point, H, spindle)
+        rows.append([out[n] for n in outputs])
+    return np.array(rows), zmap
+
+
+def removed_volume(rows: np.ndarray) -> float:
+    return float(np.sum(rows[:, OUTPUTS.index("mrr")]) * H)
+
+
+# ---- the FMU is its reference ----
+
+PATHS = {
+    # default block 100 x 60 x 30 mm, 10 mm flat end mill: ramp in, slot, side step, a diagonal,
+    # a full circle (side milling against the slot), out of the block and back in at another depth
+    "flat end mill": ({}, chain(
+        polyline([(-8 * MM, 12 * MM, 31 * MM), (10 * MM, 12 * MM, 27 * MM), (40 * MM, 12 * MM, 27 * MM),
+                  (40 * MM, 20 * MM, 27 * MM), (70 * MM, 45 * MM, 27 * MM)], 0.15 * MM),
+        arc((55 * MM, 40 * MM), 8 * MM, 0.3, 0.3 + 2 * math.pi, 25 * MM, 0.15 * MM),
+        polyline([(110 * MM, 40 * MM, 25 * MM), (110 * MM, 5 * MM, 26 * MM), (60 * MM, 5 * MM, 26 * MM)], 0.3 * MM))),
+    # 8 mm ball end mill on a 0.4 mm grid: steep ramp (sub-segments), 3D contour, plunge and retract
+    "ball end mill": ({"tool_diameter": 8 * MM, "corner_radius": 4 * MM, "resolution": 0.4 * MM},
+                      polyline([(5 * MM, 30 * MM, 31 * MM), (9 * MM, 30 * MM, 26 * MM), (50 * MM, 36 * MM, 28.5 * MM),
+                                (50 * MM, 36 * MM, 22 * MM), (50 * MM, 36 * MM, 29 * MM), (80 * MM, 10 * MM, 27 * MM)],
+                               0.2 * MM)),
+    # bull nose (corner 1.5 mm) on a 30 x 20 x 6 mm block offset from the origin: cuts through the
+    # bottom, leaves the block sideways and re-enters, 2 ms steps
+    "bull nose": ({"tool_diameter": 6 * MM, "corner_radius": 1.5 * MM, "resolution": 0.3 * MM,
+                   "stock_x_min": -0.01, "stock_y_min": 0.02, "stock_z_min": -0.004, "stock_length": 0.03,
+                   "stock_width": 0.02, "stock_height": 0.006},
+                  polyline([(-0.013, 0.03, 0.0015), (0.005, 0.03, -0.005), (0.005, 0.045, -0.002),
+                            (0.005, 0.035, 0.001), (0.025, 0.025, 0.0005)], 0.25 * MM)),
+}
+
+
+@pytest.mark.parametrize("name", PATHS)
+def test_fmu_equals_the_numpy_reference_bit_for_bit(fmu: Path, name: str) -> None:
+    parameters, points = PATHS[name]
+    actual, slave = run_fmu(fmu, parameters, points)
+    slave.unload()
+    expected, zmap = run_reference(parameters, points)
+    assert actual.shape == expected.shape
+    differ = np.argwhere(actual != expected)
+    if differ.size:
+        first = tuple(differ[0])
+        pytest.fail(f"{len(differ)} values differ, first at step {first[0]} output {OUTPUTS[first[1]]}: "
+                    f"{actual[first]!r} != {expected[first]!r}")
+    assert not slave.messages
+    # the paths exercise what they should: cutting, every engagement output, partial engagement
+    mrr = expected[:, OUTPUTS.index("mrr")]
+    assert np.count_nonzero(mrr) > len(points) // 3
+    assert removed_volume(expected) == pytest.approx(zmap.removed_volume, rel=1e-12)
+    for output in ("axial_depth", "radial_depth", "exit_angle"):
+        assert np.max(expected[:, OUTPUTS.index(output)]) > 0, output
+    entry = expected[:, OUTPUTS.index("entry_angle")]
+    assert 0 < np.count_nonzero(entry) < len(points)
+    assert np.max(expected[:, [OUTPUTS.index(n) for n in MAP_NAMES]]) == 1.0
+
+
+def test_ball_path_cuts_in_several_sub_segments_and_through_the_bottom() -> None:
+    """The steep ramp of the ball path descends more than a quarter cell per step (so each of those
+    steps is cut in several sub-segments), and the bull-nose path empties cells down to the bottom."""
+    parameters, points = PATHS["ball end mill"]
+    zmap = ZMap(parameters, points[0])
+    descents = [a[2] - b[2] for a, b in zip(points[:-1], points[1:]) if a[:2] != b[:2]]
+    assert max(descents) > 0.25 * zmap.delta
+    parameters, points = PATHS["bull nose"]
+    _, zmap = run_reference(parameters, points)
+    assert np.count_nonzero(zmap.heights == zmap.z0) > 100
+
+
+# ---- removed volume against the exact volume of straight slots ----
+#
+# Resolution error. A cell is cut to the exact tool surface at its centre, so the Z-map's removed
+# volume is the midpoint rule of the cut's depth over the cells. For a flat end mill (constant depth
+# a_p) only the cells that the cut's outline passes through can be wrong, each by at most its own
+# volume: |V - V_exact| <= a_p * dx * dy * N_outline, and a monotone piece of outline with extents
+# (Lx, Ly) passes through at most Lx/dx + Ly/dy + 1 cells. Where the outline follows cell
+# boundaries the volume is exact. For a ball end mill the depth profile across the slot (depth a,
+# width 2w, wall slope s = w / (R - a) at its edges) adds the midpoint rule's error across the rows,
+# per unit length at most dy^2 (2 s + w max|f''| / 12) with max|f''| = R^2 / (R - a)^3.
+
+
+def slot_points(start: Sequence[float], end: Sequence[float], feed: float = 0.2 * MM) -> list:
+    return polyline([start, end], feed)
+
+
+def outline_cells(pieces: Sequence[tuple[float, float]], dx: float, dy: float) -> float:
+    """Upper bound of the cells crossed by monotone outline pieces of extents (Lx, Ly)."""
+    return sum(lx / dx + ly / dy + 1 for lx, ly in pieces)
+
+
+def test_through_slot_along_cell_boundaries_removes_the_exact_volume(fmu: Path) -> None:
+    """A 10 mm slot, 3 mm deep, through the whole 100 mm block with its walls on cell boundaries:
+    exactly 40 rows of 400 cells are cut to exactly 3 mm."""
+    points = slot_points((-10 * MM, 30 * MM, 27 * MM), (110 * MM, 30 * MM, 27 * MM))
+    rows, slave = run_fmu(fmu, {}, points)
+    slave.unload()
+    exact = 100 * MM * 10 * MM * 3 * MM
+    assert removed_volume(rows) == pytest.approx(exact, rel=1e-12)
+    # steady state: slotting, full depth and width, MRR = a_p D v_f on average over whole cells
+    steady = rows[100:-100]
+    assert np.all(steady[:, OUTPUTS.index("axial_depth")] == pytest.approx(3 * MM, rel=1e-12))
+    assert np.all(steady[:, OUTPUTS.index("radial_depth")] == 10 * MM)
+    cells = 2 * 0.25 * MM / (0.2 * MM)  # steps per two cells
+    window = int(round(cells * 10))
+    assert np.mean(steady[:window, OUTPUTS.index("mrr")]) == pytest.approx(3 * MM * 10 * MM * 0.2 * MM / H, rel=1e-9)
+
+
+@pytest.mark.parametrize("angle", [0.0, 30.0], ids=["along x, off the grid", "diagonal 30 deg"])
+def test_slot_volume_equals_the_exact_volume_within_the_resolution_error(angle: float) -> None:
+    """A 10 mm flat end mill, 2 mm deep, entering the block through its -x face and stopping 60 mm
+    further inside: the removed volume is a_p (2 R L + pi R^2 / 2) within a_p dx dy N_outline."""
+    radius, length, depth, resolution = 5 * MM, 60 * MM, 2 * MM, 0.25 * MM
+    u = np.array([math.cos(math.radians(angle)), math.sin(math.radians(angle)), 0.0])
+    origin = np.array([0.0, 30.1 * MM if angle == 0 else 20 * MM, TOP - depth])
+    points = slot_points(origin - 10 * MM * u, origin + length * u)
+    rows, zmap = run_reference({"resolution": resolution}, points)
+    fmu_rows, slave = run_fmu(require_fmu(FMUS[0]), {"resolution": resolution}, points)
+    slave.unload()
+    assert np.array_equal(fmu_rows, rows)
+    exact = depth * (2 * radius * length + math.pi * radius ** 2 / 2)
+    # outline inside the block: the two walls and the half circle at the end (3 monotone pieces at most)
+    walls = [(length * abs(u[0]), length * abs(u[1]))] * 2
+    end = [(radius, radius)] * 3
+    bound = depth * zmap.dx * zmap.dy * outline_cells(walls + end, zmap.dx, zmap.dy)
+    error = removed_volume(rows) - exact
+    assert abs(error) <= bound, (error, bound)
+    assert bound / exact < (0.06 if angle == 0 else 0.08)  # the stated resolution error: 5.9 % and 7.6 %
+    assert abs(error) / exact < 1e-3  # what it is: the boundary cells' errors mostly cancel
+
+
+def test_ball_end_slot_volume_within_the_resolution_error(fmu: Path) -> None:
+    """An 8 mm ball end mill, 1.5 mm deep, through the block along x off the grid: the removed volume
+    is the circular segment's area times 100 mm, within the midpoint rule's error across the rows."""
+    radius, depth = 4 * MM, 1.5 * MM
+    parameters = {"tool_diameter": 2 * radius, "corner_radius": radius, "resolution": 0.25 * MM}
+    points = slot_points((-10 * MM, 30.07 * MM, TOP - depth), (110 * MM, 30.07 * MM, TOP - depth))
+    rows, slave = run_fmu(fmu, parameters, points)
+    slave.unload()
+    zmap = ZMap(parameters, points[0])
+    half_width = math.sqrt(2 * radius * depth - depth ** 2)
+    area = radius ** 2 * math.acos((radius - depth) / radius) - (radius - depth) * half_width
+    exact = area * 100 * MM
+    slope = half_width / (radius - depth)
+    curvature = radius ** 2 / (radius - depth) ** 3
+    bound = 100 * MM * zmap.dy ** 2 * (2 * slope + half_width * curvature / 12)
+    error = removed_volume(rows) - exact
+    assert abs(error) <= bound, (error, bound)
+    assert abs(error) / exact < 2e-3
+    steady = rows[200:-200]
+    assert np.all(steady[:, OUTPUTS.index("axial_depth")] == pytest.approx(depth, rel=1e-12))
+    # the slot's width at the top: 2 w, both walls resolved within half a cell plus the sampling
+    assert np.all(np.abs(steady[:, OUTPUTS.index("radial_depth")] - 2 * half_width) <= zmap.dy)
+    assert np.all(steady[:, OUTPUTS.index("entry_angle")] == 0.0)
+    assert np.all(steady[:, OUTPUTS.index("exit_angle")] == math.pi)
+    front = [map_name(i, j) for i in range(N_Z) for j in range(N_THETA // 2)]
+    assert np.all(steady[:, [OUTPUTS.index(n) for n in front]] == 1.0)
+
+
+# ---- entry and exit angles, depths, engagement map ----
+
+
+def engagement_after(parameters: dict, points: list, steps: int = 60) -> dict[str, np.ndarray]:
+    """The outputs over the last ``steps`` steps of the FMU (FMI 3) on the path, by name."""
+    rows, slave = run_fmu(require_fmu(FMUS[0]), parameters, points)
+    slave.unload()
+    return {name: rows[-steps:, k] for k, name in enumerate(OUTPUTS)}
+
+
+def angle_tolerance(zmap: ZMap, phi: float, wall_cut_by_cells: bool) -> float:
+    """Stated accuracy of an entry/exit angle phi where the cutter meets a wall parallel to the
+    feed: the wall's lateral position is resolved to half a cell if cells were cut to make it (to 0
+    for a face of the block), plus the bisection's 1/1024 of an angle sample on the test circle of
+    radius R + delta, seen from the cutter's circle."""
+    sampling = (zmap.radius + zmap.delta) * math.pi / zmap.n_angles / 1024
+    lateral = (0.5 * zmap.dy if wall_cut_by_cells else 0.0) + sampling
+    return lateral / (zmap.radius * max(abs(math.sin(phi)), 0.2)) + 1e-12
+
+
+def test_slotting_engages_the_whole_front_half(fmu: Path) -> None:
+    points = slot_points((-10 * MM, 30.1 * MM, 27.5 * MM), (50 * MM, 30.1 * MM, 27.5 * MM))
+    rows, slave = run_fmu(fmu, {}, points)
+    slave.unload()
+    out = {name: rows[-50:, k] for k, name in enumerate(OUTPUTS)}
+    assert np.all(out["entry_angle"] == 0.0) and np.all(out["exit_angle"] == math.pi)
+    assert np.all(out["axial_depth"] == pytest.approx(2.5 * MM, rel=1e-12))
+    assert np.all(out["radial_depth"] == 10 * MM)
+    for i in range(N_Z):
+        for j in range(N_THETA):
+            expected = 1.0 if (j + 0.5) * 2 * math.pi / N_THETA < math.pi else 0.0
+            assert np.all(out[map_name(i, j)] == expected), map_name(i, j)
+
+
+@pytest.mark.parametrize("mode", ["down", "up"])
+@pytest.mark.parametrize("radial", [5.0, 2.0, 8.0])
+def test_side_milling_against_a_face_of_the_block(mode: str, radial: float) -> None:
+    """Feed +x along the block's +y face (down milling: material on the -y side, Altintas: entry
+    pi - acos((R - a_e)/R), exit pi) or its -y face (up milling: entry 0, exit acos((R - a_e)/R))."""
+    radius, ae = 5 * MM, radial * MM
+    y = 60 * MM - ae + radius if mode == "down" else ae - radius
+    points = slot_points((-10 * MM, y, 28 * MM), (50 * MM, y, 28 * MM), 0.05 * MM)
+    out = engagement_after({}, points)
+    zmap = ZMap({}, points[0])
+    if mode == "down":
+        entry, exit_ = math.pi - math.acos((radius - ae) / radius), math.pi
+    else:
+        entry, exit_ = 0.0, math.acos((radius - ae) / radius)
+    assert np.all(np.abs(out["entry_angle"] - entry) <= angle_tolerance(zmap, entry, False))
+    assert np.all(np.abs(out["exit_angle"] - exit_) <= angle_tolerance(zmap, exit_, False))
+    assert np.all(np.abs(out["radial_depth"] - ae) <= 1e-3 * MM)
+    assert np.all(out["axial_depth"] == pytest.approx(2 * MM, rel=1e-12))
+    if radial == 5.0:  # half immersion: the map's columns of (pi/2, pi) or (0, pi/2)
+        for j in range(N_THETA):
+            phi = (j + 0.5) * 2 * math.pi / N_THETA
+            engaged = (math.pi / 2 < phi < math.pi) if mode == "down" else phi < math.pi / 2
+            for i in range(N_Z):
+                assert np.all(out[map_name(i, j)] == float(engaged)), (map_name(i, j), phi)
+
+
+def test_half_immersion_down_milling_next_to_a_previous_pass(fmu: Path) -> None:
+    """A slot, then a parallel pass 5 mm to its -y side: half immersion down milling against the wall
+    the Z-map cut (entry pi/2, exit pi), resolved to half a cell."""
+    y = 30.1 * MM
+    points = chain(slot_points((-10 * MM, y, 28 * MM), (70 * MM, y, 28 * MM), 0.2 * MM),
+                   slot_points((70 * MM, y, 35 * MM), (-10 * MM, y - 5 * MM, 35 * MM), 1.0 * MM),
+                   slot_points((-10 * MM, y - 5 * MM, 28 * MM), (50 * MM, y - 5 * MM, 28 * MM), 0.05 * MM))
+    rows, slave = run_fmu(fmu, {}, points)
+    slave.unload()
+    out = {name: rows[-100:, k] for k, name in enumerate(OUTPUTS)}
+    zmap = ZMap({}, points[0])
+    assert np.all(np.abs(out["entry_angle"] - math.pi / 2) <= angle_tolerance(zmap, math.pi / 2, True))
+    assert np.all(out["exit_angle"] == math.pi)
+    assert np.all(np.abs(out["radial_depth"] - 5 * MM) <= 0.5 * zmap.dy + 1e-3 * MM)
+
+
+@pytest.mark.parametrize("tool", ["flat", "ball"])
+@pytest.mark.parametrize("angle", [0.0, 30.0])
+def test_retracing_a_cut_is_no_engagement(fmu: Path, tool: str, angle: float) -> None:
+    """A slot, then the same slot again (a spring pass): the second pass cuts nothing and reports no
+    engagement, although the slot's walls touch the cutter along both flanks, until it comes within
+    sqrt(2 R delta) (1.6 mm here) of the end of the first cut, whose end wall it then sees."""
+    parameters = {"corner_radius": 5 * MM} if tool == "ball" else {}
+    u = np.array([math.cos(math.radians(angle)), math.sin(math.radians(angle)), 0.0])
+    origin = np.array([0.0, 20.1 * MM, 28 * MM])
+    a, b = origin - 10 * MM * u, origin + 50 * MM * u
+    lifted = [(p[0], p[1], 35 * MM) for p in (b, a)]
+    slot = slot_points(a, b, 0.1 * MM)
+    rows, slave = run_fmu(fmu, parameters, chain(slot, slot_points(*lifted, 1.0 * MM), slot))
+    slave.unload()
+    first, again = rows[:len(slot)], rows[-len(slot):]
+    assert np.max(first[:, OUTPUTS.index("radial_depth")]) > 0
+    assert not np.any(again[:-20])  # the last 2 mm: the end wall
+    assert np.all(again[:, OUTPUTS.index("mrr")] == 0.0)
+
+
+# ---- what is not an error, and what is ----
+
+
+def test_tool_above_the_stock_gives_zero_engagement(fmu: Path) -> None:
+    """A 'negative depth of cut' (tool tip above the block, or beside it) is no error: nothing is cut."""
+    points = chain(slot_points((-10 * MM, 30 * MM, TOP + 0.5 * MM), (110 * MM, 30 * MM, TOP + 0.5 * MM), 0.5 * MM),
+                   slot_points((110 * MM, 30 * MM, 20 * MM), (110 * MM, -20 * MM, 20 * MM), 0.5 * MM))  # beside
+    rows, slave = run_fmu(fmu, {}, points)
+    assert not slave.messages
+    slave.unload()
+    assert not np.any(rows)
+
+
+def initialize_with(path: Path, parameters: dict) -> Slave:
+    slave = Slave(path)
+    slave.instantiate()
+    slave.enter_initialization()
+    slave.set(parameters)
+    return slave
+
+
+BAD_CONFIGURATIONS = {
+    "tool larger than the stock": ({"tool_diameter": 0.08}, "the tool is larger than the stock: tool_diameter = "
+                                   "0.08 m, stock_length = 0.1 m, stock_width = 0.06 m"),
+    "resolution too fine": ({"resolution": 1e-5}, "resolution = 1e-05 m is too fine for the stock: 10000 x 6000 "
+                            "cells, more than the limit of 20000000 cells (160 MB); use resolution >= 1.73285e-05 m"),
+    "resolution too coarse": ({"resolution": 0.004}, "resolution = 0.004 m is too coarse for tool_diameter = 0.01 m: "
+                              "the Z-map needs at least 4 cells across the tool (resolution <= 0.0025 m)"),
+    "corner radius beyond the radius": ({"corner_radius": 0.006}, "corner_radius = 0.006 m is larger than "
+                                        "tool_diameter/2 = 0.005 m (0: flat end mill, tool_diameter/2: ball end mill)"),
+}
+
+
+@pytest.mark.parametrize("case", BAD_CONFIGURATIONS)
+def test_bad_configurations_are_rejected_at_initialization(fmu: Path, case: str) -> None:
+    parameters, message = BAD_CONFIGURATIONS[case]
+    with pytest.raises(WorkpieceError) as raised:
+        validate({**DEFAULTS, **parameters})
+    assert str(raised.value) == message  # the reference rejects it with the same words
+    slave = initialize_with(fmu, parameters)
+    assert status_of(slave.exit_initialization) == ERROR
+    assert slave.last_error() == f"exitInitializationMode: {message}"
+    assert slave.messages[-1].category == "logStatusError"
+    assert slave.step(H) == ERROR  # the instance is in the error state
+    slave.fmu.reset()  # and usable again after reset
+    slave.initialize()
+    assert slave.step(H) == OK
+    slave.unload()
+
+
+def test_nan_position_is_rejected(fmu: Path) -> None:
+    with Slave(fmu) as slave:
+        slave.instantiate()
+        slave.initialize()
+        assert status_of(lambda: slave.set({"tool_z": math.nan})) == ERROR
+        setter = "fmi3SetFloat64" if slave.fmi_version == 3 else "fmi2SetReal"
+        assert slave.last_error() == f"{setter}: variable 'tool_z' set to nan: must be a finite number"
+
+
+def test_a_jump_of_the_tool_is_an_error(fmu: Path) -> None:
+    """A move faster than max_tool_speed (2 m/s = 120 m/min) in one step: positions in mm fed as m,
+    or a glitch. The step is rejected before anything is cut."""
+    with Slave(fmu) as slave:
+        slave.instantiate()
+        slave.initialize({"tool_x": 0.05, "tool_y": 0.03, "tool_z": 0.028, "spindle_speed": SPINDLE})
+        assert slave.step(H) == OK
+        before = slave.get(OUTPUTS)
+        slave.set({"tool_x": 0.0503})  # 0.3 mm in 1 ms: 0.3 m/s, fine
+        assert slave.step(H) == OK
+        slave.set({"tool_x": 0.0553})  # 5 mm in 1 ms: 5 m/s
+        assert slave.step(H) == ERROR
+        assert slave.last_error() == ("doStep: t = 0.002 s: the tool tip moved 0.005 m in 0.001 s (5 m/s), faster "
+                                      "than max_tool_speed = 2 m/s: a jump in tool_x, tool_y, tool_z (a glitch, or "
+                                      "not in m?)")
+        assert not np.array_equal(slave.get(OUTPUTS), before)  # the outputs of the last good step stay
+    zmap = ZMap({}, (0.05, 0.03, 0.028))
+    zmap.step((0.0503, 0.03, 0.028), H)
+    with pytest.raises(WorkpieceError, match="moved 0.005 m in 0.001 s"):
+        zmap.step((0.0553, 0.03, 0.028), H)
+
+
+def test_cutting_with_the_spindle_stopped_warns_once(fmu: Path) -> None:
+    points = slot_points((-10 * MM, 30 * MM, 28 * MM), (20 * MM, 30 * MM, 28 * MM), 0.2 * MM)
+    rows, slave = run_fmu(fmu, {}, points, spindle=0.0)
+    assert len(slave.messages) == 1 and slave.messages[0].status == WARNING
+    assert slave.warnings()[0].startswith("doStep: t = ")
+    assert slave.warnings()[0].endswith("material removed while spindle_speed = 0 rad/s: the spindle stands still "
+                                        "(a crash, or spindle_speed not connected? reported once)")
+    slave.unload()
+    assert np.array_equal(rows, run_reference({}, points, spindle=0.0)[0])  # and cuts as usual
+
+
+def test_engagement_deeper_than_the_flutes_warns_once(fmu: Path) -> None:
+    points = slot_points((-10 * MM, 30 * MM, 20 * MM), (20 * MM, 30 * MM, 20 * MM), 0.2 * MM)
+    rows, slave = run_fmu(fmu, {"flute_length": 8 * MM}, points)
+    assert [m.status for m in slave.messages] == [WARNING]
+    assert "axial depth of cut 0.01 m is more than flute_length = 0.008 m: the shank is in the material " \
+           "(reported once)" in slave.warnings()[0]
+    slave.unload()
+    assert np.max(rows[:, OUTPUTS.index("axial_depth")]) == pytest.approx(10 * MM, rel=1e-12)
+
+
+# ---- cost per step ----
+
+
+def test_cost_per_step_does_not_grow_with_the_stock() -> None:
+    """The same slot in a 100 x 100 mm block and in an 800 x 800 mm one (64 times the cells, 82 MB):
+    the time per step is the same within a factor 2, because only the cells under the swept tool are
+    visited. Runs of the two alternate and the best of 5 counts (the machine may be shared)."""
+    points = slot_points((10 * MM, 50 * MM, 27 * MM), (90 * MM, 50 * MM, 27 * MM), 0.2 * MM)
+    sizes = (0.1, 0.8)
+    slaves = {size: Slave(require_fmu(FMUS[0]), f"stock {size} m") for size in sizes}
+    per_step = dict.fromkeys(sizes, math.inf)
+    try:
+        for _ in range(5):
+            for size, slave in slaves.items():
+                slave.instantiate()
+                x, y, z = points[0]
+                slave.initialize({"stock_length": size, "stock_width": size, "tool_x": x, "tool_y": y, "tool_z": z,
+                                  "spindle_speed": SPINDLE})
+                vrs = [slave.vr["tool_x"]]
+                start = time.perf_counter()
+                for x, _, _ in points:
+                    slave.set_real(vrs, [x])
+                    assert slave.step(H) == OK
+                per_step[size] = min(per_step[size], (time.perf_counter() - start) / len(points))
+                assert slave.get(["mrr"])[0] > 0
+                slave.free_instance()
+    finally:
+        for slave in slaves.values():
+            slave.unload()
+    assert per_step[0.8] < 2 * per_step[0.1], per_step

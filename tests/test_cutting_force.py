@@ -21,6 +21,7 @@ from models.cutting_force import (
     mean_slot_forces,
     reference_trajectory,
 )
+from models.stability import Mode, stability_lobes
 
 REPO = Path(__file__).resolve().parents[1]
 FMUS = [fmu_dir() / "CuttingForce.fmu", fmu_dir() / "CuttingForce_fmi2.fmu"]
@@ -260,27 +261,10 @@ MODE = {"f": 922.0, "zeta": 0.011, "k": 1.34e6}  # Altintas' single-mode tool (M
 
 
 def stability_limit(rpm: float, n_flutes: int, f: float, zeta: float, k: float, Ktc: float, Krc: float) -> float:
-    """Altintas' zeroth-order (average directional factor) critical axial depth of slotting at ``rpm``
-    for a tool with the same single mode in x and y (Manufacturing Automation, 2nd ed., sec. 3.4)."""
-    kr = Krc / Ktc
-    alpha = np.array([[-kr * math.pi, -math.pi], [math.pi, -kr * math.pi]])  # slot directional factors
-    omega = np.linspace(0.8, 1.3, 200001) * TWO_PI * f
-    r = omega / (TWO_PI * f)
-    G = 1.0 / (k * (1 - r ** 2 + 2j * zeta * r))
-    limits = []
-    for eigenvalue in np.linalg.eigvals(alpha):
-        lam = -1.0 / (eigenvalue * G)
-        kappa = lam.imag / lam.real
-        depth = -TWO_PI * lam.real * (1 + kappa ** 2) / (n_flutes * Ktc)
-        phase = math.pi - 2 * np.arctan(kappa)
-        for lobe in range(60):
-            speed = 60.0 / (n_flutes * (phase + TWO_PI * lobe) / omega)
-            ok = depth > 0
-            order = np.argsort(speed[ok])
-            s, d = speed[ok][order], depth[ok][order]
-            if s[0] <= rpm <= s[-1]:
-                limits.append(float(np.interp(rpm, s, d)))
-    return min(limits)
+    """Altintas' zeroth-order critical axial depth of slotting at ``rpm`` for a tool with the same
+    single mode in x and y (models.stability, the lobes users get)."""
+    mode = Mode(f, zeta, k)
+    return float(stability_lobes((mode,), (mode,), Ktc, Krc, n_flutes, lobes=60).limit(rpm)[0])
 
 
 def run_loop(tmp_path: Path, fmi: int, depth: float, h: float, stop: float, vibration: bool = True):

@@ -72,7 +72,7 @@ import math
 import re
 import tomllib
 from collections.abc import Mapping, Sequence
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from fractions import Fraction
 from pathlib import Path
 from typing import Any, NoReturn
@@ -84,7 +84,7 @@ from models.units import UnitError, conversion_factor
 
 __all__ = [
     "Compare", "Connection", "FmuInstance", "Ref", "RecordedInput", "Scenario",
-    "ScenarioError", "Variable", "load_scenario",
+    "ScenarioError", "Variable", "load_scenario", "with_values",
 ]
 
 MAX_STEP_RATIO = 10_000  # largest step / base step; beyond it steps are incommensurate
@@ -578,3 +578,36 @@ def load_scenario(path: str | Path, fmu_dir: str | Path) -> Scenario:
         recorded=recorded, inputs=tuple(inputs), connections=tuple(c for _, c in conns),
         outputs=tuple(dict.fromkeys(outputs)), compare=tuple(compares),
     )
+
+
+def with_values(scenario: Scenario, values: Mapping[str, Any], *, name: str | None = None) -> Scenario:
+    """A copy of ``scenario`` with parameters or constant inputs changed, checked like the file's own
+    (causality, type, unit, range). ``values``: ``{"instance.variable": value}``, a plain number in
+    the variable's SI unit or ``{"value": ..., "unit": ...}``. ``name`` renames the run (its folder),
+    so that the runs of a sweep do not overwrite each other."""
+    ctx = _Ctx(scenario.path)
+    fed = {str(i.target) for i in scenario.inputs} | {str(c.target) for c in scenario.connections}
+    grouped: dict[str, dict[str, dict[str, Any]]] = {}
+    for key, value in values.items():
+        instance, _, variable = key.partition(".")
+        names = [inst.name for inst in scenario.instances]
+        if instance not in names:
+            ctx.fail(f"with_values[{key!r}]", f"unknown instance {instance!r}; instances: {', '.join(names)}")
+        var = scenario.instance(instance).variables.get(variable)
+        causality = var.causality if var is not None else "parameter"
+        if causality == "input" and key in fed:
+            ctx.fail(f"with_values[{key!r}]", "this input is fed by [[inputs]] or [[connections]]")
+        grouped.setdefault(instance, {}).setdefault(causality, {})[variable] = value
+    instances = []
+    for inst in scenario.instances:
+        changes = grouped.get(inst.name, {})
+        parameters = dict(inst.parameters)
+        inputs = dict(inst.inputs)
+        for causality, table in changes.items():
+            checked = _parameters(ctx, inst.name, table, inst.variables, inst.model_identifier,
+                                  "input" if causality == "input" else "parameter")
+            (inputs if causality == "input" else parameters).update(checked)
+        instances.append(replace(inst, parameters=parameters, inputs=inputs))
+    if name is not None and not _NAME_RE.match(name):
+        ctx.fail("with_values(name)", f"{name!r}: use letters, digits, '_', '-' and '.' only")
+    return replace(scenario, instances=tuple(instances), name=name or scenario.name)

@@ -317,3 +317,40 @@ def test_constant_inputs_and_integer_parameters_reach_the_fmu(tmp_path, fmu_dir)
     result = run(load_scenario(path, fmu_dir), tmp_path / "runs", progress=False)
     feed_per_tooth = load_results(result.run_dir)["force.feed_per_tooth"].to_numpy()
     assert feed_per_tooth == pytest.approx(0.015 / (3 * 100.0))  # 900 mm/min, 3 flutes, 100 rev/s
+
+
+# ---- with_values: checked changes for sweeps and calibration ----
+
+
+def test_with_values_changes_parameters_and_constant_inputs(make_case, fmu_dir):
+    from orchestrator.scenario import with_values
+
+    sc = load_scenario(make_case(CONSTANT_INPUTS, ('[[inputs]]\nfrom = "vy"\nto = "mrr.feed_velocity_y"\n', ""),
+                                 ('[[inputs]]\nfrom = "cutting"\nto = "mrr.cutting"\n', "")), fmu_dir)
+    changed = with_values(sc, {"mrr.feed_velocity_y": {"value": 1200.0, "unit": "mm/min"},
+                               "power.c3": 1.5, "mrr.cutting": False}, name="case_sweep_1")
+    assert changed.name == "case_sweep_1" and sc.name == "case"
+    assert changed.instance("mrr").inputs == {"feed_velocity_y": pytest.approx(0.02), "cutting": False}
+    assert changed.instance("power").parameters["c3"] == 1.5
+    assert sc.instance("power").parameters["c3"] == 1.0  # the original is untouched
+    assert changed.execution_order == sc.execution_order
+
+
+def test_with_values_rejects_what_the_file_would_reject(make_case, fmu_dir):
+    from orchestrator.scenario import with_values
+
+    sc = load_scenario(make_case(), fmu_dir)
+    cases = [
+        ("power.c3", 10.0, "[fmus.power].parameters.c3: 10.0 is outside the range [0.1, 3.0]"),
+        ("power.P_total", 1.0, "[fmus.power].parameters.P_total: output variable 'P_total' in SpindlePower"),
+        ("power.c9", 1.0, "[fmus.power].parameters.c9: unknown variable 'c9' in SpindlePower"),
+        ("drill.c3", 1.0, "with_values['drill.c3']: unknown instance 'drill'; instances: mrr, power"),
+        ("power.mrr", 0.0, "with_values['power.mrr']: this input is fed by [[inputs]] or [[connections]]"),
+        ("power.P_idle", {"value": 1.0, "unit": "mm"}, "[fmus.power].parameters.P_idle: unit 'mm' does not fit"),
+    ]
+    for key, value, expected in cases:
+        with pytest.raises(ScenarioError) as info:
+            with_values(sc, {key: value})
+        assert str(info.value).startswith(f"{sc.path}: {expected}"), str(info.value)
+    with pytest.raises(ScenarioError, match="use letters, digits"):
+        with_values(sc, {}, name="a b")

@@ -1,0 +1,38 @@
+"""The chatter validation's pieces: analytic limit from the scenario, and chatter read from the
+co-simulation alone (the full sweep is `python -m orchestrator.validation.chatter`)."""
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from fmu_helpers import fmu_dir, repo_root
+from models.stability import Mode, stability_lobes
+from orchestrator.scenario import load_scenario
+from orchestrator.validation import chatter
+
+SCENARIO = repo_root() / "scenarios" / "chatter.toml"
+
+
+def test_analytic_limit_uses_the_scenarios_coefficients_and_modes() -> None:
+    base = load_scenario(SCENARIO, fmu_dir())
+    mode = Mode(922.0, 0.011, 1.34e6)
+    expected = stability_lobes((mode,), (mode,), 767.01e6, 168.8e6, 2, lobes=60).limit([6000.0, 16000.0])
+    assert chatter.analytic_limit(base, np.array([6000.0, 16000.0])) == pytest.approx(expected, rel=1e-12)
+
+
+def test_one_speed_bisection_brackets_the_analytic_limit(tmp_path: Path) -> None:
+    """6000 rpm, 3 bisection steps: stable at half the limit, chatter at twice, and the simulated
+    limit within 10 % of the analytic one (-4.6 % with 8 steps)."""
+    assert chatter.main(["--speeds", "6000", "--iterations", "3", "--out", str(tmp_path)]) == 0
+    report = json.loads((tmp_path / "chatter" / "chatter.json").read_text())
+    (limit,) = report["limits"]
+    low, high = limit["bracket"]
+    assert low < limit["simulated"] < high and high - low == pytest.approx(1.5 * limit["analytic"] / 8)
+    assert abs(limit["relative_difference"]) < 0.1
+    cuts = report["cuts"]
+    assert cuts[0]["stable"] and cuts[0]["growth"] < 0.5  # half the limit: the entry transient dies out
+    assert not cuts[1]["stable"] and cuts[1]["growth"] > 2  # twice the limit: chatter grows
+    assert (tmp_path / "chatter" / "chatter.png").stat().st_size > 10_000

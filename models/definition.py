@@ -8,6 +8,7 @@ descriptions of the FMU. Nothing about a model's equations is written twice.
 from __future__ import annotations
 
 import hashlib
+import math
 import uuid
 from dataclasses import dataclass, field
 from typing import Callable, Literal, Mapping
@@ -34,6 +35,19 @@ class Variable:
     min: float | None = None
     max: float | None = None
     variability: Variability | None = None
+    # An array (FMI 3: one variable with <Dimension>s; FMI 2: one scalar per element, named
+    # name[i,j] with 1-based indices, in row-major order). Float64 outputs computed by model.c only.
+    shape: tuple[int, ...] = ()
+
+    @property
+    def size(self) -> int:
+        return math.prod(self.shape)
+
+    def element_names(self) -> list[str]:
+        """FMI 2 names of the elements, row-major: name[1,1], name[1,2], ..."""
+        if not self.shape:
+            return [self.name]
+        return [f"{self.name}[{','.join(str(i + 1) for i in index)}]" for index in np.ndindex(*self.shape)]
 
     @property
     def effective_variability(self) -> Variability:
@@ -83,6 +97,12 @@ class ModelDefinition:
     default_step_size: float = 1e-3
     default_stop_time: float = 10.0
     _cache: dict = field(default_factory=dict, compare=False, repr=False)
+
+    def __post_init__(self) -> None:
+        for v in self.variables:
+            if v.shape and (v.type != "Float64" or v.causality != "output" or v.name not in self.native_outputs):
+                raise ValueError(f"{self.identifier}.{v.name}: arrays are supported for Float64 outputs that "
+                                 "model.c computes (native_outputs) only")
 
     def of(self, causality: Causality) -> tuple[Variable, ...]:
         return tuple(v for v in self.variables if v.causality == causality)

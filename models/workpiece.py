@@ -51,10 +51,12 @@ algorithm in numpy, do:
      is flat: the column's height, not a sample height).
    - ``radial_depth``: ``r_top (cos(entry) - cos(exit))``, the width across the feed of the cutter's
      circle between entry and exit, ``r_top`` its radius at the top of the cut (``axial_depth``).
-   - the **engagement map** ``engagement_z{i}_a{jj}`` (``N_Z x N_THETA`` = 8 x 24 scalar Float64
-     variables, 0 or 1): row i is the height ``(i + 1/2) axial_depth / N_Z`` above the tip (the rows
-     divide the engaged height, so the force model's slice height is ``axial_depth / N_Z``),
-     column jj the angle ``(jj + 1/2) 2 pi / N_THETA``; columns of the back half are 0.
+   - the **engagement map** ``engagement`` (``N_Z x N_THETA`` = 8 x 24 values, 0 or 1; an FMI 3
+     array variable, in FMI 2 the scalars ``engagement[i,j]`` with 1-based indices): row i is the
+     height ``(i + 1/2) axial_depth / N_Z`` above the tip (the rows divide the engaged height, so the
+     force model's slice height is ``axial_depth / N_Z``), column j the angle
+     ``(j + 1/2) 2 pi / N_THETA``; columns of the back half are 0. (The reference below names the
+     elements ``engagement_z{i}_a{jj}``, 0-based, in the same row-major order.)
 
 The map is in the feed frame and does not rotate with the spindle, so the spindle angle is not
 needed: the force model places the flutes (``flute_count``, ``helix_angle``: carried here so that the
@@ -139,12 +141,11 @@ def _variables() -> tuple[Variable, ...]:
         Variable("mrr", "Float64", "output", "Material removal rate: volume removed in the last step / step size",
                  unit="m3/s", display_unit="cm3/min"),
     ]
-    for i in range(N_Z):
-        for j in range(N_THETA):
-            variables.append(Variable(
-                map_name(i, j), "Float64", "output",
-                f"Engagement map: 1 if the edge at height ({i}+1/2)/{N_Z} of axial_depth and immersion angle "
-                f"({j}+1/2)*{360 // N_THETA} deg is in material, else 0"))
+    variables.append(Variable(
+        "engagement", "Float64", "output",
+        f"Engagement map, {N_Z} heights x {N_THETA} angles: element [i, j] is 1 if the edge at height "
+        f"(i+1/2)/{N_Z} of axial_depth and immersion angle (j+1/2)*{360 // N_THETA} deg is in material, else 0",
+        shape=(N_Z, N_THETA)))
     return tuple(variables)
 
 
@@ -155,7 +156,7 @@ WORKPIECE = ModelDefinition(
     default_stop_time=10.0,
     equations=None,
     variables=_variables(),
-    native_outputs=OUTPUTS,
+    native_outputs=SCALAR_OUTPUTS + ("engagement",),
 )
 
 PARAMETERS = tuple(v.name for v in WORKPIECE.of("parameter"))

@@ -194,6 +194,13 @@ class Slave:
         assert self.md.coSimulation.modelIdentifier == self.identifier
         self.variables = {v.name: v for v in self.md.modelVariables}
         self.vr = {v.name: v.valueReference for v in self.md.modelVariables}
+        # arrays: FMI 3 has one variable with dimensions; FMI 2 one scalar per element, "name[i,j]"
+        self.sizes = {v.name: int(np.prod([int(d.start) for d in v.dimensions])) for v in self.md.modelVariables
+                      if getattr(v, "dimensions", None)}
+        self.elements: dict[str, list[int]] = {}
+        for v in self.md.modelVariables:
+            if "[" in v.name:
+                self.elements.setdefault(v.name.split("[")[0], []).append(v.valueReference)
         self.messages: list[LogMessage] = []
         cls = FMU3Slave if self.fmi_version == 3 else FMU2Slave
         self.fmu = cls(guid=self.md.guid if guid is None else guid, modelIdentifier=self.identifier,
@@ -306,8 +313,29 @@ class Slave:
         return self.fmu.getReal(list(vrs))
 
     def get(self, names: Iterable[str]) -> np.ndarray:
+        """Float64 values by name; an array contributes all its elements (row-major) in either version.
+        Int32 and Boolean scalars are read with their own getters and returned as numbers."""
         names = list(names)
-        return np.array(self.get_real([self.vr[n] for n in names]), dtype=float)
+        if any(self.variables[n].type in ("Integer", "Int32", "Boolean") for n in names if n in self.variables):
+            return np.array([self._scalar(n) for n in names], dtype=float)
+        vrs: list[int] = []
+        count = 0
+        for n in names:
+            if n in self.elements:  # FMI 2: the array's scalars
+                vrs += self.elements[n]
+                count += len(self.elements[n])
+            else:
+                vrs.append(self.vr[n])
+                count += self.sizes.get(n, 1)
+        return np.array(self.get_real(vrs, n_values=count if self.fmi_version == 3 else None), dtype=float)
+
+    def _scalar(self, name: str) -> float:
+        kind, vr = self.variables[name].type, [self.vr[name]]
+        if kind in ("Integer", "Int32"):
+            return float((self.fmu.getInt32 if self.fmi_version == 3 else self.fmu.getInteger)(vr)[0])
+        if kind == "Boolean":
+            return float(self.fmu.getBoolean(vr)[0])
+        return float(self.get_real(vr)[0])
 
     # -- log --
     def errors(self) -> list[str]:
@@ -374,7 +402,8 @@ def points_of(values: dict[str, np.ndarray]) -> list[dict[str, float]]:
 # ``initial_outputs(values)`` (outputs before any step, points x outputs, like expected_outputs).
 # A module may also provide ``random_arguments(count, rng)`` when not every point of the box of ranges is
 # valid for its model (a tool larger than the stock, a path that jumps): random_arguments uses it.
-NATIVE_REFERENCES = {"CuttingForce": "models.cutting_force", "Workpiece": "models.workpiece"}
+NATIVE_REFERENCES = {"CuttingForce": "models.cutting_force", "Workpiece": "models.workpiece",
+                     "Interpolator": "models.interpolator"}
 
 
 def native_reference(model):
@@ -421,6 +450,12 @@ def output_names(model) -> list[str]:
     return [v.name for v in model.of("output")]
 
 
+def numeric_parameters(model) -> tuple:
+    """The parameters tests set from numbers: all but String ones (a file name such as a part program keeps
+    its start value)."""
+    return tuple(v for v in model.of("parameter") if v.type != "String")
+
+
 def expected_outputs(model, values: dict[str, np.ndarray | float]) -> np.ndarray:
     """Model outputs from the casadi definition as an array (points x outputs); for models with
     native parts, the outputs before any step from their reference implementation."""
@@ -454,7 +489,7 @@ def simulate_points(path: Path, values: dict[str, Sequence[float]], outputs: Seq
     after the step. The first point is also read in initialization mode. Returns (points x outputs)."""
     values = {name: np.asarray(column, dtype=float) for name, column in values.items()}
     count = len(next(iter(values.values())))
-    result = np.empty((count, len(outputs)))
+    rows = []
     with Slave(path) as slave:
         slave.instantiate()
         slave.enter_initialization()
@@ -466,10 +501,10 @@ def simulate_points(path: Path, values: dict[str, Sequence[float]], outputs: Seq
             slave.set(row(values, i), include_fixed=False)
             status = slave.step(step_size)
             assert status in (OK, WARNING), f"doStep at point {i} returned {status}: {slave.messages[-3:]}"
-            result[i] = slave.get(outputs)
+            rows.append(slave.get(outputs))
         assert slave.get(["time"])[0] == slave.time
         slave.fmu.terminate()
-    return result
+    return np.array(rows)
 
 
 def bad_calls(path: Path) -> list[str]:

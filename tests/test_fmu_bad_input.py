@@ -23,6 +23,7 @@ from fmu_helpers import (
     assert_close,
     expected_outputs,
     reference_trajectory,
+    fmu_dir,
     fmu_id,
     keeps_heap_data,
     model_of,
@@ -260,8 +261,10 @@ def test_setting_an_output_or_time_is_rejected(slave: Slave) -> None:
 @pytest.mark.parametrize("which", ["next", "large", "max"])
 def test_unknown_value_reference_is_rejected(slave: Slave, which: str) -> None:
     slave.initialize()
-    n = len(slave.vr) - 1  # value references 0 (time) .. n
-    assert n == len(model_of(slave.path).variables)
+    n = max(slave.vr.values())  # value references 0 (time) .. n
+    model = model_of(slave.path)
+    elements = sum(v.size for v in model.variables if v.shape) if slave.fmi_version == 2 else 0
+    assert n == len(model.variables) + elements  # FMI 2: array elements numbered after the variables
     vr = {"next": n + 1, "large": 999, "max": 2**32 - 1}[which]
     assert status_of(lambda: slave.get_real([vr])) == ERROR
     assert slave.last_error() == (f"{get_name(slave)}: unknown value reference {vr} ({slave.identifier} has "
@@ -270,6 +273,21 @@ def test_unknown_value_reference_is_rejected(slave: Slave, which: str) -> None:
     real = CASES[slave.identifier]["real_input"]
     assert status_of(lambda: slave.set_real([slave.vr[real], vr], [0.0, 0.0])) == ERROR
     assert f"unknown value reference {vr}" in slave.last_error()
+
+
+def test_an_fmi3_array_is_not_a_value_reference_in_fmi2() -> None:
+    """FMI 2 has one scalar per element of an FMI 3 array; the array's own value reference is unused."""
+    for model in MODELS.values():
+        for v in (v for v in model.variables if v.shape):
+            with Slave(require_fmu(fmu_dir() / f"{model.identifier}_fmi2.fmu")) as slave:
+                slave.instantiate()
+                slave.initialize()
+                vr = model.variables.index(v) + 1
+                assert vr not in slave.vr.values()
+                assert status_of(lambda: slave.get_real([vr])) == ERROR
+                assert slave.last_error() == (f"fmi2GetReal: unknown value reference {vr}: it is an array in the FMI 3 "
+                                              f"variant of {model.identifier}; FMI 2 has one variable per element")
+                assert len(slave.get([v.name])) == v.size
 
 
 def test_wrong_type_for_a_value_reference_is_rejected(slave: Slave) -> None:
@@ -302,17 +320,26 @@ def test_wrong_type_for_a_value_reference_is_rejected(slave: Slave) -> None:
 @pytest.mark.parametrize("fmu3", FMI3_FMUS, ids=fmu_id)
 def test_fmi3_value_count_must_match_the_value_references(fmu3: Path) -> None:
     with Slave(require_fmu(fmu3)) as slave:
+        a, b = [v.valueReference for v in slave.md.modelVariables
+                if v.type == "Float64" and v.causality in ("parameter", "input") and not v.dimensions][:2]
         slave.instantiate()
         slave.initialize()
-        assert status_of(lambda: slave.get_real([1, 2], n_values=3)) == ERROR
-        assert slave.last_error() == (f"fmi3GetFloat64: nValues = 3 but nValueReferences = 2 (all variables of "
-                                      f"{slave.identifier} are scalars)")
+        assert status_of(lambda: slave.get_real([a, b], n_values=3)) == ERROR
+        assert slave.last_error() == ("fmi3GetFloat64: nValues = 3 but the 2 value references stand for 2 values "
+                                      "(arrays count all their elements)")
         slave.fmu.reset()
         slave.initialize()
-        vrs = (fmi3ValueReference * 2)(1, 2)
+        vrs = (fmi3ValueReference * 2)(a, b)
         values = (fmi3Float64 * 1)(0.1)
         assert status_of(lambda: slave.fmu.fmi3SetFloat64(slave.fmu.component, vrs, 2, values, 1)) == ERROR
-        assert "fmi3SetFloat64: nValues = 1 but nValueReferences = 2" in slave.last_error()
+        assert "fmi3SetFloat64: nValues = 1 but the 2 value references stand for 2 values" in slave.last_error()
+        for v in (v for v in slave.md.modelVariables if v.dimensions):  # an array counts all its elements
+            size = slave.sizes[v.name]
+            assert len(slave.get_real([v.valueReference], n_values=size)) == size
+            assert status_of(lambda: slave.get_real([v.valueReference, a], n_values=size)) == ERROR
+            assert f"stand for {size + 1} values" in slave.last_error()
+            slave.fmu.reset()
+            slave.initialize()
         slave.fmu.reset()
         slave.initialize()
         assert status_of(lambda: slave.fmu.fmi3GetFloat64(slave.fmu.component, None, 1, values, 1)) == ERROR

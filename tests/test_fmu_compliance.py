@@ -21,6 +21,7 @@ from fmu_helpers import (
     assert_close,
     expected_fmus,
     expected_outputs,
+    numeric_parameters,
     points_of,
     reference_trajectory,
     fmu_dir,
@@ -64,13 +65,23 @@ def test_model_description_matches_the_model_definition(fmu: Path) -> None:
     assert md.coSimulation.modelIdentifier == identifier
     assert md.guid == model.instantiation_token()
     described = {v.name: v for v in md.modelVariables}
-    assert set(described) == {"time"} | {v.name for v in model.variables}
+    # an array is one variable with dimensions in FMI 3, one scalar per element in FMI 2
+    names = [[v.name] if not v.shape or version == 3 else v.element_names() for v in model.variables]
+    assert set(described) == {"time"} | {name for group in names for name in group}
     for v in model.variables:
+        if v.shape:
+            if version == 3:
+                assert [int(d.start) for d in described[v.name].dimensions] == list(v.shape), v.name
+            else:
+                assert described[f"{v.name}[{','.join(map(str, v.shape))}]"].causality == v.causality
+            continue
         d = described[v.name]
         assert d.causality == v.causality, v.name
         if v.min is not None:
             assert float(d.min) == v.min and float(d.max) == v.max, v.name
-        if v.start is not None and v.type != "Boolean":
+        if v.start is not None and v.type == "String":
+            assert (d.start or "") == v.start, v.name
+        elif v.start is not None and v.type != "Boolean":
             assert float(d.start) == v.start, v.name
 
 
@@ -86,18 +97,19 @@ def test_simulate_fmu_gives_the_model_outputs(fmu: Path) -> None:
     inputs = model.of("input")
     for i in range(2, 5):  # random (not corner) points
         point = row(values, i)
-        parameters = {v.name: point[v.name] for v in model.of("parameter")}
+        parameters = {v.name: point[v.name] for v in numeric_parameters(model)}
         dtype = [("time", float)] + [(v.name, bool if v.type == "Boolean" else float) for v in inputs]
         signal = np.array([(0.0, *(point[v.name] for v in inputs)), (0.1, *(point[v.name] for v in inputs))],
                           dtype=dtype)
+        version = split_fmu_name(fmu)[1]
+        names = [n for v in model.of("output") for n in (v.element_names() if v.shape and version == 2 else [v.name])]
         result = fmpy.simulate_fmu(str(fmu), stop_time=0.05, output_interval=1e-3, start_values=parameters,
-                                   input=signal, output=output_names(model), validate=True,
-                                   logger=lambda *args: None)
+                                   input=signal, output=names, validate=True, logger=lambda *args: None)
         assert len(result) == 51
         assert result["time"][-1] == pytest.approx(0.05)
         expected = np.vstack([expected_outputs(model, point), reference_trajectory(model, [point] * 50, 1e-3)])
-        for k, name in enumerate(output_names(model)):
-            assert_close(result[name], expected[:, k], what=f"{name} at point {point}")
+        actual = np.column_stack([np.reshape(result[n], (len(result), -1)) for n in names])  # arrays row-major
+        assert_close(actual, expected, what=f"outputs at point {point}")
         if model.identifier == "SpindlePower" and point["spindle_on"] and point["mrr"] > 0:
             assert result["P_cutting"][0] > 0  # the random point exercises the cutting term
 
@@ -172,7 +184,7 @@ def test_fmi2_fmu_runs_in_libcosim_like_in_fmpy(fmu2: Path) -> None:
     log_output_level(CosimLogLevel.FATAL)
     model = model_of(fmu2)
     values = random_arguments(model, 12, np.random.default_rng(11))
-    parameters = {v.name: float(values[v.name][5]) for v in model.of("parameter")}
+    parameters = {v.name: float(values[v.name][5]) for v in numeric_parameters(model)}
     inputs = [{v.name: float(values[v.name][i]) for v in model.of("input")} for i in range(2, 12)]
     step_size = 1e-3
 
@@ -195,7 +207,7 @@ def test_fmi2_fmu_runs_in_libcosim_like_in_fmpy(fmu2: Path) -> None:
         else:
             assert execution.real_initial_value(index, variables[name], value)
 
-    outputs = [variables[n] for n in output_names(model)]
+    outputs = [variables[n] for v in model.of("output") for n in (v.element_names() if v.shape else [v.name])]
     cosim = []
     for k, point in enumerate(inputs):
         for name, value in point.items():
@@ -205,7 +217,12 @@ def test_fmi2_fmu_runs_in_libcosim_like_in_fmpy(fmu2: Path) -> None:
                 assert manipulator.slave_real_values(index, [variables[name]], [value])
         assert execution.step(1), execution.status()
         assert observer.last_real_values(index, [variables["time"]])[0] == pytest.approx((k + 1) * step_size)
-        cosim.append(observer.last_real_values(index, outputs))
+        if all(model.variable(v.name).type == "Float64" for v in model.of("output")):
+            cosim.append(observer.last_real_values(index, outputs))
+        else:  # Int32 and Boolean outputs through their own getters
+            readers = {"Float64": observer.last_real_values, "Int32": observer.last_integer_values,
+                       "Boolean": observer.last_boolean_values}
+            cosim.append([float(readers[v.type](index, [variables[v.name]])[0]) for v in model.of("output")])
     cosim = np.array(cosim)
 
     reference = _fmpy_steps(fmu2, parameters, inputs, step_size)

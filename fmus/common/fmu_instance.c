@@ -217,13 +217,19 @@ static const char *causality_name(FmuCausality causality) {
 
 static const FmuVariable *lookup(FmuInstance *instance, const char *function, unsigned int vr, FmuType type) {
     const FmuVariable *variable;
-    if (vr >= N_MODEL_VARIABLES) {
+    if (vr >= MODEL_VARIABLE_COUNT) {
         fmu_log(instance, FMU_ERROR, "logStatusError",
-                "%s: unknown value reference %u (%s has value references 0..%d)", function, vr,
-                MODEL_IDENTIFIER_STRING, N_MODEL_VARIABLES - 1);
+                "%s: unknown value reference %u (%s has value references 0..%u)", function, vr,
+                MODEL_IDENTIFIER_STRING, MODEL_VARIABLE_COUNT - 1);
         return NULL;
     }
     variable = &MODEL_VARIABLE_TABLE[vr];
+    if (!variable->name) {
+        fmu_log(instance, FMU_ERROR, "logStatusError",
+                "%s: unknown value reference %u: it is an array in the FMI 3 variant of %s; FMI 2 has one "
+                "variable per element", function, vr, MODEL_IDENTIFIER_STRING);
+        return NULL;
+    }
     if (variable->type != type) {
         fmu_log(instance, FMU_ERROR, "logStatusError", "%s: variable '%s' (value reference %u) is %s, not %s",
                 function, variable->name, vr, type_name(variable->type), type_name(type));
@@ -371,21 +377,57 @@ FmuStatus fmu_set_boolean(FmuInstance *instance, const char *function, unsigned 
 }
 
 /* Array forms used by the FMI functions: the standard's checks on the arrays, then one by one. */
+/* The number of values the value references stand for (FMI 3 arrays count all their elements),
+ * checked against n_values; 0 on an error (logged). */
+static size_t count_values(FmuInstance *instance, const char *function, const unsigned int vr[], size_t n_vr,
+                           const void *values, size_t n_values) {
+    size_t i, total = 0;
+    if ((n_vr > 0 && !vr) || (n_values > 0 && !values)) {
+        fmu_check_arrays(instance, function, vr, n_vr, values, n_values); /* logs which one is NULL */
+        return 0;
+    }
+    for (i = 0; i < n_vr; i++) {
+        const FmuVariable *variable = lookup(instance, function, vr[i], FMU_FLOAT64);
+        if (!variable) return 0;
+        total += variable->count;
+    }
+    if (total != n_values) {
+        fmu_log(instance, FMU_ERROR, "logStatusError",
+                "%s: nValues = %zu but the %zu value references stand for %zu values (arrays count all their "
+                "elements)", function, n_values, n_vr, total);
+        return 0;
+    }
+    return total;
+}
+
 FmuStatus fmu_get_float64s(FmuInstance *instance, const char *function, const unsigned int vr[], size_t n_vr,
                            double values[], size_t n_values) {
-    size_t i;
-    if (fmu_check_arrays(instance, function, vr, n_vr, values, n_values) != FMU_OK) return FMU_ERROR;
-    for (i = 0; i < n_vr; i++)
-        if (fmu_get_float64(instance, function, vr[i], &values[i]) != FMU_OK) return FMU_ERROR;
+    size_t i, next = 0;
+    if (n_vr == 0 && n_values == 0) return FMU_OK;
+    if (count_values(instance, function, vr, n_vr, values, n_values) == 0) return FMU_ERROR;
+    for (i = 0; i < n_vr; i++) {
+        const FmuVariable *variable = &MODEL_VARIABLE_TABLE[vr[i]];
+        if (variable->count == 1) {
+            if (fmu_get_float64(instance, function, vr[i], &values[next]) != FMU_OK) return FMU_ERROR;
+        } else {
+            if (variable->causality == FMU_OUTPUT) refresh_outputs(instance);
+            memcpy(&values[next], (const char *)&instance->v + variable->offset, variable->count * sizeof(double));
+        }
+        next += variable->count;
+    }
     return FMU_OK;
 }
 
 FmuStatus fmu_set_float64s(FmuInstance *instance, const char *function, const unsigned int vr[], size_t n_vr,
                            const double values[], size_t n_values) {
-    size_t i;
-    if (fmu_check_arrays(instance, function, vr, n_vr, values, n_values) != FMU_OK) return FMU_ERROR;
-    for (i = 0; i < n_vr; i++)
-        if (fmu_set_float64(instance, function, vr[i], values[i]) != FMU_OK) return FMU_ERROR;
+    size_t i, next = 0;
+    if (n_vr == 0 && n_values == 0) return FMU_OK;
+    if (count_values(instance, function, vr, n_vr, values, n_values) == 0) return FMU_ERROR;
+    for (i = 0; i < n_vr; i++) {
+        /* arrays are outputs (models/definition.py): fmu_set_float64 rejects them as not settable */
+        if (fmu_set_float64(instance, function, vr[i], values[next]) != FMU_OK) return FMU_ERROR;
+        next += MODEL_VARIABLE_TABLE[vr[i]].count;
+    }
     return FMU_OK;
 }
 
@@ -417,8 +459,9 @@ FmuStatus fmu_exit_initialization(FmuInstance *instance, const char *function) {
     size_t i;
     FmuStatus status;
     /* Start values may have come from anywhere (an importer that never called set): check all. */
-    for (i = 0; i < N_MODEL_VARIABLES; i++) {
+    for (i = 0; i < MODEL_VARIABLE_COUNT; i++) {
         const FmuVariable *variable = &MODEL_VARIABLE_TABLE[i];
+        if (!variable->name) continue;
         double value;
         if (variable->type == FMU_BOOLEAN || (variable->causality != FMU_PARAMETER && variable->causality != FMU_INPUT))
             continue;

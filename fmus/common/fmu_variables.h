@@ -15,7 +15,8 @@ typedef struct {
     FmuType type;
     FmuCausality causality;
     FmuVariability variability;
-    size_t offset;              /* of the value in ModelVariables */
+    size_t offset;              /* of the (first) value in ModelVariables */
+    size_t count;               /* number of values: 1, or the elements of an FMI 3 array */
     double min, max;            /* allowed range (Float64, Int32), checked on every set and at initialization */
     const char *unit;
 } FmuVariable;

@@ -16,13 +16,8 @@
 #define SPINDLE_STOPPED (2.0 * PI / 60.0) /* rad/s: 1 rpm */
 #define N_BISECTIONS 10                  /* refinement of entry and exit between two angle samples */
 
-/* the map's value references are consecutive, row by row (models.workpiece.MAP_NAMES) */
-typedef char map_value_references_are_consecutive
-    [(VR_engagement_z7_a23 - VR_engagement_z0_a00 == WORKPIECE_N_Z * WORKPIECE_N_THETA - 1) ? 1 : -1];
-
-static void set_output(FmuInstance *instance, unsigned int vr, double value) {
-    memcpy((char *)&instance->v + MODEL_VARIABLE_TABLE[vr].offset, &value, sizeof value);
-}
+/* the map is one row-major array of N_Z x N_THETA values (models.workpiece: shape of "engagement") */
+typedef char map_size_matches_the_model[(SIZE_engagement == WORKPIECE_N_Z * WORKPIECE_N_THETA) ? 1 : -1];
 
 static double cell_count(double size, double resolution) { return ceil(size / resolution - 1e-6); }
 
@@ -244,8 +239,7 @@ static void engagement(FmuInstance *instance) {
     size_t m, k, first = 0, last = 0;
     int i, j;
     bool engaged = false;
-    for (i = 0; i < WORKPIECE_N_Z * WORKPIECE_N_THETA; i++)
-        set_output(instance, (unsigned)(VR_engagement_z0_a00 + i), 0.0);
+    for (i = 0; i < WORKPIECE_N_Z * WORKPIECE_N_THETA; i++) instance->v.engagement[i] = 0.0;
     instance->v.axial_depth = instance->v.radial_depth = instance->v.entry_angle = instance->v.exit_angle = 0.0;
     if (z >= w->top) return;
     m = 0;
@@ -307,7 +301,7 @@ static void engagement(FmuInstance *instance) {
             const double ux = s * fx - c * fy, uy = s * fy + c * fx;
             if (phi < instance->v.entry_angle || phi > instance->v.exit_angle) continue; /* outside the cut */
             if (height_above(instance, x + ri * ux, y + ri * uy, z) > zi)
-                set_output(instance, (unsigned)(VR_engagement_z0_a00 + i * WORKPIECE_N_THETA + j), 1.0);
+                instance->v.engagement[i * WORKPIECE_N_THETA + j] = 1.0;
         }
     }
 }

@@ -46,8 +46,10 @@ static void *load(void *library, const char *name) {
 
 static unsigned int first_vr(FmuCausality causality, FmuType type) {
     unsigned int i;
-    for (i = 0; i < N_MODEL_VARIABLES; i++)
-        if (MODEL_VARIABLE_TABLE[i].causality == causality && MODEL_VARIABLE_TABLE[i].type == type) return i;
+    for (i = 0; i < MODEL_VARIABLE_COUNT; i++)
+        if (MODEL_VARIABLE_TABLE[i].name && MODEL_VARIABLE_TABLE[i].causality == causality &&
+            MODEL_VARIABLE_TABLE[i].type == type && MODEL_VARIABLE_TABLE[i].count == 1)
+            return i;
     return 0;
 }
 

@@ -6,13 +6,19 @@ BUILD := build
 VENV_PYTHON := $(abspath $(VENV))/bin/python
 JOBS ?= 2
 
-.PHONY: setup build demo test clean
+.PHONY: setup build demo test clean fuzz
 
 # Reinstalled only when the dependency pins change.
 $(VENV)/.installed: pyproject.toml
 	$(PYTHON) -m venv $(VENV)
 	$(VENV_PYTHON) -m pip install --quiet --upgrade pip
 	$(VENV_PYTHON) -m pip install --quiet -e '.[test]'
+	touch $@
+
+# `make test` also needs torch (the 'train' extra: tests/test_forcenet_train.py trains a small network on the
+# CPU); `make demo` does not: neither the FMUs nor the orchestrator use it.
+$(VENV)/.installed-train: $(VENV)/.installed
+	$(VENV_PYTHON) -m pip install --quiet -e '.[test,train]'
 	touch $@
 
 setup: $(VENV)/.installed
@@ -24,9 +30,15 @@ build: setup
 demo: build
 	$(VENV_PYTHON) -m orchestrator run scenarios/umich_power.toml --fmu-dir $(BUILD)/fmus --out runs
 
-test: build
+test: build $(VENV)/.installed-train
 	cd $(BUILD) && ctest --output-on-failure
 	MILLING_TWIN_FMU_DIR=$(abspath $(BUILD))/fmus $(VENV_PYTHON) -m pytest
+
+# libFuzzer on the interpolator's G-code parser and engine for FUZZ_TIME seconds (installs clang when
+# missing; tests/fuzz/README.md). The committed corpus is replayed by ctest in every `make test`.
+FUZZ_TIME ?= 600
+fuzz: build
+	sh tests/fuzz/run_fuzz.sh $(FUZZ_TIME)
 
 clean:
 	rm -rf $(BUILD) build-asan runs

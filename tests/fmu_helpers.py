@@ -403,7 +403,7 @@ def points_of(values: dict[str, np.ndarray]) -> list[dict[str, float]]:
 # A module may also provide ``random_arguments(count, rng)`` when not every point of the box of ranges is
 # valid for its model (a tool larger than the stock, a path that jumps): random_arguments uses it.
 NATIVE_REFERENCES = {"CuttingForce": "models.cutting_force", "Workpiece": "models.workpiece",
-                     "Interpolator": "models.interpolator"}
+                     "Interpolator": "models.interpolator", "ForceNet": "models.force_net"}
 
 
 def native_reference(model):

@@ -120,6 +120,12 @@ FmuInstance *fmu_create(const char *function, const char *name, const char *toke
     instance->log_events = true;
     instance->state = STATE_INSTANTIATED;
     set_start_values(instance);
+#ifdef MODEL_HAS_INSTANTIATE
+    if (model_instantiate(instance, function) > FMU_WARNING) {
+        fmu_destroy(instance);
+        return NULL;
+    }
+#endif
     fmu_log(instance, FMU_OK, "logEvents", "%s: instance '%s' of %s created", function, name,
             MODEL_IDENTIFIER_STRING);
     return instance;
@@ -158,7 +164,11 @@ FmuStatus fmu_reset(FmuInstance *instance) {
     free_heap(instance);
     set_start_values(instance);
     instance->state = STATE_INSTANTIATED;
+#ifdef MODEL_HAS_INSTANTIATE
+    return model_instantiate(instance, "Reset");
+#else
     return FMU_OK;
+#endif
 }
 
 FmuStatus fmu_check_state(FmuInstance *instance, const char *function, unsigned allowed_states) {

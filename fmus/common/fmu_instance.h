@@ -134,4 +134,12 @@ void model_update_outputs(FmuInstance *instance);
  * memory a model needs belongs in the instance heap (fmu_allocate_heap), not behind pointers. */
 void model_free_internal(FmuInstance *instance);
 
+/* Optional: a model whose config.h defines MODEL_HAS_INSTANTIATE implements this hook, called when the
+ * instance is created (start values set, logger installed) and again by reset (which returns to that
+ * state), e.g. to load data from instance->resource_path into the heap. `function` names the FMI call for
+ * messages. An Error (logged by the hook) makes instantiation return NULL and reset return Error. */
+#ifdef MODEL_HAS_INSTANTIATE
+FmuStatus model_instantiate(FmuInstance *instance, const char *function);
+#endif
+
 #endif

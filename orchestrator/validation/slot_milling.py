@@ -33,7 +33,13 @@ Two coefficient sets are run: the scenario's (literature priors; the workpiece m
 recordings is not stated) and the six coefficients identified from these five recorded means
 (Altintas' linear regression, ``models.cutting_force.identify_slot_coefficients``): the latter's
 mean errors are in-sample, its waveform r2 is not fitted. Writes ``slot_milling.json`` and PNG
-plots into ``<out>/slot_milling/`` (the runs themselves into ``<out>/slot_milling/runs/``).
+plots into ``<out>/<scenario file name>/`` (the runs themselves into its ``runs/``).
+
+The force instance may also be the force net (``scenarios/slot_milling_forcenet.toml``: the same scenario
+with ``fmu = "ForceNet"``). It has no coefficients: its sets are the network packed in the FMU ("prior",
+trained on the mechanistic model with the literature coefficients) and, with ``--finetuned DIR`` (written by
+``python -m models.force_net_train finetune``), for each recording the network fine-tuned on the four
+other recordings ("finetuned", a left-out prediction), run as a copy of the FMU with those weights.
 """
 from __future__ import annotations
 
@@ -45,6 +51,7 @@ import re
 import sys
 from dataclasses import dataclass, replace
 from pathlib import Path
+from typing import Callable
 
 import numpy as np
 import pandas as pd
@@ -70,6 +77,13 @@ AXES = {"Fx": "Fy", "Fy": "Fx", "Fz": "Fz"}
 COEFFICIENTS = ("Ktc", "Krc", "Kac", "Kte", "Kre", "Kae")
 _NAME = re.compile(r"n(?P<rpm>\d+(?:\.\d+)?)f(?P<feed>\d+(?:\.\d+)?)ap(?P<ap>\d+(?:\.\d+)?)ae(?P<ae>\d+(?:\.\d+)?)")
 FINE = 3600  # points of the simulated waveform per revolution (0.1 deg)
+SET_LABELS = {"prior": "prior coefficients", "identified": "identified coefficients",
+              "finetuned": "network fine-tuned on the other feeds"}
+NET_PRIOR_LABEL = "network trained on the mechanistic model"  # "prior" of a force model without coefficients
+
+
+def set_labels(model: str) -> dict[str, str]:
+    return SET_LABELS if model == "CuttingForce" else {**SET_LABELS, "prior": NET_PRIOR_LABEL}
 
 
 class DataMissing(RuntimeError):
@@ -142,10 +156,21 @@ def _n_flutes(scenario: Scenario) -> int:
     return int(inst.parameters.get("n_flutes", 2))
 
 
+FORCE_INPUTS = ("spindle_speed", "feed_velocity_x", "feed_velocity_y", "axial_depth")
+FORCE_OUTPUTS = ("Fx", "Fy", "Fz", "spindle_angle")
+
+
 def _check_scenario(scenario: Scenario) -> None:
-    if INSTANCE not in scenario.execution_order or scenario.instance(INSTANCE).model_identifier != "CuttingForce":
+    """A force instance named INSTANCE (CuttingForce, or any FMU with its inputs and outputs: ForceNet)."""
+    if INSTANCE not in scenario.execution_order:
         raise ScenarioError(scenario.path, f"[fmus.{INSTANCE}]", "the slot-milling validation needs a CuttingForce "
-                                                                 f"instance named {INSTANCE!r}")
+                                                                 f"(or ForceNet) instance named {INSTANCE!r}")
+    variables = scenario.instance(INSTANCE).variables
+    missing = [n for n in FORCE_INPUTS + FORCE_OUTPUTS if n not in variables]
+    if missing:
+        raise ScenarioError(scenario.path, f"[fmus.{INSTANCE}]", f"{scenario.instance(INSTANCE).model_identifier} "
+                            f"lacks {', '.join(missing)}: the slot-milling validation needs a force model with the "
+                            "inputs and outputs of CuttingForce")
     wanted = {f"{INSTANCE}.{n}" for n in ("Fx", "Fy", "Fz", "spindle_angle")}
     missing = wanted - {str(r) for r in scenario.outputs}
     if missing:
@@ -153,13 +178,16 @@ def _check_scenario(scenario: Scenario) -> None:
 
 
 def simulate(scenario: Scenario, recording: Recording, out_dir: Path, coefficients: dict | None = None,
-             tag: str = "") -> pd.DataFrame:
-    """Run ``scenario`` at the recording's conditions (constant inputs of the force instance)."""
+             tag: str = "", fmu: Path | None = None) -> pd.DataFrame:
+    """Run ``scenario`` at the recording's conditions (constant inputs of the force instance), with
+    ``coefficients`` (parameters) changed and the force instance's FMU replaced by ``fmu`` if given (a copy
+    with other resources, e.g. another network: the same model description)."""
     inst = scenario.instance(INSTANCE)
     inputs = {**inst.inputs, "spindle_speed": recording.rpm * 2 * math.pi / 60,
               "feed_velocity_x": recording.feed / 60_000, "feed_velocity_y": 0.0,
               "axial_depth": recording.axial_depth / 1000}
-    force = replace(inst, inputs=inputs, parameters={**inst.parameters, **(coefficients or {})})
+    force = replace(inst, inputs=inputs, parameters={**inst.parameters, **(coefficients or {})},
+                    path=fmu or inst.path)
     case = replace(scenario, name=f"{recording.label}{tag}",
                    instances=tuple(force if i.name == INSTANCE else i for i in scenario.instances))
     result = run(case, out_dir, progress=False)
@@ -264,18 +292,19 @@ def _plot_waveforms(path: Path, title: str, cases: list[tuple[str, Recording, di
     fig.savefig(path, dpi=90)
 
 
-def _plot_means(path: Path, recordings: list[Recording], sets: dict[str, list[dict]], n_flutes: int) -> None:
+def _plot_means(path: Path, recordings: list[Recording], sets: dict[str, list[dict]], n_flutes: int,
+                labels: dict[str, str] = SET_LABELS) -> None:
     fig = Figure(figsize=(12, 3.6), layout="constrained")
     axes = fig.subplots(1, 3)
     ft = [r.feed / (r.rpm * n_flutes) for r in recordings]
-    styles = {"prior": ("tab:orange", "s"), "identified": ("tab:blue", "^")}
+    styles = {"prior": ("tab:orange", "s"), "identified": ("tab:blue", "^"), "finetuned": ("tab:green", "v")}
     for k, axis in enumerate(AXES):
         ax = axes[k]
         ax.plot(ft, [c["recorded_mean_N"][axis] for c in sets["prior"]], "ko-", label="recorded")
         for name, cases in sets.items():
             color, marker = styles[name]
             ax.plot(ft, [c["simulated_mean_N"][axis] for c in cases], marker=marker, color=color, linestyle="--",
-                    label=f"simulated, {name} coefficients")
+                    label=f"simulated, {labels.get(name, name)}")
         ax.set_title(f"mean {axis} (recorded) = simulated {AXES[axis]}")
         ax.set_xlabel("feed per tooth [mm]")
         ax.set_ylabel("force [N]")
@@ -284,15 +313,75 @@ def _plot_means(path: Path, recordings: list[Recording], sets: dict[str, list[di
     fig.savefig(path, dpi=90)
 
 
-def validate(data: Path, scenario_path: Path, fmu_dir: Path, out: Path) -> dict:
-    """Run and compare every recording with both coefficient sets; writes JSON and plots, returns the JSON."""
+def run_sets(scenario: Scenario, recordings: list[Recording], runs: Path,
+             sets: dict[str, Callable[[Recording], dict]]) -> dict[str, list[dict]]:
+    """Simulate and compare every recording for each set; a set gives, per recording, the keyword arguments
+    of :func:`simulate` (``coefficients``, ``fmu``). Returns the comparisons per set, in recording order."""
+    results: dict[str, list[dict]] = {}
+    for name, configure in sets.items():
+        tag = "" if name == "prior" else f"_{name}"
+        results[name] = [compare(r, simulate(scenario, r, runs, tag=tag, **configure(r))) for r in recordings]
+    return results
+
+
+def write_report(folder: Path, doc: dict, recordings: list[Recording], sets: dict[str, list[dict]],
+                 n_flutes: int) -> dict:
+    """Adds the cases of every set to ``doc``, writes the JSON and the plots (waveforms per set, means)."""
+    for i, r in enumerate(recordings):
+        case = doc["cases"][i] if i < len(doc["cases"]) else {}
+        case.update({"file": r.path.name, "spindle_speed_rpm": r.rpm, "feed_mm_per_min": r.feed,
+                     "feed_per_tooth_mm": r.feed / (r.rpm * n_flutes), "axial_depth_mm": r.axial_depth})
+        for name in sets:
+            case[name] = {k: v for k, v in sets[name][i].items() if not k.startswith("_")}
+        if i >= len(doc["cases"]):
+            doc["cases"].append(case)
+    labels = set_labels(doc["model"])
+    for name in sets:
+        cases = [(r.label, r, sets[name][i]) for i, r in enumerate(recordings)]
+        _plot_waveforms(folder / f"waveforms_{name}.png",
+                        f"slot milling ({doc['model']}), per-revolution forces, {labels.get(name, name)}", cases)
+    _plot_means(folder / "means.png", recordings, sets, n_flutes, labels)
+    (folder / "slot_milling.json").write_text(json.dumps(_finite(doc), indent=2))
+    return doc
+
+
+def finetuned_fmus(scenario: Scenario, recordings: list[Recording], weights_dir: Path, folder: Path) -> dict:
+    """Per recording, a copy of the scenario's ForceNet FMU holding the network fine-tuned without that
+    recording (``<weights_dir>/finetuned_without_f<feed>.bin``)."""
+    from models.force_net import install_weights
+
+    fmus = {}
+    for r in recordings:
+        weights = weights_dir / f"finetuned_without_f{r.feed:g}.bin"
+        if not weights.is_file():
+            raise ValueError(f"{weights} is missing: run `python -m models.force_net_train finetune --out "
+                             f"{weights_dir}` first")
+        fmus[r.feed] = install_weights(scenario.instance(INSTANCE).path, weights,
+                                       folder / "fmus" / f"{weights.stem}_{scenario.instance(INSTANCE).path.name}")
+    return fmus
+
+
+def validate(data: Path, scenario_path: Path, fmu_dir: Path, out: Path, finetuned: Path | None = None) -> dict:
+    """Run and compare every recording with each set (CuttingForce: prior and identified coefficients;
+    ForceNet: the packed network and, with ``finetuned``, the left-out fine-tuned networks); writes JSON
+    and plots into ``out/<scenario file stem>/``, returns the JSON."""
     recordings = read_recordings(data)
     scenario = load_scenario(scenario_path, fmu_dir)
     _check_scenario(scenario)
     n_flutes = _n_flutes(scenario)
-    folder = out / "slot_milling"
+    folder = out / Path(scenario_path).stem
     folder.mkdir(parents=True, exist_ok=True)
     runs = folder / "runs"
+    force = scenario.instance(INSTANCE)
+    doc = {"data": str(data), "source": SOURCE, "scenario": str(scenario_path), "model": force.model_identifier,
+           "axes": {f"recorded {a}": f"simulated {INSTANCE}.{s}" for a, s in AXES.items()}, "cases": []}
+    if not all(name in force.variables for name in COEFFICIENTS):  # a force model without coefficients
+        sets: dict[str, Callable[[Recording], dict]] = {"prior": lambda r: {}}
+        if finetuned is not None:
+            fmus = finetuned_fmus(scenario, recordings, finetuned, folder)
+            sets["finetuned"] = lambda r: {"fmu": fmus[r.feed]}
+            doc["finetuned_weights"] = str(finetuned)
+        return write_report(folder, doc, recordings, run_sets(scenario, recordings, runs, sets), n_flutes)
     for r in recordings:
         if r.rpm != recordings[0].rpm or r.axial_depth != recordings[0].axial_depth:
             raise ValueError(f"{r.path}: the identification needs one spindle speed and axial depth for all files")
@@ -301,41 +390,15 @@ def validate(data: Path, scenario_path: Path, fmu_dir: Path, out: Path) -> dict:
     model_means = {AXES[a]: means[:, k] for k, a in enumerate(AXES)}  # model axes
     identified = identify_slot_coefficients(ft, model_means["Fx"], model_means["Fy"], model_means["Fz"], n_flutes,
                                             recordings[0].axial_depth / 1000)
-    prior = {name: scenario.instance(INSTANCE).parameters.get(name, CUTTING_FORCE.variable(name).start)
-             for name in COEFFICIENTS}
-    sets: dict[str, list[dict]] = {}
-    for name, coefficients in (("prior", None), ("identified", identified)):
-        sets[name] = []
-        for r in recordings:
-            result = compare(r, simulate(scenario, r, runs, coefficients, "" if name == "prior" else "_identified"))
-            sets[name].append(result)
-    doc = {
-        "data": str(data), "source": SOURCE, "scenario": str(scenario_path),
-        "axes": {f"recorded {a}": f"simulated {INSTANCE}.{s}" for a, s in AXES.items()},
-        "coefficients": {
-            "prior": prior,
-            "identified_from_recorded_means": identified,
-            "units": "Ktc, Krc, Kac in N/m2; Kte, Kre, Kae in N/m",
-        },
-        "cases": [],
-    }
+    prior = {name: force.parameters.get(name, CUTTING_FORCE.variable(name).start) for name in COEFFICIENTS}
+    sets = run_sets(scenario, recordings, runs, {"prior": lambda r: {}, "identified": lambda r: {"coefficients": identified}})
+    doc["coefficients"] = {"prior": prior, "identified_from_recorded_means": identified,
+                           "units": "Ktc, Krc, Kac in N/m2; Kte, Kre, Kae in N/m"}
     for i, r in enumerate(recordings):
         closed = mean_slot_forces(**identified, n_flutes=n_flutes, axial_depth=r.axial_depth / 1000,
                                   feed_per_tooth=ft[i])
-        doc["cases"].append({
-            "file": r.path.name, "spindle_speed_rpm": r.rpm, "feed_mm_per_min": r.feed,
-            "feed_per_tooth_mm": ft[i] * 1000, "axial_depth_mm": r.axial_depth,
-            "prior": {k: v for k, v in sets["prior"][i].items() if not k.startswith("_")},
-            "identified": {k: v for k, v in sets["identified"][i].items() if not k.startswith("_")},
-            "identified_closed_form_mean_N": {a: closed[AXES[a]] for a in AXES},
-        })
-    for name in sets:
-        cases = [(r.label, r, sets[name][i]) for i, r in enumerate(recordings)]
-        _plot_waveforms(folder / f"waveforms_{name}.png",
-                        f"slot milling, per-revolution forces, {name} coefficients", cases)
-    _plot_means(folder / "means.png", recordings, sets, n_flutes)
-    (folder / "slot_milling.json").write_text(json.dumps(_finite(doc), indent=2))
-    return doc
+        doc["cases"].append({"identified_closed_form_mean_N": {a: closed[AXES[a]] for a in AXES}})
+    return write_report(folder, doc, recordings, sets, n_flutes)
 
 
 def _finite(value: object) -> object:
@@ -350,9 +413,10 @@ def _finite(value: object) -> object:
 
 def summary(doc: dict) -> str:
     lines = []
-    for name in ("prior", "identified"):
-        lines.append(f"{name} coefficients: mean relative error (Fx, Fy, Fz of the recording) | waveform r2 | "
-                     "r2 of the shape")
+    labels = set_labels(doc.get("model", "CuttingForce"))
+    for name in [n for n in labels if doc["cases"] and n in doc["cases"][0]]:
+        lines.append(f"{doc.get('model', 'CuttingForce')}, {labels[name]}: mean relative error (Fx, Fy, Fz of "
+                     "the recording) | waveform r2 | r2 of the shape")
         for case in doc["cases"]:
             c = case[name]
             err = ", ".join(f"{100 * c['mean_relative_error'][a]:+6.1f} %" for a in AXES)
@@ -369,11 +433,14 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--data", type=Path, help=f"folder of the recordings (default: ${DATA_ENV} or {DEFAULT_DATA})")
     parser.add_argument("--scenario", type=Path, default=DEFAULT_SCENARIO)
     parser.add_argument("--fmu-dir", type=Path, default=Path(os.environ.get(FMU_DIR_ENV, REPO / "build" / "fmus")))
-    parser.add_argument("--out", type=Path, default=REPO / "runs", help="results go to OUT/slot_milling/")
+    parser.add_argument("--out", type=Path, default=REPO / "runs",
+                        help="results go to OUT/<scenario file name>/ (OUT/slot_milling/ by default)")
+    parser.add_argument("--finetuned", type=Path, help="ForceNet scenarios: folder of the left-out fine-tuned "
+                        "weights (python -m models.force_net_train finetune)")
     args = parser.parse_args(argv)
     try:
         data = data_dir(args.data)
-        doc = validate(data, args.scenario, args.fmu_dir, args.out)
+        doc = validate(data, args.scenario, args.fmu_dir, args.out, args.finetuned)
     except DataMissing as exc:
         print(f"error: {exc}", file=sys.stderr)
         return 2
@@ -384,8 +451,8 @@ def main(argv: list[str] | None = None) -> int:
         print(f"error: {exc}", file=sys.stderr)
         return 1
     print(summary(doc))
-    print(f"results: {args.out / 'slot_milling'} (slot_milling.json, means.png, waveforms_prior.png, "
-          "waveforms_identified.png)")
+    folder = args.out / args.scenario.stem
+    print(f"results: {folder} ({', '.join(sorted(p.name for p in folder.glob('*.json')) + sorted(p.name for p in folder.glob('*.png')))})")
     return 0
 
 

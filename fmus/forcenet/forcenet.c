@@ -1,0 +1,411 @@
+/* The force net without FMI (forcenet.h): weights file, resource location, network, tool evaluation.
+ * Every floating-point operation follows models/force_net.py (network, elements, tool_outputs) in the same
+ * order, so the FMU equals that reference to rounding (the tests require 1e-12). */
+#include "forcenet.h"
+
+#include <errno.h>
+#include <math.h>
+#include <stdarg.h>
+#include <stdio.h>
+#include <stdlib.h>
+#include <string.h>
+
+#define TWO_PI 6.283185307179586 /* 2.0 * math.pi */
+#define PI 3.141592653589793
+#define OMEGA_MIN 1.0            /* rad/s: models/cutting_force.py OMEGA_MIN, below it the spindle is stopped */
+#define HEADER_BYTES 56          /* magic, version, 6 sizes, 3 scales */
+#define CHUNK 8                  /* elements evaluated together (the activation buffers are CHUNK x width) */
+
+static void say(char *message, size_t size, const char *format, ...)
+#if defined(__GNUC__)
+    __attribute__((format(printf, 3, 4)))
+#endif
+    ;
+
+static void say(char *message, size_t size, const char *format, ...) {
+    va_list args;
+    if (!message || size == 0) return;
+    va_start(args, format);
+    vsnprintf(message, size, format, args);
+    va_end(args);
+}
+
+/* ---- the weights file ---- */
+
+static uint32_t u32(const unsigned char *p) {
+    return (uint32_t)p[0] | (uint32_t)p[1] << 8 | (uint32_t)p[2] << 16 | (uint32_t)p[3] << 24;
+}
+
+static uint64_t u64(const unsigned char *p) { return (uint64_t)u32(p) | (uint64_t)u32(p + 4) << 32; }
+
+static double f64(const unsigned char *p) {
+    uint64_t bits = u64(p);
+    double value;
+    memcpy(&value, &bits, sizeof value); /* IEEE 754 binary64, as every platform of the FMU */
+    return value;
+}
+
+static uint64_t fnv1a64(const unsigned char *data, size_t size) {
+    uint64_t h = 0xcbf29ce484222325u;
+    size_t i;
+    for (i = 0; i < size; i++) h = (h ^ data[i]) * 0x100000001b3u;
+    return h;
+}
+
+int forcenet_parse(const unsigned char *data, size_t size, ForceNetLayout *layout, double *params, char *message,
+                   size_t message_size) {
+    uint32_t n_in, n_out, l, i, o;
+    size_t expected, offset, count = 0;
+    double scales[3];
+    ForceNetLayout lay;
+    memset(&lay, 0, sizeof lay);
+    if (size < HEADER_BYTES + 8) {
+        say(message, message_size, "truncated: %zu bytes, shorter than the %d-byte header and checksum", size,
+            HEADER_BYTES + 8);
+        return -1;
+    }
+    if (memcmp(data, "FORCENET", 8) != 0) {
+        say(message, message_size, "not a force-net weights file (its first 8 bytes are not 'FORCENET')");
+        return -1;
+    }
+    if (u32(data + 8) != 1) {
+        say(message, message_size, "format version %lu, this FMU reads version 1", (unsigned long)u32(data + 8));
+        return -1;
+    }
+    n_in = u32(data + 12);
+    lay.kernel = u32(data + 16);
+    lay.width = u32(data + 20);
+    lay.blocks = u32(data + 24);
+    n_out = u32(data + 28);
+    if (n_in != FORCENET_FEATURES || n_out != FORCENET_LOADS) {
+        say(message, message_size,
+            "shape mismatch: the network has %lu inputs and %lu outputs, the model needs %d and %d",
+            (unsigned long)n_in, (unsigned long)n_out, FORCENET_FEATURES, FORCENET_LOADS);
+        return -1;
+    }
+    if (lay.kernel < 1 || lay.kernel > FORCENET_MAX_WIDTH || lay.width < 1 || lay.width > FORCENET_MAX_WIDTH ||
+        lay.blocks > FORCENET_MAX_BLOCKS) {
+        say(message, message_size, "sizes K = %lu, W = %lu, B = %lu outside 1..%d, 1..%d, 0..%d",
+            (unsigned long)lay.kernel, (unsigned long)lay.width, (unsigned long)lay.blocks, FORCENET_MAX_WIDTH,
+            FORCENET_MAX_WIDTH, FORCENET_MAX_BLOCKS);
+        return -1;
+    }
+    for (i = 0; i < 3; i++) {
+        scales[i] = f64(data + 32 + 8 * i);
+        if (!(isfinite(scales[i]) && scales[i] > 0.0)) {
+            say(message, message_size, "scales h_ref, v_ref, load_ref must be positive and finite");
+            return -1;
+        }
+    }
+    lay.h_ref = scales[0];
+    lay.v_ref = scales[1];
+    lay.load_ref = scales[2];
+    lay.layers = 3 + 2 * lay.blocks;
+    for (l = 0; l < lay.layers; l++) {
+        lay.n_in[l] = l == 0 ? FORCENET_FEATURES : l == 1 ? lay.kernel : lay.width;
+        lay.n_out[l] = l == 0 ? lay.kernel : l == lay.layers - 1 ? FORCENET_LOADS : lay.width;
+        lay.weight[l] = count;
+        count += (size_t)lay.n_in[l] * lay.n_out[l];
+        lay.bias[l] = count;
+        count += lay.n_out[l];
+    }
+    lay.count = count;
+    expected = HEADER_BYTES + 8 * lay.layers + 8 * count + 8;
+    if (size != expected) {
+        say(message, message_size, "%s: %zu bytes, the header (K = %lu, W = %lu, B = %lu) needs %zu",
+            size < expected ? "truncated" : "trailing data", size, (unsigned long)lay.kernel,
+            (unsigned long)lay.width, (unsigned long)lay.blocks, expected);
+        return -1;
+    }
+    lay.checksum = u64(data + size - 8);
+    if (lay.checksum != fnv1a64(data, size - 8)) {
+        say(message, message_size, "checksum mismatch (corrupted file)");
+        return -1;
+    }
+    offset = HEADER_BYTES;
+    for (l = 0; l < lay.layers; l++) {
+        uint32_t rows = u32(data + offset), cols = u32(data + offset + 4);
+        if (rows != lay.n_out[l] || cols != lay.n_in[l]) {
+            say(message, message_size, "shape mismatch: layer %lu is %lu x %lu, expected %lu x %lu",
+                (unsigned long)l, (unsigned long)rows, (unsigned long)cols, (unsigned long)lay.n_out[l],
+                (unsigned long)lay.n_in[l]);
+            return -1;
+        }
+        offset += 8;
+        for (o = 0; o < rows; o++) {
+            for (i = 0; i < cols; i++) {
+                double w = f64(data + offset + 8 * ((size_t)o * cols + i));
+                if (!isfinite(w)) {
+                    say(message, message_size, "layer %lu holds non-finite values", (unsigned long)l);
+                    return -1;
+                }
+                if (params) params[lay.weight[l] + (size_t)i * rows + o] = w; /* transposed: in x out */
+            }
+        }
+        offset += 8 * (size_t)rows * cols;
+        for (o = 0; o < rows; o++) {
+            double b = f64(data + offset + 8 * (size_t)o);
+            if (!isfinite(b)) {
+                say(message, message_size, "layer %lu holds non-finite values", (unsigned long)l);
+                return -1;
+            }
+            if (params) params[lay.bias[l] + o] = b;
+        }
+        offset += 8 * (size_t)rows;
+    }
+    *layout = lay;
+    return 0;
+}
+
+/* ---- resource location ---- */
+
+static int hex_value(char c) {
+    if (c >= '0' && c <= '9') return c - '0';
+    if (c >= 'a' && c <= 'f') return c - 'a' + 10;
+    if (c >= 'A' && c <= 'F') return c - 'A' + 10;
+    return -1;
+}
+
+int forcenet_resource_file(const char *location, const char *name, char *path, size_t size, char *message,
+                           size_t message_size) {
+    const char *s = location;
+    size_t n = 0, name_length = strlen(name);
+    int uri = strncmp(s, "file:", 5) == 0;
+    if (uri) {
+        s += 5;
+        if (strncmp(s, "//", 2) == 0) { /* file://host/path: only an empty host or localhost is local */
+            s += 2;
+            if (strncmp(s, "localhost/", 10) == 0)
+                s += 9;
+            else if (*s != '/') {
+                say(message, message_size, "the resource location '%.200s' is not a local file URI", location);
+                return -1;
+            }
+        }
+    }
+    while (*s) {
+        char c = *s;
+        if (uri && c == '%') {
+            if (hex_value(s[1]) < 0 || hex_value(s[2]) < 0) {
+                say(message, message_size, "the resource location '%.200s' has a bad percent-escape", location);
+                return -1;
+            }
+            c = (char)(hex_value(s[1]) * 16 + hex_value(s[2]));
+            s += 3;
+        } else {
+            s++;
+        }
+        if (n + 1 >= size) break;
+        path[n++] = c;
+    }
+    if (*s || n + 1 + name_length + 1 > size) {
+        say(message, message_size, "the resource location '%.200s' is too long", location);
+        return -1;
+    }
+    if (n == 0 || path[n - 1] != '/') path[n++] = '/';
+    memcpy(path + n, name, name_length + 1);
+    return 0;
+}
+
+unsigned char *forcenet_read_file(const char *path, size_t *size, char *message, size_t message_size) {
+    FILE *f = fopen(path, "rb");
+    unsigned char *data;
+    long length;
+    if (!f) {
+        say(message, message_size, "cannot open '%s': %s", path, strerror(errno));
+        return NULL;
+    }
+    if (fseek(f, 0, SEEK_END) != 0 || (length = ftell(f)) < 0 || fseek(f, 0, SEEK_SET) != 0) {
+        say(message, message_size, "cannot read '%s': %s", path, strerror(errno));
+        fclose(f);
+        return NULL;
+    }
+    if ((unsigned long)length > FORCENET_MAX_FILE_BYTES) {
+        say(message, message_size, "'%s' has %ld bytes, more than a weights file may (%u MB)", path, length,
+            FORCENET_MAX_FILE_BYTES >> 20);
+        fclose(f);
+        return NULL;
+    }
+    data = malloc(length > 0 ? (size_t)length : 1);
+    if (!data) {
+        say(message, message_size, "out of memory reading '%s'", path);
+        fclose(f);
+        return NULL;
+    }
+    if (fread(data, 1, (size_t)length, f) != (size_t)length) {
+        say(message, message_size, "cannot read '%s': %s", path, ferror(f) ? strerror(errno) : "shorter than its size");
+        free(data);
+        fclose(f);
+        return NULL;
+    }
+    fclose(f);
+    *size = (size_t)length;
+    return data;
+}
+
+/* ---- the network ---- */
+
+/* y[r][o] = b[o] + sum_i x[r][i] * w[i][o], accumulated over i in order (models.force_net._dense). Two rows
+ * by 8 outputs keep their sums in registers and share the loads of the weights; the independent
+ * multiply-adds vectorize even at -O2. The order of the operations of each sum is the same in every path. */
+static void dense(const double *restrict w, const double *restrict b, size_t n_in, size_t n_out,
+                  const double *restrict x, size_t rows, double *restrict y) {
+    size_t r = 0, i, o;
+    for (; r + 2 <= rows; r += 2) {
+        const double *x0 = x + r * n_in, *x1 = x0 + n_in;
+        double *y0 = y + r * n_out, *y1 = y0 + n_out;
+        for (o = 0; o + 8 <= n_out; o += 8) {
+            double a0 = b[o], a1 = b[o + 1], a2 = b[o + 2], a3 = b[o + 3];
+            double a4 = b[o + 4], a5 = b[o + 5], a6 = b[o + 6], a7 = b[o + 7];
+            double c0 = a0, c1 = a1, c2 = a2, c3 = a3, c4 = a4, c5 = a5, c6 = a6, c7 = a7;
+            for (i = 0; i < n_in; i++) {
+                const double u = x0[i], v = x1[i], *wi = w + i * n_out + o;
+                a0 += u * wi[0], c0 += v * wi[0];
+                a1 += u * wi[1], c1 += v * wi[1];
+                a2 += u * wi[2], c2 += v * wi[2];
+                a3 += u * wi[3], c3 += v * wi[3];
+                a4 += u * wi[4], c4 += v * wi[4];
+                a5 += u * wi[5], c5 += v * wi[5];
+                a6 += u * wi[6], c6 += v * wi[6];
+                a7 += u * wi[7], c7 += v * wi[7];
+            }
+            y0[o] = a0, y0[o + 1] = a1, y0[o + 2] = a2, y0[o + 3] = a3;
+            y0[o + 4] = a4, y0[o + 5] = a5, y0[o + 6] = a6, y0[o + 7] = a7;
+            y1[o] = c0, y1[o + 1] = c1, y1[o + 2] = c2, y1[o + 3] = c3;
+            y1[o + 4] = c4, y1[o + 5] = c5, y1[o + 6] = c6, y1[o + 7] = c7;
+        }
+        for (; o < n_out; o++) {
+            double a0 = b[o], c0 = b[o];
+            for (i = 0; i < n_in; i++) {
+                a0 += x0[i] * w[i * n_out + o];
+                c0 += x1[i] * w[i * n_out + o];
+            }
+            y0[o] = a0;
+            y1[o] = c0;
+        }
+    }
+    for (; r < rows; r++) {
+        const double *xr = x + r * n_in;
+        double *yr = y + r * n_out;
+        for (o = 0; o < n_out; o++) {
+            double sum = b[o];
+            for (i = 0; i < n_in; i++) sum += xr[i] * w[i * n_out + o];
+            yr[o] = sum;
+        }
+    }
+}
+
+static void relu(double *x, size_t n) {
+    size_t i;
+    for (i = 0; i < n; i++) x[i] = x[i] > 0.0 ? x[i] : 0.0;
+}
+
+void forcenet_network(const ForceNetLayout *layout, const double *params, const double *features, size_t n,
+                      double *loads) {
+    double a[CHUNK * FORCENET_MAX_WIDTH], t[CHUNK * FORCENET_MAX_WIDTH], u[CHUNK * FORCENET_MAX_WIDTH];
+    const size_t K = layout->kernel, W = layout->width, last = layout->layers - 1;
+    size_t start, i, block;
+    for (start = 0; start < n; start += CHUNK) {
+        size_t rows = n - start < CHUNK ? n - start : CHUNK;
+        double *out = loads + start * FORCENET_LOADS;
+        /* kernel-function block: cube */
+        dense(params + layout->weight[0], params + layout->bias[0], FORCENET_FEATURES, K,
+              features + start * FORCENET_FEATURES, rows, t);
+        for (i = 0; i < rows * K; i++) t[i] = t[i] * t[i] * t[i];
+        /* linear-transform block: ReLU */
+        dense(params + layout->weight[1], params + layout->bias[1], K, W, t, rows, a);
+        relu(a, rows * W);
+        for (block = 0; block < layout->blocks; block++) {
+            size_t l = 2 + 2 * block;
+            dense(params + layout->weight[l], params + layout->bias[l], W, W, a, rows, t);
+            relu(t, rows * W);
+            dense(params + layout->weight[l + 1], params + layout->bias[l + 1], W, W, t, rows, u);
+            for (i = 0; i < rows * W; i++) {
+                double sum = a[i] + u[i];
+                a[i] = sum > 0.0 ? sum : 0.0;
+            }
+        }
+        dense(params + layout->weight[last], params + layout->bias[last], W, FORCENET_LOADS, a, rows, out);
+        for (i = 0; i < rows * FORCENET_LOADS; i++) out[i] = out[i] * layout->load_ref;
+    }
+}
+
+/* ---- the tool ---- */
+
+static double wrap(double angle) { return angle - TWO_PI * floor(angle / TWO_PI); }
+
+size_t forcenet_elements(const ForceNetLayout *layout, const ForceNetCut *cut, double *features, double *sin_phi,
+                         double *cos_phi, double *z_out) {
+    const int n = cut->n_flutes < FORCENET_MAX_FLUTES ? cut->n_flutes : FORCENET_MAX_FLUTES;
+    const double omega = cut->spindle_speed, vx = cut->feed_velocity_x, vy = cut->feed_velocity_y;
+    const double radius = cut->tool_diameter / 2.0, dz = cut->axial_depth / FORCENET_ELEMENTS_PER_FLUTE;
+    double period, feed_angle, lag_per_height, entry, width, pitch, v_feature, theta0_feature;
+    size_t count = 0;
+    int m, k;
+    if (!(omega >= OMEGA_MIN && dz > 0.0) || n < 1) return 0;
+    period = TWO_PI / ((double)n * omega);
+    feed_angle = atan2(vy, vx);
+    lag_per_height = tan(cut->helix_angle) / radius;
+    entry = cut->entry_angle;
+    width = wrap(cut->exit_angle - entry);
+    pitch = TWO_PI / (double)n;
+    v_feature = omega * radius / layout->v_ref;
+    theta0_feature = cut->angle / PI - 1.0;
+    for (m = 0; m < n; m++) {
+        for (k = 0; k < FORCENET_ELEMENTS_PER_FLUTE; k++) {
+            double z = ((double)k + 0.5) * dz, psi = z * lag_per_height;
+            double phi = cut->angle + (double)m * pitch - psi, s = sin(phi), c = cos(phi);
+            double h = period * (vx * s + vy * c), theta;
+            double *f = features + count * FORCENET_FEATURES;
+            if (!(wrap(phi + feed_angle - entry) < width && h > 0.0)) continue;
+            theta = wrap(phi + feed_angle);
+            f[0] = h / layout->h_ref;
+            f[1] = v_feature;
+            f[2] = theta0_feature;
+            f[3] = sin(theta);
+            f[4] = cos(theta);
+            f[5] = sin(psi);
+            f[6] = cos(psi);
+            sin_phi[count] = s;
+            cos_phi[count] = c;
+            z_out[count] = z;
+            count++;
+        }
+    }
+    return count;
+}
+
+void forcenet_tool(const ForceNetLayout *layout, const double *params, const ForceNetCut *cut, ForceNetTool *out) {
+    double features[FORCENET_MAX_ELEMENTS * FORCENET_FEATURES], loads[FORCENET_MAX_ELEMENTS * FORCENET_LOADS];
+    double s[FORCENET_MAX_ELEMENTS], c[FORCENET_MAX_ELEMENTS], z[FORCENET_MAX_ELEMENTS];
+    const double radius = cut->tool_diameter / 2.0, dz = cut->axial_depth / FORCENET_ELEMENTS_PER_FLUTE;
+    const double zp = cut->moment_height;
+    double fx = 0.0, fy = 0.0, fz = 0.0, torque = 0.0, mx = 0.0, my = 0.0, mz = 0.0, max_chip = 0.0;
+    size_t n = forcenet_elements(layout, cut, features, s, c, z), i;
+    memset(out, 0, sizeof *out);
+    if (n == 0) return;
+    forcenet_network(layout, params, features, n, loads);
+    for (i = 0; i < n; i++) {
+        double ft = loads[3 * i] * dz, fr = loads[3 * i + 1] * dz, fa = loads[3 * i + 2] * dz;
+        double dfx = -ft * c[i] - fr * s[i], dfy = ft * s[i] - fr * c[i];
+        double px = radius * s[i], py = radius * c[i], pz = z[i] - zp;
+        fx += dfx;
+        fy += dfy;
+        fz += fa;
+        torque += ft * radius;
+        mx += py * fa - pz * dfy;
+        my += pz * dfx - px * fa;
+        mz += px * dfy - py * dfx;
+        if (features[FORCENET_FEATURES * i] > max_chip) max_chip = features[FORCENET_FEATURES * i];
+    }
+    out->Fx = fx;
+    out->Fy = fy;
+    out->Fz = fz;
+    out->torque = torque;
+    out->power = torque * cut->spindle_speed;
+    out->Mx = mx;
+    out->My = my;
+    out->Mz = mz;
+    out->elements = n;
+    out->max_chip = max_chip * layout->h_ref;
+}

@@ -1,0 +1,74 @@
+/* The force net without FMI: the weights file, the resource location, the network and the tool evaluation
+ * of models/force_net.py (same operations in the same order as its numpy reference). model.c wraps it into
+ * the FMU; tools/forcenet_run.c drives it from the tests and the benchmark. No global state: the parameters
+ * live in a caller's array (the FMU's instance heap) described by a ForceNetLayout (flat). */
+#ifndef FORCENET_H
+#define FORCENET_H
+
+#include <stddef.h>
+#include <stdint.h>
+
+#define FORCENET_FEATURES 7           /* h/h_ref, v/v_ref, theta0/pi - 1, sin/cos(theta), sin/cos(psi) */
+#define FORCENET_LOADS 3              /* tangential, radial, axial load per unit edge length */
+#define FORCENET_MAX_WIDTH 128        /* largest K and W the FMU accepts (models.force_net.MAX_WIDTH) */
+#define FORCENET_MAX_BLOCKS 16        /* largest number of residual blocks (models.force_net.MAX_BLOCKS) */
+#define FORCENET_MAX_LAYERS (3 + 2 * FORCENET_MAX_BLOCKS)
+#define FORCENET_ELEMENTS_PER_FLUTE 16 /* H, models.force_net.ELEMENTS_PER_FLUTE */
+#define FORCENET_MAX_FLUTES 6
+#define FORCENET_MAX_ELEMENTS (FORCENET_MAX_FLUTES * FORCENET_ELEMENTS_PER_FLUTE)
+#define FORCENET_MAX_FILE_BYTES (16u << 20)
+#define FORCENET_WEIGHTS_FILE "weights.bin"
+
+/* Sizes and scales of a loaded network and where its layers are in the parameter array: layer l has its
+ * weight transposed, in x out (row i holds the weights of input i to every output), at offset weight[l],
+ * then its out biases at bias[l]. Flat: copied by value into FMU states. */
+typedef struct {
+    uint32_t kernel, width, blocks, layers;
+    uint32_t n_in[FORCENET_MAX_LAYERS], n_out[FORCENET_MAX_LAYERS];
+    size_t weight[FORCENET_MAX_LAYERS], bias[FORCENET_MAX_LAYERS];
+    size_t count; /* doubles in the parameter array */
+    double h_ref, v_ref, load_ref;
+    uint64_t checksum;
+} ForceNetLayout;
+
+/* Checks a weights file image (format in models/force_net.py, encode_weights) and fills `layout`; with
+ * `params` non-NULL (layout->count doubles, from a first call with NULL) also copies the parameters.
+ * Returns 0, or -1 with the reason in `message` ("truncated: ...", "shape mismatch: ...", ...). */
+int forcenet_parse(const unsigned char *data, size_t size, ForceNetLayout *layout, double *params, char *message,
+                   size_t message_size);
+
+/* The file `name` in the FMU's resources: `location` as the importer passed it, a file URI in FMI 2
+ * ("file:///dir/resources/", "file:/dir/resources", "file://localhost/dir/...", percent-encoded), a native path
+ * in FMI 3 (anything not starting with "file:", taken as it is). Returns 0, or -1 with a message. */
+int forcenet_resource_file(const char *location, const char *name, char *path, size_t size, char *message,
+                           size_t message_size);
+
+/* Reads a whole file (at most FORCENET_MAX_FILE_BYTES); the caller frees it. NULL and a message on failure. */
+unsigned char *forcenet_read_file(const char *path, size_t *size, char *message, size_t message_size);
+
+/* Loads per unit edge length [N/m] (n x 3) of n elements from their features (n x 7). */
+void forcenet_network(const ForceNetLayout *layout, const double *params, const double *features, size_t n,
+                      double *loads);
+
+/* The cutting state of one evaluation (SI units, the FMU's variables) */
+typedef struct {
+    int n_flutes;
+    double tool_diameter, helix_angle, moment_height;
+    double spindle_speed, feed_velocity_x, feed_velocity_y, axial_depth, entry_angle, exit_angle;
+    double angle; /* spindle angle theta0 of flute 0 at the tip */
+} ForceNetCut;
+
+typedef struct {
+    double Fx, Fy, Fz, torque, power, Mx, My, Mz; /* N, N.m, W */
+    size_t elements;                              /* elements in contact */
+    double max_chip;                              /* largest chip thickness in contact [m] */
+} ForceNetTool;
+
+/* The elements in contact (features n x 7, and for each sin/cos(phi) and z): returns n. */
+size_t forcenet_elements(const ForceNetLayout *layout, const ForceNetCut *cut, double *features, double *sin_phi,
+                         double *cos_phi, double *z);
+
+/* One full evaluation of the tool: elements, network, forces and moments. */
+void forcenet_tool(const ForceNetLayout *layout, const double *params, const ForceNetCut *cut, ForceNetTool *out);
+
+#endif

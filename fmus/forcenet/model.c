@@ -1,0 +1,124 @@
+/* ForceNet: the milling force of models/force_net.py from a neural network of the per-element cutting load.
+ *
+ * - model_instantiate (when the instance is created, and on reset): the weights file resources/weights.bin
+ *   of the FMU is read from the resource location the importer passed (FMI 2: a file URI, FMI 3: a path) and
+ *   checked (format, sizes, every layer's shape, checksum; see models/force_net.py): a missing, truncated or
+ *   mismatched file fails the instantiation with the reason. Only when the importer passes no location at
+ *   all is the built-in copy of the default file (default_weights.h) used. A retrained network is a new
+ *   weights.bin in the FMU (models.force_net.install_weights): no recompilation.
+ * - each doStep advances the spindle angle (generated), and the outputs are one evaluation of the tool at
+ *   the angle reached (forcenet_tool: elements in contact, network, forces and moments). */
+#include <math.h>
+#include <stdlib.h>
+#include <string.h>
+
+#include "default_weights.h"
+#include "fmu_instance.h"
+
+#define OMEGA_MIN 1.0 /* rad/s: below it the spindle counts as stopped (models/cutting_force.py) */
+
+FmuStatus model_instantiate(FmuInstance *instance, const char *function) {
+    ModelInternal *in = &instance->internal;
+    char path[4096], message[1024];
+    const unsigned char *data;
+    unsigned char *file = NULL;
+    size_t size = 0;
+    ForceNetLayout layout;
+    const char *source = path;
+    in->loaded = false;
+    if (instance->resource_path[0] == '\0') {
+        data = FORCENET_DEFAULT_WEIGHTS;
+        size = sizeof FORCENET_DEFAULT_WEIGHTS;
+        source = "the built-in copy of resources/" FORCENET_WEIGHTS_FILE;
+        fmu_log(instance, FMU_OK, "logEvents", "%s: no resource location was given: %s is used", function, source);
+    } else {
+        if (forcenet_resource_file(instance->resource_path, FORCENET_WEIGHTS_FILE, path, sizeof path, message,
+                                   sizeof message) != 0) {
+            fmu_log(instance, FMU_ERROR, "logStatusError", "%s: %s", function, message);
+            return FMU_ERROR;
+        }
+        file = forcenet_read_file(path, &size, message, sizeof message);
+        if (!file) {
+            fmu_log(instance, FMU_ERROR, "logStatusError",
+                    "%s: the force-net weights file cannot be read: %s (the FMU's resources/ must hold %s, "
+                    "format in models/force_net.py)", function, message, FORCENET_WEIGHTS_FILE);
+            return FMU_ERROR;
+        }
+        data = file;
+    }
+    if (forcenet_parse(data, size, &layout, NULL, message, sizeof message) != 0) {
+        fmu_log(instance, FMU_ERROR, "logStatusError", "%s: force-net weights file '%s': %s", function, source,
+                message);
+        free(file);
+        return FMU_ERROR;
+    }
+    if (fmu_allocate_heap(instance, function, layout.count) != FMU_OK) {
+        free(file);
+        return FMU_ERROR;
+    }
+    forcenet_parse(data, size, &in->net, instance->heap, message, sizeof message);
+    free(file);
+    in->loaded = true;
+    return FMU_OK;
+}
+
+FmuStatus model_exit_initialization(FmuInstance *instance) {
+    instance->internal.warned_stopped = false;
+    if (!instance->internal.loaded) {
+        fmu_log(instance, FMU_ERROR, "logStatusError", "ExitInitializationMode: no force-net weights are loaded");
+        return FMU_ERROR;
+    }
+    return FMU_OK;
+}
+
+FmuStatus model_do_step(FmuInstance *instance, double time, double step_size) {
+    ModelVariables *v = &instance->v;
+    FmuStatus status = FMU_OK;
+    if (v->spindle_speed < OMEGA_MIN && v->axial_depth > 0.0 && !instance->internal.warned_stopped) {
+        double feed = hypot(v->feed_velocity_x, v->feed_velocity_y);
+        double width = v->exit_angle - v->entry_angle;
+        width -= 6.283185307179586 * floor(width / 6.283185307179586);
+        if (feed > 0.0 && width > 0.0) {
+            instance->internal.warned_stopped = true;
+            fmu_log(instance, FMU_WARNING, "logStatusWarning",
+                    "doStep: t = %g s: spindle_speed = %g rad/s is below %g rad/s (stopped) while the tool feeds at "
+                    "%g m/s into the cut (axial_depth = %g m): no chip, the forces are 0 (reported once)",
+                    time, v->spindle_speed, OMEGA_MIN, feed, v->axial_depth);
+            status = FMU_WARNING;
+        }
+    }
+    model_update_states(v, step_size);
+    return status;
+}
+
+void model_update_outputs(FmuInstance *instance) {
+    ModelVariables *v = &instance->v;
+    ForceNetCut cut;
+    ForceNetTool tool;
+    model_evaluate_equations(v);
+    memset(&tool, 0, sizeof tool);
+    if (instance->internal.loaded) {
+        cut.n_flutes = (int)v->n_flutes;
+        cut.tool_diameter = v->tool_diameter;
+        cut.helix_angle = v->helix_angle;
+        cut.moment_height = v->moment_height;
+        cut.spindle_speed = v->spindle_speed;
+        cut.feed_velocity_x = v->feed_velocity_x;
+        cut.feed_velocity_y = v->feed_velocity_y;
+        cut.axial_depth = v->axial_depth;
+        cut.entry_angle = v->entry_angle;
+        cut.exit_angle = v->exit_angle;
+        cut.angle = v->states.angle;
+        forcenet_tool(&instance->internal.net, instance->heap, &cut, &tool);
+    }
+    v->Fx = tool.Fx;
+    v->Fy = tool.Fy;
+    v->Fz = tool.Fz;
+    v->torque = tool.torque;
+    v->power = tool.power;
+    v->Mx = tool.Mx;
+    v->My = tool.My;
+    v->Mz = tool.Mz;
+}
+
+void model_free_internal(FmuInstance *instance) { (void)instance; }

@@ -1,0 +1,39 @@
+/* Feedrate schedule: look-ahead over the whole program from a given state (s, v, zero acceleration) to
+ * the program end at rest. Stations (nodes where the acceleration is zero) split the path into segments,
+ * each a jerk-limited S-curve to a cruise velocity and another to the next station's velocity; station
+ * velocities come from a backward pass over every cap and a forward pass from the start; nodes where a
+ * segment would exceed the velocity limit become stations until none does. Mirrors the Schedule section of
+ * models/interpolator.py. */
+#ifndef FEED_SCHEDULE_H
+#define FEED_SCHEDULE_H
+
+#include <stddef.h>
+
+#define PIECE_DOUBLES 5 /* t, s, v, a, j */
+#define PIECES_PER_INTERVAL 7
+
+typedef struct {
+    size_t n_nodes, n_ints, n_moves;
+    const double *node_s, *node_vh, *node_left, *node_right;
+    double *station;
+    const double *int_move, *int_at, *int_jt, *int_cap;
+    const double *soft; /* per move: F * override capped by max_feed, or the rapid feed */
+    double total;
+    double *pieces;
+    size_t piece_capacity;
+} ScheduleView;
+
+double s_curve_time(double dv, double a, double j);
+double s_curve_distance(double v0, double v1, double a, double j);
+double reach_up(double v0, double length, double a, double j);
+double lowest_feasible(double v_high, double v_low, double length, double a, double j);
+double segment_peak(double va, double vb, double length, double cap, double a, double j);
+double s_curve_position(double v0, double v1, double a, double j, double w);
+
+/* Plans from (s_start, v_start) at t_start; pieces are written from index first_piece on. Returns 0 and
+ * *n_pieces (total, including the first_piece kept ones), *hold (the plan ends in a feed hold) and
+ * *end_time (time at rest at the end; infinite when holding), or -1 when out of memory. */
+int schedule_plan(ScheduleView *view, double s_start, double v_start, double t_start, size_t first_piece,
+                  size_t *n_pieces, int *hold, double *end_time);
+
+#endif

@@ -1,0 +1,61 @@
+/* G-code parser of the interpolator: part program text -> moves (lines, arcs, NURBS pieces) in machine
+ * coordinates (m), as documented in models/interpolator.py (the Python reference of this file). */
+#ifndef GCODE_PARSER_H
+#define GCODE_PARSER_H
+
+#include <stddef.h>
+
+enum { MOVE_RAPID = 0, MOVE_LINE = 1, MOVE_ARC = 2, MOVE_NURBS = 3 };
+
+#define GC_MAX_DEGREE 5
+#define GC_MAX_LINE_LENGTH 1000
+
+typedef struct {
+    int kind;
+    int line;
+    int block; /* N word, 0 without */
+    double start[3], end[3], offset[3];
+    double feed;    /* programmed F, m/s (rapids: 0) */
+    double spindle; /* rad/s, signed */
+    int spindle_on;
+    /* arc */
+    double center[3];
+    int axes[3]; /* in-plane a, b and the normal axis */
+    double theta0, sweep, r0, r1, height;
+    /* NURBS */
+    int curve;
+    double u0, u1;
+} GcMove;
+
+typedef struct {
+    int degree;
+    int n_points;
+    int line;
+    double *points;  /* 3 per control point, machine coordinates */
+    double *weights; /* n_points */
+    double *knots;   /* n_points + degree + 1 */
+} GcCurve;
+
+typedef struct {
+    GcMove *moves;
+    size_t n_moves, cap_moves;
+    GcCurve *curves;
+    size_t n_curves, cap_curves;
+    int final_line, final_block;
+    double final_spindle;
+    int final_spindle_on;
+    double start[3], start_offset[3];
+} GcProgram;
+
+typedef struct {
+    double start[3];      /* machine position before the program */
+    double offsets[6][3]; /* G54..G59 */
+} GcSettings;
+
+/* Parses `length` bytes of `text`. Returns 0 and fills `program` (free with gc_free), or -1 with the
+ * message "<file> line <n>: \"<text>\": <what was expected>" in `error` (program left empty). */
+int gc_parse(const char *text, size_t length, const char *file, const GcSettings *settings, GcProgram *program,
+             char *error, size_t error_size);
+void gc_free(GcProgram *program);
+
+#endif

@@ -1,0 +1,348 @@
+/* The interpolator engine (see interpolator.h); the same operations in the same order as the Interpolator
+ * section of models/interpolator.py. */
+#include "interpolator.h"
+
+#include <math.h>
+#include <stdlib.h>
+#include <string.h>
+
+int interp_prepare(const char *text, size_t length, const char *file, const InterpSettings *settings,
+                   InterpPrepared *prepared, char *error, size_t error_size) {
+    memset(prepared, 0, sizeof *prepared);
+    if (gc_parse(text, length, file, &settings->gcode, &prepared->program, error, error_size) != 0) return -1;
+    if (path_build(&prepared->program, &settings->limits, file, &prepared->path, error, error_size) != 0) {
+        gc_free(&prepared->program);
+        return -1;
+    }
+    return 0;
+}
+
+void interp_release(InterpPrepared *prepared) {
+    gc_free(&prepared->program);
+    path_free(&prepared->path);
+}
+
+static void layout_of(const InterpPrepared *p, InterpLayout *L) {
+    size_t k, points = 0, knots = 0, at = 0;
+    memset(L, 0, sizeof *L);
+    for (k = 0; k < p->program.n_curves; k++) {
+        points += 4 * (size_t)p->program.curves[k].n_points;
+        knots += (size_t)p->program.curves[k].n_points + (size_t)p->program.curves[k].degree + 1;
+    }
+    L->n_moves = p->program.n_moves;
+    L->n_curves = p->program.n_curves;
+    L->n_nodes = p->path.n_nodes;
+    L->n_ints = p->path.n_ints;
+    L->piece_capacity = PIECES_PER_INTERVAL * L->n_ints + 8;
+    at = 1; /* heap[0]: magic */
+    L->moves = at, at += MOVE_DOUBLES * L->n_moves;
+    L->curves = at, at += CURVE_DOUBLES * L->n_curves;
+    L->points = at, at += points + knots;
+    L->node_s = at, at += L->n_nodes;
+    L->node_vh = at, at += L->n_nodes;
+    L->node_left = at, at += L->n_nodes;
+    L->node_right = at, at += L->n_nodes;
+    L->station = at, at += L->n_nodes;
+    L->int_move = at, at += L->n_ints;
+    L->int_at = at, at += L->n_ints;
+    L->int_jt = at, at += L->n_ints;
+    L->int_cap = at, at += L->n_ints;
+    L->pieces = at, at += PIECE_DOUBLES * L->piece_capacity;
+    L->heap_size = at;
+}
+
+size_t interp_heap_size(const InterpPrepared *prepared) {
+    InterpLayout L;
+    layout_of(prepared, &L);
+    return L.heap_size;
+}
+
+void interp_install(const InterpPrepared *p, double *heap, InterpLayout *L) {
+    const GcProgram *g = &p->program;
+    const PathBuild *path = &p->path;
+    size_t k, at;
+    layout_of(p, L);
+    heap[0] = INTERP_MAGIC;
+    for (k = 0; k < g->n_moves; k++) {
+        const GcMove *m = &g->moves[k];
+        double *r = heap + L->moves + MOVE_DOUBLES * k;
+        int i;
+        r[0] = m->kind, r[1] = m->line, r[2] = path->move_s[k], r[3] = path->move_length[k];
+        for (i = 0; i < 3; i++) {
+            r[4 + i] = m->start[i], r[7 + i] = m->end[i], r[10 + i] = m->offset[i], r[16 + i] = m->center[i];
+            r[19 + i] = m->axes[i];
+        }
+        r[13] = m->feed, r[14] = m->spindle, r[15] = m->spindle_on;
+        r[22] = m->theta0, r[23] = m->sweep, r[24] = m->r0, r[25] = m->r1, r[26] = m->height;
+        r[27] = m->curve, r[28] = m->u0, r[29] = m->u1, r[30] = path->span_lo[k], r[31] = path->span_hi[k];
+        r[32] = m->block;
+    }
+    at = L->points;
+    for (k = 0; k < g->n_curves; k++) {
+        const GcCurve *c = &g->curves[k];
+        double *r = heap + L->curves + CURVE_DOUBLES * k;
+        size_t n = (size_t)c->n_points, n_knots = n + (size_t)c->degree + 1;
+        r[0] = c->degree, r[1] = c->n_points - 1, r[2] = (double)at, r[3] = (double)(at + 4 * n);
+        memcpy(heap + at, path->pw[k], 4 * n * sizeof *heap);
+        memcpy(heap + at + 4 * n, c->knots, n_knots * sizeof *heap);
+        at += 4 * n + n_knots;
+    }
+    for (k = 0; k < path->n_nodes; k++) {
+        heap[L->node_s + k] = path->node_s[k];
+        heap[L->node_vh + k] = path->node_vh[k];
+        heap[L->node_left + k] = path->node_left[k];
+        heap[L->node_right + k] = path->node_right[k];
+        heap[L->station + k] = path->station[k];
+    }
+    for (k = 0; k < path->n_ints; k++) {
+        heap[L->int_move + k] = path->int_move[k];
+        heap[L->int_at + k] = path->int_at[k];
+        heap[L->int_jt + k] = path->int_jt[k];
+        heap[L->int_cap + k] = path->int_cap[k];
+    }
+    L->total = path->total;
+    L->final_line = g->final_line;
+    L->final_block = g->final_block;
+    L->final_spindle = g->final_spindle;
+    L->final_spindle_on = g->final_spindle_on;
+    memcpy(L->start, g->start, sizeof L->start);
+    memcpy(L->start_offset, g->start_offset, sizeof L->start_offset);
+}
+
+void interp_initial_outputs(const InterpSettings *settings, InterpOutputs *out) {
+    int i;
+    memset(out, 0, sizeof *out);
+    for (i = 0; i < 3; i++) {
+        out->x[i] = settings->gcode.start[i];
+        out->program[i] = settings->gcode.start[i] - settings->gcode.offsets[0][i];
+    }
+}
+
+void interp_start(InterpState *state, const InterpSettings *settings) {
+    memset(state, 0, sizeof *state);
+    state->nurbs.move = -1;
+    interp_initial_outputs(settings, &state->out);
+}
+
+static const double *move_record(const double *heap, const InterpLayout *L, size_t k) {
+    return heap + L->moves + MOVE_DOUBLES * k;
+}
+
+static void curve_view(const double *heap, const InterpLayout *L, int curve, NurbsView *v) {
+    const double *r = heap + L->curves + CURVE_DOUBLES * (size_t)curve;
+    v->degree = (int)r[0];
+    v->n = (int)r[1];
+    v->pw = heap + (size_t)r[2];
+    v->knots = heap + (size_t)r[3];
+}
+
+static void arc_of(const double *r, ArcParams *a) {
+    int i;
+    for (i = 0; i < 3; i++) a->center[i] = r[16 + i], a->end[i] = r[7 + i], a->axes[i] = (int)r[19 + i];
+    a->theta0 = r[22], a->sweep = r[23], a->r0 = r[24], a->r1 = r[25], a->height = r[26];
+}
+
+static int plan(double *heap, const InterpLayout *L, InterpState *st, const InterpSettings *settings, double s_start,
+                double v_start, double t_start, size_t first_piece) {
+    ScheduleView view;
+    double *soft = malloc((L->n_moves ? L->n_moves : 1) * sizeof *soft);
+    size_t k;
+    int status;
+    if (!soft) return -1;
+    for (k = 0; k < L->n_moves; k++) {
+        const double *r = move_record(heap, L, k);
+        if ((int)r[0] == MOVE_RAPID) {
+            soft[k] = settings->rapid_feed;
+        } else {
+            double f = r[13] * st->override;
+            soft[k] = settings->max_feed < f ? settings->max_feed : f;
+        }
+    }
+    view.n_nodes = L->n_nodes, view.n_ints = L->n_ints, view.n_moves = L->n_moves;
+    view.node_s = heap + L->node_s, view.node_vh = heap + L->node_vh, view.node_left = heap + L->node_left;
+    view.node_right = heap + L->node_right, view.station = heap + L->station;
+    view.int_move = heap + L->int_move, view.int_at = heap + L->int_at, view.int_jt = heap + L->int_jt;
+    view.int_cap = heap + L->int_cap, view.soft = soft, view.total = L->total;
+    view.pieces = heap + L->pieces, view.piece_capacity = L->piece_capacity;
+    status = schedule_plan(&view, s_start, v_start, t_start, first_piece, &st->n_pieces, &st->hold, &st->end_time);
+    free(soft);
+    return status;
+}
+
+int interp_set_override(double *heap, const InterpLayout *L, InterpState *st, const InterpSettings *settings,
+                        double override) {
+    const double *pieces = heap + L->pieces;
+    const double *pc;
+    double t_now, t_r, s_r, v_r;
+    size_t k;
+    if (st->planned && override == st->override) return 0;
+    if (!st->planned) {
+        st->planned = 1;
+        st->override = override;
+        st->piece = 0;
+        return plan(heap, L, st, settings, 0.0, 0.0, 0.0, 0);
+    }
+    st->override = override;
+    if (st->finished) return 0;
+    t_now = (double)st->tick * settings->limits.period;
+    k = st->piece;
+    pc = pieces + PIECE_DOUBLES * k;
+    if (pc[3] == 0.0 && pc[4] == 0.0) {
+        double tau = t_now - pc[0];
+        t_r = t_now, s_r = pc[1] + pc[2] * tau, v_r = pc[2];
+    } else {
+        k++;
+        while (k < st->n_pieces && !(pieces[PIECE_DOUBLES * k + 3] == 0.0)) k++;
+        pc = pieces + PIECE_DOUBLES * k;
+        t_r = pc[0], s_r = pc[1], v_r = pc[2];
+    }
+    memmove(heap + L->pieces, heap + L->pieces + PIECE_DOUBLES * st->piece,
+            PIECE_DOUBLES * (k - st->piece) * sizeof *heap);
+    k -= st->piece;
+    st->piece = 0;
+    return plan(heap, L, st, settings, s_r, v_r, t_r, k);
+}
+
+static void set_final(const double *heap, const InterpLayout *L, InterpState *st) {
+    InterpOutputs *out = &st->out;
+    const double *pos, *offset;
+    int i;
+    if (L->n_moves) {
+        const double *r = move_record(heap, L, L->n_moves - 1);
+        pos = r + 7, offset = r + 10;
+    } else {
+        pos = L->start, offset = L->start_offset;
+    }
+    for (i = 0; i < 3; i++) {
+        out->x[i] = pos[i];
+        out->program[i] = pos[i] - offset[i];
+        out->velocity[i] = 0.0;
+    }
+    out->feed = 0.0;
+    out->acceleration = 0.0;
+    out->u = L->n_moves ? 1.0 : 0.0;
+    out->line = L->final_line;
+    out->block = L->final_block;
+    out->spindle = L->final_spindle;
+    out->spindle_on = L->final_spindle_on;
+    out->rapid = 0;
+    out->finished = 1;
+}
+
+static void step_nurbs(const double *heap, const InterpLayout *L, InterpState *st, const InterpSettings *settings,
+                       const double *r, double local, double length, double pos[3], double tangent[3], double *u) {
+    NurbsState *ns = &st->nurbs;
+    NurbsView curve;
+    int lo = (int)r[30], hi = (int)r[31], i;
+    double u0 = r[28], u1 = r[29], g;
+    curve_view(heap, L, (int)r[27], &curve);
+    if (ns->move != (int)st->move) nurbs_state_start(ns, (int)st->move, &curve, u0, lo, hi);
+    if (local >= length) {
+        if (ns->u < u1) {
+            double d[3][3];
+            nurbs_evaluate(&curve, u1, 2, lo, hi, d);
+            nurbs_state_accept(ns, u1, (const double(*)[3])d, 0.0, 0.0);
+        }
+        ns->s_done = local;
+    } else {
+        double step = local - (settings->update.feedback ? ns->s_actual : ns->s_done);
+        if (step > 0.0 && ns->u < u1) nurbs_state_advance(ns, &curve, u0, u1, lo, hi, step, &settings->update);
+        ns->s_done = local;
+    }
+    g = sqrt(vec_dot(ns->d1, ns->d1));
+    for (i = 0; i < 3; i++) {
+        tangent[i] = ns->d1[i] / g;
+        pos[i] = ns->point[i];
+    }
+    *u = ns->u;
+}
+
+static void update_outputs(const double *heap, const InterpLayout *L, InterpState *st, const InterpSettings *settings) {
+    InterpOutputs *out = &st->out;
+    const double *r;
+    double s = st->s, local, length, lam, pos[3], tangent[3], u;
+    int i, kind;
+    if (L->n_moves == 0) {
+        st->finished = 1;
+        set_final(heap, L, st);
+        return;
+    }
+    while (st->move + 1 < L->n_moves) {
+        r = move_record(heap, L, st->move);
+        if (!(s > r[2] + r[3])) break;
+        st->move++;
+    }
+    if (st->finished) {
+        set_final(heap, L, st);
+        return;
+    }
+    r = move_record(heap, L, st->move);
+    kind = (int)r[0];
+    local = s - r[2];
+    length = r[3];
+    lam = local / length;
+    if (lam > 1.0) lam = 1.0;
+    if (lam < 0.0) lam = 0.0;
+    if (kind == MOVE_RAPID || kind == MOVE_LINE) {
+        double d[3], norm;
+        for (i = 0; i < 3; i++) {
+            pos[i] = lam >= 1.0 ? r[7 + i] : r[4 + i] + lam * (r[7 + i] - r[4 + i]);
+            d[i] = r[7 + i] - r[4 + i];
+        }
+        norm = sqrt(vec_dot(d, d));
+        for (i = 0; i < 3; i++) tangent[i] = d[i] / norm;
+        u = lam;
+    } else if (kind == MOVE_ARC) {
+        ArcParams a;
+        arc_of(r, &a);
+        arc_point(&a, lam, pos);
+        arc_tangent(&a, lam, tangent);
+        u = lam;
+    } else {
+        step_nurbs(heap, L, st, settings, r, local, length, pos, tangent, &u);
+    }
+    for (i = 0; i < 3; i++) {
+        out->x[i] = pos[i];
+        out->program[i] = pos[i] - r[10 + i];
+        out->velocity[i] = st->v * tangent[i];
+    }
+    out->feed = st->v;
+    out->acceleration = st->a;
+    out->u = u;
+    out->line = (int)r[1];
+    out->block = (int)r[32];
+    out->spindle = r[14];
+    out->spindle_on = r[15] != 0.0;
+    out->rapid = kind == MOVE_RAPID;
+    out->finished = 0;
+}
+
+void interp_tick(double *heap, const InterpLayout *L, InterpState *st, const InterpSettings *settings) {
+    const double *pieces = heap + L->pieces, *pc;
+    double t, tau, s, v, a;
+    int done;
+    st->tick++;
+    t = (double)st->tick * settings->limits.period;
+    while (st->piece + 1 < st->n_pieces && pieces[PIECE_DOUBLES * (st->piece + 1)] <= t) st->piece++;
+    pc = pieces + PIECE_DOUBLES * st->piece;
+    tau = t - pc[0];
+    s = pc[1] + tau * (pc[2] + tau * (0.5 * pc[3] + tau * pc[4] / 6.0));
+    v = pc[2] + tau * (pc[3] + 0.5 * tau * pc[4]);
+    a = pc[3] + tau * pc[4];
+    done = !st->hold && t >= st->end_time;
+    if (done || s >= L->total) s = L->total;
+    if (done) v = a = 0.0;
+    if (s < st->s) s = st->s;
+    if (v < 0.0) v = 0.0;
+    st->s = s, st->v = v, st->a = a;
+    st->finished = done;
+    update_outputs(heap, L, st, settings);
+}
+
+int interp_check(const double *heap, size_t heap_size, const InterpLayout *L, const InterpState *st) {
+    if (!heap || heap_size != L->heap_size || heap_size < 1 || heap[0] != INTERP_MAGIC) return -1;
+    if (L->pieces + PIECE_DOUBLES * L->piece_capacity != L->heap_size) return -1;
+    if (st->n_pieces > L->piece_capacity || st->piece >= (st->n_pieces ? st->n_pieces : 1)) return -1;
+    if (L->n_moves && st->move >= L->n_moves) return -1;
+    return 0;
+}

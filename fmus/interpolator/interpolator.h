@@ -1,0 +1,80 @@
+/* The interpolator engine: part program text -> a flat array of doubles (the FMU's instance heap: moves,
+ * curves, path nodes, schedule pieces) plus flat structs (layout, state), then one interpolation point per
+ * tick. Used by the FMU (model.c) and by the standalone tools (benchmark driver, fuzz harness). Mirrors the
+ * Interpolator section of models/interpolator.py. */
+#ifndef INTERPOLATOR_H
+#define INTERPOLATOR_H
+
+#include <stddef.h>
+#include <stdint.h>
+
+#include "feed_schedule.h"
+#include "gcode_parser.h"
+#include "param_update.h"
+#include "path.h"
+
+#define MOVE_DOUBLES 33
+#define CURVE_DOUBLES 4
+#define INTERP_MAGIC 1234567.0
+
+typedef struct {
+    Limits limits; /* period, acceleration, jerk, centripetal, chord, axis limits */
+    double max_feed, rapid_feed;
+    UpdateSettings update;
+    GcSettings gcode; /* start position, work offsets */
+} InterpSettings;
+
+/* Offsets (in doubles) into the heap and counts: flat, part of the FMU state. */
+typedef struct {
+    size_t heap_size;
+    size_t n_moves, n_curves, n_nodes, n_ints, piece_capacity;
+    size_t moves, curves, points, node_s, node_vh, node_left, node_right, station, int_move, int_at, int_jt, int_cap,
+        pieces;
+    double total;
+    int final_line, final_block, final_spindle_on;
+    double final_spindle;
+    double start[3], start_offset[3];
+} InterpLayout;
+
+typedef struct {
+    double x[3], program[3], velocity[3];
+    double feed, acceleration, u, spindle;
+    int line, block, spindle_on, rapid, finished;
+} InterpOutputs;
+
+typedef struct {
+    int64_t tick;
+    size_t piece, n_pieces, move;
+    double s, v, a;
+    int finished, hold, planned;
+    double end_time, override;
+    NurbsState nurbs;
+    InterpOutputs out;
+} InterpState;
+
+typedef struct {
+    GcProgram program;
+    PathBuild path;
+} InterpPrepared;
+
+/* Parse and build the path; on error -1 with the message in `error`. Release with interp_release. */
+int interp_prepare(const char *text, size_t length, const char *file, const InterpSettings *settings,
+                   InterpPrepared *prepared, char *error, size_t error_size);
+size_t interp_heap_size(const InterpPrepared *prepared);
+/* Fill a zeroed heap of interp_heap_size doubles and the layout. */
+void interp_install(const InterpPrepared *prepared, double *heap, InterpLayout *layout);
+void interp_release(InterpPrepared *prepared);
+
+/* Outputs before the program starts: the tool at its start position. */
+void interp_initial_outputs(const InterpSettings *settings, InterpOutputs *out);
+void interp_start(InterpState *state, const InterpSettings *settings);
+/* Plans (first call) or re-plans from the next zero-acceleration moment after the last tick when the
+ * override differs from the planned one. -1 when out of memory. */
+int interp_set_override(double *heap, const InterpLayout *layout, InterpState *state, const InterpSettings *settings,
+                        double override);
+/* One interpolation period. */
+void interp_tick(double *heap, const InterpLayout *layout, InterpState *state, const InterpSettings *settings);
+/* Consistency of a layout and state with a heap (an FMU state from outside): 0 if usable. */
+int interp_check(const double *heap, size_t heap_size, const InterpLayout *layout, const InterpState *state);
+
+#endif

@@ -1,0 +1,106 @@
+/* NURBS parameter update (see param_update.h); the same operations in the same order as
+ * models/interpolator.py. */
+#include "param_update.h"
+
+#include <math.h>
+#include <string.h>
+
+double rbf_output(const RbfParams *net, const double raw[RBF_INPUTS]) {
+    double x[RBF_INPUTS], inv = 0.5 / (net->width * net->width), y = net->bias;
+    int d, j;
+    for (d = 0; d < RBF_INPUTS; d++) x[d] = (raw[d] - net->offset[d]) * net->scale[d];
+    for (j = 0; j < RBF_HIDDEN; j++) {
+        const double *c = net->centers[j];
+        double e0 = x[0] - c[0], e1 = x[1] - c[1], e2 = x[2] - c[2], e3 = x[3] - c[3];
+        y += net->weights[j] * exp(-(e0 * e0 + e1 * e1 + e2 * e2 + e3 * e3) * inv);
+    }
+    return y;
+}
+
+double predict_step(const NurbsState *st, double length, int predictor, const RbfParams *net, double ua, double ub) {
+    double gg = vec_dot(st->d1, st->d1), g = sqrt(gg), up = 1.0 / g, upp = -vec_dot(st->d1, st->d2) / (gg * gg);
+    double du, uppp, base, raw[RBF_INPUTS];
+    if (predictor == METHOD_TAYLOR1) return length * up;
+    du = length * up + 0.5 * upp * length * length;
+    if (predictor == METHOD_TAYLOR2 || st->count < 3) return du;
+    uppp = st->chord_prev > 0.0 ? (upp - st->upp_prev) / st->chord_prev : 0.0;
+    base = du + uppp * length * length * length / 6.0;
+    raw[0] = st->u - st->u2;
+    raw[1] = st->u - st->u1;
+    raw[2] = (st->u - ua) / (ub - ua);
+    raw[3] = length;
+    return base * (1.0 + rbf_output(net, raw));
+}
+
+void nurbs_state_start(NurbsState *st, int move, const NurbsView *curve, double u0, int lo, int hi) {
+    double d[3][3];
+    nurbs_evaluate(curve, u0, 2, lo, hi, d);
+    st->move = move;
+    st->u = st->u1 = st->u2 = u0;
+    st->count = 0;
+    st->s_done = 0.0;
+    st->s_actual = 0.0;
+    memcpy(st->point, d[0], sizeof st->point);
+    memcpy(st->d1, d[1], sizeof st->d1);
+    memcpy(st->d2, d[2], sizeof st->d2);
+    st->upp_prev = 0.0;
+    st->chord_prev = 0.0;
+}
+
+void nurbs_state_accept(NurbsState *st, double u, const double d[3][3], double upp_prev, double chord) {
+    st->u2 = st->u1;
+    st->u1 = st->u;
+    st->u = u;
+    st->upp_prev = upp_prev;
+    st->chord_prev = chord;
+    memcpy(st->point, d[0], sizeof st->point);
+    memcpy(st->d1, d[1], sizeof st->d1);
+    memcpy(st->d2, d[2], sizeof st->d2);
+    st->s_actual += chord;
+    st->count++;
+}
+
+void nurbs_state_advance(NurbsState *st, const NurbsView *curve, double u0, double u1, int lo, int hi, double step,
+                         const UpdateSettings *settings) {
+    double u_end = u1, du, upp_now, u, p0[3], d[3][3], e[3], chord = 0.0;
+    double gg = vec_dot(st->d1, st->d1);
+    int k;
+    du = predict_step(st, step, settings->predictor, &settings->rbf, u0, u1);
+    upp_now = -vec_dot(st->d1, st->d2) / (gg * gg);
+    u = st->u + du;
+    if (!(u > st->u)) u = st->u + step / sqrt(vec_dot(st->d1, st->d1));
+    if (!(u < u_end)) u = u_end;
+    memcpy(p0, st->point, sizeof p0);
+    if (settings->method != METHOD_CORRECTOR) {
+        nurbs_evaluate(curve, u, 2, lo, hi, d);
+        for (k = 0; k < 3; k++) e[k] = d[0][k] - p0[k];
+        chord = sqrt(vec_dot(e, e));
+        nurbs_state_accept(st, u, (const double(*)[3])d, upp_now, chord);
+        return;
+    }
+    {
+        double lo_u = st->u, hi_u = u_end, target = step * step, u_eval = u;
+        for (k = 0; k < MAX_NEWTON; k++) {
+            double cc, f, fp, nxt;
+            nurbs_evaluate(curve, u, 2, lo, hi, d);
+            u_eval = u;
+            e[0] = d[0][0] - p0[0], e[1] = d[0][1] - p0[1], e[2] = d[0][2] - p0[2];
+            cc = vec_dot(e, e);
+            chord = sqrt(cc);
+            if (fabs(chord - step) <= settings->tolerance * step) break;
+            f = cc - target;
+            if (f < 0.0) {
+                if (u >= u_end) break;
+                lo_u = u;
+            } else {
+                hi_u = u;
+            }
+            fp = 2.0 * vec_dot(e, d[1]);
+            nxt = fp > 0.0 ? u - f / fp : -1.0;
+            if (!(nxt > lo_u && nxt < hi_u)) nxt = 0.5 * (lo_u + hi_u);
+            if (nxt == u) break;
+            u = nxt;
+        }
+        nurbs_state_accept(st, u_eval, (const double(*)[3])d, upp_now, chord);
+    }
+}

@@ -1,0 +1,53 @@
+/* NURBS parameter update: u(i+1) for a scheduled step length, by first- or second-order Taylor expansion,
+ * the RBF-network predictor, or a predictor refined by Newton iterations on the chord length. Mirrors the
+ * parameter-update section of models/interpolator.py. */
+#ifndef PARAM_UPDATE_H
+#define PARAM_UPDATE_H
+
+#include "nurbs.h"
+
+enum { METHOD_TAYLOR1 = 1, METHOD_TAYLOR2 = 2, METHOD_RBF = 3, METHOD_CORRECTOR = 4 };
+#define RBF_HIDDEN 5
+#define RBF_INPUTS 4
+#define MAX_NEWTON 8
+
+typedef struct {
+    double width;
+    double offset[RBF_INPUTS], scale[RBF_INPUTS];
+    double centers[RBF_HIDDEN][RBF_INPUTS];
+    double weights[RBF_HIDDEN];
+    double bias;
+} RbfParams;
+
+/* The state of the NURBS move being traversed (flat: part of the FMU state). */
+typedef struct {
+    int move;              /* index of the move, -1 none */
+    int count;             /* points computed in this move */
+    double u, u1, u2;      /* u(i), u(i-1), u(i-2) */
+    double s_done;         /* scheduled length done in this move */
+    double s_actual;       /* chords travelled in this move */
+    double point[3], d1[3], d2[3]; /* C, C', C'' at u */
+    double upp_prev;       /* d2u/ds2 at u(i-1) */
+    double chord_prev;     /* |C(u(i)) - C(u(i-1))| */
+} NurbsState;
+
+typedef struct {
+    int method;    /* METHOD_* */
+    int predictor; /* for METHOD_CORRECTOR: METHOD_TAYLOR1..METHOD_RBF */
+    int feedback;  /* steps aim at the scheduled length from the chords travelled (arc_length_feedback) */
+    double tolerance;
+    RbfParams rbf;
+} UpdateSettings;
+
+double rbf_output(const RbfParams *net, const double raw[RBF_INPUTS]);
+/* The predicted parameter step for a step length, before any correction. */
+double predict_step(const NurbsState *st, double length, int predictor, const RbfParams *net, double ua, double ub);
+/* Starts a move at u0: point and derivatives there. */
+void nurbs_state_start(NurbsState *st, int move, const NurbsView *curve, double u0, int lo, int hi);
+/* Moves to u (evaluated in d: C, C', C''), as the next point. */
+void nurbs_state_accept(NurbsState *st, double u, const double d[3][3], double upp_prev, double chord);
+/* One scheduled step of length `step` along the move [u0, u1] (spans lo..hi). */
+void nurbs_state_advance(NurbsState *st, const NurbsView *curve, double u0, double u1, int lo, int hi, double step,
+                         const UpdateSettings *settings);
+
+#endif

@@ -1,0 +1,475 @@
+/* Path: nodes and velocity limits (see path.h); the same operations in the same order as the Path section
+ * of models/interpolator.py. */
+#include "path.h"
+
+#include <math.h>
+#include <stdio.h>
+#include <stdlib.h>
+#include <string.h>
+
+#include "nurbs.h"
+
+#define CHORD_SAFETY 0.95
+#define TANGENT_TOLERANCE 1e-12
+#define CURVATURE_VARIATION 0.02
+#define SIGNIFICANT_TURN 1e-3
+#define MAX_SAMPLE_DEPTH 40
+#define MAX_SAMPLES 2000000
+#define INITIAL_SUBDIVISION 4
+
+static double min2(double a, double b) { return b < a ? b : a; }
+static double max2(double a, double b) { return b > a ? b : a; }
+
+void tangential_limits(const Limits *lim, const double t[3], int curved, double *at, double *jt) {
+    double a = lim->acceleration, j = lim->jerk;
+    double share_a = curved ? 0.5 : 1.0, share_j = curved ? (1.0 / 3.0) : 1.0;
+    int i;
+    for (i = 0; i < 3; i++) {
+        double ti = fabs(t[i]);
+        if (ti > 0.0) {
+            a = min2(a, share_a * lim->axis_acceleration[i] / ti);
+            j = min2(j, share_j * lim->axis_jerk[i] / ti);
+        }
+    }
+    *at = a;
+    *jt = j;
+}
+
+double curvature_limit(const Limits *lim, double kappa, const double k[3], const double kp[3], double at) {
+    double v = PATH_BIG;
+    int i;
+    if (kappa > 0.0) {
+        double rho = 1.0 / kappa, delta = CHORD_SAFETY * lim->chord;
+        if (delta < rho)
+            v = min2(v, 2.0 * sqrt(delta * (2.0 * rho - delta)) / lim->period);
+        else
+            v = min2(v, 2.0 * rho / lim->period);
+        v = min2(v, sqrt(lim->centripetal / kappa));
+        v = min2(v, cbrt(lim->jerk / (kappa * kappa)));
+    }
+    for (i = 0; i < 3; i++) {
+        double ki = fabs(k[i]), kpi = fabs(kp[i]);
+        if (ki > 0.0) {
+            v = min2(v, sqrt(0.5 * lim->axis_acceleration[i] / ki));
+            v = min2(v, lim->axis_jerk[i] / (9.0 * at * ki));
+        }
+        if (kpi > 0.0) v = min2(v, cbrt(lim->axis_jerk[i] / (3.0 * kpi)));
+    }
+    return v;
+}
+
+double junction_limit(const Limits *lim, const double ta[3], const double ka[3], const double tb[3],
+                      const double kb[3]) {
+    double v = PATH_BIG, period = lim->period, dk[3], norm;
+    int i;
+    if (vec_dot(ta, tb) < 1.0 - TANGENT_TOLERANCE) {
+        double dt[3];
+        for (i = 0; i < 3; i++) dt[i] = tb[i] - ta[i];
+        norm = sqrt(vec_dot(dt, dt));
+        v = min2(min2(v, lim->acceleration * period / norm), lim->jerk * period * period / norm);
+        for (i = 0; i < 3; i++) {
+            double di = fabs(dt[i]);
+            if (di > 0.0)
+                v = min2(min2(v, 0.5 * lim->axis_acceleration[i] * period / di),
+                         lim->axis_jerk[i] * period * period / (3.0 * di));
+        }
+    }
+    for (i = 0; i < 3; i++) dk[i] = kb[i] - ka[i];
+    norm = sqrt(vec_dot(dk, dk));
+    if (norm > 0.0) {
+        v = min2(v, sqrt(lim->jerk * period / norm));
+        for (i = 0; i < 3; i++) {
+            double di = fabs(dk[i]);
+            if (di > 0.0) v = min2(v, sqrt(lim->axis_jerk[i] * period / (3.0 * di)));
+        }
+    }
+    return v;
+}
+
+void arc_params(const GcMove *m, ArcParams *a) {
+    memcpy(a->center, m->center, sizeof a->center);
+    memcpy(a->end, m->end, sizeof a->end);
+    memcpy(a->axes, m->axes, sizeof a->axes);
+    a->theta0 = m->theta0, a->sweep = m->sweep, a->r0 = m->r0, a->r1 = m->r1, a->height = m->height;
+}
+
+double arc_length(const ArcParams *a) {
+    double rm = 0.5 * (a->r0 + a->r1), planar = rm * a->sweep;
+    return sqrt(planar * planar + a->height * a->height);
+}
+
+void arc_point(const ArcParams *a, double lam, double p[3]) {
+    double theta, r;
+    int ia = a->axes[0], ib = a->axes[1], in = a->axes[2];
+    if (lam >= 1.0) {
+        memcpy(p, a->end, 3 * sizeof *p);
+        return;
+    }
+    theta = a->theta0 + lam * a->sweep;
+    r = a->r0 + lam * (a->r1 - a->r0);
+    p[ia] = a->center[ia] + r * cos(theta);
+    p[ib] = a->center[ib] + r * sin(theta);
+    p[in] = a->center[in] + lam * a->height;
+}
+
+void arc_tangent(const ArcParams *a, double lam, double t[3]) {
+    double theta = a->theta0 + lam * a->sweep, r = a->r0 + lam * (a->r1 - a->r0), c = cos(theta), s = sin(theta);
+    double d[3], norm;
+    int i, ia = a->axes[0], ib = a->axes[1], in = a->axes[2];
+    d[ia] = -r * s * a->sweep + (a->r1 - a->r0) * c;
+    d[ib] = r * c * a->sweep + (a->r1 - a->r0) * s;
+    d[in] = a->height;
+    norm = sqrt(vec_dot(d, d));
+    for (i = 0; i < 3; i++) t[i] = d[i] / norm;
+}
+
+/* geometry (tangent, curvature vector) at the arc's lam, for junctions */
+static void arc_end_geometry(const ArcParams *a, double lam, double t[3], double k[3]) {
+    double length = arc_length(a), omega = fabs(a->sweep) / length, theta = a->theta0 + lam * a->sweep;
+    double w2 = omega * omega, r = a->r0 + lam * (a->r1 - a->r0);
+    int ia = a->axes[0], ib = a->axes[1];
+    arc_tangent(a, lam, t);
+    k[0] = k[1] = k[2] = 0.0;
+    k[ia] = -r * w2 * cos(theta);
+    k[ib] = -r * w2 * sin(theta);
+}
+
+/* ---- growable sample arrays ---- */
+
+typedef struct {
+    double *s, *v, *at, *jt;
+    size_t n, cap;
+} Samples;
+
+static int samples_push(Samples *x, double s, double v, double at, double jt) {
+    if (x->n == x->cap) {
+        size_t cap = x->cap ? 2 * x->cap : 256;
+        double *a = realloc(x->s, cap * sizeof *a), *b, *c, *d;
+        if (!a) return -1;
+        x->s = a;
+        b = realloc(x->v, cap * sizeof *b);
+        if (!b) return -1;
+        x->v = b;
+        c = realloc(x->at, cap * sizeof *c);
+        if (!c) return -1;
+        x->at = c;
+        d = realloc(x->jt, cap * sizeof *d);
+        if (!d) return -1;
+        x->jt = d;
+        x->cap = cap;
+    }
+    x->s[x->n] = s, x->v[x->n] = v, x->at[x->n] = at, x->jt[x->n] = jt;
+    x->n++;
+    return 0;
+}
+
+static void samples_free(Samples *x) {
+    free(x->s);
+    free(x->v);
+    free(x->at);
+    free(x->jt);
+    memset(x, 0, sizeof *x);
+}
+
+typedef struct {
+    double t[3], kappa, v, at, jt, p[3];
+} Info;
+
+typedef struct {
+    const NurbsView *curve;
+    const Limits *lim;
+    int lo, hi, line;
+    const char *file;
+    char *error;
+    size_t error_size;
+    Samples *out;
+} Sampler;
+
+static int point_info(Sampler *z, double u, Info *info) {
+    double d[4][3], g, k[3], kp[3];
+    nurbs_evaluate(z->curve, u, 3, z->lo, z->hi, d);
+    nurbs_arc_length_derivatives((const double(*)[3])d, &g, info->t, k, kp);
+    info->kappa = sqrt(vec_dot(k, k));
+    if (!(g > 0.0) || !isfinite(g) || !isfinite(info->kappa) || !isfinite(vec_dot(kp, kp))) {
+        snprintf(z->error, z->error_size,
+                 "%s line %d: the NURBS block has a zero tangent or a singular point near u = %.9g (repeated control "
+                 "points?)", z->file, z->line, u);
+        return -1;
+    }
+    tangential_limits(z->lim, info->t, 1, &info->at, &info->jt);
+    info->v = curvature_limit(z->lim, info->kappa, k, kp, info->at);
+    info->p[0] = d[0][0], info->p[1] = d[0][1], info->p[2] = d[0][2];
+    return 0;
+}
+
+static int push(Sampler *z, double s, const Info *info) {
+    if (z->out->n >= MAX_SAMPLES) {
+        snprintf(z->error, z->error_size, "%s line %d: the NURBS block needs more than %d samples", z->file, z->line,
+                 MAX_SAMPLES);
+        return -1;
+    }
+    if (samples_push(z->out, s, info->v, info->at, info->jt) != 0) {
+        snprintf(z->error, z->error_size, "%s: out of memory for NURBS samples", z->file);
+        return -1;
+    }
+    return 0;
+}
+
+static int refine(Sampler *z, double ua, const Info *ia, double ub, const Info *ib, double s_a, int depth,
+                  double *s_b) {
+    double um = 0.5 * (ua + ub), e[3], chord, kmax, kmin;
+    Info im;
+    int split;
+    if (point_info(z, um, &im) != 0) return -1;
+    e[0] = ib->p[0] - ia->p[0], e[1] = ib->p[1] - ia->p[1], e[2] = ib->p[2] - ia->p[2];
+    chord = sqrt(vec_dot(e, e));
+    kmax = max2(max2(ia->kappa, im.kappa), ib->kappa);
+    kmin = min2(min2(ia->kappa, im.kappa), ib->kappa);
+    split = vec_dot(ia->t, im.t) < cos(0.02) || vec_dot(im.t, ib->t) < cos(0.02) ||
+            (kmax * chord > SIGNIFICANT_TURN && kmax - kmin > CURVATURE_VARIATION * kmax);
+    if (split && depth < MAX_SAMPLE_DEPTH && um > ua && um < ub) {
+        double s_m;
+        if (refine(z, ua, ia, um, &im, s_a, depth + 1, &s_m) != 0) return -1;
+        return refine(z, um, &im, ub, ib, s_m, depth + 1, s_b);
+    }
+    *s_b = s_a + nurbs_gauss_length(z->curve, ua, ub, z->lo, z->hi);
+    return push(z, *s_b, ib);
+}
+
+static int nurbs_samples(Sampler *z, double u0, double u1, double end_t[2][3], double end_k[2][3]) {
+    const double *kn = z->curve->knots;
+    Info info0, ia, ib;
+    double s = 0.0, d[4][3], g, kp[3];
+    int span, j;
+    if (point_info(z, u0, &info0) != 0 || push(z, 0.0, &info0) != 0) return -1;
+    for (span = z->lo; span <= z->hi; span++) {
+        double a = max2(kn[span], u0), b = min2(kn[span + 1], u1), ua;
+        if (!(b > a)) continue;
+        ua = a;
+        if (a == u0)
+            ia = info0;
+        else if (point_info(z, a, &ia) != 0)
+            return -1;
+        for (j = 1; j <= INITIAL_SUBDIVISION; j++) {
+            double ub = j < INITIAL_SUBDIVISION ? a + (b - a) * (double)j / (double)INITIAL_SUBDIVISION : b;
+            if (point_info(z, ub, &ib) != 0) return -1;
+            if (refine(z, ua, &ia, ub, &ib, s, 0, &s) != 0) return -1;
+            ua = ub;
+            ia = ib;
+        }
+    }
+    nurbs_evaluate(z->curve, u0, 3, z->lo, z->lo, d);
+    nurbs_arc_length_derivatives((const double(*)[3])d, &g, end_t[0], end_k[0], kp);
+    nurbs_evaluate(z->curve, u1, 3, z->hi, z->hi, d);
+    nurbs_arc_length_derivatives((const double(*)[3])d, &g, end_t[1], end_k[1], kp);
+    return 0;
+}
+
+void path_free(PathBuild *path) {
+    size_t k;
+    if (!path) return;
+    free(path->move_s);
+    free(path->move_length);
+    free(path->move_cap);
+    free(path->span_lo);
+    free(path->span_hi);
+    for (k = 0; k < path->n_curves && path->pw; k++) free(path->pw[k]);
+    free(path->pw);
+    free(path->node_s);
+    free(path->node_vh);
+    free(path->node_left);
+    free(path->node_right);
+    free(path->station);
+    free(path->int_move);
+    free(path->int_at);
+    free(path->int_jt);
+    free(path->int_cap);
+    memset(path, 0, sizeof *path);
+}
+
+static void *array(size_t n, size_t size) { return calloc(n ? n : 1, size); }
+
+int path_build(const GcProgram *program, const Limits *lim, const char *file, PathBuild *out, char *error,
+               size_t error_size) {
+    size_t n_moves = program->n_moves, index, c, total_samples = 0, node = 0, interval = 0;
+    Samples *samples = NULL;
+    double (*end_t)[2][3] = NULL, (*end_k)[2][3] = NULL;
+    double s = 0.0;
+    int status = -1;
+    memset(out, 0, sizeof *out);
+    out->n_moves = n_moves;
+    out->n_curves = program->n_curves;
+    out->move_s = array(n_moves, sizeof(double));
+    out->move_length = array(n_moves, sizeof(double));
+    out->move_cap = array(n_moves, sizeof(double));
+    out->span_lo = array(n_moves, sizeof(int));
+    out->span_hi = array(n_moves, sizeof(int));
+    out->pw = array(program->n_curves, sizeof(double *));
+    samples = array(n_moves, sizeof *samples);
+    end_t = array(n_moves, sizeof *end_t);
+    end_k = array(n_moves, sizeof *end_k);
+    if (!out->move_s || !out->move_length || !out->move_cap || !out->span_lo || !out->span_hi || !out->pw ||
+        !samples || !end_t || !end_k)
+        goto oom;
+    for (c = 0; c < program->n_curves; c++) {
+        const GcCurve *cv = &program->curves[c];
+        size_t k, n = (size_t)cv->n_points;
+        double *pw = malloc(4 * n * sizeof *pw);
+        if (!pw) goto oom;
+        for (k = 0; k < n; k++) {
+            double w = cv->weights[k];
+            pw[4 * k] = w * cv->points[3 * k];
+            pw[4 * k + 1] = w * cv->points[3 * k + 1];
+            pw[4 * k + 2] = w * cv->points[3 * k + 2];
+            pw[4 * k + 3] = w;
+        }
+        out->pw[c] = pw;
+    }
+    for (index = 0; index < n_moves; index++) {
+        const GcMove *m = &program->moves[index];
+        Samples *x = &samples[index];
+        double length;
+        out->move_s[index] = s;
+        if (m->kind == MOVE_RAPID || m->kind == MOVE_LINE) {
+            double t[3], at, jt;
+            int i;
+            for (i = 0; i < 3; i++) t[i] = m->end[i] - m->start[i];
+            length = sqrt(vec_dot(t, t));
+            for (i = 0; i < 3; i++) t[i] = t[i] / length;
+            tangential_limits(lim, t, 0, &at, &jt);
+            memcpy(end_t[index][0], t, sizeof t);
+            memcpy(end_t[index][1], t, sizeof t);
+            out->move_cap[index] = PATH_BIG;
+            if (samples_push(x, 0.0, PATH_BIG, at, jt) != 0 || samples_push(x, length, PATH_BIG, at, jt) != 0) goto oom;
+        } else if (m->kind == MOVE_ARC) {
+            ArcParams a;
+            double rm, omega, rw, t[3] = {0, 0, 0}, k[3] = {0, 0, 0}, kp[3] = {0, 0, 0}, at, jt, kappa, v;
+            int ia, ib, in;
+            arc_params(m, &a);
+            ia = a.axes[0], ib = a.axes[1], in = a.axes[2];
+            length = arc_length(&a);
+            rm = 0.5 * (a.r0 + a.r1);
+            omega = fabs(a.sweep) / length;
+            rw = rm * omega;
+            t[ia] = t[ib] = min2(1.0, rw);
+            k[ia] = k[ib] = rw * omega;
+            kp[ia] = kp[ib] = rw * omega * omega;
+            t[in] = fabs(a.height) / length;
+            tangential_limits(lim, t, 1, &at, &jt);
+            kappa = rm * omega * omega;
+            v = curvature_limit(lim, kappa, k, kp, at);
+            arc_end_geometry(&a, 0.0, end_t[index][0], end_k[index][0]);
+            arc_end_geometry(&a, 1.0, end_t[index][1], end_k[index][1]);
+            out->move_cap[index] = v;
+            if (samples_push(x, 0.0, v, at, jt) != 0 || samples_push(x, length, v, at, jt) != 0) goto oom;
+        } else {
+            const GcCurve *cv = &program->curves[m->curve];
+            NurbsView view;
+            Sampler z;
+            int lo, hi;
+            size_t n, i;
+            double *vc;
+            view.degree = cv->degree;
+            view.n = cv->n_points - 1;
+            view.knots = cv->knots;
+            view.pw = out->pw[m->curve];
+            nurbs_span_range(&view, m->u0, m->u1, &lo, &hi);
+            out->span_lo[index] = lo;
+            out->span_hi[index] = hi;
+            z.curve = &view, z.lim = lim, z.lo = lo, z.hi = hi, z.line = m->line, z.file = file;
+            z.error = error, z.error_size = error_size, z.out = x;
+            if (nurbs_samples(&z, m->u0, m->u1, end_t[index], end_k[index]) != 0) goto fail;
+            n = x->n;
+            length = x->s[n - 1];
+            vc = malloc(n * sizeof *vc);
+            if (!vc) goto oom;
+            for (i = 0; i < n; i++) {
+                /* the lowest of the neighbours and of every sample within one step (see models/interpolator.py) */
+                double v = min2(min2(x->v[i > 0 ? i - 1 : 0], x->v[i]), x->v[i + 1 < n ? i + 1 : n - 1]);
+                double window = min2(x->v[i], lim->max_feed) * lim->period;
+                size_t j;
+                for (j = i; j >= 2 && x->s[i] - x->s[j - 2] <= window; j--) v = min2(v, x->v[j - 2]);
+                for (j = i + 2; j < n && x->s[j] - x->s[i] <= window; j++) v = min2(v, x->v[j]);
+                vc[i] = v;
+            }
+            free(x->v);
+            x->v = vc;
+            out->move_cap[index] = PATH_BIG;
+        }
+        out->move_length[index] = length;
+        s += length;
+        total_samples += samples[index].n;
+    }
+    out->total = s;
+    out->n_nodes = n_moves ? total_samples - (n_moves - 1) : 0;
+    out->n_ints = n_moves ? out->n_nodes - 1 : 0;
+    out->node_s = array(out->n_nodes, sizeof(double));
+    out->node_vh = array(out->n_nodes, sizeof(double));
+    out->node_left = array(out->n_nodes, sizeof(int));
+    out->node_right = array(out->n_nodes, sizeof(int));
+    out->station = array(out->n_nodes, 1);
+    out->int_move = array(out->n_ints, sizeof(int));
+    out->int_at = array(out->n_ints, sizeof(double));
+    out->int_jt = array(out->n_ints, sizeof(double));
+    out->int_cap = array(out->n_ints, sizeof(double));
+    if (!out->node_s || !out->node_vh || !out->node_left || !out->node_right || !out->station || !out->int_move ||
+        !out->int_at || !out->int_jt || !out->int_cap)
+        goto oom;
+    for (index = 0; index < n_moves; index++) {
+        const Samples *x = &samples[index];
+        double base = out->move_s[index];
+        size_t j, count = x->n;
+        for (j = 0; j < count; j++) {
+            if (j == 0) {
+                if (index == 0) {
+                    out->node_s[node] = base, out->node_vh[node] = 0.0;
+                    out->node_left[node] = -1, out->node_right[node] = (int)index, out->station[node] = 1;
+                } else {
+                    const double zero[3] = {0, 0, 0};
+                    const GcMove *prev = &program->moves[index - 1], *cur = &program->moves[index];
+                    const double *ka = (prev->kind == MOVE_RAPID || prev->kind == MOVE_LINE) ? zero : end_k[index - 1][1];
+                    const double *kb = (cur->kind == MOVE_RAPID || cur->kind == MOVE_LINE) ? zero : end_k[index][0];
+                    double v = junction_limit(lim, end_t[index - 1][1], ka, end_t[index][0], kb);
+                    const Samples *px = &samples[index - 1];
+                    v = min2(min2(v, px->v[px->n - 1]), x->v[0]);
+                    out->node_s[node] = base, out->node_vh[node] = v;
+                    out->node_left[node] = (int)index - 1, out->node_right[node] = (int)index;
+                    out->station[node] = 0;
+                }
+                node++;
+            } else if (j == count - 1) {
+                if (index == n_moves - 1) {
+                    out->node_s[node] = base + x->s[j], out->node_vh[node] = 0.0;
+                    out->node_left[node] = (int)index, out->node_right[node] = -1, out->station[node] = 1;
+                    node++;
+                }
+            } else {
+                out->node_s[node] = base + x->s[j], out->node_vh[node] = x->v[j];
+                out->node_left[node] = (int)index, out->node_right[node] = (int)index, out->station[node] = 0;
+                node++;
+            }
+            if (j < count - 1) {
+                out->int_move[interval] = (int)index;
+                out->int_at[interval] = min2(x->at[j], x->at[j + 1]);
+                out->int_jt[interval] = min2(x->jt[j], x->jt[j + 1]);
+                out->int_cap[interval] = program->moves[index].kind == MOVE_NURBS ? max2(x->v[j], x->v[j + 1])
+                                                                                  : out->move_cap[index];
+                interval++;
+            }
+        }
+    }
+    if (n_moves && out->node_s[out->n_nodes - 1] != out->total) out->node_s[out->n_nodes - 1] = out->total;
+    status = 0;
+    goto done;
+oom:
+    snprintf(error, error_size, "%s: out of memory while building the path", file);
+fail:
+    path_free(out);
+done:
+    if (samples)
+        for (index = 0; index < n_moves; index++) samples_free(&samples[index]);
+    free(samples);
+    free(end_t);
+    free(end_k);
+    return status;
+}

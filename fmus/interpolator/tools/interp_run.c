@@ -1,0 +1,234 @@
+/* Standalone driver of the interpolator engine (the FMU's C code without the FMI wrapper):
+ *
+ *   interp_run [--param name=value ...] [--csv out.csv] [--repeat N] [--override x] program.nc
+ *
+ * Parameters take the FMU's variable names and SI values (period, method, corrector_predictor,
+ * corrector_tolerance, max_feed, rapid_feed, acceleration, jerk, centripetal_acceleration, chord_error,
+ * axis_acceleration_x.., axis_jerk_x.., start_x.., g54_x..g59_z, rbf_*). Runs the program to its end, one
+ * tick per interpolation period; --csv writes every point (tick, t, x, y, z, feed, path_acceleration, u,
+ * line, move, s, x_program, y_program, z_program, vx, vy, vz); --repeat N times the tick loop N times
+ * (parsing and scheduling excluded) and prints the median cost per interpolation point. Built by CMake from
+ * the same sources as the FMU (fmus/interpolator/interpolator.cmake). */
+#define _POSIX_C_SOURCE 199309L
+#include <stdio.h>
+#include <stdlib.h>
+#include <string.h>
+#include <time.h>
+
+#include "../interpolator.h"
+
+typedef struct {
+    const char *name;
+    double *value;
+    int *integer;
+} Param;
+
+static void defaults(InterpSettings *s) {
+    int j, i;
+    memset(s, 0, sizeof *s);
+    s->limits.period = 1e-3;
+    s->limits.acceleration = 1.0;
+    s->limits.jerk = 100.0;
+    s->limits.centripetal = 1.0;
+    s->limits.chord = 1e-6;
+    for (i = 0; i < 3; i++) s->limits.axis_acceleration[i] = 2.0, s->limits.axis_jerk[i] = 300.0;
+    s->max_feed = 1.0 / 3.0;
+    s->rapid_feed = 1.0 / 6.0;
+    s->update.method = METHOD_CORRECTOR;
+    s->update.predictor = METHOD_TAYLOR2;
+    s->update.tolerance = 1e-6;
+    s->update.feedback = 1;
+    s->update.rbf.width = 1.5;
+    for (i = 0; i < RBF_INPUTS; i++) s->update.rbf.scale[i] = 1.0;
+    for (j = 0; j < 6; j++)
+        for (i = 0; i < 3; i++) s->gcode.offsets[j][i] = 0.0;
+}
+
+static int set_param(InterpSettings *s, int *predictor, const char *assignment) {
+    char name[64];
+    const char *eq = strchr(assignment, '=');
+    double value;
+    char *end;
+    static const char *axes = "xyz";
+    int i, j;
+    if (!eq || (size_t)(eq - assignment) >= sizeof name) return -1;
+    memcpy(name, assignment, (size_t)(eq - assignment));
+    name[eq - assignment] = '\0';
+    value = strtod(eq + 1, &end);
+    if (*end) return -1;
+#define MATCH(n, target)                                                                                             \
+    if (strcmp(name, n) == 0) {                                                                                      \
+        target = value;                                                                                              \
+        return 0;                                                                                                    \
+    }
+    MATCH("period", s->limits.period)
+    MATCH("acceleration", s->limits.acceleration)
+    MATCH("jerk", s->limits.jerk)
+    MATCH("centripetal_acceleration", s->limits.centripetal)
+    MATCH("chord_error", s->limits.chord)
+    MATCH("max_feed", s->max_feed)
+    MATCH("rapid_feed", s->rapid_feed)
+    MATCH("corrector_tolerance", s->update.tolerance)
+    MATCH("rbf_width", s->update.rbf.width)
+    MATCH("rbf_bias", s->update.rbf.bias)
+#undef MATCH
+    if (strcmp(name, "method") == 0) return s->update.method = (int)value, 0;
+    if (strcmp(name, "arc_length_feedback") == 0) return s->update.feedback = value != 0.0, 0;
+    if (strcmp(name, "corrector_predictor") == 0) return *predictor = (int)value, 0;
+    for (i = 0; i < 3; i++) {
+        char n[64];
+        snprintf(n, sizeof n, "axis_acceleration_%c", axes[i]);
+        if (strcmp(name, n) == 0) return s->limits.axis_acceleration[i] = value, 0;
+        snprintf(n, sizeof n, "axis_jerk_%c", axes[i]);
+        if (strcmp(name, n) == 0) return s->limits.axis_jerk[i] = value, 0;
+        snprintf(n, sizeof n, "start_%c", axes[i]);
+        if (strcmp(name, n) == 0) return s->gcode.start[i] = value, 0;
+        for (j = 0; j < 6; j++) {
+            snprintf(n, sizeof n, "g5%d_%c", 4 + j, axes[i]);
+            if (strcmp(name, n) == 0) return s->gcode.offsets[j][i] = value, 0;
+        }
+    }
+    for (i = 0; i < RBF_INPUTS; i++) {
+        char n[64];
+        snprintf(n, sizeof n, "rbf_offset_%d", i + 1);
+        if (strcmp(name, n) == 0) return s->update.rbf.offset[i] = value, 0;
+        snprintf(n, sizeof n, "rbf_scale_%d", i + 1);
+        if (strcmp(name, n) == 0) return s->update.rbf.scale[i] = value, 0;
+        for (j = 0; j < RBF_HIDDEN; j++) {
+            snprintf(n, sizeof n, "rbf_center_%d_%d", j + 1, i + 1);
+            if (strcmp(name, n) == 0) return s->update.rbf.centers[j][i] = value, 0;
+        }
+    }
+    for (j = 0; j < RBF_HIDDEN; j++) {
+        char n[64];
+        snprintf(n, sizeof n, "rbf_weight_%d", j + 1);
+        if (strcmp(name, n) == 0) return s->update.rbf.weights[j] = value, 0;
+    }
+    return -1;
+}
+
+static char *read_all(const char *path, size_t *length) {
+    FILE *f = fopen(path, "rb");
+    char *text;
+    long n;
+    if (!f) return NULL;
+    fseek(f, 0, SEEK_END);
+    n = ftell(f);
+    fseek(f, 0, SEEK_SET);
+    text = malloc((size_t)n + 1);
+    if (text && fread(text, 1, (size_t)n, f) != (size_t)n) {
+        free(text);
+        text = NULL;
+    }
+    fclose(f);
+    if (text) text[n] = '\0', *length = (size_t)n;
+    return text;
+}
+
+static double now_ns(void) {
+    struct timespec ts;
+    clock_gettime(CLOCK_MONOTONIC, &ts);
+    return (double)ts.tv_sec * 1e9 + (double)ts.tv_nsec;
+}
+
+static int compare(const void *a, const void *b) {
+    double x = *(const double *)a, y = *(const double *)b;
+    return (x > y) - (x < y);
+}
+
+int main(int argc, char **argv) {
+    InterpSettings settings;
+    InterpPrepared prepared;
+    InterpLayout layout;
+    InterpState state;
+    const char *program = NULL, *csv = NULL;
+    int repeat = 0, predictor = METHOD_TAYLOR2, k;
+    double override = 1.0, *heap, *costs = NULL;
+    size_t length = 0;
+    char *text, error[1024];
+    FILE *out = NULL;
+    defaults(&settings);
+    for (k = 1; k < argc; k++) {
+        if (strcmp(argv[k], "--param") == 0 && k + 1 < argc) {
+            if (set_param(&settings, &predictor, argv[++k]) != 0) {
+                fprintf(stderr, "interp_run: bad --param %s\n", argv[k]);
+                return 2;
+            }
+        } else if (strcmp(argv[k], "--csv") == 0 && k + 1 < argc) {
+            csv = argv[++k];
+        } else if (strcmp(argv[k], "--repeat") == 0 && k + 1 < argc) {
+            repeat = atoi(argv[++k]);
+        } else if (strcmp(argv[k], "--override") == 0 && k + 1 < argc) {
+            override = atof(argv[++k]);
+        } else if (argv[k][0] != '-' && !program) {
+            program = argv[k];
+        } else {
+            fprintf(stderr, "usage: interp_run [--param name=value ...] [--csv out.csv] [--repeat N] [--override x] "
+                            "program.nc\n");
+            return 2;
+        }
+    }
+    if (!program) {
+        fprintf(stderr, "interp_run: no program\n");
+        return 2;
+    }
+    settings.update.predictor = settings.update.method == METHOD_CORRECTOR ? predictor : settings.update.method;
+    settings.limits.max_feed = settings.max_feed > settings.rapid_feed ? settings.max_feed : settings.rapid_feed;
+    text = read_all(program, &length);
+    if (!text) {
+        fprintf(stderr, "interp_run: cannot read %s\n", program);
+        return 2;
+    }
+    if (interp_prepare(text, length, program, &settings, &prepared, error, sizeof error) != 0) {
+        fprintf(stderr, "interp_run: %s\n", error);
+        free(text);
+        return 1;
+    }
+    free(text);
+    heap = calloc(interp_heap_size(&prepared), sizeof *heap);
+    if (!heap) return 3;
+    interp_install(&prepared, heap, &layout);
+    interp_release(&prepared);
+    if (csv) {
+        out = fopen(csv, "w");
+        if (!out) {
+            fprintf(stderr, "interp_run: cannot write %s\n", csv);
+            return 2;
+        }
+        fprintf(out, "tick,t,x,y,z,feed,path_acceleration,u,line,move,s,x_program,y_program,z_program,vx,vy,vz\n");
+    }
+    if (repeat > 0) costs = malloc((size_t)repeat * sizeof *costs);
+    for (k = 0; k < (repeat > 0 ? repeat : 1); k++) {
+        double start;
+        int64_t ticks;
+        size_t i;
+        for (i = 0; i < layout.n_nodes; i++) heap[layout.station + i] = (i == 0 || i + 1 == layout.n_nodes);
+        interp_start(&state, &settings);
+        if (interp_set_override(heap, &layout, &state, &settings, override) != 0) return 3;
+        start = now_ns();
+        while (!state.out.finished) {
+            interp_tick(heap, &layout, &state, &settings);
+            if (out && k == 0)
+                fprintf(out, "%lld,%.17g,%.17g,%.17g,%.17g,%.17g,%.17g,%.17g,%d,%zu,%.17g,%.17g,%.17g,%.17g,%.17g,%.17g,%.17g\n",
+                        (long long)state.tick, (double)state.tick * settings.limits.period, state.out.x[0],
+                        state.out.x[1], state.out.x[2], state.out.feed, state.out.acceleration, state.out.u,
+                        state.out.line, state.move, state.s, state.out.program[0], state.out.program[1],
+                        state.out.program[2], state.out.velocity[0], state.out.velocity[1], state.out.velocity[2]);
+            if (state.hold) break;
+        }
+        ticks = state.tick;
+        if (costs) costs[k] = (now_ns() - start) / (double)(ticks ? ticks : 1);
+        if (k == 0)
+            printf("moves %zu nodes %zu length %.9g m time %.6f s points %lld\n", layout.n_moves, layout.n_nodes,
+                   layout.total, (double)ticks * settings.limits.period, (long long)ticks);
+    }
+    if (out) fclose(out);
+    if (costs) {
+        qsort(costs, (size_t)repeat, sizeof *costs, compare);
+        printf("ns_per_point median %.1f min %.1f max %.1f over %d runs\n", costs[repeat / 2], costs[0],
+               costs[repeat - 1], repeat);
+        free(costs);
+    }
+    free(heap);
+    return 0;
+}

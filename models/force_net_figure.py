@@ -1,0 +1,107 @@
+"""The README figure of the force net in slot milling (no recorded data in it: only errors and scores).
+
+    .venv/bin/python -m models.force_net_figure [--runs runs] [--fmu-dir build/fmus] [--out scenarios/figures/forcenet_slot_milling.png]
+
+Top: ``scenarios/slot_milling.toml`` and ``scenarios/slot_milling_forcenet.toml`` (the one-line swap) simulated
+at 900 mm/min, forces over one revolution. Below, per recorded axis against the feed per tooth: the relative
+error of the mean force and the waveform r^2 of the slot-milling validation (``runs/slot_milling/`` and
+``runs/slot_milling_forcenet/slot_milling.json``, written by ``python -m orchestrator.validation.slot_milling``
+without and with ``--scenario scenarios/slot_milling_forcenet.toml --finetuned runs/forcenet_finetune``).
+The recordings themselves have no licence to redistribute and are not drawn.
+"""
+from __future__ import annotations
+
+import argparse
+import json
+import math
+import tempfile
+from pathlib import Path
+
+import numpy as np
+from matplotlib.figure import Figure
+
+REPO = Path(__file__).resolve().parents[1]
+AXES = ("Fx", "Fy", "Fz")  # recorded axes (= simulated Fy, Fx, Fz)
+SERIES = (  # (validation, set, label, style)
+    ("slot_milling", "prior", "CuttingForce, literature coefficients", dict(color="tab:orange", marker="s", ls="--")),
+    ("slot_milling", "identified", "CuttingForce, coefficients identified from all 5 (in-sample)",
+     dict(color="tab:blue", marker="^", ls=":")),
+    ("slot_milling_forcenet", "prior", "ForceNet, trained on the mechanistic model",
+     dict(color="tab:red", marker="o", ls="-", mfc="none")),
+    ("slot_milling_forcenet", "finetuned", "ForceNet, fine-tuned on the 4 other feeds (left-out prediction)",
+     dict(color="tab:green", marker="v", ls="-")),
+)
+
+
+def simulate_both(fmu_dir: Path) -> dict:
+    from orchestrator.master import run
+    from orchestrator.results import load_results
+    from orchestrator.scenario import load_scenario
+
+    out = {}
+    with tempfile.TemporaryDirectory() as tmp:
+        for name in ("slot_milling", "slot_milling_forcenet"):
+            result = run(load_scenario(REPO / "scenarios" / f"{name}.toml", fmu_dir), Path(tmp), progress=False)
+            out[name] = load_results(result.run_dir)
+    return out
+
+
+def figure(runs: Path, fmu_dir: Path, path: Path) -> Path:
+    docs = {name: json.loads((runs / name / "slot_milling.json").read_text())
+            for name in ("slot_milling", "slot_milling_forcenet")}
+    simulated = simulate_both(fmu_dir)
+    fig = Figure(figsize=(13, 10), layout="constrained")
+    grid = fig.subplots(3, 3)
+    for k, axis in enumerate(("Fx", "Fy", "Fz")):
+        ax = grid[0][k]
+        for name, label, style in (("slot_milling", "CuttingForce", dict(color="tab:orange", lw=2.5, alpha=0.6)),
+                                   ("slot_milling_forcenet", "ForceNet", dict(color="k", lw=1))):
+            data = simulated[name]
+            angle = np.degrees(data["force.spindle_angle"].to_numpy())
+            last = data["time"].to_numpy() >= data["time"].to_numpy()[-1] - 0.01  # the last revolution
+            order = np.argsort(angle[last])
+            ax.plot(angle[last][order], data[f"force.{axis}"].to_numpy()[last][order], label=label, **style)
+        ax.set_title(f"simulated {axis} on the tool, slot, 900 mm/min", fontsize=9)
+        ax.set_xlabel("spindle angle [deg]")
+        ax.set_ylabel("force [N]")
+        ax.grid(True, alpha=0.3)
+    grid[0][0].legend(fontsize=8)
+    for k, axis in enumerate(AXES):
+        for row, (key, what, unit) in enumerate((("mean_relative_error", "mean force error vs recorded", "%"),
+                                                 ("waveform_r2", "waveform r$^2$ vs recorded", ""))):
+            ax = grid[row + 1][k]
+            for validation, name, label, style in SERIES:
+                cases = docs[validation]["cases"]
+                if not cases or name not in cases[0]:
+                    continue
+                x = [c["feed_per_tooth_mm"] for c in cases]
+                y = [c[name][key][axis] * (100 if unit else 1) for c in cases]
+                ax.plot(x, y, label=label, **style)
+            ax.axhline(0 if unit else 1, color="k", lw=0.8)
+            ax.set_title(f"{what}, recorded {axis}", fontsize=9)
+            ax.set_xlabel("feed per tooth [mm]")
+            ax.set_ylabel(f"{what.split(' vs')[0]} [{unit or '1'}]")
+            if not unit:
+                ax.set_ylim(-1.0, 1.02)
+            ax.grid(True, alpha=0.3)
+    handles, labels = grid[1][0].get_legend_handles_labels()
+    fig.legend(handles, labels, loc="outside lower center", ncol=2, fontsize=8)
+    fig.suptitle("Force net in slot milling (6000 rpm, 2 flutes, 3 mm deep): against CuttingForce and the five "
+                 "measured recordings")
+    path.parent.mkdir(parents=True, exist_ok=True)
+    fig.savefig(path, dpi=80)
+    return path
+
+
+def main(argv: list[str] | None = None) -> int:
+    parser = argparse.ArgumentParser(prog="python -m models.force_net_figure", description=__doc__.splitlines()[0])
+    parser.add_argument("--runs", type=Path, default=REPO / "runs")
+    parser.add_argument("--fmu-dir", type=Path, default=REPO / "build" / "fmus")
+    parser.add_argument("--out", type=Path, default=REPO / "scenarios" / "figures" / "forcenet_slot_milling.png")
+    args = parser.parse_args(argv)
+    print(figure(args.runs, args.fmu_dir, args.out))
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())

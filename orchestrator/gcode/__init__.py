@@ -1,0 +1,1 @@
+"""Part programs: reconstruction of programs from recorded runs (reconstruct)."""

@@ -1,0 +1,395 @@
+"""Reconstruct a part program from a recorded CNC run that holds the commanded axis positions, the feed and
+the G-code line being executed, but not the program text (the UMich "CNC Mill Tool Wear" runs,
+scenarios/data/). The result runs on the Interpolator FMU (scenarios/umich_motion.toml).
+
+    .venv/bin/python -m orchestrator.gcode.reconstruct scenarios/data/umich_experiment_01.csv \\
+        -o scenarios/programs/umich_01.nc
+
+Method (each step documented in the program's header):
+
+1. Line numbers: ``M1_sequence_number`` with its logging artefact removed: a sample that differs from both
+   neighbours while those agree (the value 2 about once a second) takes the neighbours' value.
+2. Positions: the commanded positions are quantised (X to 1 mm, Y and Z to 0.1 mm) but the commanded
+   velocities are not. Per axis, the positions p_k at the samples minimise
+   sum_k (p_k - q_k)^2 / s_q^2 + sum_k (p_k+1 - p_k - dt (v_k + v_k+1) / 2)^2 / s_v^2
+   (q: recorded position, v: commanded velocity, s_q = quantum / sqrt(12), s_v = 0.05 mm): the quantised
+   positions anchor the integrated velocities. A linear least-squares problem (tridiagonal), solved exactly.
+3. Blocks: the interval between two samples belongs to the line executing at its end. The intervals of one
+   line, in order, form a polyline, simplified (Douglas-Peucker, 0.05 mm) into G1 moves carrying the line as
+   their N word (the Interpolator's block_number output then matches M1_sequence_number). Intervals without
+   motion are dropped: the program has no dwell, so pauses of the recording are not in it.
+4. Feed: ``M1_CURRENT_FEEDRATE`` (mm/s) of the line's samples (the most frequent value), as F in mm/min;
+   lines at the positioning feed (50 mm/s: Prep, Repositioning, End) become rapid moves G0 (run them with
+   rapid_feed = 50 mm/s).
+5. Spindle: ``S1_ActualVelocity`` (controller units read as rev/s, scenarios/data/PROVENANCE.md) above 1 starts
+   the spindle (S in rpm, M3) before the first move of the line where it runs, below stops it (M5).
+
+The commanded positions are machine coordinates in mm; the program uses G21 G90 G54 with G54 = 0.
+"""
+from __future__ import annotations
+
+import argparse
+import hashlib
+import math
+import sys
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+import pandas as pd
+from scipy.linalg import solve_banded
+from scipy.optimize import minimize_scalar
+
+SAMPLE_PERIOD = 0.1          # s, the recordings' row spacing
+SIGNIFICANT_DIGITS = 3       # the recorded positions' resolution: 1 mm from 100 mm on, 0.1 mm below
+VELOCITY_SIGMA = 0.005       # mm: error of integrating the commanded velocity over a sample period, plus
+VELOCITY_CHANGE_SIGMA = 0.25  # times |velocity change| * period (the trapezoid rule where the velocity changes)
+LINE_TOLERANCE = 0.1         # mm: a recorded line whose samples lie this close to a line is one G1/G0
+ARC_TOLERANCE = 0.1          # mm: ... to a circle (through its end points, in a plane of constant Z): G2/G3
+SIMPLIFY_TOLERANCE = 0.05    # mm: otherwise a polyline, simplified (Douglas-Peucker)
+FLAT = 0.05                  # mm: Z range of an arc in the XY plane
+RAPID_FEED = 50.0            # mm/s: the positioning feed of the recordings
+ARTEFACT = 2                 # the line number the logger writes about once a second
+SPINDLE_ON = 1.0             # S1_ActualVelocity above which the spindle runs
+MIN_MOTION = 1e-3            # mm: shorter intervals are no motion
+STOPPED = 0.05               # mm/s: commanded speed below which the tool stands
+CORNER_ANGLE = 0.35          # rad: a turn of the commanded velocity between two samples that is a corner
+CORNER_REACH = 1.0           # mm: how far a corner may lie from the sample taken for it
+
+
+@dataclass
+class Block:
+    """One recorded line: its moves, feed (mm/s), rapid flag and spindle speed (rpm, 0 = stopped). Each move
+    is ("G1", end) or ("G2"/"G3", end, centre) with points in mm."""
+
+    sequence: int
+    moves: list[tuple]
+    feed: float
+    rapid: bool
+    spindle_rpm: float
+    first_sample: int
+    last_sample: int
+    kind: str = "line"
+
+
+@dataclass
+class Reconstruction:
+    source: Path
+    start: tuple[float, float, float]
+    blocks: list[Block]
+    positions: np.ndarray            # fused positions at the samples (n x 3, mm)
+    sequence: np.ndarray             # cleaned line numbers at the samples
+    stats: dict[str, float] = field(default_factory=dict)
+
+    def program(self) -> str:
+        return program_text(self)
+
+
+def clean_sequence(sequence: np.ndarray) -> np.ndarray:
+    """The recorded line numbers without the logger's artefact: a single sample reading ARTEFACT, or any value
+    differing from both neighbours while those agree, takes the following sample's value."""
+    s = np.asarray(sequence, dtype=float).copy()
+    n = len(s)
+    for k in range(1, n - 1):
+        single = s[k] != s[k - 1] and s[k] != s[k + 1]
+        if single and (s[k] == ARTEFACT or s[k - 1] == s[k + 1]):
+            s[k] = s[k + 1]
+    return s.astype(int)
+
+
+def quantum_of(values: np.ndarray) -> np.ndarray:
+    """Resolution of values stored with three significant digits."""
+    magnitude = np.floor(np.log10(np.maximum(np.abs(values), 1e-3)))
+    return 10.0 ** (magnitude - (SIGNIFICANT_DIGITS - 1))
+
+
+def fuse_positions(quantised: np.ndarray, velocity: np.ndarray, dt: float = SAMPLE_PERIOD) -> np.ndarray:
+    """Least-squares positions of one axis from positions stored with three significant digits and the commanded
+    velocities: minimise sum (p_k - q_k)^2 / s_q,k^2 + sum (p_k+1 - p_k - dt (v_k + v_k+1) / 2)^2 / s_v,k^2 with
+    s_q = quantum / sqrt(12) and s_v = VELOCITY_SIGMA + VELOCITY_CHANGE_SIGMA |v_k+1 - v_k| dt."""
+    q = np.asarray(quantised, dtype=float)
+    v = np.asarray(velocity, dtype=float)
+    n = len(q)
+    wq = 12.0 / quantum_of(q) ** 2
+    wv = 1.0 / (VELOCITY_SIGMA + VELOCITY_CHANGE_SIGMA * np.abs(np.diff(v)) * dt) ** 2
+    d = dt * 0.5 * (v[1:] + v[:-1])
+    diagonal = wq.copy()
+    diagonal[:-1] += wv
+    diagonal[1:] += wv
+    rhs = wq * q
+    rhs[:-1] -= wv * d
+    rhs[1:] += wv * d
+    banded = np.zeros((3, n))
+    banded[0, 1:] = -wv
+    banded[1] = diagonal
+    banded[2, :-1] = -wv
+    return solve_banded((1, 1), banded, rhs)
+
+
+def simplify(points: np.ndarray, tolerance: float) -> list[int]:
+    """Indices kept by Douglas-Peucker (first and last always), iterative."""
+    n = len(points)
+    if n <= 2:
+        return list(range(n))
+    keep = np.zeros(n, dtype=bool)
+    keep[0] = keep[-1] = True
+    stack = [(0, n - 1)]
+    while stack:
+        a, b = stack.pop()
+        if b <= a + 1:
+            continue
+        dist = _distances_to_segment(points[a + 1:b], points[a], points[b])
+        k = int(np.argmax(dist))
+        if dist[k] > tolerance:
+            keep[a + 1 + k] = True
+            stack += [(a, a + 1 + k), (a + 1 + k, b)]
+    return [int(i) for i in np.nonzero(keep)[0]]
+
+
+def _distances_to_segment(points: np.ndarray, a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    seg = b - a
+    length2 = float(seg @ seg)
+    rel = points - a
+    t = np.clip(rel @ seg / length2, 0.0, 1.0) if length2 > 0 else np.zeros(len(points))
+    return np.linalg.norm(rel - np.outer(t, seg), axis=1)
+
+
+def _line_fit(points: np.ndarray) -> tuple[np.ndarray, np.ndarray, float]:
+    """Centroid, unit direction and the largest distance of the points from that line."""
+    centre = points.mean(axis=0)
+    _, _, vt = np.linalg.svd(points - centre)
+    direction = vt[0]
+    rel = points - centre
+    deviation = np.linalg.norm(rel - np.outer(rel @ direction, direction), axis=1)
+    return centre, direction, float(deviation.max()) if len(points) else 0.0
+
+
+def _arc_through(start: np.ndarray, end: np.ndarray, samples: np.ndarray) -> tuple[np.ndarray, bool, float] | None:
+    """The circle in the XY plane through start and end that fits the samples best: (centre, counter-clockwise,
+    largest radial deviation), or None when there is no arc (too few samples, not planar, a full turn)."""
+    if len(samples) < 3:
+        return None
+    if np.ptp(np.concatenate([samples[:, 2], [start[2], end[2]]])) > FLAT:
+        return None
+    s, e = start[:2], end[:2]
+    chord = e - s
+    length = float(np.hypot(*chord))
+    if length < 1e-6:
+        return None
+    mid = 0.5 * (s + e)
+    normal = np.array([-chord[1], chord[0]]) / length
+    pts = samples[:, :2]
+
+    def cost(t: float) -> float:
+        c = mid + t * normal
+        return float(np.sum((np.linalg.norm(pts - c, axis=1) - np.linalg.norm(s - c)) ** 2))
+
+    # the sagitta of the samples gives a starting point: t = (h^2 - (L/2)^2) / (2h) for a height h
+    heights = (pts - mid) @ normal
+    h = heights[np.argmax(np.abs(heights))]
+    if abs(h) < 1e-9:
+        return None
+    t0 = (h * h - 0.25 * length * length) / (2.0 * h)
+    result = minimize_scalar(cost, bracket=(t0 - abs(t0) - 1.0, t0 + abs(t0) + 1.0))
+    c = mid + float(result.x) * normal
+    radius = float(np.linalg.norm(s - c))
+    deviation = float(np.max(np.abs(np.linalg.norm(pts - c, axis=1) - radius)))
+    # direction from the samples' angles, which must progress monotonically from start to end
+    angles = np.unwrap(np.arctan2(np.concatenate([[s[1]], pts[:, 1], [e[1]]]) - c[1],
+                                  np.concatenate([[s[0]], pts[:, 0], [e[0]]]) - c[0]))
+    steps = np.diff(angles)
+    ccw = bool(steps.sum() > 0)
+    if not (np.all(steps >= -1e-3) if ccw else np.all(steps <= 1e-3)) or abs(angles[-1] - angles[0]) > 2 * np.pi - 1e-3:
+        return None
+    centre = np.array([c[0], c[1], start[2]])
+    return centre, ccw, deviation
+
+
+def _pieces(fused: np.ndarray, velocity: np.ndarray, feed: np.ndarray) -> list[tuple[int, int]]:
+    """Sample ranges [a, b] of continuous motion: split where the tool stops, where the feed changes and at
+    corners (the commanded velocity turns by more than CORNER_ANGLE between two samples)."""
+    speed = np.linalg.norm(velocity, axis=1)
+    step = np.linalg.norm(np.diff(fused, axis=0), axis=1)
+    pieces = []
+    a = None
+    for k in range(1, len(fused)):
+        moving = step[k - 1] > MIN_MOTION
+        if a is not None:
+            corner = False
+            if speed[k] > STOPPED and speed[k - 1] > STOPPED:
+                cos = velocity[k] @ velocity[k - 1] / (speed[k] * speed[k - 1])
+                corner = cos < math.cos(CORNER_ANGLE)
+            if not moving or feed[k] != feed[k - 1] or corner:
+                pieces.append((a, k - 1 if not moving else k))
+                a = None if not moving else k
+                continue
+        if a is None and moving:
+            a = k - 1
+    if a is not None:
+        pieces.append((a, len(fused) - 1))
+    return [(a, b) for a, b in pieces if b > a]
+
+
+def _fit_piece(points: np.ndarray, allow_arcs: bool) -> list[tuple[str, int, np.ndarray | None]]:
+    """Greedy: from each point, the line or arc (through its end points) reaching farthest within tolerance.
+    Returns (kind, index of the end point, centre) per primitive."""
+    out = []
+    i, n = 0, len(points)
+    while i < n - 1:
+        j_line = i + 1
+        for j in range(i + 2, n):
+            if np.max(_distances_to_segment(points[i + 1:j], points[i], points[j])) <= LINE_TOLERANCE:
+                j_line = j
+            else:
+                break
+        j_arc, centre_arc, ccw_arc = -1, None, True
+        if allow_arcs:
+            for j in range(i + 3, n):
+                arc = _arc_through(points[i], points[j], points[i + 1:j])
+                if arc is not None and arc[2] <= ARC_TOLERANCE:
+                    j_arc, centre_arc, ccw_arc = j, arc[0], arc[1]
+                elif j > j_line + 1:
+                    break
+        if j_arc > j_line:
+            out.append(("G3" if ccw_arc else "G2", j_arc, centre_arc))
+            i = j_arc
+        else:
+            out.append(("G1", j_line, None))
+            i = j_line
+    return out
+
+
+def reconstruct(path: Path) -> Reconstruction:
+    data = pd.read_csv(path)
+    n = len(data)
+    sequence = clean_sequence(data["M1_sequence_number"].to_numpy())
+    fused = np.column_stack([
+        fuse_positions(data[f"{a}1_CommandPosition"].to_numpy(), data[f"{a}1_CommandVelocity"].to_numpy())
+        for a in "XYZ"])
+    velocity = np.column_stack([data[f"{a}1_CommandVelocity"].to_numpy(dtype=float) for a in "XYZ"])
+    feed = data["M1_CURRENT_FEEDRATE"].to_numpy(dtype=float)
+    spindle = data["S1_ActualVelocity"].to_numpy(dtype=float)
+    running = spindle > SPINDLE_ON
+    nominal_rpm = round(float(np.median(spindle[running])) * 60.0 / 10.0) * 10.0 if running.any() else 0.0
+    blocks: list[Block] = []
+    position = fused[0]
+    previous_end = 0
+    for a, b in _pieces(fused, velocity, feed):
+        points = fused[a:b + 1].copy()
+        points[0] = position if np.linalg.norm(points[0] - position) <= 2 * LINE_TOLERANCE else points[0]
+        values, counts = np.unique(feed[a + 1:b + 1], return_counts=True)
+        f = float(values[np.argmax(counts)])
+        rapid = f >= RAPID_FEED
+        if np.linalg.norm(points[0] - position) > MIN_MOTION:  # a jump: join it with a straight move
+            mid = (previous_end + a) // 2
+            blocks.append(Block(int(sequence[mid]), [("G1", tuple(points[0]))], f, rapid,
+                                nominal_rpm if running[mid] else 0.0, previous_end, a, "line"))
+        start = 0
+        for kind, j, centre in _fit_piece(points, not rapid):
+            mid = a + (start + j + 1) // 2
+            move = (kind, tuple(points[j])) if centre is None else (kind, tuple(points[j]), tuple(centre))
+            blocks.append(Block(int(sequence[min(mid, b)]), [move], f, rapid,
+                                nominal_rpm if running[min(mid, b)] else 0.0, a + start, a + j,
+                                "line" if centre is None else "arc"))
+            start = j
+        position = points[-1]
+        previous_end = b
+    _refine_corners(blocks)
+    recon = Reconstruction(path, tuple(map(float, fused[0])), blocks, fused, sequence)
+    kinds = [blk.kind for blk in blocks]
+    recon.stats = {"samples": float(n), "duration": n * SAMPLE_PERIOD, "moves": float(len(blocks)),
+                   "lines": float(kinds.count("line")), "arcs": float(kinds.count("arc")),
+                   "artefacts_removed": float(np.sum(sequence != data["M1_sequence_number"].to_numpy()))}
+    return recon
+
+
+def _refine_corners(blocks: list[Block]) -> None:
+    """Where two straight moves meet at a corner, the corner lies between two samples: move the shared point
+    to where the two lines (through their other ends) meet, when that is close."""
+    for k in range(1, len(blocks) - 1):
+        m0, m1 = blocks[k].moves[0], blocks[k + 1].moves[0]
+        if m0[0] != "G1" or m1[0] != "G1" or not blocks[k - 1].moves:
+            continue
+        p0 = np.array(blocks[k - 1].moves[-1][1])
+        corner = np.array(m0[1])
+        p1 = np.array(m1[1])
+        d0, d1 = corner - p0, p1 - corner
+        l0, l1 = np.linalg.norm(d0), np.linalg.norm(d1)
+        if l0 < 1e-6 or l1 < 1e-6 or abs(d0 @ d1) / (l0 * l1) > math.cos(CORNER_ANGLE):
+            continue
+        # extend both lines: closest points of p0 + s d0 and p1 - t d1
+        u0, u1 = d0 / l0, -d1 / l1
+        w = p0 - p1
+        b = u0 @ u1
+        denom = 1.0 - b * b
+        if denom < 1e-9:
+            continue
+        s = (b * (u1 @ w) - (u0 @ w)) / denom
+        t = ((u1 @ w) - b * (u0 @ w)) / denom
+        meet = 0.5 * ((p0 + s * u0) + (p1 + t * u1))
+        if np.linalg.norm(meet - corner) <= CORNER_REACH and s > 0 and t > 0:
+            blocks[k].moves[0] = ("G1", tuple(meet))
+
+
+def _mm(x: float) -> str:
+    text = f"{x:.3f}".rstrip("0").rstrip(".")
+    return "0" if text in ("-0", "") else text
+
+
+def program_text(recon: Reconstruction) -> str:
+    digest = hashlib.sha256(recon.source.read_bytes()).hexdigest()
+    st = recon.stats
+    lines = [
+        f"(Reconstructed by orchestrator.gcode.reconstruct from {recon.source.name}, sha256 {digest})",
+        f"({int(st['samples'])} samples at {SAMPLE_PERIOD:g} s: {int(st['lines'])} straight moves and "
+        f"{int(st['arcs'])} arcs fitted to {LINE_TOLERANCE:g} mm)",
+        "(positions: least squares of the commanded positions, stored to 3 significant digits, and velocities)",
+        "(N = the recorded M1_sequence_number; feed 50 mm/s = G0: run with rapid_feed = 50 mm/s; no dwells)",
+        "G21 G90 G17 G54",
+        "G0 X{} Y{} Z{}".format(*(_mm(c) for c in recon.start)),
+    ]
+    feed_now = None
+    spindle_now = 0.0
+    motion_now = None
+    position = np.array([float(_mm(c)) for c in recon.start])
+    for block in recon.blocks:
+        if block.spindle_rpm != spindle_now:
+            lines.append(f"N{block.sequence} S{block.spindle_rpm:g} M3" if block.spindle_rpm > 0
+                         else f"N{block.sequence} M5")
+            spindle_now = block.spindle_rpm
+        for move in block.moves:
+            code = "G0" if block.rapid else move[0]
+            words = [f"N{block.sequence}"]
+            if code != motion_now:
+                words.append(code)
+                motion_now = code
+            end = np.array([float(_mm(c)) for c in move[1]])
+            words += [f"X{_mm(end[0])}", f"Y{_mm(end[1])}", f"Z{_mm(end[2])}"]
+            if code in ("G2", "G3"):
+                words += [f"I{_mm(move[2][0] - position[0])}", f"J{_mm(move[2][1] - position[1])}"]
+            if code != "G0" and block.feed != feed_now:
+                words.append(f"F{_mm(block.feed * 60.0)}")
+                feed_now = block.feed
+            lines.append(" ".join(words))
+            position = end
+    if spindle_now:
+        lines.append("M5")
+    lines.append("M30")
+    return "\n".join(lines) + "\n"
+
+
+def main(argv: list[str] | None = None) -> int:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("recording", type=Path, help="recorded run (CSV with the UMich columns)")
+    parser.add_argument("-o", "--output", type=Path, required=True, help="part program to write")
+    args = parser.parse_args(argv)
+    recon = reconstruct(args.recording)
+    args.output.write_text(recon.program())
+    for name, value in recon.stats.items():
+        print(f"{name}: {value:g}")
+    print(f"wrote {args.output}")
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -1,0 +1,430 @@
+"""Interpolator FMU (fmus/interpolator/, models/interpolator.py): equality with the Python reference, exact
+lines, arcs and NURBS circles, the limits on random programs, the end at rest on the last point, the feed
+override, step sizes, offsets and the other outputs. Bad programs: test_interpolator_programs.py."""
+from __future__ import annotations
+
+import math
+import subprocess
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from fmu_helpers import OK, Slave, assert_close, fmu_dir, fmu_file_name, repo_root, require_fmu
+from models import interpolator as ip
+
+REPO = repo_root()
+DRIVER = REPO / "build" / "tools" / "interp_run"
+OUTPUTS = list(ip.OUTPUTS)
+FAST = {"acceleration": 2.0, "jerk": 200.0, "centripetal_acceleration": 2.0}
+
+
+def fmu_path(version: int = 3) -> Path:
+    return require_fmu(fmu_dir() / fmu_file_name("Interpolator", version))
+
+
+def run_fmu(text: str | None, tmp_path: Path, params: dict | None = None, version: int = 3, step: float = 1e-3,
+            overrides: dict[int, float] | None = None, steps: int | None = None, until_finished: bool = True,
+            max_steps: int = 200_000) -> tuple[np.ndarray, Slave]:
+    """Outputs after each step (steps x OUTPUTS); `text` None = the default program (resources/).
+    overrides: {step index: feed_override set before that step}."""
+    params = dict(params or {})
+    slave = Slave(fmu_path(version))
+    slave.instantiate()
+    slave.enter_initialization()
+    if text is not None:
+        program = tmp_path / "part.nc"
+        program.write_text(text)
+        slave.fmu.setString([slave.vr["program"]], [str(program)])
+    slave.set(params)
+    slave.exit_initialization()
+    rows = []
+    k = 0
+    while (steps is None or k < steps) and k < max_steps:
+        if overrides and k in overrides:
+            slave.set({"feed_override": overrides[k]})
+        assert slave.step(step) == OK, slave.messages[-3:]
+        rows.append(slave.get(OUTPUTS))
+        k += 1
+        if steps is None and until_finished and rows[-1][OUTPUTS.index("finished")]:
+            break
+    return np.array(rows), slave
+
+
+def run_reference(text: str | None, params: dict | None = None, step: float = 1e-3,
+                  overrides: dict[int, float] | None = None, steps: int | None = None) -> np.ndarray:
+    params = {**ip.default_parameters(), **(params or {})}
+    interp = ip.Interpolator(ip.default_program_text() if text is None else text, params)
+    rows, time_now, k = [], 0.0, 0
+    override = params.get("feed_override", 1.0)
+    interp.set_override(override, 0.0)  # planned at initialization with the override set then
+    while steps is None or k < steps:
+        if overrides and k in overrides:
+            override = overrides[k]
+        n = ip.ticks_in(time_now, step, interp.period, interp.tick_count)
+        interp.set_override(override, interp.tick_count * interp.period)
+        for _ in range(n):
+            interp.tick()
+        time_now += step
+        rows.append([interp.out[name] for name in OUTPUTS])
+        k += 1
+        if steps is None and interp.out["finished"]:
+            break
+    return np.array(rows)
+
+
+def col(rows: np.ndarray, name: str) -> np.ndarray:
+    return rows[:, OUTPUTS.index(name)]
+
+
+def positions(rows: np.ndarray) -> np.ndarray:
+    return rows[:, [OUTPUTS.index(a) for a in "xyz"]]
+
+
+def driver(text: str, tmp_path: Path, params: dict | None = None, override: float = 1.0) -> dict[str, np.ndarray]:
+    """The standalone driver (the FMU's engine without the FMI wrapper): every tick of the whole program."""
+    assert DRIVER.is_file(), f"{DRIVER} not built (cmake --build build)"
+    program = tmp_path / "part.nc"
+    program.write_text(text)
+    csv = tmp_path / "ticks.csv"
+    args = [str(DRIVER), "--csv", str(csv), "--override", repr(override)]
+    for name, value in (params or {}).items():
+        args += ["--param", f"{name}={float(value)!r}"]
+    subprocess.run(args + [str(program)], check=True, capture_output=True, text=True)
+    data = np.genfromtxt(csv, delimiter=",", names=True)
+    return {name: data[name] for name in data.dtype.names}
+
+
+# ---- the default program and the reference ----
+
+
+def test_default_program_header_matches_the_resource() -> None:
+    header = REPO / "fmus" / "interpolator" / "default_program.h"
+    assert header.read_text() == ip.default_program_header(), "regenerate default_program.h (see its docstring)"
+
+
+def test_default_program_uses_every_kind_of_move() -> None:
+    interp = ip.Interpolator(ip.default_program_text(), {})
+    kinds = {m.kind for m in interp.program.moves}
+    assert kinds == {ip.MOVE_RAPID, ip.MOVE_LINE, ip.MOVE_ARC, ip.MOVE_NURBS}
+
+
+EQUALITY_PROGRAM = """(offsets, planes, inch, incremental, helix, a NURBS, spindle changes)
+G21 G90 G17 G55
+G10 L2 P2 X5 Y-3 Z1
+S3000 M3
+G0 X0 Y0 Z1
+G1 Z0 F900
+G18 G2 X10 Z0 I5 K0 F1200
+G19 G3 Y10 Z0 R5
+G17 G91 G1 X-4 Y2 Z-1 F1500
+G90 G20 G1 X0.2 Y0.4 F60
+G21 G2 X10 Y15.08 Z2 I4.92 J0 F2000
+G6.2 P3 K0 X10 Y15.08 Z2 F2400
+K0 X15 Y12 R2
+K0 X18 Y4 R0.5
+K0 X22 Y9 Z3
+K1 X25 Y5 R1
+K2
+K2
+K2
+K2
+S1500 M4
+G0 X0 Y0 Z10
+M5 M30
+"""
+
+
+@pytest.mark.parametrize("version", [3, 2])
+@pytest.mark.parametrize("method", [1, 2, 3, 4])
+def test_fmu_equals_the_python_reference(tmp_path: Path, version: int, method: int) -> None:
+    """The whole program, override changes (and a feed hold) on the way, all outputs, 1e-12 (in fact bitwise)."""
+    params = {"method": method, "corrector_predictor": 3 if method == 4 else 2, "rbf_weight_2": 0.01,
+              "rbf_bias": -0.002, "g54_x": 0.01, "start_z": 0.003, **FAST}
+    overrides = {0: 1.2, 150: 0.6, 400: 1.5, 700: 0.0, 800: 1.0}
+    actual, slave = run_fmu(EQUALITY_PROGRAM, tmp_path, params, version, overrides=overrides)
+    slave.unload()
+    expected = run_reference(EQUALITY_PROGRAM, params, overrides=overrides, steps=len(actual))
+    assert actual[-1, OUTPUTS.index("finished")] == 1.0
+    assert_close(actual, expected, what=f"method {method}")
+    assert np.array_equal(actual, expected)  # bitwise: same operations in the same order
+
+
+@pytest.mark.parametrize("step", [2e-3, 1.5e-3, 0.7e-3, 0.05])
+def test_step_sizes_advance_whole_periods(tmp_path: Path, step: float) -> None:
+    """A step that is a multiple of the period advances that many periods; otherwise the outputs are those of
+    the last period ending within the step (zero-order hold)."""
+    ticks, slave = run_fmu(None, tmp_path, step=1e-3, steps=400)
+    slave.unload()
+    rows, slave = run_fmu(None, tmp_path, step=step, steps=int(0.4 / step))
+    slave.unload()
+    for k in range(len(rows)):
+        tick = math.floor((k + 1) * step / 1e-3 + 1e-6)
+        expected = ticks[tick - 1] if tick > 0 else ip.initial_outputs({})[0]
+        assert np.array_equal(rows[k], expected), (k, tick)
+
+
+# ---- geometry ----
+
+
+LINES = """G21 G90 G1 X10 Y5 Z-2 F3000
+G1 X-3 Y7 Z4
+G0 X20 Y-10 Z0
+G1 Y30
+"""
+
+
+def test_lines_are_exact(tmp_path: Path) -> None:
+    rows, slave = run_fmu(LINES, tmp_path)
+    slave.unload()
+    p = positions(rows)
+    corners = np.array([[0, 0, 0], [10, 5, -2], [-3, 7, 4], [20, -10, 0], [20, 30, 0]]) * 1e-3
+    lines = col(rows, "line_number").astype(int)
+    for k, (a, b) in enumerate(zip(corners[:-1], corners[1:])):
+        on = p[lines == k + 1]
+        assert len(on) > 10
+        d = b - a
+        t = (on - a) @ d / (d @ d)
+        off = on - (a + t[:, None] * d)
+        assert np.max(np.linalg.norm(off, axis=1)) <= 1e-17 + 1e-15 * np.max(np.abs(corners)), k
+        assert np.all(t >= -1e-15) and np.all(t <= 1 + 1e-15) and np.all(np.diff(t) >= 0)
+    assert np.array_equal(p[-1], corners[-1])
+    assert np.all(col(rows, "rapid")[lines == 3] == 1) and not np.any(col(rows, "rapid")[lines != 3])
+
+
+ARCS = """G21 G90 G17 G1 X10 Y0 F2400
+G3 X0 Y10 I-10 J0
+G2 X-10 Y20 R10
+G18 G2 X-10 Z-10 I0 K-5
+G19 G3 Y30 Z-20 J10 K0
+G17 G3 X-10 Y30 Z-15 I0 J-5
+"""
+
+
+def test_arcs_are_exact(tmp_path: Path) -> None:
+    """Every point on its arc (radius within 1e-12 m), the climb of the helix proportional to the angle, the end
+    points exact; IJK and R forms, G17/G18/G19, both directions, a full helical circle."""
+    rows, slave = run_fmu(ARCS, tmp_path)
+    slave.unload()
+    p = positions(rows) * 1e3  # mm
+    lines = col(rows, "line_number").astype(int)
+    # (line, centre, in-plane axes, radius, normal axis)
+    arcs = [(2, (0, 0, 0), (0, 1), 10, 2), (3, (0, 20, 0), (0, 1), 10, 2), (4, (-10, 20, -5), (2, 0), 5, 1),
+            (5, (-10, 30, -10), (1, 2), 10, 0), (6, (-10, 25, None), (0, 1), 5, 2)]
+    for line, centre, (a, b), radius, normal in arcs:
+        on = p[lines == line]
+        assert len(on) > 20, line
+        r = np.hypot(on[:, a] - centre[a], on[:, b] - centre[b])
+        assert np.max(np.abs(r - radius)) <= 1e-9, (line, np.max(np.abs(r - radius)))  # 1e-12 m
+        if centre[normal] is not None:
+            assert np.max(np.abs(on[:, normal] - centre[normal])) <= 1e-12, line
+    helix = p[lines == 6]
+    angle = np.unwrap(np.arctan2(helix[:, 1] - 25, helix[:, 0] + 10))
+    z_expected = -20 + 5 * (angle - angle[0] + (angle[0] - math.atan2(30 - 25, 0))) / (2 * math.pi)
+    assert np.max(np.abs(helix[:, 2] - z_expected)) <= 1e-9
+    assert np.array_equal(p[-1], np.array([-10, 30, -15.0]) * 1e3 / 1e3)
+
+
+def circle_program(radius_mm: float, feed: float, degree_line: str = "") -> str:
+    """A full circle as one rational quadratic NURBS (9 control points, weights 1 and sqrt(2)/2)."""
+    r = radius_mm
+    w = math.sqrt(0.5)
+    points = [(r, 0), (r, r), (0, r), (-r, r), (-r, 0), (-r, -r), (0, -r), (r, -r), (r, 0)]
+    weights = [1, w, 1, w, 1, w, 1, w, 1]
+    knots = [0, 0, 0, 0.25, 0.25, 0.5, 0.5, 0.75, 0.75, 1, 1, 1]
+    lines = ["G21 G90 G17", f"G0 X{r:g} Y0"] + ip.nurbs_block_gcode(points, weights, knots, 2, feed)
+    return "\n".join(lines) + "\nM30\n"
+
+
+@pytest.mark.parametrize("method", [1, 2, 3, 4])
+def test_a_rational_quadratic_nurbs_circle_stays_on_the_circle(tmp_path: Path, method: int) -> None:
+    text = circle_program(20.0, 6000)
+    data = driver(text, tmp_path, {"method": method})
+    nurbs = data["line"] == 3  # the G6.2 block: four moves (split at the knots of multiplicity 2)
+    assert set(data["move"][nurbs]) == {1, 2, 3, 4}
+    r = np.hypot(data["x"][nurbs], data["y"][nurbs])
+    assert nurbs.sum() > 1000
+    assert np.max(np.abs(r - 0.02)) <= 1e-9 * 0.02, np.max(np.abs(r - 0.02))
+    assert data["x"][-1] == 0.02 and data["y"][-1] == 0.0 and data["feed"][-1] == 0.0
+
+
+# ---- limits ----
+
+
+def random_program(rng: np.random.Generator) -> tuple[str, list[float]]:
+    """Random lines, arcs (IJK and R, both directions, helical), rapids and a cubic NURBS; returns the text and
+    the F (mm/min) of every line."""
+    lines = ["G21 G90 G17", "G0 X0 Y0 Z0"]
+    feeds = [0.0, 0.0]
+    x = y = z = 0.0
+    for _ in range(rng.integers(6, 12)):
+        kind = rng.choice(["G1", "G2", "G3", "G0", "NURBS"], p=[0.35, 0.2, 0.2, 0.1, 0.15])
+        f = float(rng.choice([600, 1500, 3000, 6000, 9000]))
+        if kind in ("G1", "G0"):
+            x, y, z = x + rng.uniform(-20, 20), y + rng.uniform(-20, 20), z + rng.uniform(-3, 3)
+            lines.append(f"{kind} X{x:.4f} Y{y:.4f} Z{z:.4f}" + (f" F{f:g}" if kind == "G1" else ""))
+        elif kind in ("G2", "G3"):
+            i, j = rng.uniform(-10, 10, 2)
+            angle = rng.uniform(0.3, 5.5) * (1 if kind == "G3" else -1)
+            cx, cy = x + i, y + j
+            a0 = math.atan2(y - cy, x - cx)
+            rad = math.hypot(i, j)
+            ex, ey = cx + rad * math.cos(a0 + angle), cy + rad * math.sin(a0 + angle)
+            z2 = z + rng.uniform(-2, 2)
+            lines.append(f"{kind} X{ex:.6f} Y{ey:.6f} Z{z2:.4f} I{i:.6f} J{j:.6f} F{f:g}")
+            # the end point written to 6 decimals lies on the arc within the tolerance
+            x, y, z = float(f"{ex:.6f}"), float(f"{ey:.6f}"), float(f"{z2:.4f}")
+        else:
+            pts = [(x, y)] + [(x + rng.uniform(-15, 15), y + rng.uniform(-15, 15)) for _ in range(4)]
+            weights = [1.0] + list(rng.uniform(0.5, 2.0, 4))
+            knots = [0, 0, 0, 0, 0.4, 1, 1, 1, 1]
+            pts_3d = [(px, py, z) for px, py in pts]
+            lines += ip.nurbs_block_gcode([(round(a, 4), round(b, 4), round(c, 4)) for a, b, c in pts_3d],
+                                          weights, knots, 3, f)
+            pts[0] = (x, y)
+            x, y = round(pts[-1][0], 4), round(pts[-1][1], 4)
+            feeds += [f] * len(knots)
+            continue
+        feeds.append(0.0 if kind == "G0" else f)
+    lines.append("M30")
+    feeds.append(0.0)
+    return "\n".join(lines) + "\n", feeds
+
+
+LIMIT_PARAMS = {"acceleration": 1.5, "jerk": 150.0, "centripetal_acceleration": 1.0, "chord_error": 2e-6,
+                "axis_acceleration_x": 2.0, "axis_acceleration_y": 2.5, "axis_acceleration_z": 1.2,
+                "axis_jerk_x": 300.0, "axis_jerk_y": 400.0, "axis_jerk_z": 200.0, "max_feed": 0.15, "rapid_feed": 0.2}
+
+
+@pytest.mark.parametrize("seed", range(8))
+def test_limits_hold_on_random_programs(tmp_path: Path, seed: int) -> None:
+    """Path speed <= F (and max_feed, rapid feed), tangential acceleration and jerk within the path limits; every
+    axis's acceleration and jerk (finite differences of the positions at the period) within the axis limits;
+    the program ends at rest on its last point."""
+    rng = np.random.default_rng(seed)
+    text, feeds = random_program(rng)
+    override = float(rng.choice([0.6, 1.0, 1.4]))
+    p = LIMIT_PARAMS
+    data = driver(text, tmp_path, {**p, "method": int(rng.integers(1, 5))}, override=override)
+    T = 1e-3
+    f_line = np.array([feeds[int(line) - 1] for line in data["line"]]) / 60000.0
+    rapid = f_line == 0.0
+    cap = np.where(rapid, p["rapid_feed"], np.minimum(f_line * override, p["max_feed"]))
+    assert np.all(data["feed"] <= cap * (1 + 1e-9) + 1e-12)
+    assert np.max(np.abs(data["path_acceleration"])) <= p["acceleration"] * (1 + 1e-9)
+    jerk = np.diff(data["path_acceleration"]) / T
+    assert np.max(np.abs(jerk)) <= p["jerk"] * (1 + 1e-6)
+    pos = np.column_stack([np.concatenate([[0.0], data[a]]) for a in "xyz"])  # starts at rest at the origin
+    velocity = np.diff(pos, axis=0) / T
+    acceleration = np.diff(velocity, axis=0) / T
+    axis_jerk = np.diff(acceleration, axis=0) / T
+    for i, a in enumerate("xyz"):
+        assert np.max(np.abs(acceleration[:, i])) <= p[f"axis_acceleration_{a}"] * 1.02, (a, np.max(np.abs(acceleration[:, i])))
+        assert np.max(np.abs(axis_jerk[:, i])) <= p[f"axis_jerk_{a}"] * 1.05, (a, np.max(np.abs(axis_jerk[:, i])))
+    interp = ip.Interpolator(text, p)
+    last = interp.program.moves[-1].end
+    assert (data["x"][-1], data["y"][-1], data["z"][-1]) == last and data["feed"][-1] == 0.0
+
+
+def test_centripetal_acceleration_and_chord_error_hold_on_arcs(tmp_path: Path) -> None:
+    """Small and large arcs at a feed too high for them: v^2 / r <= the centripetal limit, chord error <= limit."""
+    text = "G21 G90 G1 X0 Y0 F12000\nG3 X2 Y0 I1 J0\nG3 X60 Y0 I29 J0\nG2 X60.4 Y0 R0.2\nM30\n"
+    p = {"centripetal_acceleration": 0.5, "chord_error": 1e-6, "max_feed": 0.2}
+    data = driver(text, tmp_path, p)
+    radius = {2: 1e-3, 3: 29e-3, 4: 0.2e-3}
+    for line, r in radius.items():
+        v = data["feed"][data["line"] == line]
+        assert np.max(v * v / r) <= 0.5 * (1 + 1e-9), line
+        step = v * 1e-3
+        sagitta = r - np.sqrt(np.maximum(r * r - step * step / 4, 0.0))
+        assert np.max(sagitta) <= 1e-6, (line, np.max(sagitta))
+
+
+# ---- the end of the program ----
+
+
+@pytest.mark.parametrize("method", [1, 2, 3, 4])
+def test_program_ends_at_rest_exactly_on_its_last_point(tmp_path: Path, method: int) -> None:
+    text = circle_program(5.0, 3000).replace("M30", "G1 X30 Y7 F3000\nG6.2 P2 K0 X30 Y7 F2000\nK0 X35 Y12 R3\n"
+                                                    "K0 X40 Y7\nK1\nK1\nK1\nM30")
+    rows, slave = run_fmu(text, tmp_path, {"method": method})
+    slave.unload()
+    assert col(rows, "finished")[-1] == 1.0 and not np.any(col(rows, "finished")[:-1])
+    assert np.array_equal(positions(rows)[-1], [0.04, 0.007, 0.0])
+    assert col(rows, "feed")[-1] == 0.0 and col(rows, "path_acceleration")[-1] == 0.0
+    feed = col(rows, "feed")
+    assert np.all(np.diff(feed[-40:]) <= 0.0) and feed[-2] < 1e-4  # decelerating into the end, no abrupt stop
+    rows_after, slave = run_fmu(text, tmp_path, {"method": method}, steps=len(rows) + 50)
+    slave.unload()
+    assert np.all(rows_after[len(rows) - 1:] == rows_after[-1])  # stays there
+
+
+# ---- feed override ----
+
+
+def test_feed_override_scales_the_feed_and_feed_hold_stops(tmp_path: Path) -> None:
+    text = "G21 G90 G1 X200 F3000\nM30\n"
+    rows, slave = run_fmu(text, tmp_path, overrides={0: 1.0, 600: 1.5, 1200: 0.5, 1800: 0.0, 2400: 1.0})
+    slave.unload()
+    feed = col(rows, "feed")
+    assert feed[590] == pytest.approx(0.05)
+    assert feed[1190] == pytest.approx(0.075)
+    assert feed[1790] == pytest.approx(0.025)
+    assert feed[2390] == 0.0  # feed hold: stopped
+    x = col(rows, "x")
+    assert x[2000] == x[2390]
+    assert col(rows, "finished")[-1] == 1.0 and x[-1] == 0.2
+    assert np.max(np.abs(col(rows, "path_acceleration"))) <= 1.0 * (1 + 1e-9)
+
+
+def test_override_changes_are_applied_at_the_next_zero_acceleration(tmp_path: Path) -> None:
+    """A change during an acceleration phase waits for it to end: the acceleration never jumps."""
+    text = "G21 G90 G1 X100 F6000\nM30\n"
+    rows, slave = run_fmu(text, tmp_path, overrides={20: 0.3, 60: 1.5})
+    slave.unload()
+    a = col(rows, "path_acceleration")
+    assert np.max(np.abs(np.diff(a))) / 1e-3 <= 100.0 * (1 + 1e-9)
+
+
+# ---- other outputs ----
+
+
+def test_offsets_spindle_line_numbers_and_rapid(tmp_path: Path) -> None:
+    text = ("G21 G90 G54\nS1200 M3\nG0 X10 Y0\nG1 X20 F3000\nG10 L2 P3 X100 Y50 Z-5\nG56\nM4 S600\nG1 X5 Y5\n"
+            "M5\nG0 Z10\nM30\n")
+    params = {"g54_x": 0.001, "g54_y": 0.002, "g54_z": 0.003}
+    rows, slave = run_fmu(text, tmp_path, params)
+    slave.unload()
+    line = col(rows, "line_number")
+    p, prog = positions(rows), rows[:, [OUTPUTS.index(f"{a}_program") for a in "xyz"]]
+    g54, g56 = np.array([0.001, 0.002, 0.003]), np.array([0.1, 0.05, -0.005])
+    assert np.allclose(p[line == 4] - prog[line == 4], g54, atol=1e-15)
+    assert np.allclose(p[line == 8] - prog[line == 8], g56, atol=1e-15)
+    assert np.allclose(p[line == 8][-1], [0.105, 0.055, 0.0], atol=1e-15)  # X5 Y5 in G56, Z untouched
+    rpm = 2 * math.pi / 60
+    assert np.allclose(col(rows, "spindle_speed")[line == 3], 1200 * rpm)
+    assert np.allclose(col(rows, "spindle_speed")[line == 8], -600 * rpm)
+    assert np.all(col(rows, "spindle_on")[line == 8] == 1) and np.all(col(rows, "spindle_on")[line == 10] == 0)
+    assert set(line) == {3, 4, 8, 10, 11}  # motion lines, then the program end line when finished
+    assert np.all(col(rows, "rapid")[line == 10] == 1) and np.all(col(rows, "rapid")[line == 8] == 0)
+    v = rows[:, [OUTPUTS.index(f"feed_velocity_{a}") for a in "xyz"]]
+    assert_close(np.linalg.norm(v, axis=1), col(rows, "feed"), rtol=1e-12)
+
+
+def test_missing_program_file_fails_initialization(tmp_path: Path) -> None:
+    with Slave(fmu_path(3)) as slave:
+        slave.instantiate()
+        slave.enter_initialization()
+        slave.fmu.setString([slave.vr["program"]], [str(tmp_path / "nowhere.nc")])
+        with pytest.raises(Exception):
+            slave.exit_initialization()
+        assert slave.last_error().startswith("exitInitializationMode: parameter 'program': cannot open part "
+                                             f"program '{tmp_path / 'nowhere.nc'}'")
+
+
+def test_program_is_a_fixed_string_parameter(tmp_path: Path) -> None:
+    rows, slave = run_fmu("G1 X1 F600\n", tmp_path, steps=3)
+    with pytest.raises(Exception):
+        slave.fmu.setString([slave.vr["program"]], ["other.nc"])
+    assert "cannot be set in state" in slave.last_error()
+    slave.unload()

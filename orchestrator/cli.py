@@ -1,4 +1,4 @@
-"""Command line: ``python -m orchestrator run SCENARIO [--fmu-dir DIR] [--out DIR] [--no-progress]``.
+"""Command line: ``python -m orchestrator run SCENARIO [--fmu-dir DIR] [--out DIR] [--no-progress] [--path P]``.
 
 Exit codes: 0 completed, 1 simulation failed, 2 invalid scenario or recorded data,
 130 interrupted (Ctrl-C).
@@ -10,6 +10,7 @@ import os
 import sys
 from pathlib import Path
 
+from orchestrator.fastpath import FastPathUnavailable
 from orchestrator.master import RunResult, SimulationError, run
 from orchestrator.recorded import RecordedDataError
 from orchestrator.report import Report, write_report
@@ -31,13 +32,17 @@ def _parser() -> argparse.ArgumentParser:
     p.add_argument("--out", type=Path, default=Path("runs"),
                    help="results go to OUT/<scenario name>/ (default: runs)")
     p.add_argument("--no-progress", action="store_true", help="no progress bar")
+    p.add_argument("--path", choices=("auto", "fast", "python"), default="auto",
+                   help="stepping loop: fast (compiled), python (reference), or auto (fast when its "
+                        "library is found and the scenario is supported; default)")
     return parser
 
 
 def _summary(result: RunResult, report: Report | None) -> str:
     lines = [f"{result.status}: {result.steps} steps to t = {result.end_time:g} s "
              f"({result.fmu_steps} FMU steps) in {result.wall_time:.3g} s, "
-             f"{result.steps_per_second:,.0f} steps/s; {result.rows} rows"]
+             f"{result.steps_per_second:,.0f} steps/s; {result.rows} rows; "
+             + ("fast path" if result.stepping == "fast" else f"python path ({result.stepping_reason})")]
     for c in report.comparisons if report else ():
         s = 1.0 if c.unit == c.display_unit else conversion_factor(c.unit, c.display_unit)
         rel = f"{100 * c.relative_rms:.1f} % of RMS recorded" if c.relative_rms is not None else "n/a"
@@ -58,7 +63,10 @@ def main(argv: list[str] | None = None) -> int:
         print(f"error: {exc}", file=sys.stderr)
         return 2
     try:
-        result = run(scenario, args.out, progress=not args.no_progress)
+        result = run(scenario, args.out, progress=not args.no_progress, stepping=args.path)
+    except FastPathUnavailable as exc:
+        print(f"error: {exc}", file=sys.stderr)
+        return 2
     except SimulationError as exc:
         print(f"error: {exc}; results so far in {args.out / scenario.name}", file=sys.stderr)
         return 1

@@ -35,9 +35,19 @@ Semantics of :func:`run` (``base`` = the scenario's base step, ``t_k = start + k
   ``interrupted``; a second Ctrl-C raises ``KeyboardInterrupt`` at once (rows so far
   are still written). An FMI 3 FMU asking to terminate ends the run as
   ``terminated: ...``.
+
+Two implementations of this loop give bit-identical results (same FMI calls in the same order,
+same arithmetic): the Python loop below, the reference, and the compiled fast path
+(:mod:`orchestrator.fastpath`, the C library in ``fmus/stepper/``), which runs chunks of ticks
+without returning to Python. ``run(stepping="auto")`` takes the fast path when its library is found
+and the scenario is supported, else the Python path; the choice and its reason are in
+:class:`RunResult` and ``run.json``. On the fast path Ctrl-C ends the run after the current chunk
+(chunks last about 0.1 s) instead of the current tick; ``should_stop`` is still asked after
+every output row and stops after that tick, as on the Python path.
 """
 from __future__ import annotations
 
+import copy
 import ctypes
 import logging
 import math
@@ -47,6 +57,7 @@ import threading
 import time
 from collections import deque
 from collections.abc import Callable, Sequence
+from concurrent.futures import Future, ThreadPoolExecutor
 from dataclasses import dataclass
 from functools import partial
 from pathlib import Path
@@ -61,6 +72,7 @@ from fmpy.fmi3 import FMU3Slave, fmi3Boolean, fmi3Float64, fmi3ValueReference
 from fmpy.logging import addLoggerProxy
 from tqdm import tqdm
 
+from orchestrator import fastpath
 from orchestrator.results import RunWriter, sha256_of
 from orchestrator.scenario import FmuInstance, Scenario
 
@@ -98,6 +110,8 @@ class RunResult:
     wall_time: float  # setup, stepping and writing
     loop_wall_time: float  # stepping only
     steps_per_second: float  # steps / loop_wall_time
+    stepping: str = "python"  # "fast" (compiled loop) or "python"
+    stepping_reason: str = ""  # why the Python path was used ("" on the fast path)
 
 
 class _Slave:
@@ -154,6 +168,8 @@ class _Slave:
         self.out_index = {n: ("real", i) for i, n in enumerate(real_out)}
         self.out_index.update({n: ("bool", i) for i, n in enumerate(bool_out)})
 
+        self.vr_real_in, self.vr_bool_in = vrs(real_in), vrs(bool_in)
+        self.vr_real_out, self.vr_bool_out = vrs(real_out), vrs(bool_out)
         self.real_in, self.bool_in = (real_t * len(real_in))(), (bool_t * len(bool_in))()
         self.real_out, self.bool_out = (real_t * len(real_out))(), (bool_t * len(bool_out))()
         self.real_prev, self.bool_prev = (real_t * len(real_out))(), (bool_t * len(bool_out))()
@@ -170,12 +186,12 @@ class _Slave:
                                        fmu.fmi2GetBoolean))
         extra = (lambda n: (n,)) if fmi3 else (lambda n: ())  # FMI 3 repeats the value count
         calls_in, calls_out = [], []
-        for fn, names, buf, calls in ((set_r, real_in, self.real_in, calls_in),
-                                      (set_b, bool_in, self.bool_in, calls_in),
-                                      (get_r, real_out, self.real_out, calls_out),
-                                      (get_b, bool_out, self.bool_out, calls_out)):
-            if names:
-                calls.append(partial(fn, c, vrs(names), len(names), buf, *extra(len(names))))
+        for fn, vr, buf, calls in ((set_r, self.vr_real_in, self.real_in, calls_in),
+                                   (set_b, self.vr_bool_in, self.bool_in, calls_in),
+                                   (get_r, self.vr_real_out, self.real_out, calls_out),
+                                   (get_b, self.vr_bool_out, self.bool_out, calls_out)):
+            if len(vr):
+                calls.append(partial(fn, c, vr, len(vr), buf, *extra(len(vr))))
         self._set_calls, self._get_calls = tuple(calls_in), tuple(calls_out)
         if fmi3:
             flags = [ctypes.c_bool() for _ in range(3)] + [fmi3Float64()]
@@ -222,15 +238,23 @@ class _Slave:
         ctypes.memmove(self.real_prev, self.real_out, ctypes.sizeof(self.real_out))
         ctypes.memmove(self.bool_prev, self.bool_out, ctypes.sizeof(self.bool_out))
 
+    def sample(self, scenario: Scenario, times: np.ndarray) -> tuple[np.ndarray | None, np.ndarray | None]:
+        """This instance's recorded inputs at ``times``: (reals, booleans), one row per time."""
+        rec = scenario.recorded
+        real = boolean = None
+        if self.rec_real:
+            real = np.column_stack([rec.at(i.channel, times, i.interpolation) * i.factor for i in self.rec_real])
+        if self.rec_bool:
+            boolean = np.column_stack([rec.at(i.channel, times, "hold") for i in self.rec_bool])
+        return real, boolean
+
     def load_block(self, scenario: Scenario, times: np.ndarray) -> None:
         """Sample this instance's recorded inputs at ``times`` (one row per tick)."""
-        rec = scenario.recorded
-        if self.rec_real:
-            cols = [rec.at(i.channel, times, i.interpolation) * i.factor for i in self.rec_real]
-            self.rec_real_rows = np.column_stack(cols).tolist()
-        if self.rec_bool:
-            cols = [rec.at(i.channel, times, "hold") for i in self.rec_bool]
-            self.rec_bool_rows = np.column_stack(cols).tolist()
+        real, boolean = self.sample(scenario, times)
+        if real is not None:
+            self.rec_real_rows = real.tolist()
+        if boolean is not None:
+            self.rec_bool_rows = boolean.tolist()
 
     def free(self) -> None:
         try:
@@ -278,6 +302,61 @@ def _run_info(scenario: Scenario) -> dict[str, Any]:
         "start_time": scenario.start_time, "stop_time": scenario.stop_time,
         "output_interval": scenario.output_interval, "base_step": scenario.base_step,
     }
+
+
+class _Writer(RunWriter):
+    """RunWriter with, for the fast path, block appends (the same buffer and flush rules as append)
+    and chunk files written by a worker thread (:meth:`in_background`): Parquet encoding and fsync
+    then overlap the C stepping, which runs without the GIL. One chunk is in flight at a time, so
+    chunks still reach the disk complete and in order; ``rows_written`` counts rows on disk; an
+    error of the worker is raised by the next flush or by finish."""
+
+    _pool: ThreadPoolExecutor | None = None
+    _in_flight: Future | None = None
+    _sink: RunWriter | None = None
+    _spare: np.ndarray | None = None
+
+    def in_background(self) -> None:
+        self._pool = ThreadPoolExecutor(1, thread_name_prefix="chunk-writer")
+        self._spare = np.empty_like(self._buffer)
+
+    def append_rows(self, rows: np.ndarray) -> None:
+        done = 0
+        while done < len(rows):
+            n = min(len(rows) - done, len(self._buffer) - self._fill)
+            self._buffer[self._fill:self._fill + n] = rows[done:done + n]
+            self._fill += n
+            done += n
+            if self._fill == len(self._buffer) or time.monotonic() - self._last_flush >= self._flush_seconds:
+                self.flush()
+
+    def flush(self) -> None:
+        if self._pool is None:
+            super().flush()
+            return
+        self._last_flush = time.monotonic()
+        if self._fill == 0:
+            return
+        self.wait()  # the previous chunk is on disk and its buffer free
+        sink = copy.copy(self)  # RunWriter.flush on a copy that owns the full buffer
+        self._buffer, self._spare, self._fill = self._spare, self._buffer, 0
+        self._sink, self._in_flight = sink, self._pool.submit(RunWriter.flush, sink)
+
+    def wait(self) -> None:
+        if self._in_flight is not None:
+            future, self._in_flight = self._in_flight, None
+            future.result()
+            self.chunks, self.rows_written = self._sink.chunks, self._sink.rows_written
+
+    def finish(self, status: str, **extra: Any) -> None:
+        if self._pool is not None:
+            try:
+                self.flush()
+                self.wait()
+            finally:
+                self._pool.shutdown()
+                self._pool = None
+        super().finish(status, **extra)
 
 
 class _StopFlag:
@@ -401,6 +480,48 @@ class _Run:
         if stop.set and self.status == "completed":
             self.status = "interrupted"
 
+    def fast_loop(self, stop: _StopFlag, bar: tqdm, should_stop: Callable[[float], bool] | None,
+                  library: ctypes.CDLL) -> None:
+        """The loop above in C, a chunk of ticks per call (see orchestrator.fastpath)."""
+        scenario, n_ticks = self.scenario, self.n_ticks
+        record = []
+        for r in scenario.outputs:
+            s = self.slaves[r.instance]
+            kind, j = s.out_index[r.variable]
+            record.append((s.real_out if kind == "real" else s.bool_out, j))
+        stepper = fastpath.Stepper(library, list(self.slaves.values()), scenario, n_ticks, record, should_stop)
+        stepper.stop_requested = lambda: stop.set
+        self.writer.append([self.start] + [buf[j] for buf, j in record])
+        self.writer.in_background()
+        tick, chunk = 0, fastpath.FIRST_CHUNK_TICKS
+        try:
+            while tick < n_ticks and not stop.set:
+                self.t = self.grid(tick)
+                t0 = time.perf_counter()
+                out = stepper.run_chunk(tick, min(tick + chunk, n_ticks))
+                elapsed = time.perf_counter() - t0
+                tick = out.tick
+                self.writer.append_rows(out.rows)
+                bar.update(tick - bar.n)
+                if stepper.pending is not None:
+                    raise stepper.pending
+                if out.code == fastpath.FAILED:
+                    self.current, self.t = out.instance, out.time
+                    raise FMICallException(function=out.function, status=out.status)
+                if out.code == fastpath.TERMINATED:
+                    self.status = f"terminated: instance {out.instance!r} asked to terminate at t = {out.time!r} s"
+                    stop.set = True
+                elif out.code == fastpath.STOPPED:
+                    stop.set = True
+                if elapsed > 0:  # aim at CHUNK_SECONDS per chunk, changing by at most 4x at a time
+                    chunk = round(min(max(chunk * fastpath.CHUNK_SECONDS / elapsed, chunk / 4), chunk * 4))
+                chunk = max(1, min(chunk, stepper.max_ticks()))
+        finally:
+            self.tick = tick
+            bar.update(tick - bar.n)
+        if stop.set and self.status == "completed":
+            self.status = "interrupted"
+
     def close(self) -> None:
         for s in self.slaves.values():
             try:
@@ -413,16 +534,23 @@ class _Run:
 
 def run(scenario: Scenario, out_dir: str | Path, *, progress: bool = True,
         should_stop: Callable[[float], bool] | None = None, flush_rows: int = 10_000,
-        flush_seconds: float = 1.0) -> RunResult:
+        flush_seconds: float = 1.0, stepping: str = "auto") -> RunResult:
     """Co-simulate ``scenario``, writing results to ``out_dir/<scenario name>/``.
 
     ``should_stop(t)`` is asked after each output row; True ends the run like Ctrl-C.
+    ``stepping``: "auto" (the fast path when available, else Python), "fast" (raises
+    :class:`orchestrator.fastpath.FastPathUnavailable`, before writing anything, when it cannot
+    run) or "python".
     Raises :class:`SimulationError` when an FMI call fails (results so far are kept).
     """
+    choice = fastpath.choose(scenario, stepping)
     columns = ["time"] + [str(r) for r in scenario.outputs]
     bools = [str(r) for r in scenario.outputs if scenario.variable(r).type == "bool"]
-    writer = RunWriter(Path(out_dir) / scenario.name, columns, bools, _run_info(scenario),
-                       flush_rows=flush_rows, flush_seconds=flush_seconds)
+    info = {**_run_info(scenario), "stepping": {
+        "path": choice.path, "library": None if choice.library is None else str(choice.library),
+        "reason": choice.reason}}
+    writer = _Writer(Path(out_dir) / scenario.name, columns, bools, info,
+                     flush_rows=flush_rows, flush_seconds=flush_seconds)
     state = _Run(scenario, writer)
     t0_wall = time.perf_counter()
     wall = 0.0
@@ -433,7 +561,10 @@ def run(scenario: Scenario, out_dir: str | Path, *, progress: bool = True,
                                            disable=not progress, desc=scenario.name) as bar:
                 t0_loop = time.perf_counter()
                 try:
-                    state.loop(stop, bar, should_stop)
+                    if choice.path == "fast":
+                        state.fast_loop(stop, bar, should_stop, fastpath.load_library(choice.library))
+                    else:
+                        state.loop(stop, bar, should_stop)
                 finally:
                     state.loop_wall = time.perf_counter() - t0_loop
         except FMICallException as exc:
@@ -454,4 +585,4 @@ def run(scenario: Scenario, out_dir: str | Path, *, progress: bool = True,
         finally:
             state.close()
     return RunResult(state.status, writer.run_dir, state.tick, fmu_steps, writer.rows_written,
-                     state.grid(state.tick), wall, state.loop_wall, rate)
+                     state.grid(state.tick), wall, state.loop_wall, rate, choice.path, choice.reason)

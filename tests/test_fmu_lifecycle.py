@@ -2,6 +2,7 @@
 must not grow with the number of cycles (leaks; valgrind in ctest covers the C-level detail)."""
 from __future__ import annotations
 
+import ctypes
 import gc
 import os
 from pathlib import Path
@@ -14,12 +15,18 @@ from fmu_helpers import (OK, WARNING, Slave, all_fmus, fmu_id, model_of, numeric
 
 CYCLES = 2000
 WARM_UP = 200
-MAX_GROWTH = 1 << 20  # bytes; a leaked instance per cycle adds ~2 MB over 1,800 cycles, 4 snapshots ~2.5 MB
+MAX_GROWTH = 1 << 20  # bytes per 900 cycles; a leaked instance per cycle adds ~1 MB, 4 snapshots ~1.2 MB
 SNAPSHOTS = 4  # FMU states per cycle: a leaked snapshot (a few hundred bytes) must add up past MAX_GROWTH
 PAGE_SIZE = os.sysconf("SC_PAGE_SIZE")
 
 
+_LIBC = ctypes.CDLL(None)
+
+
 def resident_bytes() -> int:
+    """RSS after giving free heap memory back to the system (glibc malloc_trim): what remains is in use."""
+    gc.collect()
+    _LIBC.malloc_trim(0)
     with open("/proc/self/statm") as statm:
         return int(statm.read().split()[1]) * PAGE_SIZE
 
@@ -59,11 +66,17 @@ def test_repeated_lifecycles_do_not_grow_memory(fmu: Path) -> None:
         for _ in range(WARM_UP):
             one_cycle(slave, point, outputs, expected)
         gc.collect()
-        after_warm_up = resident_bytes()
-        for _ in range(CYCLES - WARM_UP):
-            one_cycle(slave, point, outputs, expected)
-        gc.collect()
-        growth = resident_bytes() - after_warm_up
+        marks = [resident_bytes()]
+        half = (CYCLES - WARM_UP) // 2
+        for _ in range(2):
+            for _ in range(half):
+                one_cycle(slave, point, outputs, expected)
+            gc.collect()
+            marks.append(resident_bytes())
     finally:
         slave.unload()
-    assert growth < MAX_GROWTH, f"{fmu.name}: RSS grew by {growth / 1024:.0f} KiB over {CYCLES - WARM_UP} cycles"
+    # A leak grows memory in both halves; the allocator settling (arenas, a heap that reached a new
+    # size, other processes' pressure on a shared machine) shows once. Valgrind in ctest is the exact check.
+    growth = [b - a for a, b in zip(marks, marks[1:])]
+    assert min(growth) < MAX_GROWTH, (f"{fmu.name}: RSS grew by {growth[0] / 1024:.0f} KiB and "
+                                      f"{growth[1] / 1024:.0f} KiB over two runs of {half} cycles")

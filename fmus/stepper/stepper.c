@@ -1,0 +1,217 @@
+/* The compiled stepping loop of the orchestrator's fast path; see stepper.h and the semantics in
+ * orchestrator/master.py. Every operation mirrors the Python loop there, in the same order, so
+ * both paths produce bit-identical results: the same FMI calls with the same arguments, inputs
+ * computed as source * factor (one IEEE multiplication, as in Python), times as
+ * start + (double)k * base.
+ */
+#include "stepper.h"
+
+#include <string.h>
+
+int stp_abi_version(void) {
+    return STP_ABI_VERSION;
+}
+
+size_t stp_struct_size(int which) {
+    switch (which) {
+    case 0: return sizeof(stp_link);
+    case 1: return sizeof(stp_column);
+    case 2: return sizeof(stp_instance);
+    case 3: return sizeof(stp_plan);
+    case 4: return sizeof(stp_outcome);
+    default: return 0;
+    }
+}
+
+static size_t bool_size(const stp_instance *s) {
+    return s->fmi_version == 3 ? sizeof(fmi3Boolean) : sizeof(fmi2Boolean);
+}
+
+/* As Python reads a ctypes element: c_bool gives True/False (1/0), c_int the integer itself. */
+static int read_bool(const void *p, int32_t kind) {
+    return kind == STP_BOOL_FMI3 ? (*(const fmi3Boolean *)p ? 1 : 0) : *(const fmi2Boolean *)p;
+}
+
+static double read_value(const void *p, int32_t kind) {
+    return kind == STP_REAL ? *(const double *)p : (double)read_bool(p, kind);
+}
+
+/* As Python stores into a ctypes element: c_bool(v) is v != 0, c_int(v) is v. */
+static void write_bool(stp_instance *s, int64_t position, int value) {
+    if (s->fmi_version == 3) {
+        ((fmi3Boolean *)s->bool_in)[position] = value != 0;
+    } else {
+        ((fmi2Boolean *)s->bool_in)[position] = value;
+    }
+}
+
+/* Inputs of one step: recorded row, then links (master.py's _feed). */
+static void feed(stp_instance *s, int64_t row) {
+    int64_t i;
+    if (s->n_rec_real > 0) {
+        memcpy(s->real_in, s->rec_real + row * s->n_rec_real, (size_t)s->n_rec_real * sizeof(double));
+    }
+    if (s->n_rec_bool > 0) {
+        const size_t size = bool_size(s);
+        memcpy(s->bool_in, (const char *)s->rec_bool + (size_t)row * (size_t)s->n_rec_bool * size,
+               (size_t)s->n_rec_bool * size);
+    }
+    for (i = 0; i < s->n_real_links; ++i) {
+        const stp_link *l = &s->real_links[i];
+        s->real_in[l->position] = *(const double *)l->source * l->factor;
+    }
+    for (i = 0; i < s->n_bool_links; ++i) {
+        const stp_link *l = &s->bool_links[i];
+        write_bool(s, l->position, read_bool(l->source, l->source_kind));
+    }
+}
+
+/* FMI status > Warning: fmpy raises FMICallException, so the Python path fails there too. */
+static int failed(int status, stp_outcome *o, int function) {
+    if (status > 1) {
+        o->code = STP_FAILED;
+        o->function = function;
+        o->status = status;
+        return 1;
+    }
+    return 0;
+}
+
+static int set_inputs(stp_instance *s, stp_outcome *o) {
+    if (s->fmi_version == 3) {
+        if (s->n_real_in > 0 &&
+            failed((int)s->fmi3_set_float64(s->component, s->vr_real_in, (size_t)s->n_real_in, s->real_in,
+                                             (size_t)s->n_real_in), o, STP_FN_SET_REAL)) {
+            return 1;
+        }
+        return s->n_bool_in > 0 &&
+               failed((int)s->fmi3_set_boolean(s->component, s->vr_bool_in, (size_t)s->n_bool_in,
+                                               (const fmi3Boolean *)s->bool_in, (size_t)s->n_bool_in),
+                      o, STP_FN_SET_BOOLEAN);
+    }
+    if (s->n_real_in > 0 &&
+        failed((int)s->fmi2_set_real(s->component, s->vr_real_in, (size_t)s->n_real_in, s->real_in), o,
+               STP_FN_SET_REAL)) {
+        return 1;
+    }
+    return s->n_bool_in > 0 &&
+           failed((int)s->fmi2_set_boolean(s->component, s->vr_bool_in, (size_t)s->n_bool_in,
+                                           (const fmi2Boolean *)s->bool_in), o, STP_FN_SET_BOOLEAN);
+}
+
+static int get_outputs(stp_instance *s, stp_outcome *o) {
+    if (s->fmi_version == 3) {
+        if (s->n_real_out > 0 &&
+            failed((int)s->fmi3_get_float64(s->component, s->vr_real_out, (size_t)s->n_real_out, s->real_out,
+                                             (size_t)s->n_real_out), o, STP_FN_GET_REAL)) {
+            return 1;
+        }
+        return s->n_bool_out > 0 &&
+               failed((int)s->fmi3_get_boolean(s->component, s->vr_bool_out, (size_t)s->n_bool_out,
+                                               (fmi3Boolean *)s->bool_out, (size_t)s->n_bool_out),
+                      o, STP_FN_GET_BOOLEAN);
+    }
+    if (s->n_real_out > 0 &&
+        failed((int)s->fmi2_get_real(s->component, s->vr_real_out, (size_t)s->n_real_out, s->real_out), o,
+               STP_FN_GET_REAL)) {
+        return 1;
+    }
+    return s->n_bool_out > 0 &&
+           failed((int)s->fmi2_get_boolean(s->component, s->vr_bool_out, (size_t)s->n_bool_out,
+                                           (fmi2Boolean *)s->bool_out), o, STP_FN_GET_BOOLEAN);
+}
+
+/* doStep; *terminate is set when an FMI 3 instance asks to end the simulation. */
+static int do_step(stp_instance *s, double t, double h, int *terminate, stp_outcome *o) {
+    if (s->fmi_version == 3) {
+        fmi3Boolean event_needed = false, terminate_flag = false, early_return = false;
+        fmi3Float64 last_successful = 0.0;
+        if (failed((int)s->fmi3_do_step(s->component, t, h, true, &event_needed, &terminate_flag, &early_return,
+                                        &last_successful), o, STP_FN_DO_STEP)) {
+            return 1;
+        }
+        *terminate = terminate_flag ? 1 : 0;
+        return 0;
+    }
+    *terminate = 0;
+    return failed((int)s->fmi2_do_step(s->component, t, h, fmi2True), o, STP_FN_DO_STEP);
+}
+
+void stp_run(stp_plan *plan, int64_t first_tick, int64_t last_tick, double *rows, stp_outcome *o) {
+    const int64_t n_instances = plan->n_instances, n_ticks = plan->n_ticks;
+    const int64_t tpo = plan->ticks_per_output, width = 1 + plan->n_columns;
+    int64_t k = first_tick, n_rows = 0, i;
+    int stop = 0;
+
+    o->code = STP_DONE;
+    o->instance = -1;
+    o->function = STP_FN_NONE;
+    o->status = 0;
+    o->time = 0.0;
+    while (k < last_tick) {
+        const double t = plan->start + (double)k * plan->base;
+        for (i = 0; i < n_instances; ++i) {
+            stp_instance *s = &plan->instances[i];
+            if (s->snapshot) {
+                memcpy(s->real_prev, s->real_out, (size_t)s->n_real_out * sizeof(double));
+                memcpy(s->bool_prev, s->bool_out, (size_t)s->n_bool_out * bool_size(s));
+            }
+        }
+        for (i = 0; i < n_instances; ++i) {
+            stp_instance *s = &plan->instances[i];
+            const int64_t m = s->ticks_per_step;
+            int64_t next;
+            int terminate = 0;
+            if (k % m != 0) {
+                continue;
+            }
+            feed(s, k / m - (first_tick + m - 1) / m);
+            next = k + m < n_ticks ? k + m : n_ticks;
+            if (set_inputs(s, o) ||
+                do_step(s, t, (plan->start + (double)next * plan->base) - t, &terminate, o) ||
+                (s->get_after_step && get_outputs(s, o))) {
+                o->instance = (int32_t)i;
+                o->time = t;
+                o->tick = k;
+                o->rows = n_rows;
+                return;
+            }
+            if (terminate) {
+                o->code = STP_TERMINATED;
+                o->instance = (int32_t)i;
+                o->time = t;
+            }
+        }
+        ++k;
+        if (k % tpo == 0) {
+            const double t_row = plan->start + (double)k * plan->base;
+            double *row = rows + n_rows * width;
+            for (i = 0; i < n_instances; ++i) {
+                stp_instance *s = &plan->instances[i];
+                if (s->get_at_rows && get_outputs(s, o)) {
+                    o->instance = (int32_t)i;
+                    o->time = t_row;
+                    o->tick = k;
+                    o->rows = n_rows;
+                    return;
+                }
+            }
+            row[0] = t_row;
+            for (i = 0; i < plan->n_columns; ++i) {
+                row[1 + i] = read_value(plan->columns[i].source, plan->columns[i].kind);
+            }
+            ++n_rows;
+            if (plan->should_stop != NULL && plan->should_stop(t_row)) {
+                stop = 1;
+            }
+        }
+        if (stop || o->code == STP_TERMINATED) {
+            break;
+        }
+    }
+    if (stop && o->code == STP_DONE) {
+        o->code = STP_STOPPED;
+    }
+    o->tick = k;
+    o->rows = n_rows;
+}

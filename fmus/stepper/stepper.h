@@ -1,0 +1,144 @@
+/* The compiled stepping loop of the orchestrator's fast path (orchestrator/fastpath.py).
+ *
+ * Python sets everything up with fmpy (extract, instantiate, parameters, initialization), then
+ * describes the co-simulation in the structures below: for each instance its FMI function
+ * pointers (taken from fmpy's loaded library) and component, its input and output buffers (the
+ * very ctypes arrays the Python path uses), its recorded-input samples for the current chunk and
+ * its links (connections); and the recorded columns. stp_run() then performs ticks
+ * [first_tick, last_tick) of the fixed grid exactly as orchestrator/master.py's Python loop does
+ * (same FMI calls in the same order, same arithmetic), writing one row per output interval.
+ *
+ * No global state: everything lives in the caller's structures. The library calls nothing but
+ * the FMI functions it is given and, when set, the should_stop callback.
+ */
+#ifndef MILLING_TWIN_STEPPER_H
+#define MILLING_TWIN_STEPPER_H
+
+#include <stddef.h>
+#include <stdint.h>
+
+#include "fmi2FunctionTypes.h"
+#include "fmi3FunctionTypes.h"
+
+#define STP_ABI_VERSION 1
+
+#if defined(__GNUC__)
+#define STP_EXPORT __attribute__((visibility("default")))
+#else
+#define STP_EXPORT
+#endif
+
+/* Element type of a buffer a link or column reads. */
+enum { STP_REAL = 0, STP_BOOL_FMI2 = 1, STP_BOOL_FMI3 = 2 };
+
+/* stp_outcome.code */
+enum {
+    STP_DONE = 0,       /* reached last_tick */
+    STP_STOPPED = 1,    /* should_stop returned nonzero after an output row: stopped after that tick */
+    STP_TERMINATED = 2, /* an FMI 3 instance set terminateSimulation: stopped after that tick */
+    STP_FAILED = 3      /* an FMI call returned Discard, Error or Fatal */
+};
+
+/* stp_outcome.function */
+enum { STP_FN_NONE = 0, STP_FN_SET_REAL, STP_FN_SET_BOOLEAN, STP_FN_DO_STEP, STP_FN_GET_REAL, STP_FN_GET_BOOLEAN };
+
+/* One connection into an instance's input buffer. */
+typedef struct {
+    const void *source; /* an element of the source's output buffer, or of its copy from the tick's start (delay) */
+    double factor;      /* reals: input = source * factor */
+    int32_t source_kind; /* STP_REAL, STP_BOOL_FMI2, STP_BOOL_FMI3 */
+    int32_t position;   /* index into the target's real_in or bool_in */
+} stp_link;
+
+/* One recorded column (after "time"). */
+typedef struct {
+    const void *source;
+    int32_t kind;
+    int32_t reserved;
+} stp_column;
+
+typedef struct {
+    void *component;
+    /* FMI 2 functions (fmi_version 2) ... */
+    fmi2SetRealTYPE *fmi2_set_real;
+    fmi2SetBooleanTYPE *fmi2_set_boolean;
+    fmi2GetRealTYPE *fmi2_get_real;
+    fmi2GetBooleanTYPE *fmi2_get_boolean;
+    fmi2DoStepTYPE *fmi2_do_step;
+    /* ... or FMI 3 functions (fmi_version 3) */
+    fmi3SetFloat64TYPE *fmi3_set_float64;
+    fmi3SetBooleanTYPE *fmi3_set_boolean;
+    fmi3GetFloat64TYPE *fmi3_get_float64;
+    fmi3GetBooleanTYPE *fmi3_get_boolean;
+    fmi3DoStepTYPE *fmi3_do_step;
+
+    /* Inputs, set before each step: real_in = [recorded reals..., linked reals...], likewise bool_in
+     * (fmi2Boolean or fmi3Boolean elements by fmi_version). */
+    const uint32_t *vr_real_in;
+    const uint32_t *vr_bool_in;
+    double *real_in;
+    void *bool_in;
+    /* Recorded samples for this chunk, one row per due step: row r holds the values at the r-th
+     * tick k in [first_tick, last_tick) with k % ticks_per_step == 0 (bool: the input's type). */
+    const double *rec_real;
+    const void *rec_bool;
+    const stp_link *real_links;
+    const stp_link *bool_links;
+
+    /* Outputs: what connections read and what is recorded; *_prev: copies at the tick's start. */
+    const uint32_t *vr_real_out;
+    const uint32_t *vr_bool_out;
+    double *real_out;
+    double *real_prev;
+    void *bool_out;
+    void *bool_prev;
+
+    int64_t n_real_in, n_bool_in;       /* totals, recorded included */
+    int64_t n_rec_real, n_rec_bool;     /* the first n_rec_* inputs come from rec_* */
+    int64_t n_real_links, n_bool_links;
+    int64_t n_real_out, n_bool_out;
+
+    int32_t fmi_version;      /* 2 or 3 */
+    int32_t ticks_per_step;   /* due at ticks k with k % ticks_per_step == 0 */
+    int32_t get_after_step;   /* outputs feed connections: read right after each step */
+    int32_t snapshot;         /* source of a delayed connection: copy outputs at each tick's start */
+    int32_t get_at_rows;      /* has outputs: read them at each output row */
+    int32_t reserved;
+} stp_instance;
+
+typedef int (*stp_should_stop)(double time);
+
+typedef struct {
+    double start;             /* t_k = start + k * base */
+    double base;
+    int64_t n_ticks;          /* N: the run ends at t_N */
+    int64_t ticks_per_output; /* a row after each tick k with (k + 1) % ticks_per_output == 0 */
+    int64_t n_instances;      /* in execution order */
+    int64_t n_columns;
+    stp_instance *instances;
+    const stp_column *columns;
+    stp_should_stop should_stop; /* NULL, or asked after each row: nonzero stops after that tick */
+} stp_plan;
+
+typedef struct {
+    int64_t tick;       /* ticks completed: the grid index reached */
+    int64_t rows;       /* rows written */
+    int32_t code;       /* STP_DONE ... STP_FAILED */
+    int32_t instance;   /* index of the failing or terminating instance, else -1 */
+    int32_t function;   /* STP_FN_* of the failing call */
+    int32_t status;     /* its FMI status */
+    double time;        /* master time of the failing call / start of the terminating step */
+} stp_outcome;
+
+/* STP_ABI_VERSION of the library. */
+STP_EXPORT int stp_abi_version(void);
+
+/* sizeof of stp_link (0), stp_column (1), stp_instance (2), stp_plan (3), stp_outcome (4); 0 otherwise. */
+STP_EXPORT size_t stp_struct_size(int which);
+
+/* Ticks [first_tick, last_tick) (last_tick <= plan->n_ticks). rows: room for one row of
+ * 1 + n_columns doubles (time first) per output row in that range. */
+STP_EXPORT void stp_run(stp_plan *plan, int64_t first_tick, int64_t last_tick, double *rows,
+                        stp_outcome *outcome);
+
+#endif

@@ -27,8 +27,12 @@ build: setup
 	cmake -S . -B $(BUILD) -DPython3_EXECUTABLE=$(VENV_PYTHON) -DCMAKE_BUILD_TYPE=RelWithDebInfo
 	cmake --build $(BUILD) -j $(JOBS)
 
+# simulate -> align -> calibrate -> re-simulate -> report on the bundled UMich run, then the calibrated
+# scenario (which applies the written parameter set by name) through the plain run command.
 demo: build
-	$(VENV_PYTHON) -m orchestrator run scenarios/umich_power.toml --fmu-dir $(BUILD)/fmus --out runs
+	$(VENV_PYTHON) -m orchestrator run scenarios/umich_power.toml --fmu-dir $(BUILD)/fmus --out runs --no-progress
+	$(VENV_PYTHON) -m orchestrator calibrate scenarios/calibration/umich_power.toml --fmu-dir $(BUILD)/fmus --out runs --no-progress
+	$(VENV_PYTHON) -m orchestrator run scenarios/calibration/umich_power_calibrated.toml --fmu-dir $(BUILD)/fmus --out runs --no-progress
 
 test: build $(VENV)/.installed-train
 	cd $(BUILD) && ctest --output-on-failure

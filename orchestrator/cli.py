@@ -1,4 +1,5 @@
-"""Command line: ``python -m orchestrator run SCENARIO [--fmu-dir DIR] [--out DIR] [--no-progress] [--path P]``.
+"""Command line: ``python -m orchestrator run SCENARIO [--fmu-dir DIR] [--out DIR] [--no-progress] [--path P]``
+and ``python -m orchestrator calibrate SPEC ...`` (:mod:`orchestrator.calibrate.cli`).
 
 Exit codes: 0 completed, 1 simulation failed, 2 invalid scenario or recorded data,
 130 interrupted (Ctrl-C).
@@ -10,6 +11,7 @@ import os
 import sys
 from pathlib import Path
 
+from orchestrator.calibrate import cli as calibrate_cli
 from orchestrator.fastpath import FastPathUnavailable
 from orchestrator.master import RunResult, SimulationError, run
 from orchestrator.recorded import RecordedDataError
@@ -35,6 +37,7 @@ def _parser() -> argparse.ArgumentParser:
     p.add_argument("--path", choices=("auto", "fast", "python"), default="auto",
                    help="stepping loop: fast (compiled), python (reference), or auto (fast when its "
                         "library is found and the scenario is supported; default)")
+    calibrate_cli.add_parser(sub)
     return parser
 
 
@@ -57,6 +60,8 @@ def _summary(result: RunResult, report: Report | None) -> str:
 
 def main(argv: list[str] | None = None) -> int:
     args = _parser().parse_args(argv)
+    if args.command == "calibrate":
+        return calibrate_cli.main(args)
     try:
         scenario = load_scenario(args.scenario, args.fmu_dir)
     except (ScenarioError, RecordedDataError, UnitError) as exc:

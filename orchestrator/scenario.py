@@ -13,6 +13,7 @@ Format (all times in seconds; paths are relative to the scenario file's folder):
     start_time = 0.0            # optional, default 0
     stop_time = 100.0           # optional if [recorded] is given: default its last time
     output_interval = 0.1       # outputs are recorded on this grid
+    parameter_sets = ["calibration/umich_power.params.toml"]   # optional, see below
 
     [fmus.power]                # instance "power"; instances are listed in file order
     fmu = "SpindlePower"        # <fmu_dir>/SpindlePower.fmu (fmi = 3) or
@@ -51,6 +52,19 @@ Format (all times in seconds; paths are relative to the scenario file's folder):
     simulated = "power.P_total"
     recorded = "spindle_power"
     unit = "kW"                 # optional display unit of the plot
+
+Parameter sets (``[scenario].parameter_sets``, and ``load_scenario(..., parameter_sets=...)``
+after those) are TOML files of parameter values by instance, applied in order after the
+instances' own ``parameters`` (a later value wins); ``orchestrator calibrate`` writes them::
+
+    description = "..."         # optional
+    [source]                    # optional, free-form provenance
+    [parameters.power]          # instance "power" of the scenario
+    c1 = 0.2531                 # checked like [fmus.power.parameters]: number (SI) or
+    P_idle = { value = 0.09, unit = "kW" }   # { value, unit }, causality, type, range
+
+An error in a set names the scenario key, the set file and its key, e.g.
+``x.toml: [scenario].parameter_sets[0]: p.toml: [parameters.power].c9: unknown variable ...``.
 
 Rules checked here: every reference names an existing instance, variable or channel
 (candidates are listed otherwise); parameters are ``parameter`` variables and lie within
@@ -276,10 +290,11 @@ def _load_fmu(ctx: _Ctx, name: str, table: dict, fmu_dir: Path) -> tuple[dict, P
 
 
 def _parameters(ctx: _Ctx, inst: str, table: Any, variables: Mapping[str, Variable], model: str,
-                causality: str = "parameter") -> dict:
-    """``[fmus.<inst>].parameters`` (or ``.inputs`` with causality "input"): values by name, SI."""
+                causality: str = "parameter", key: str | None = None) -> dict:
+    """``[fmus.<inst>].parameters`` (or ``.inputs`` with causality "input"): values by name, SI.
+    ``key``: the TOML key for messages when the table is not the scenario's own."""
     section = "parameters" if causality == "parameter" else "inputs"
-    key = f"[fmus.{inst}].{section}"
+    key = key or f"[fmus.{inst}].{section}"
     if not isinstance(table, dict):
         ctx.fail(key, f"expected a table, got {table!r}")
     known = [v.name for v in variables.values() if v.causality == causality]
@@ -338,6 +353,36 @@ def _base_step(ctx: _Ctx, steps: dict[str, float]) -> tuple[float, dict[str, int
                  f"step sizes ({listing}) are not integer multiples of a common base step of at "
                  f"least 1/{MAX_STEP_RATIO} of the largest (their gcd is {float(base)!r} s)")
     return float(base), ratios
+
+
+def _parameter_set(ctx: _Ctx, key: str, path: Path, instances: Mapping[str, FmuInstance]) -> dict[str, dict]:
+    """The values of one parameter-set file by instance (SI), checked like the scenario's own;
+    any problem is reported under ``key`` of the scenario, naming the set file and its key."""
+    own = _Ctx(path)
+    try:
+        try:
+            doc = tomllib.loads(path.read_text(encoding="utf-8"))
+        except FileNotFoundError:
+            own.fail("", "parameter set file not found")
+        except (tomllib.TOMLDecodeError, UnicodeDecodeError) as exc:
+            own.fail("", f"invalid TOML: {exc}")
+        own.table(doc, "", ("description", "source", "parameters"))
+        own.string(doc, "", "description", "")
+        if not isinstance(doc.get("source", {}), dict):
+            own.fail("[source]", "expected a table")
+        tables = doc.get("parameters")
+        if not isinstance(tables, dict) or not tables:
+            own.fail("[parameters]", "expected [parameters.<instance>] tables of values")
+        values = {}
+        for name, table in tables.items():
+            if name not in instances:
+                own.fail(f"[parameters.{name}]", f"unknown instance {name!r}; instances: {', '.join(instances)}")
+            inst = instances[name]
+            values[name] = _parameters(own, name, table, inst.variables, inst.model_identifier,
+                                       key=f"[parameters.{name}]")
+    except ScenarioError as exc:
+        ctx.fail(key, str(exc))
+    return values
 
 
 def _recorded(ctx: _Ctx, table: Any) -> RecordedData:
@@ -438,8 +483,9 @@ def _report_loop(ctx: _Ctx, remaining: list[str], edges: list[tuple[str, Connect
                           f"delay = true on one of these connections to break it")
 
 
-def load_scenario(path: str | Path, fmu_dir: str | Path) -> Scenario:
-    """Parse and validate a scenario file; FMU names are resolved in ``fmu_dir``."""
+def load_scenario(path: str | Path, fmu_dir: str | Path, parameter_sets: Sequence[str | Path] = ()) -> Scenario:
+    """Parse and validate a scenario file; FMU names are resolved in ``fmu_dir``. ``parameter_sets``:
+    parameter-set files applied after the scenario's own ``[scenario].parameter_sets``."""
     path, fmu_dir = Path(path), Path(fmu_dir)
     ctx = _Ctx(path)
     try:
@@ -451,7 +497,7 @@ def load_scenario(path: str | Path, fmu_dir: str | Path) -> Scenario:
     ctx.table(doc, "", ("scenario", "fmus", "recorded", "inputs", "connections", "outputs", "compare"))
 
     sc = ctx.table(doc.get("scenario"), "[scenario]", (
-        "name", "description", "start_time", "stop_time", "output_interval"))
+        "name", "description", "start_time", "stop_time", "output_interval", "parameter_sets"))
     name = ctx.string(sc, "[scenario]", "name")
     if not _NAME_RE.match(name):
         ctx.fail("[scenario].name", f"{name!r}: use only letters, digits, '_', '-' and '.'")
@@ -480,6 +526,13 @@ def load_scenario(path: str | Path, fmu_dir: str | Path) -> Scenario:
         constants = _parameters(ctx, inst, table.get("inputs", {}), variables, model, "input")
         instances[inst] = FmuInstance(inst, fmu_path, int(md.fmiVersion[0]), step, ratios[inst],
                                       model, md.guid, params, variables, constants)
+    own_sets = sc.get("parameter_sets", [])
+    if not isinstance(own_sets, list) or not all(isinstance(s, str) for s in own_sets):
+        ctx.fail("[scenario].parameter_sets", f"expected a list of file names, got {own_sets!r}")
+    for key, set_path in ([(f"[scenario].parameter_sets[{i}]", path.parent / s) for i, s in enumerate(own_sets)]
+                          + [(f"parameter_sets[{i}]", Path(s)) for i, s in enumerate(parameter_sets)]):
+        for inst, values in _parameter_set(ctx, key, set_path, instances).items():
+            instances[inst] = replace(instances[inst], parameters={**instances[inst].parameters, **values})
 
     recorded = _recorded(ctx, doc["recorded"]) if "recorded" in doc else None
     if "stop_time" in sc:

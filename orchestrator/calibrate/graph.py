@@ -1,0 +1,242 @@
+"""The scenario's FMU instances as one casadi expression graph, built from the models/ equations.
+
+For the fitted outputs, each instance's equations (``ModelDefinition.equations``, the very
+expressions the FMU's C code is generated from) are called with
+
+* fitted parameters: casadi symbols (SI);
+* every other parameter: its number (the scenario's value, else the FMU's start value), so
+  casadi folds the constants and the graph stays small (a 2-flute CuttingForce shrinks from
+  5188 to about 1200 operations);
+* inputs fed by a non-delayed connection from an instance whose outputs depend on a fitted
+  parameter: that instance's output expression times the connection's unit factor (so a
+  parameter upstream is fitted through the chain, as the master would compute it);
+* every other input: a data symbol, one column of the co-simulation results (the value the FMU
+  actually held: the orchestrator records the instance's inputs for calibration);
+* an input with a floor (the spec's ``[inputs]``) is read as ``fmax(value, floor)``, for
+  expressions whose derivative is undefined at a boundary value (0^c3 of the power model).
+
+Models with states (one instance, e.g. ToolVibration) are dynamic: ``step(x_prev, theta, d)``
+gives the states after one step ``x_k = update(theta, d_k, x_prev, h)`` and the outputs
+``y_k = equations(theta, d_k, x_k)``: row k of the results holds the inputs held over the step that
+ended at t_k and the outputs after it. Only the states the fitted outputs depend on (directly or
+through other states' updates) are kept. States computed by a model's C code (native states)
+and native outputs cannot be expressed and are refused.
+"""
+from __future__ import annotations
+
+from collections.abc import Callable, Mapping, Sequence
+from dataclasses import dataclass, replace
+from typing import NoReturn
+
+import casadi as ca
+import numpy as np
+
+from models import MODELS
+from models.definition import ModelDefinition, State
+from orchestrator.scenario import Scenario
+
+__all__ = ["DataColumn", "DynamicPart", "ModelGraph", "NO_DATA_DERIVATIVE", "build_graph"]
+
+# Data are not differentiated: without this, casadi's forward mode multiplies a zero seed by an
+# infinite partial (sqrt at 0 of |v| = 0, in MrrEstimator) and gets NaN for every parameter.
+NO_DATA_DERIVATIVE = {"is_diff_in": [True, False]}
+
+
+@dataclass(frozen=True)
+class DataColumn:
+    ref: str  # "instance.input": a column of the results
+    is_bool: bool
+
+
+@dataclass(frozen=True)
+class DynamicPart:
+    instance: str
+    step_size: float
+    states: tuple[str, ...]
+    initial: np.ndarray  # start values of the kept states
+    step: ca.Function  # (x_prev, theta, d) -> (x_next, y)
+    initial_outputs: ca.Function  # (x0, theta, d) -> y at the initialization row
+
+
+@dataclass(frozen=True)
+class ModelGraph:
+    parameters: tuple[str, ...]  # fitted, in theta order
+    outputs: tuple[str, ...]  # fitted outputs, in y order
+    data: tuple[DataColumn, ...]  # per-sample data, in d order
+    sample: ca.Function | None  # stateless: (theta, d) -> y
+    dynamic: DynamicPart | None
+    instances: tuple[str, ...]  # instances whose equations are part of the graph
+    models: dict[str, ModelDefinition]
+    inputs: tuple[str, ...] = ()  # every input the graph reads ("instance.input"), from data or a connection
+
+
+def model_of(scenario: Scenario, instance: str) -> ModelDefinition | None:
+    return MODELS.get(scenario.instance(instance).model_identifier)
+
+
+def build_graph(scenario: Scenario, parameters: Sequence[str], outputs: Sequence[str],
+                fail: Callable[[str, str], NoReturn], keys: Mapping[str, str],
+                floors: Mapping[str, float] | None = None) -> ModelGraph:
+    """``parameters`` and ``outputs`` are "instance.variable"; ``keys`` maps each to its spec key
+    for ``fail(key, message)``; ``floors``: "instance.input" -> lower limit applied to that input."""
+    floors = floors or {}
+    inputs_used: list[str] = []
+    theta = {name: ca.SX.sym(name) for name in parameters}
+    fitted_instances = {name.split(".", 1)[0] for name in parameters}
+    data_symbols: dict[str, ca.SX] = {}
+    data_columns: list[DataColumn] = []
+    models: dict[str, ModelDefinition] = {}
+    feeds = {str(c.target): c for c in scenario.connections if not c.delay}
+    depends: dict[str, bool] = {}
+
+    def model(instance: str, key: str) -> ModelDefinition:
+        m = model_of(scenario, instance)
+        if m is None:
+            fail(key, f"instance {instance!r} runs {scenario.instance(instance).model_identifier}, which has no "
+                      "models/ definition: its equations are not available to calibration")
+        models[instance] = m
+        return m
+
+    def needs(instance: str, seen: tuple[str, ...] = ()) -> bool:
+        """Does the instance's output depend on a fitted parameter?"""
+        if instance not in depends:
+            upstream = [c.source.instance for t, c in feeds.items() if t.split(".", 1)[0] == instance]
+            depends[instance] = instance in fitted_instances or any(
+                needs(u, seen + (instance,)) for u in upstream if u not in seen)
+        return depends[instance]
+
+    def data(ref: str) -> ca.SX:
+        if ref not in data_symbols:
+            inst, var = ref.split(".", 1)
+            data_symbols[ref] = ca.SX.sym(ref)
+            data_columns.append(DataColumn(ref, scenario.instance(inst).variables[var].type == "bool"))
+        return data_symbols[ref]
+
+    def arguments(instance: str, key: str, states: Mapping[str, ca.SX] | None) -> dict[str, ca.SX]:
+        m = model(instance, key)
+        inst = scenario.instance(instance)
+        values: dict[str, ca.SX] = {}
+        for arg in m.arguments:
+            name = arg.name
+            ref = f"{instance}.{name}"
+            if isinstance(arg, State):
+                if states is None:
+                    fail(key, f"{instance} ({m.identifier}) has states: only the fitted outputs' own instance "
+                              "may be dynamic, not an instance upstream of it")
+                values[name] = states[name]
+            elif arg.causality == "parameter":
+                if ref in theta:
+                    values[name] = theta[ref]
+                else:
+                    value = inst.parameters.get(name, arg.start)
+                    values[name] = ca.SX(float(value))
+            else:
+                if ref in feeds and needs(feeds[ref].source.instance):
+                    source = feeds[ref].source
+                    values[name] = outputs_of(source.instance, key)[source.variable] * feeds[ref].factor
+                else:
+                    values[name] = data(ref)
+                inputs_used.append(ref)
+                if ref in floors:
+                    values[name] = ca.fmax(values[name], floors[ref])
+        return values
+
+    cache: dict[str, dict[str, ca.SX]] = {}
+
+    def outputs_of(instance: str, key: str) -> dict[str, ca.SX]:
+        if instance not in cache:
+            m = model(instance, key)
+            if m.states:
+                fail(key, f"{instance} ({m.identifier}) has states: a dynamic model must be the instance "
+                          "whose outputs are fitted, with its inputs from data")
+            cache[instance] = m.equations(arguments(instance, key, None))
+        return cache[instance]
+
+    out_instances = {o.split(".", 1)[0] for o in outputs}
+    for o in outputs:
+        inst, var = o.split(".", 1)
+        m = model(inst, keys[o])
+        if var in m.native_outputs:
+            fail(keys[o], f"{o} is computed by the FMU's C code (model.c), not by a models/ expression")
+        if m.variable(var).causality != "output":
+            fail(keys[o], f"{o} is {m.variable(var).causality}, not an output")
+    for name in parameters:
+        inst = name.split(".", 1)[0]
+        if not any(needs(i) and (i == inst or _upstream(feeds, i, inst)) for i in out_instances):
+            fail(keys[name], f"no fitted output depends on {name}: the outputs come from "
+                             f"{', '.join(sorted(out_instances))}, and {inst} does not feed them through "
+                             "non-delayed connections")
+
+    dynamic_instances = sorted(i for i in out_instances if model(i, keys[next(o for o in outputs if o.startswith(i + "."))]).states)
+    if not dynamic_instances:
+        y = [outputs_of(o.split(".", 1)[0], keys[o])[o.split(".", 1)[1]] for o in outputs]
+        th = ca.vertcat(*[theta[n] for n in parameters])
+        d = ca.vertcat(*[data_symbols[c.ref] for c in data_columns]) if data_columns else ca.SX(0, 1)
+        sample = ca.Function("sample", [th, d], [ca.vertcat(*y)], ["theta", "d"], ["y"], NO_DATA_DERIVATIVE)
+        return ModelGraph(tuple(parameters), tuple(outputs), tuple(data_columns), sample, None,
+                          tuple(models), models, tuple(inputs_used))
+    if len(out_instances) > 1:
+        o = next(o for o in outputs if o.startswith(dynamic_instances[0] + "."))
+        fail(keys[o], f"outputs of a dynamic model ({dynamic_instances[0]}) are fitted together with outputs of "
+                      f"{', '.join(sorted(out_instances - {dynamic_instances[0]}))}: fit one dynamic instance at a time")
+    graph = _dynamic(scenario, dynamic_instances[0], parameters, outputs, theta, arguments, data_symbols,
+                     data_columns, models, fail, keys)
+    return replace(graph, inputs=tuple(inputs_used))
+
+
+def _upstream(feeds: Mapping, target: str, source: str) -> bool:
+    """Is ``source`` upstream of ``target`` along non-delayed connections?"""
+    frontier, seen = [target], set()
+    while frontier:
+        node = frontier.pop()
+        for t, c in feeds.items():
+            if t.split(".", 1)[0] == node and c.source.instance not in seen:
+                if c.source.instance == source:
+                    return True
+                seen.add(c.source.instance)
+                frontier.append(c.source.instance)
+    return False
+
+
+def _dynamic(scenario: Scenario, instance: str, parameters: Sequence[str], outputs: Sequence[str],
+             theta: Mapping[str, ca.SX], arguments: Callable, data_symbols: dict, data_columns: list,
+             models: dict, fail: Callable[[str, str], NoReturn], keys: Mapping[str, str]) -> ModelGraph:
+    m = models[instance]
+    key = keys[next(o for o in outputs if o.startswith(instance + "."))]
+    if m.native_states:
+        fail(key, f"{instance} ({m.identifier}) keeps states in its C code ({', '.join(m.native_states)}): "
+                  "not expressible for the generic fit")
+    inst = scenario.instance(instance)
+    if inst.ticks_per_step != scenario.ticks_per_output:
+        fail(key, f"{instance} is dynamic: the scenario must record every step of it ([scenario].output_interval = "
+                  f"{inst.step_size!r} s, the instance's step_size; it is {scenario.output_interval!r} s)")
+    states = {s.name: ca.SX.sym(s.name) for s in m.states}
+    values = arguments(instance, key, states)
+    h = ca.SX(float(inst.step_size))
+    new = m.update(values, h)
+    equations = m.equations(values)
+    y_of_x = [equations[o.split(".", 1)[1]] for o in outputs]
+    # states the outputs need, closed under the update
+    kept: list[str] = [s for s in states if any(ca.depends_on(y, states[s]) for y in y_of_x)]
+    changed = True
+    while changed:
+        changed = False
+        for s in list(kept):
+            for other in states:
+                if other not in kept and ca.depends_on(new[s], states[other]):
+                    kept.append(other)
+                    changed = True
+    kept = [s.name for s in m.states if s.name in kept]
+    th = ca.vertcat(*[theta[n] for n in parameters])
+    d = ca.vertcat(*[data_symbols[c.ref] for c in data_columns]) if data_columns else ca.SX(0, 1)
+    x = ca.vertcat(*[states[s] for s in kept]) if kept else ca.SX(0, 1)
+    x_next = ca.vertcat(*[new[s] for s in kept]) if kept else ca.SX(0, 1)
+    y = ca.vertcat(*y_of_x)
+    y_next = ca.substitute([y], [x], [x_next])[0] if kept else y
+    step = ca.Function("step", [x, th, d], [x_next, y_next], ["x_prev", "theta", "d"], ["x", "y"],
+                       {"is_diff_in": [True, True, False]})
+    initial_outputs = ca.Function("initial_outputs", [x, th, d], [y], ["x0", "theta", "d"], ["y"],
+                                  {"is_diff_in": [True, True, False]})
+    start = np.array([next(s.start for s in m.states if s.name == k) for k in kept], dtype=float)
+    dyn = DynamicPart(instance, inst.step_size, tuple(kept), start, step, initial_outputs)
+    return ModelGraph(tuple(parameters), tuple(outputs), tuple(data_columns), None, dyn, tuple(models), models)

@@ -1,0 +1,154 @@
+"""Bounded nonlinear least squares with casadi's IPOPT, one solver for many starts and data sets.
+
+The problem: minimise ``0.5*||r(x, p)||^2`` subject to ``g(x, p) = 0`` and ``lbx <= x <= ubx``,
+where ``x`` is the scaled decision vector (the first ``n_parameters`` entries are the fitted
+parameters divided by their scales; the rest, for multiple shooting, the scaled shooting-node
+states) and ``p`` the data (recorded values and residual weights), so that one compiled solver
+serves every start and every synthetic repeat.
+
+Hessian: ``"gauss-newton"`` passes IPOPT ``lam_f * J^T J`` (J = dr/dx) as the Hessian of the
+Lagrangian (generalised Gauss-Newton: the curvature of r and of the shooting constraints is
+left out); ``"exact"`` lets casadi differentiate twice.
+
+Robustness: before a start is handed to IPOPT the residuals and their Jacobian are evaluated at
+it; a non-finite value is reported with the residual and the parameter it concerns and the start
+is skipped. IPOPT failures (its return status) and exceptions are reported with their cause;
+either way the next start runs.
+"""
+from __future__ import annotations
+
+import time
+from collections.abc import Callable
+from dataclasses import dataclass, field
+
+import casadi as ca
+import numpy as np
+
+__all__ = ["LeastSquaresProblem", "LeastSquaresSolver", "StartOutcome", "SUCCESS"]
+
+SUCCESS = ("Solve_Succeeded", "Solved_To_Acceptable_Level")
+
+
+@dataclass(frozen=True)
+class LeastSquaresProblem:
+    x: ca.MX  # decision vector symbol (scaled)
+    p: ca.MX  # data symbol
+    residual: ca.MX
+    constraints: ca.MX
+    lbx: np.ndarray
+    ubx: np.ndarray
+    n_parameters: int
+    # labels for messages: residual index -> "power.P_total at t = 3.1 s", variable index -> name
+    describe_residual: Callable[[int], str] = field(default=lambda i: f"residual {i}")
+    describe_variable: Callable[[int], str] = field(default=lambda j: f"variable {j}")
+
+
+@dataclass
+class StartOutcome:
+    index: int
+    x0: np.ndarray  # scaled start
+    status: str  # "converged", "not converged", "failed"
+    message: str  # IPOPT return status, or the cause of the failure
+    x: np.ndarray | None = None
+    objective: float = float("nan")
+    iterations: int = 0
+    wall_time: float = 0.0
+    trace: dict[str, list[float]] = field(default_factory=dict)
+
+    @property
+    def converged(self) -> bool:
+        return self.status == "converged"
+
+
+class LeastSquaresSolver:
+    """IPOPT built once for a problem; :meth:`solve` runs one start."""
+
+    def __init__(self, problem: LeastSquaresProblem, *, max_iterations: int = 200, tolerance: float = 1e-10,
+                 hessian: str = "gauss-newton") -> None:
+        self.problem = problem
+        x, p, r = problem.x, problem.p, problem.residual
+        jac = ca.jacobian(r, x)
+        self.check = ca.Function("lsq_check", [x, p], [r, jac])
+        nlp = {"x": x, "p": p, "f": 0.5 * ca.dot(r, r), "g": problem.constraints}
+        options: dict = {"print_time": False, "error_on_fail": False,
+                         "ipopt": {"print_level": 0, "sb": "yes", "max_iter": max_iterations, "tol": tolerance,
+                                   "acceptable_tol": max(tolerance * 1e3, 1e-8), "acceptable_iter": 10}}
+        if hessian == "gauss-newton":
+            lam_f = ca.MX.sym("lam_f")
+            lam_g = ca.MX.sym("lam_g", problem.constraints.numel())
+            hess = lam_f * ca.mtimes(jac.T, jac)
+            options["hess_lag"] = ca.Function("nlp_hess_l", [x, p, lam_f, lam_g], [ca.triu(hess)],
+                                              ["x", "p", "lam_f", "lam_g"], ["triu_hess_gamma_x_x"])
+        self.nlp = ca.nlpsol("calibration", "ipopt", nlp, options)
+        n_g = problem.constraints.numel()
+        self.lbg = self.ubg = np.zeros(n_g)
+
+    def _precheck(self, x0: np.ndarray, p: np.ndarray) -> str | None:
+        r, jac = self.residual_and_jacobian(x0, p)
+        bad = np.flatnonzero(~np.isfinite(r))
+        if bad.size:
+            return (f"the model gives a non-finite value ({r[bad[0]]}) for {self.problem.describe_residual(int(bad[0]))} "
+                    f"({bad.size} residuals non-finite)")
+        rows, cols = np.nonzero(~np.isfinite(jac))
+        if rows.size:
+            rows, cols = self._symbolic_nonfinite(x0, p, rows, cols)
+            names = sorted({self.problem.describe_variable(int(c)) for c in cols})
+            return (f"the derivative of {self.problem.describe_residual(int(rows[0]))} with respect to "
+                    f"{self.problem.describe_variable(int(cols[0]))} is {jac[rows[0], cols[0]]} "
+                    f"({rows.size} non-finite derivative entries, with respect to {', '.join(names)}); if a data "
+                    "input at a boundary value (such as 0) makes it undefined, give that input a floor in the "
+                    "spec's [inputs] table")
+        return None
+
+    def _symbolic_nonfinite(self, x0: np.ndarray, p: np.ndarray, rows: np.ndarray,
+                            cols: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """Which entries of the Jacobian are non-finite, from a symbolic (SX) Jacobian: the numeric one
+        combines columns (graph colouring), so one undefined partial derivative (e.g. log(0)*0) spreads
+        to the others. Only run when something is wrong; falls back to the numeric entries."""
+        try:
+            residual = ca.Function("lsq_residual", [self.problem.x, self.problem.p], [self.problem.residual]).expand()
+            xs, ps = ca.SX.sym("x", self.problem.x.numel()), ca.SX.sym("p", self.problem.p.numel())
+            jac = ca.Function("lsq_sx_jacobian", [xs, ps], [ca.jacobian(residual(xs, ps), xs)])
+            dense = np.asarray(jac(x0, p), dtype=float)
+        except Exception:  # noqa: BLE001 - the diagnosis is best effort
+            return rows, cols
+        bad_rows, bad_cols = np.nonzero(~np.isfinite(dense))
+        return (bad_rows, bad_cols) if bad_rows.size else (rows, cols)
+
+    def solve(self, x0: np.ndarray, p: np.ndarray, index: int = 0, lbx: np.ndarray | None = None,
+              ubx: np.ndarray | None = None) -> StartOutcome:
+        """One IPOPT run from ``x0`` (scaled); ``lbx``/``ubx`` replace the problem's bounds (equal
+        bounds fix a variable)."""
+        t0 = time.perf_counter()
+        lbx = self.problem.lbx if lbx is None else lbx
+        ubx = self.problem.ubx if ubx is None else ubx
+        x0 = np.clip(np.asarray(x0, dtype=float), lbx, ubx)
+        try:
+            cause = self._precheck(x0, p)
+        except Exception as exc:  # noqa: BLE001 - any evaluation failure is reported, the run goes on
+            cause = f"model evaluation failed: {type(exc).__name__}: {exc}"
+        if cause is not None:
+            return StartOutcome(index, x0, "failed", cause, wall_time=time.perf_counter() - t0)
+        try:
+            sol = self.nlp(x0=x0, p=p, lbx=lbx, ubx=ubx, lbg=self.lbg, ubg=self.ubg)
+            stats = self.nlp.stats()
+        except Exception as exc:  # noqa: BLE001
+            return StartOutcome(index, x0, "failed", f"solver failed: {type(exc).__name__}: {exc}",
+                                wall_time=time.perf_counter() - t0)
+        status = str(stats.get("return_status", "unknown"))
+        iterations = stats.get("iterations", {})
+        trace = {k: [float(v) for v in iterations.get(k, [])] for k in ("obj", "inf_pr", "inf_du")}
+        x = np.asarray(sol["x"], dtype=float).ravel()
+        objective = float(sol["f"])
+        if status in SUCCESS and np.all(np.isfinite(x)):
+            state = "converged"
+        elif np.all(np.isfinite(x)) and np.isfinite(objective) and status == "Maximum_Iterations_Exceeded":
+            state = "not converged"
+        else:
+            state = "failed"
+        return StartOutcome(index, x0, state, status, x if np.all(np.isfinite(x)) else None, objective,
+                            int(stats.get("iter_count", 0)), time.perf_counter() - t0, trace)
+
+    def residual_and_jacobian(self, x: np.ndarray, p: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        r, jac = self.check(x, p)
+        return np.asarray(r, dtype=float).ravel(), np.asarray(jac, dtype=float)

@@ -1,0 +1,69 @@
+"""Calibrated values as a parameter set: the TOML a scenario applies by name
+(``[scenario] parameter_sets = [...]``, see orchestrator.scenario) and an SSP 1.0 ``.ssv`` copy.
+
+Values are SI (the FMU variables' units), written with ``repr`` so that they read back bit for
+bit; standard errors, 95 % intervals and flags go into comments. Nuisance estimates (spindle
+phases) are not model parameters and are left out. The content depends only on the fit (no
+time stamps), so re-running a calibration rewrites the same file.
+"""
+from __future__ import annotations
+
+import math
+from collections.abc import Mapping, Sequence
+from pathlib import Path
+from xml.sax.saxutils import quoteattr
+
+from orchestrator.calibrate.parameters import Parameter
+from orchestrator.calibrate.statistics import ParameterStatistics
+
+__all__ = ["write_parameter_set", "write_ssv"]
+
+
+def _toml_string(text: str) -> str:
+    return '"' + text.replace("\\", "\\\\").replace('"', '\\"') + '"'
+
+
+def _num(x: float) -> str:
+    return "nan" if math.isnan(x) else ("inf" if x > 0 else "-inf") if math.isinf(x) else f"{x:.4g}"
+
+
+def write_parameter_set(path: Path, parameters: Sequence[Parameter], estimates: Sequence[float],
+                        statistics: Sequence[ParameterStatistics], description: str,
+                        source: Mapping[str, str], command: str) -> Path:
+    """Write the TOML parameter set (atomically) and return its path."""
+    lines = [f"# Parameter set written by `{command}`; do not edit by hand, re-run the calibration.",
+             "# Apply it by name from a scenario: [scenario] parameter_sets = [\"<path relative to the scenario>\"].",
+             "# Values in SI units (the FMU variables' own units); standard error, 95 % confidence interval and",
+             "# flags of each estimate in its comment.",
+             f"description = {_toml_string(description)}", "", "[source]"]
+    lines += [f"{k} = {_toml_string(str(v))}" for k, v in source.items()]
+    by_instance: dict[str, list[str]] = {}
+    for q, value, st in zip(parameters, estimates, statistics):
+        if q.nuisance:
+            continue
+        instance, variable = q.name.split(".", 1)
+        value = min(max(float(value), q.lower), q.upper)
+        comment = (f"{q.unit or '1'}; se {_num(st.standard_error)}, 95 % CI [{_num(st.ci_low)}, {_num(st.ci_high)}]"
+                   + (f"; {'; '.join(st.flags)}" if st.flags else ""))
+        by_instance.setdefault(instance, []).append(f"{variable} = {value!r}  # {comment}")
+    for instance, entries in by_instance.items():
+        lines += ["", f"[parameters.{instance}]", *entries]
+    path.parent.mkdir(parents=True, exist_ok=True)
+    tmp = path.with_name(f".{path.name}.tmp")
+    tmp.write_text("\n".join(lines) + "\n", encoding="utf-8")
+    tmp.replace(path)
+    return path
+
+
+def write_ssv(path: Path, name: str, parameters: Sequence[Parameter], estimates: Sequence[float]) -> Path:
+    """The same values as an SSP 1.0 parameter set (SystemStructureParameterValues), names
+    "instance.variable", SI values (no unit attribute: the FMU's unit)."""
+    rows = [f'    <ssv:Parameter name={quoteattr(q.name)}><ssv:Real value="{min(max(float(v), q.lower), q.upper)!r}"/>'
+            "</ssv:Parameter>" for q, v in zip(parameters, estimates) if not q.nuisance]
+    text = ('<?xml version="1.0" encoding="UTF-8"?>\n'
+            '<ssv:ParameterSet xmlns:ssv="http://ssp-standard.org/SSP1/SystemStructureParameterValues" '
+            f'version="1.0" name={quoteattr(name)}>\n  <ssv:Parameters>\n' + "\n".join(rows)
+            + "\n  </ssv:Parameters>\n</ssv:ParameterSet>\n")
+    path.parent.mkdir(parents=True, exist_ok=True)
+    path.write_text(text, encoding="utf-8")
+    return path

@@ -1,0 +1,395 @@
+"""Kind "scenario": fit parameters of a scenario's FMU instances to its recorded data, closing the loop.
+
+Stages (each timed for the report):
+
+1. **check**: the spec's names against the scenario and its FMUs (fail fast, naming the spec key);
+   the casadi graph of the fitted outputs from models/ (:mod:`orchestrator.calibrate.graph`); each
+   FMU's instantiation token must equal its models/ definition's (the FMU was generated from these
+   very equations; otherwise: rebuild).
+2. **simulate**: the scenario with the initial values through the orchestrator (FMUs), recording
+   the fitted outputs, the inputs the graph reads as data, and the alignment channels.
+3. **align**: recorded samples -> simulated rows (:mod:`orchestrator.calibrate.pairing`), split into
+   learning and validation segments; the graph evaluated at the initial values must reproduce the
+   FMU's outputs at the learning pairs (reported, and an error beyond 1e-8 relative).
+4. **fit**: multi-start IPOPT on the learning pairs (:mod:`orchestrator.calibrate.fit`), statistics.
+   With an alignment method, the fit is repeated once on identity pairs to show what the alignment
+   changed.
+5. **write**: the parameter set (TOML the scenarios apply by name, and an .ssv copy).
+6. **re-simulate**: ``calibrated_scenario`` if the spec names one (it must apply the set: its values
+   are checked), else the scenario with the set applied; errors before/after on learning and
+   validation data from the FMU runs.
+"""
+from __future__ import annotations
+
+import inspect
+import os
+import time
+from dataclasses import dataclass, replace
+from pathlib import Path
+
+import casadi as ca
+import numpy as np
+import pandas as pd
+
+from models import MODELS
+from models.definition import ModelDefinition
+from models.units import UnitError
+from orchestrator.calibrate.errors import CalibrationError
+from orchestrator.calibrate.fit import FitOutcome, fit
+from orchestrator.calibrate.graph import ModelGraph, build_graph
+from orchestrator.calibrate.pairing import LEARNING, VALIDATION, Pairs, make_pairs
+from orchestrator.calibrate.parameters import Parameter, resolve_parameter, unit_factor
+from orchestrator.calibrate.paramset import write_parameter_set, write_ssv
+from orchestrator.calibrate.residuals import build_residuals
+from orchestrator.calibrate.result import CalibrationResult, Series, Table, error_row
+from orchestrator.calibrate.spec import AlignmentSpec, CalibrationSpec, SolverSpec
+from orchestrator.master import SimulationError, run
+from orchestrator.results import load_results, sha256_of, software_versions
+from orchestrator.scenario import Ref, Scenario, load_scenario, with_values
+
+__all__ = ["Prepared", "calibrate_scenario", "check_tokens", "identities", "prepare", "resolve_outputs"]
+
+CONSISTENCY_TOLERANCE = 1e-8
+
+
+@dataclass(frozen=True)
+class ResolvedOutput:
+    ref: str
+    channel: str
+    factor: float  # recorded SI value * factor = output unit
+    unit: str
+    display_unit: str
+    display_factor: float
+    weight: float
+    sigma: float | None  # SI of the output
+
+
+@dataclass
+class Prepared:
+    """Everything up to the fit: reused by the synthetic benchmarks for many noisy data sets."""
+
+    spec: CalibrationSpec
+    scenario: Scenario  # initial values applied, extra outputs recorded
+    parameters: tuple[Parameter, ...]
+    outputs: tuple[ResolvedOutput, ...]
+    graph: ModelGraph
+    results: pd.DataFrame
+    run_dir: Path
+    timings: dict[str, float]
+
+
+def _model(spec: CalibrationSpec, scenario: Scenario, instance: str, key: str) -> ModelDefinition:
+    m = MODELS.get(scenario.instance(instance).model_identifier)
+    if m is None:
+        spec.fail(key, f"instance {instance!r} runs {scenario.instance(instance).model_identifier}, which has no "
+                       "models/ definition")
+    return m
+
+
+def _instance(spec: CalibrationSpec, scenario: Scenario, ref: str, key: str):
+    instance, variable = ref.split(".", 1)
+    names = list(scenario.execution_order)
+    if instance not in names:
+        spec.fail(key, f"unknown instance {instance!r} in {scenario.path.name}; instances: {', '.join(names)}")
+    inst = scenario.instance(instance)
+    return inst, inst.variables.get(variable)
+
+
+def resolve_parameters(spec: CalibrationSpec, scenario: Scenario) -> tuple[Parameter, ...]:
+    out = []
+    for ps in spec.parameters:
+        inst, var = _instance(spec, scenario, ps.name, ps.key)
+        candidates = [v.name for v in inst.variables.values() if v.causality == "parameter" and v.type == "real"]
+        if var is None or var.causality != "parameter" or var.type != "real":
+            what = "unknown parameter" if var is None else f"{var.causality} variable" if var.causality != "parameter" \
+                else f"{var.type} parameter (only Float64 parameters are fitted)"
+            spec.fail(ps.key, f"{what} {ps.variable!r} of {inst.name} ({inst.model_identifier}); Float64 parameters: "
+                              f"{', '.join(candidates)}")
+        model = _model(spec, scenario, inst.name, ps.key)
+        definition = model.variable(ps.variable)
+        default = float(inst.parameters.get(ps.variable, definition.start))
+        out.append(resolve_parameter(ps, var.unit, default, var.min, var.max, definition.display_unit, spec.fail))
+    return tuple(out)
+
+
+def resolve_outputs(spec: CalibrationSpec, scenario: Scenario) -> tuple[ResolvedOutput, ...]:
+    rec = scenario.recorded
+    out = []
+    for o in spec.outputs:
+        inst, var = _instance(spec, scenario, o.simulated, f"{o.key}.simulated")
+        if var is None or var.causality != "output" or var.type != "real":
+            outputs = [v.name for v in inst.variables.values() if v.causality == "output" and v.type == "real"]
+            spec.fail(f"{o.key}.simulated", f"{o.simulated} is not a Float64 output of {inst.model_identifier}; "
+                                            f"outputs: {', '.join(outputs)}")
+        if rec is None:
+            spec.fail(f"{o.key}.recorded", f"the scenario {scenario.path.name} has no [recorded] data")
+        if o.recorded not in rec.channels:
+            spec.fail(f"{o.key}.recorded", f"unknown recorded channel {o.recorded!r}; channels: {', '.join(rec.channels)}")
+        if rec.units[o.recorded] == "bool":
+            spec.fail(f"{o.key}.recorded", f"channel {o.recorded!r} is boolean")
+        try:
+            factor = unit_factor(rec.units[o.recorded], var.unit)
+        except UnitError as exc:
+            spec.fail(f"{o.key}.recorded", f"channel {o.recorded!r} ({rec.units[o.recorded]}) cannot be compared with "
+                                           f"{o.simulated} ({var.unit or '1'}): {exc}")
+        model = _model(spec, scenario, inst.name, f"{o.key}.simulated")
+        display = o.unit or model.variable(var.name).display_unit or var.unit
+        try:
+            display_factor = unit_factor(var.unit, display)
+        except UnitError as exc:
+            if o.unit is not None:
+                spec.fail(f"{o.key}.unit", f"display unit {o.unit!r} does not fit {o.simulated} ({var.unit}): {exc}")
+            display, display_factor = var.unit, 1.0
+        sigma = o.sigma / display_factor if o.sigma is not None else None
+        out.append(ResolvedOutput(o.simulated, o.recorded, factor, var.unit, display, display_factor, o.weight, sigma))
+    return tuple(out)
+
+
+def _check_alignment(spec: CalibrationSpec, scenario: Scenario) -> None:
+    a = spec.alignment
+    for i, ref in enumerate(a.simulated):
+        inst, var = _instance(spec, scenario, ref, f"[alignment].simulated[{i}]")
+        if var is None or var.type != "real":
+            spec.fail(f"[alignment].simulated[{i}]", f"{ref} is not a Float64 variable of {inst.model_identifier}")
+    for i, channel in enumerate(a.recorded):
+        if scenario.recorded is None or channel not in scenario.recorded.channels:
+            known = ", ".join(scenario.recorded.channels) if scenario.recorded else "none"
+            spec.fail(f"[alignment].recorded[{i}]", f"unknown recorded channel {channel!r}; channels: {known}")
+    for ref in spec.input_floors:
+        key = f'[inputs."{ref}"]'
+        inst, var = _instance(spec, scenario, ref, key)
+        if var is None or var.causality != "input":
+            spec.fail(key, f"{ref} is not an input of {inst.model_identifier}")
+
+
+def _check_segments(spec: CalibrationSpec, scenario: Scenario) -> None:
+    """Fail fast when a segment list does not overlap the recording at all."""
+    rec = scenario.recorded
+    a, b = rec.t_start, rec.t_end
+    for name, windows in (("learning", spec.learning), ("validation", spec.validation)):
+        if windows and not any(lo <= b and hi >= a for lo, hi in windows):
+            spec.fail(f"[segments].{name}", f"the windows {list(windows)} do not overlap the recording "
+                                            f"{rec.path.name} ({a:g} .. {b:g} s)")
+
+
+def check_tokens(scenario: Scenario, instances: list[str]) -> list[dict]:
+    """Each instance's FMU against its models/ definition: the instantiation tokens must agree."""
+    rows = []
+    for name in instances:
+        inst = scenario.instance(name)
+        model = MODELS[inst.model_identifier]
+        token = model.instantiation_token()
+        if token != inst.instantiation_token:
+            raise CalibrationError(
+                f"{inst.path}: the FMU's instantiation token {inst.instantiation_token} differs from "
+                f"{token} of models/ ({model.identifier}): it was built from other equations; rebuild the FMUs "
+                "(cmake --build build) so that what is fitted is what the FMU runs")
+        source = Path(inspect.getsourcefile(model.equations) or "")
+        rows.append({"instance": name, "model": model.identifier, "fmu": str(inst.path), "fmu_sha256": sha256_of(inst.path),
+                     "fmi_version": inst.fmi_version, "instantiation_token": token,
+                     "models_source": str(source), "models_source_sha256": sha256_of(source) if source.is_file() else ""})
+    return rows
+
+
+def identities(spec: CalibrationSpec, scenario: Scenario, fmus: list[dict]) -> dict:
+    rec = scenario.recorded
+    return {
+        "spec": {"path": str(spec.path), "sha256": spec.sha256},
+        "scenario": {"path": str(scenario.path), "sha256": sha256_of(scenario.path)},
+        "recorded": None if rec is None else {"path": str(rec.path), "sha256": sha256_of(rec.path)},
+        "fmus": fmus,
+        "versions": {**software_versions(), "casadi": ca.__version__},
+    }
+
+
+def _run(scenario: Scenario, out: Path, progress: bool) -> tuple[pd.DataFrame, Path]:
+    try:
+        result = run(scenario, out, progress=progress)
+    except SimulationError as exc:
+        raise CalibrationError(f"simulation of {scenario.name} failed: {exc}") from exc
+    if result.status != "completed":
+        raise CalibrationError(f"simulation of {scenario.name} ended {result.status}")
+    return load_results(result.run_dir), result.run_dir
+
+
+def _recording_outputs(scenario: Scenario, refs: list[str]) -> Scenario:
+    extra = tuple(Ref(*r.split(".", 1)) for r in refs)
+    return replace(scenario, outputs=tuple(dict.fromkeys(scenario.outputs + extra)))
+
+
+def prepare(spec: CalibrationSpec, fmu_dir: Path, out_dir: Path, progress: bool = False) -> Prepared:
+    """Stages 1 and 2: checks, graph, tokens and the simulation with the initial values."""
+    timings: dict[str, float] = {}
+    t0 = time.perf_counter()
+    scenario = load_scenario(spec.scenario, fmu_dir)
+    parameters = resolve_parameters(spec, scenario)
+    outputs = resolve_outputs(spec, scenario)
+    _check_alignment(spec, scenario)
+    _check_segments(spec, scenario)
+    keys = {p.name: p.key for p in spec.parameters} | {o.simulated: f"{o.key}.simulated" for o in spec.outputs}
+    graph = build_graph(scenario, [q.name for q in parameters], [o.ref for o in outputs], spec.fail, keys,
+                        spec.input_floors)
+    for ref in spec.input_floors:
+        if ref not in graph.inputs:
+            spec.fail(f'[inputs."{ref}"]', f"{ref} is not an input of the fitted outputs' equations "
+                                          f"({', '.join(graph.inputs) or 'none'})")
+    timings["check"] = time.perf_counter() - t0
+    t0 = time.perf_counter()
+    initial = with_values(scenario, {q.name: q.initial for q in parameters}, name=f"{scenario.name}_initial")
+    initial = _recording_outputs(initial, [c.ref for c in graph.data] + list(spec.alignment.simulated)
+                                 + [o.ref for o in outputs])
+    results, run_dir = _run(initial, out_dir / "runs", progress)
+    timings["simulate (initial parameters)"] = time.perf_counter() - t0
+    return Prepared(spec, initial, parameters, outputs, graph, results, run_dir, timings)
+
+
+def pairs_for(prepared: Prepared, recorded=None, alignment: AlignmentSpec | None = None):
+    """Stage 3: pairs of ``recorded`` (default the scenario's recording) with the initial run."""
+    spec = prepared.spec
+    recorded = recorded if recorded is not None else prepared.scenario.recorded
+    pairs, summary, time_map = make_pairs(recorded, prepared.results, prepared.graph,
+                                          [o.channel for o in prepared.outputs], [o.factor for o in prepared.outputs],
+                                          alignment or spec.alignment, spec.learning, spec.validation)
+    t = prepared.results["time"].to_numpy()
+    where = (f"recorded {recorded.t_start:g} .. {recorded.t_end:g} s, simulated {t[0]:g} .. {t[-1]:g} s, "
+             f"{len(pairs)} samples paired")
+    if summary.learning == 0:
+        spec.fail("[segments].learning", f"no paired sample lies in the learning windows {list(spec.learning)} "
+                                         f"({where})")
+    if spec.validation and summary.validation == 0:
+        spec.fail("[segments].validation", f"no paired sample lies in the validation windows {list(spec.validation)} "
+                                           f"({where})")
+    return pairs, summary, time_map
+
+
+def consistency(prepared: Prepared, model, learning: Pairs) -> float:
+    """max |models/ - FMU| / max |FMU| at the initial values, on the results rows the learning pairs use
+    (rows, not the pairs' interpolated times: between rows an output is not the model of interpolated inputs)."""
+    theta0 = np.array([q.initial for q in prepared.parameters])
+    rows = np.unique(learning.rows) if prepared.graph.dynamic is None else learning.rows
+    fmu = prepared.results[[o.ref for o in prepared.outputs]].to_numpy(dtype=float)[rows]
+    if prepared.graph.dynamic is None:
+        data = prepared.results[[c.ref for c in prepared.graph.data]].to_numpy(dtype=float)[rows]
+        mapped = prepared.graph.sample.map(len(rows))
+        predicted = np.asarray(mapped(np.repeat(theta0[:, None], len(rows), axis=1), data.T), dtype=float).T
+    else:
+        predicted = model.predict(theta0)
+    scale = max(float(np.max(np.abs(fmu))), 1e-300)
+    deviation = float(np.max(np.abs(predicted - fmu))) / scale
+    if not deviation <= CONSISTENCY_TOLERANCE:
+        worst = int(np.argmax(np.max(np.abs(predicted - fmu), axis=1)))
+        raise CalibrationError(
+            f"the models/ equations do not reproduce the FMU's outputs of the initial run: relative deviation "
+            f"{deviation:.3g} (at t = {prepared.results['time'].to_numpy()[rows][worst]:g} s of the run); the data "
+            "columns or the co-simulation semantics differ from what the graph assumes")
+    return deviation
+
+
+def _fit(prepared: Prepared, learning: Pairs, solver: SolverSpec, progress: bool):
+    spec = prepared.spec
+    model = build_residuals(prepared.graph, learning, prepared.parameters, prepared.results, solver.shooting,
+                            solver.shooting_interval)
+    outcome = fit(model, learning.recorded, weights=[o.weight for o in prepared.outputs],
+                  sigma=[o.sigma if spec.solver.noise == "sigma" else None for o in prepared.outputs],
+                  solver=solver, statistics=spec.statistics, progress=progress)
+    return model, outcome
+
+
+def _notes(outcome: FitOutcome) -> list[str]:
+    good = [p.name for p in outcome.statistics.parameters if not p.flags]
+    weak = [p.name for p in outcome.statistics.parameters if p.flags and p.identifiable]
+    bad = [p.name for p in outcome.statistics.parameters if not p.identifiable]
+    notes = []
+    if good:
+        notes.append(f"Identified by these data (no flag): {', '.join(good)}.")
+    if weak:
+        notes.append(f"Estimated, with a flag (wide interval or strong correlation): {', '.join(weak)}.")
+    if bad:
+        notes.append(f"Not identified by these data (near-singular direction, no effect, or at a bound): "
+                     f"{', '.join(bad)}; their values in the parameter set are what the optimiser left, not "
+                     "measurements.")
+    if outcome.note:
+        notes.append(outcome.note)
+    return notes
+
+
+def calibrate_scenario(spec: CalibrationSpec, fmu_dir: Path, out_dir: Path, progress: bool = False) -> CalibrationResult:
+    prepared = prepare(spec, fmu_dir, out_dir, progress)
+    timings = prepared.timings
+    t0 = time.perf_counter()
+    tokens = check_tokens(prepared.scenario, list(prepared.graph.instances))
+    timings["check"] += time.perf_counter() - t0
+    t0 = time.perf_counter()
+    pairs, summary, _ = pairs_for(prepared)
+    timings["align"] = time.perf_counter() - t0
+    learning, validation = pairs.select(LEARNING), pairs.select(VALIDATION)
+    t0 = time.perf_counter()
+    model, outcome = _fit(prepared, learning, spec.solver, progress)
+    deviation = consistency(prepared, model, learning)
+    timings["fit (build, starts, statistics)"] = time.perf_counter() - t0
+    tables: list[Table] = []
+    notes = [f"models/ vs FMU at the initial values on the rows of the learning pairs: max relative deviation "
+             f"{deviation:.3g}."]
+    if spec.alignment.method != "none":
+        t0 = time.perf_counter()
+        plain, _, _ = pairs_for(prepared, alignment=AlignmentSpec("none"))
+        single = replace(spec.solver, starts=1)
+        model_id = build_residuals(prepared.graph, plain.select(LEARNING), prepared.parameters, prepared.results,
+                                   spec.solver.shooting, spec.solver.shooting_interval)
+        other = fit(model_id, plain.select(LEARNING).recorded, weights=[o.weight for o in prepared.outputs],
+                    sigma=[None] * len(prepared.outputs), solver=single, statistics=spec.statistics,
+                    starts=outcome.theta[None, :])
+        tables.append(Table(
+            f"What the alignment ({spec.alignment.method}) changed",
+            ("parameter", "estimate on aligned pairs", "estimate on identity pairs", "difference / standard error"),
+            tuple((q.name, f"{q.display(a):.6g}", f"{q.display(b):.6g}",
+                   f"{(a - b) / st.standard_error:+.3g}" if np.isfinite(st.standard_error) and st.standard_error > 0
+                   else "n/a")
+                  for q, a, b, st in zip(prepared.parameters, outcome.theta, other.theta, outcome.statistics.parameters)),
+            f"Recorded samples were mapped to simulated times {summary.median_shift:.3g} s (median), "
+            f"{summary.max_shift:.3g} s (max) away from the identity."))
+        timings["fit on identity pairs (alignment effect)"] = time.perf_counter() - t0
+    t0 = time.perf_counter()
+    rec = prepared.scenario.recorded
+    source = {"calibration": spec.name, "spec": os.path.relpath(spec.path, spec.parameter_set.parent),
+              "spec_sha256": spec.sha256,
+              "scenario": os.path.relpath(spec.scenario, spec.parameter_set.parent),
+              "scenario_sha256": sha256_of(spec.scenario),
+              "recorded": os.path.relpath(rec.path, spec.parameter_set.parent), "recorded_sha256": sha256_of(rec.path),
+              "learning": str(list(spec.learning))}
+    set_path = write_parameter_set(spec.parameter_set, prepared.parameters, outcome.theta, outcome.statistics.parameters,
+                                   spec.description or spec.name, source,
+                                   f"python -m orchestrator calibrate {os.path.relpath(spec.path)}")
+    ssv = write_ssv(out_dir / f"{spec.parameter_set.stem}.ssv", spec.name, prepared.parameters, outcome.theta)
+    timings["write parameter set"] = time.perf_counter() - t0
+    t0 = time.perf_counter()
+    if spec.calibrated_scenario is not None:
+        after = load_scenario(spec.calibrated_scenario, fmu_dir)
+        for q, value in zip(prepared.parameters, outcome.theta):
+            instance, variable = q.name.split(".", 1)
+            applied = after.instance(instance).parameters.get(variable)
+            if applied is None or abs(applied - value) > 1e-12 * max(abs(value), 1e-300):
+                spec.fail("[calibration].calibrated_scenario",
+                          f"{spec.calibrated_scenario.name} does not apply the parameter set {set_path.name}: "
+                          f"{q.name} = {applied!r} there, {value!r} calibrated (add it to [scenario].parameter_sets)")
+    else:
+        after = load_scenario(spec.scenario, fmu_dir, parameter_sets=[set_path])
+    after = _recording_outputs(replace(after, name=f"{prepared.scenario.name.removesuffix('_initial')}_calibrated"),
+                               [o.ref for o in prepared.outputs])
+    results_after, run_after = _run(after, out_dir / "runs", progress)
+    timings["re-simulate (calibrated parameter set)"] = time.perf_counter() - t0
+    series = []
+    names = [o.ref for o in prepared.outputs]
+    for dataset, subset in (("learning", learning), ("validation", validation)):
+        if not len(subset):
+            continue
+        fmu_after = subset.with_fmu(results_after, names).fmu
+        for k, o in enumerate(prepared.outputs):
+            series.append(Series(o.ref, o.channel, dataset, subset.recorded_time, subset.recorded[:, k],
+                                 subset.fmu[:, k], fmu_after[:, k], o.unit, o.display_unit, o.display_factor))
+    ident = identities(spec, prepared.scenario, tokens)
+    ident["runs"] = {"initial": str(prepared.run_dir), "calibrated": str(run_after)}
+    ident["calibrated_scenario"] = str(spec.calibrated_scenario or f"{spec.scenario} + {set_path}")
+    ident["parameter_set"] = {"path": str(set_path), "sha256": sha256_of(set_path)}
+    return CalibrationResult(spec, outcome, series, [error_row(s) for s in series], ident, timings, out_dir, set_path,
+                             ssv, summary, notes + _notes(outcome), [], tables)

@@ -1,0 +1,432 @@
+"""Kind "slot_forces": the cutting-force coefficients from the slot-milling recordings.
+
+The recordings are read, folded and compared exactly as ``orchestrator.validation.slot_milling``
+does (its functions are reused: ``read_recordings``, ``recorded_waveform``, ``simulate``,
+``compare``). Two fits on the learning feeds, both casadi + IPOPT on the models/ expressions:
+
+1. **Linear regression** (Altintas): the per-revolution mean forces against the feed per tooth,
+   through ``models.cutting_force.mean_slot_forces`` (linear in the six coefficients, so one
+   Gauss-Newton step; the statistics are those of ordinary least squares per axis, each axis
+   weighted by its residual level).
+2. **Waveform fit**: nonlinear least squares of the force time series on the CuttingForce
+   equations (``models.cutting_force.equations``: 16 slices, helix, runout) with the coefficients,
+   optionally the runout (offset and angle of the tool axis), and one spindle phase per recording
+   (nuisance: the recordings' spindle angle is unknown). With 2 flutes the runout enters the chip only
+   as offset*cos(angle) (the two flutes' radius difference), so only the offset is fitted (angle 0; a
+   phase shift of half a turn swaps the flutes, which gives the other sign). Flute 0's angle at sample k is
+   ``phase + omega*k/fs`` (the FMU's angle state integrates exactly this). Only whole revolutions
+   are used; the spindle runs at the nominal speed to 4e-5 (a drift of 1.4 deg of spindle angle
+   over a 1 s recording, below the 3.6 deg between samples), so sample k and sample k + one
+   revolution see the same angle and the time-series sum of squares equals, up to a constant,
+   the sum over the per-revolution mean waveform weighted by the number of revolutions: the fit
+   uses that exact reduction (100 points per recording instead of 10,000) and the statistics the
+   full time series (n samples, the within-bin scatter included). The objective jumps where a
+   phase change moves a sample across an edge force switching on (the chip crossing zero), so the
+   phases are found by exhaustive search on a 0.1 deg grid (:class:`PhaseSearch`, global over the
+   turn) and the coefficients and runout by IPOPT with the phases fixed, alternating until the
+   objective stops decreasing. Starts: the regression's coefficients, then drawn ones.
+
+Held-out check (closing the loop): the parameter set is written, the slot-milling scenario is
+re-run with it through the FMUs at every recording's conditions, and ``slot_milling.compare``
+gives the mean-force relative errors and the waveform r^2 on learning and held-out feeds, next to
+the scenario's prior coefficients and the regression's.
+"""
+from __future__ import annotations
+
+import math
+import os
+import time
+from dataclasses import replace
+from pathlib import Path
+
+import casadi as ca
+import numpy as np
+from matplotlib.figure import Figure as MplFigure
+
+from models.cutting_force import CUTTING_FORCE, equations, mean_slot_forces
+from orchestrator.calibrate.errors import CalibrationError
+from orchestrator.calibrate.fit import FitOutcome, fit
+from orchestrator.calibrate.graph import NO_DATA_DERIVATIVE
+from orchestrator.calibrate.lsq import LeastSquaresSolver, StartOutcome
+from orchestrator.calibrate.parameters import Parameter, resolve_parameter
+from orchestrator.calibrate.paramset import write_parameter_set, write_ssv
+from orchestrator.calibrate.plots import _png
+from orchestrator.calibrate.residuals import ResidualModel, from_outputs
+from orchestrator.calibrate.result import CalibrationResult, Figure, Series, Table, error_row
+from orchestrator.calibrate.scenario_fit import check_tokens, identities
+from orchestrator.calibrate.spec import CalibrationSpec, ParameterSpec
+from orchestrator.master import SimulationError
+from orchestrator.results import sha256_of
+from orchestrator.scenario import Scenario, load_scenario
+from orchestrator.validation import slot_milling as sm
+
+__all__ = ["SlotData", "calibrate_slot_forces", "load_slot_data", "regression_model", "waveform_model"]
+
+COEFFICIENTS = sm.COEFFICIENTS
+RUNOUT = ("runout_offset", "runout_angle")
+RECORDED_AXES = tuple(sm.AXES)  # the files' Fx, Fy, Fz
+MODEL_AXES = tuple(sm.AXES[a] for a in RECORDED_AXES)  # the model's outputs compared with them
+RUNOUT_DEFAULTS = {"runout_offset": ParameterSpec("force.runout_offset", '[parameters."force.runout_offset"]',
+                                                  initial=5.0, min=0.0, max=100.0, unit="um",
+                                                  start_range=(0.0, 30.0)),
+                   "runout_angle": ParameterSpec("force.runout_angle", '[parameters."force.runout_angle"]',
+                                                 initial=0.0, min=-360.0, max=360.0, unit="deg", scale=90.0,
+                                                 start_range=(-180.0, 180.0))}
+
+
+class SlotData:
+    """The recordings of one fit: folded waveforms and per-revolution means, in the files' axes."""
+
+    def __init__(self, recordings: list[sm.Recording], revolutions: int, n_flutes: int) -> None:
+        self.recordings = recordings
+        self.waves, self.within, self.revs, self.rev_means = [], [], [], []
+        for r in recordings:
+            points = round(r.sample_rate * 60.0 / r.rpm)
+            use = r if revolutions <= 0 else replace(r, forces=r.forces[: revolutions * points],
+                                                     time=r.time[: revolutions * points])
+            if revolutions > 0 and len(use.forces) < revolutions * points:
+                raise ValueError(f"{r.path}: fewer than {revolutions} revolutions")
+            wave, std, revs = sm.recorded_waveform(use)
+            self.waves.append(wave)
+            self.within.append(revs * np.sum(std ** 2, axis=0))
+            self.revs.append(revs)
+            self.rev_means.append(use.forces[: revs * points].reshape(revs, points, 3).mean(axis=1))
+        self.feed_per_tooth = [r.feed / (r.rpm * n_flutes) / 1000 for r in recordings]  # m
+
+    @property
+    def labels(self) -> list[str]:
+        return [r.label for r in self.recordings]
+
+
+def load_slot_data(folder: Path, feeds: tuple[float, ...], key: str, spec: CalibrationSpec, revolutions: int,
+                   n_flutes: int) -> SlotData:
+    recordings = sm.read_recordings(folder)
+    by_feed = {r.feed: r for r in recordings}
+    missing = [f for f in feeds if f not in by_feed]
+    if missing:
+        spec.fail(key, f"no recording at {missing} mm/min in {folder}; feeds there: {sorted(by_feed)}")
+    chosen = [by_feed[f] for f in feeds]
+    for r in chosen:
+        if r.axial_depth != chosen[0].axial_depth or r.rpm != chosen[0].rpm:
+            spec.fail(key, f"{r.path.name}: all recordings of a fit need one spindle speed and axial depth")
+    return SlotData(chosen, revolutions, n_flutes)
+
+
+def _constants(scenario: Scenario, recording: sm.Recording) -> dict[str, float]:
+    """The force instance's parameters and inputs at the recording's conditions (SI)."""
+    inst = scenario.instance(sm.INSTANCE)
+    values = {**CUTTING_FORCE.defaults(), **{k: float(v) for k, v in inst.parameters.items()},
+              **{k: float(v) for k, v in inst.inputs.items()}}
+    values.update(spindle_speed=recording.rpm * 2 * math.pi / 60, feed_velocity_x=recording.feed / 60_000,
+                  feed_velocity_y=0.0, axial_depth=recording.axial_depth / 1000, displacement_x=0.0,
+                  displacement_y=0.0, delayed_displacement_x=0.0, delayed_displacement_y=0.0)
+    return values
+
+
+def _force_function(scenario: Scenario, recording: sm.Recording, fitted: list[str]) -> ca.Function:
+    """(fitted parameters, angle) -> forces in the files' axes, the rest folded in as constants."""
+    theta = ca.SX.sym("theta", len(fitted))
+    angle = ca.SX.sym("angle")
+    constants = _constants(scenario, recording)
+    values = {}
+    for arg in CUTTING_FORCE.arguments:
+        if arg.name in fitted:
+            values[arg.name] = theta[fitted.index(arg.name)]
+        elif arg.name == "angle":
+            values[arg.name] = angle
+        else:
+            values[arg.name] = ca.SX(constants[arg.name])
+    out = equations(values)
+    return ca.Function("forces", [theta, angle], [ca.vertcat(*[out[a] for a in MODEL_AXES])])
+
+
+def waveform_model(scenario: Scenario, data: SlotData, parameters: list[Parameter]) -> ResidualModel:
+    """Residuals of the mean waveforms (weighted by revolutions) for the model parameters followed by one
+    phase per recording (``parameters`` lists both, phases last)."""
+    fitted = [q.name.split(".", 1)[1] for q in parameters if not q.nuisance]
+    n_model = len(fitted)
+    blocks = []
+    for i, r in enumerate(data.recordings):
+        f = _force_function(scenario, r, fitted)
+        points = len(data.waves[i])
+        blocks.append((f.map(points), ca.DM(2 * math.pi * np.arange(points) / points).T, points))
+
+    def y_of(theta: ca.MX) -> ca.MX:
+        parts = []
+        for i, (mapped, base, points) in enumerate(blocks):
+            parts.append(mapped(ca.repmat(theta[:n_model], 1, points), theta[n_model + i] + base))
+        return ca.horzcat(*parts)
+
+    counts = np.concatenate([np.full(len(w), rv, dtype=float) for w, rv in zip(data.waves, data.revs)])
+    within = np.sum(data.within, axis=0)
+    labels = [(data.labels[i], j) for i, w in enumerate(data.waves) for j in range(len(w))]
+
+    def describe(k: int) -> str:
+        pair, o = divmod(k, 3)
+        label, j = labels[pair]
+        return f"{RECORDED_AXES[o]} of {label} at point {j} of the revolution"
+
+    return from_outputs(y_of, parameters, 3, len(counts), counts=counts, within=within, describe_residual=describe,
+                        describe_variable=lambda j: parameters[j].name)
+
+
+def regression_model(data: SlotData, parameters: list[Parameter], n_flutes: int) -> ResidualModel:
+    """Per-revolution mean forces against the feed per tooth through mean_slot_forces (closed form)."""
+    k = ca.SX.sym("K", 6)
+    c = ca.SX.sym("c")
+    a = data.recordings[0].axial_depth / 1000
+    means = mean_slot_forces(*[k[i] for i in range(6)], n_flutes=n_flutes, axial_depth=a, feed_per_tooth=c)
+    f = ca.Function("mean", [k, c], [ca.vertcat(*[means[m] for m in MODEL_AXES])], NO_DATA_DERIVATIVE)
+    c_all = np.concatenate([np.full(len(m), ft) for m, ft in zip(data.rev_means, data.feed_per_tooth)])
+    mapped = f.map(len(c_all))
+    return from_outputs(lambda th: mapped(ca.repmat(th, 1, len(c_all)), ca.DM(c_all).T), parameters, 3, len(c_all),
+                        describe_variable=lambda j: parameters[j].name)
+
+
+class PhaseSearch:
+    """The spindle phase of each recording that minimises the fit's own weighted sum of squares for
+    given model parameters, by exhaustive search on a grid of ``sm.FINE`` phases per turn (0.1 deg;
+    the samples are 3.6 deg apart): the objective is discontinuous in the phase (edge forces switch
+    where the chip crosses zero), which gradient steps cannot follow, but it is exact on the grid."""
+
+    def __init__(self, scenario: Scenario, data: SlotData, fitted: list[str]) -> None:
+        self.data = data
+        self.grid = 2 * math.pi * np.arange(sm.FINE) / sm.FINE
+        self.functions = [_force_function(scenario, r, fitted).map(sm.FINE) for r in data.recordings]
+
+    def __call__(self, theta_model: np.ndarray, weights: np.ndarray) -> np.ndarray:
+        phases = []
+        for i, f in enumerate(self.functions):
+            fine = np.asarray(f(np.repeat(theta_model[:, None], sm.FINE, axis=1), self.grid[None, :]), dtype=float).T
+            wave = self.data.waves[i]
+            points = len(wave)
+            index = (np.arange(sm.FINE)[:, None] + np.arange(points)[None, :] * (sm.FINE // points)) % sm.FINE
+            error = fine[index] - wave[None, :, :]  # phases x points x axes
+            phases.append(self.grid[int(np.argmin(np.einsum("spa,a->s", error ** 2, weights ** 2)))])
+        return np.array(phases)
+
+
+def alternating(search: PhaseSearch, n_model: int, scale: np.ndarray, rounds: int = 12, stationary: float = 1e-6):
+    """A start's solution strategy: phases by :class:`PhaseSearch`, then IPOPT (Gauss-Newton, at most the
+    solver's max_iterations) on the model parameters with the phases fixed; repeated while the
+    objective decreases by more than ``stationary`` (relative) per round. A round whose IPOPT result
+    is worse than its start (a bounce at a discontinuity) is not taken, and ends the start."""
+
+    def solve(lsq: LeastSquaresSolver, x0: np.ndarray, p: np.ndarray, index: int) -> StartOutcome:
+        t0 = time.perf_counter()
+        x = np.array(x0, dtype=float)
+        weights = p[-3:]
+        trace: list[float] = []
+        iterations, objective, why = 0, math.inf, f"no decrease by {stationary:g} within {rounds} rounds"
+        converged = False
+        for k in range(rounds):
+            x[n_model:] = search(x[:n_model] * scale[:n_model], weights) / scale[n_model:]
+            lbx, ubx = lsq.problem.lbx.copy(), lsq.problem.ubx.copy()
+            lbx[n_model:] = ubx[n_model:] = x[n_model:]
+            run = lsq.solve(x, p, index, lbx=lbx, ubx=ubx)
+            iterations += run.iterations
+            trace += run.trace.get("obj", [])
+            if run.x is None:
+                return StartOutcome(index, np.asarray(x0), "failed", f"round {k + 1}: {run.message}",
+                                    wall_time=time.perf_counter() - t0, iterations=iterations, trace={"obj": trace})
+            if run.objective >= objective:
+                converged, why = True, f"round {k + 1} gave no decrease (IPOPT: {run.message})"
+                break
+            decrease = (objective - run.objective) / run.objective if math.isfinite(objective) else math.inf
+            x, objective = run.x, run.objective
+            if decrease <= stationary:
+                converged, why = True, f"relative decrease {decrease:.2g} in round {k + 1} (IPOPT: {run.message})"
+                break
+        return StartOutcome(index, np.asarray(x0), "converged" if converged else "not converged",
+                            f"phase search + IPOPT, {k + 1} rounds: {why}", x, objective, iterations,
+                            time.perf_counter() - t0, {"obj": trace})
+
+    return solve
+
+
+def _parameters(spec: CalibrationSpec, scenario: Scenario, initial: dict[str, float],
+                source: str = "the scenario") -> list[Parameter]:
+    inst = scenario.instance(sm.INSTANCE)
+    allowed = set(COEFFICIENTS) | set(RUNOUT)
+    specs = {p.variable: p for p in spec.parameters}
+    for p in spec.parameters:
+        if p.instance != sm.INSTANCE or p.variable not in allowed:
+            spec.fail(p.key, f"kind slot_forces fits {sm.INSTANCE}.{{{', '.join(COEFFICIENTS + RUNOUT)}}}; not {p.name}")
+        if p.variable in RUNOUT and not spec.slot_forces.runout:
+            spec.fail(p.key, "[slot_forces].runout = false: the runout is not fitted")
+        if p.variable == "runout_angle" and sm._n_flutes(scenario) == 2:
+            spec.fail(p.key, "with 2 flutes the forces depend on the runout only through offset*cos(angle) (the "
+                             "difference of the two flute radii), so offset and angle cannot both be fitted; the "
+                             "angle stays 0 and the spindle phase (free) covers both signs")
+    runout = [n for n in RUNOUT if n != "runout_angle" or sm._n_flutes(scenario) > 2]
+    names = list(COEFFICIENTS) + (runout if spec.slot_forces.runout else [])
+    out = []
+    for name in names:
+        ps = specs.get(name) or RUNOUT_DEFAULTS.get(name) or ParameterSpec(f"{sm.INSTANCE}.{name}",
+                                                                           f'[parameters."{sm.INSTANCE}.{name}"]')
+        var = inst.variables[name]
+        default = initial.get(name, float(inst.parameters.get(name, CUTTING_FORCE.variable(name).start)))
+        out.append(resolve_parameter(ps, var.unit, default, var.min, var.max,
+                                     CUTTING_FORCE.variable(name).display_unit, spec.fail,
+                                     source if name in initial else "the scenario"))
+    return out
+
+
+def _phase_parameters(data: SlotData) -> list[Parameter]:
+    return [Parameter(f"phase[{label}]", 0.0, -4 * math.pi, 4 * math.pi, 1.0, "rad", "deg", 180 / math.pi,
+                      (0.0, 2 * math.pi), False, nuisance=True) for label in data.labels]
+
+
+def _means_png(learn: SlotData, held: SlotData, regression: FitOutcome, waveform: FitOutcome, n_flutes: int) -> bytes:
+    fig = MplFigure(figsize=(12, 3.8))
+    fig.subplots_adjust(left=0.06, right=0.98, top=0.9, bottom=0.14, wspace=0.28)
+    axes = fig.subplots(1, 3)
+    a = learn.recordings[0].axial_depth / 1000
+    ft = np.linspace(0, max(learn.feed_per_tooth + held.feed_per_tooth) * 1.1, 50)
+    reg = dict(zip(COEFFICIENTS, regression.theta[:6]))
+    wav = dict(zip(COEFFICIENTS, waveform.theta[:6]))
+    for k, axis in enumerate(RECORDED_AXES):
+        ax = axes[k]
+        for data, style, label in ((learn, "ko", "learning feeds"), (held, "rs", "held-out feeds")):
+            ax.plot(np.array(data.feed_per_tooth) * 1000, [m[:, k].mean() for m in data.rev_means], style,
+                    mfc="none" if data is held else None, label=f"recorded mean, {label}")
+        for coefficients, color, label in ((reg, "tab:blue", "regression"), (wav, "tab:green", "waveform fit")):
+            line = [mean_slot_forces(**coefficients, n_flutes=n_flutes, axial_depth=a, feed_per_tooth=c)[MODEL_AXES[k]]
+                    for c in ft]
+            ax.plot(ft * 1000, line, color=color, label=f"closed-form mean, {label} coefficients")
+        ax.set_title(f"mean {axis} (file) = model {MODEL_AXES[k]}")
+        ax.set_xlabel("feed per tooth [mm]")
+        ax.set_ylabel("force [N]")
+        ax.grid(True, alpha=0.3)
+    axes[0].legend(fontsize=7)
+    return _png(fig)
+
+
+def calibrate_slot_forces(spec: CalibrationSpec, fmu_dir: Path, out_dir: Path, data_option: str | Path | None,
+                          progress: bool = False) -> CalibrationResult:
+    timings: dict[str, float] = {}
+    t0 = time.perf_counter()
+    folder = sm.data_dir(data_option)
+    scenario = load_scenario(spec.scenario, fmu_dir)
+    sm._check_scenario(scenario)
+    n_flutes = sm._n_flutes(scenario)
+    cfg = spec.slot_forces
+    learn = load_slot_data(folder, cfg.learning_feeds, "[slot_forces].learning_feeds", spec, cfg.revolutions, n_flutes)
+    held = load_slot_data(folder, cfg.validation_feeds, "[slot_forces].validation_feeds", spec, cfg.revolutions,
+                          n_flutes)
+    if held.recordings[0].axial_depth != learn.recordings[0].axial_depth:
+        spec.fail("[slot_forces].validation_feeds", "held-out recordings differ in axial depth from the learning ones")
+    tokens = check_tokens(scenario, [sm.INSTANCE])
+    timings["read and fold the recordings"] = time.perf_counter() - t0
+
+    # 1. the classic linear regression of per-revolution means
+    t0 = time.perf_counter()
+    prior = {name: float(scenario.instance(sm.INSTANCE).parameters.get(name, CUTTING_FORCE.variable(name).start))
+             for name in COEFFICIENTS}
+    coefficient_params = _parameters(replace(spec, parameters=tuple(p for p in spec.parameters if p.variable in
+                                                                   COEFFICIENTS), slot_forces=replace(cfg, runout=False)),
+                                     scenario, {})
+    reg_model = regression_model(learn, coefficient_params, n_flutes)
+    regression = fit(reg_model, np.concatenate(learn.rev_means), weights=[1.0] * 3, sigma=[None] * 3,
+                     solver=replace(spec.solver, starts=1), statistics=spec.statistics)
+    timings["fit: linear regression of per-revolution means"] = time.perf_counter() - t0
+
+    # 2. the waveform fit, starting from the regression
+    t0 = time.perf_counter()
+    model_params = _parameters(spec, scenario, dict(zip(COEFFICIENTS, regression.theta)), "the linear regression")
+    params = model_params + _phase_parameters(learn)
+    fitted = [q.name.split(".", 1)[1] for q in model_params]
+    model = waveform_model(scenario, learn, params)
+    strategy = alternating(PhaseSearch(scenario, learn, fitted), len(model_params), model.scale())
+    recorded = np.concatenate(learn.waves)
+    waveform = fit(model, recorded, weights=[1.0] * 3, sigma=[None] * 3, solver=spec.solver,
+                   statistics=spec.statistics, progress=progress, strategy=strategy)
+    timings["fit: waveform (time series, phases, runout)"] = time.perf_counter() - t0
+
+    # 3. parameter set and re-simulation through the FMUs
+    t0 = time.perf_counter()
+    source = {"calibration": spec.name, "spec": os.path.relpath(spec.path, spec.parameter_set.parent),
+              "spec_sha256": spec.sha256, "scenario": os.path.relpath(spec.scenario, spec.parameter_set.parent),
+              "data": "slot-milling recordings (" + ", ".join(r.path.name for r in learn.recordings) + "; not in the "
+                      "repository: " + sm.SOURCE + ")",
+              "data_sha256": ", ".join(sha256_of(r.path)[:16] for r in learn.recordings)}
+    set_path = write_parameter_set(spec.parameter_set, params, waveform.theta, waveform.statistics.parameters,
+                                   spec.description or spec.name, source,
+                                   f"python -m orchestrator calibrate {os.path.relpath(spec.path)}")
+    ssv = write_ssv(out_dir / f"{spec.parameter_set.stem}.ssv", spec.name, params, waveform.theta)
+    calibrated = load_scenario(spec.scenario, fmu_dir, parameter_sets=[set_path])
+    runs = out_dir / "runs"
+    cases: dict[str, list[tuple[str, sm.Recording, dict]]] = {"prior": [], "regression": [], "calibrated": []}
+    reg_coefficients = dict(zip(COEFFICIENTS, regression.theta))
+    try:
+        for dataset, group in (("learning", learn), ("validation", held)):
+            for r in group.recordings:
+                for name, case, coefficients in (("prior", scenario, None), ("regression", scenario, reg_coefficients),
+                                                 ("calibrated", calibrated, None)):
+                    results = sm.simulate(case, r, runs, coefficients, f"_{name}")
+                    cases[name].append((dataset, r, sm.compare(r, results)))
+    except SimulationError as exc:
+        raise CalibrationError(f"re-simulation of the slot-milling scenario failed: {exc}") from exc
+    timings["re-simulate (FMU, 3 coefficient sets x all feeds)"] = time.perf_counter() - t0
+
+    series, rows = [], []
+    for (dataset, r, before), (_, _, after), (_, _, reg) in zip(cases["prior"], cases["calibrated"], cases["regression"]):
+        rec_wave, _, sim_before = before["_waves"]
+        sim_after = after["_waves"][2]
+        angle = np.arange(len(rec_wave)) * 360.0 / len(rec_wave)
+        for k, axis in enumerate(RECORDED_AXES):
+            series.append(Series(f"{sm.INSTANCE}.{MODEL_AXES[k]}", f"{axis} (file)", dataset, angle, rec_wave[:, k],
+                                 sim_before[:, k], sim_after[:, k], "N", "N", 1.0, label=r.label,
+                                 x_label="spindle angle [deg] (per-revolution mean)"))
+        for name, c in (("prior", before), ("regression", reg), ("waveform fit", after)):
+            rows.append((r.label, dataset, name,
+                         " / ".join(f"{100 * c['mean_relative_error'][a]:+.1f}" for a in RECORDED_AXES),
+                         " / ".join(f"{c['waveform_r2'][a]:.3f}" for a in RECORDED_AXES)))
+    held_errors = {name: np.array([[abs(c["mean_relative_error"][a]) for a in RECORDED_AXES]
+                                   for d, _, c in cases[name] if d == "validation"]) for name in cases}
+    held_r2 = {name: np.array([[c["waveform_r2"][a] for a in RECORDED_AXES] for d, _, c in cases[name]
+                               if d == "validation"]) for name in cases}
+    tables = [
+        Table("Slot milling through the FMUs: mean-force relative error and waveform r2 per recording",
+              ("recording", "data", "coefficients", "mean error Fx / Fy / Fz [%]", "waveform r2 Fx / Fy / Fz"),
+              tuple(rows), "As orchestrator.validation.slot_milling computes them (phase aligned by cross-correlation "
+                           "of the per-revolution waveform); files' axes: Fx cross-feed = model Fy, Fy feed = model Fx."),
+        Table("Held-out feeds: mean over recordings and axes",
+              ("coefficients", "mean |mean-force error| [%]", "mean waveform r2",
+               "per axis |error| Fx / Fy / Fz [%]", "per axis r2 Fx / Fy / Fz"),
+              tuple((name, f"{100 * held_errors[name].mean():.2f}", f"{held_r2[name].mean():.3f}",
+                     " / ".join(f"{100 * v:.2f}" for v in held_errors[name].mean(axis=0)),
+                     " / ".join(f"{v:.3f}" for v in held_r2[name].mean(axis=0))) for name in cases)),
+        Table("Coefficients: linear regression of per-revolution means vs waveform fit (95 % CI)",
+              ("coefficient", "unit", "prior (scenario)", "regression", "regression 95 % CI", "waveform fit",
+               "waveform 95 % CI"),
+              tuple((q.name, q.display_unit, f"{q.display(prior[q.name.split('.')[1]]):.4g}",
+                     f"{q.display(rs.estimate):.5g}", f"[{q.display(rs.ci_low):.5g}, {q.display(rs.ci_high):.5g}]",
+                     f"{q.display(ws.estimate):.5g}", f"[{q.display(ws.ci_low):.5g}, {q.display(ws.ci_high):.5g}]")
+                    for q, rs, ws in zip(coefficient_params, regression.statistics.parameters,
+                                         waveform.statistics.parameters)),
+              f"Regression: {regression.statistics.n_residuals} per-revolution means x axes; waveform: "
+              f"{waveform.statistics.n_residuals} samples x axes ({sum(learn.revs)} revolutions). The waveform "
+              "intervals assume independent residuals; the residuals are correlated (resonance), so they are "
+              "too narrow."),
+    ]
+    figures = [Figure("Mean forces against the feed per tooth", _means_png(learn, held, regression, waveform, n_flutes),
+                      "Recorded per-revolution means (learning filled, held-out open) and the closed-form means of "
+                      "both coefficient sets.")]
+    ident = identities(spec, scenario, tokens)
+    ident["recorded"] = [{"path": str(r.path), "sha256": sha256_of(r.path), "role": d}
+                         for d, g in (("learning", learn), ("validation", held)) for r in g.recordings]
+    ident["parameter_set"] = {"path": str(set_path), "sha256": sha256_of(set_path)}
+    notes = [f"Data: {folder} (never copied into the repository; source {sm.SOURCE}).",
+             "Learning feeds " + ", ".join(f"{f:g}" for f in cfg.learning_feeds) + " mm/min; held-out "
+             + ", ".join(f"{f:g}" for f in cfg.validation_feeds) + " mm/min.",
+             "Figures and errors per feed come from FMU runs of the slot-milling scenario (0.1 s, 10 revolutions), "
+             "with the prior coefficients (orange), and with the calibrated parameter set applied by name (blue)."]
+    if waveform.note:
+        notes.append(waveform.note)
+    result = CalibrationResult(spec, waveform, series, [error_row(s) for s in series], ident, timings, out_dir, set_path,
+                               ssv, None, notes, figures, tables)
+    result.extra.update(regression=regression, cases=cases,
+                        held_out={"mean_abs_error": {k: v.tolist() for k, v in held_errors.items()},
+                                  "r2": {k: v.tolist() for k, v in held_r2.items()}})
+    return result

@@ -1,0 +1,454 @@
+"""Calibration spec files (TOML): what to fit, to which data, how.
+
+Parsed by :func:`load_spec` into a frozen :class:`CalibrationSpec`; structure, types and the
+relations that need no FMU (bounds reversed, initial value outside the bounds, empty or reversed
+segments) are checked here, the names (parameters, outputs, channels) when the scenario is loaded
+(:mod:`orchestrator.calibrate.scenario_fit`). Every problem is a :class:`CalibrationSpecError`
+naming the spec file and the TOML key. Paths are relative to the spec file's folder.
+
+Format (kind "scenario", the default: fit parameters of the FMU instances of a scenario to its
+recorded data)::
+
+    [calibration]
+    name = "umich_power"              # letters, digits, "_", "-", "."; names <out>/calibration/<name>/
+    description = "..."               # optional
+    kind = "scenario"                 # or "slot_forces" (see below)
+    scenario = "../umich_power.toml"  # the scenario: FMU instances, recorded data, inputs, connections
+    parameter_set = "umich_power.params.toml"       # the calibrated values are written here
+    calibrated_scenario = "umich_power_calibrated.toml"  # optional: the re-simulation runs this
+                                      # scenario file, which must apply the parameter set by name
+
+    [parameters."power.c1"]           # "instance.variable", a Float64 parameter of the instance
+    initial = 0.264                   # optional: default the scenario's value, else the FMU's start
+    min = 0.0                         # optional: default the FMU's min (it must lie inside it)
+    max = 2.0                         # optional: default the FMU's max
+    unit = "W.s/rad"                  # optional unit of initial/min/max/scale/start_range (default SI)
+    scale = 0.3                       # optional typical size for the optimiser (default |initial|, or 1)
+    start_range = [0.1, 1.0]          # optional: where multi-start draws its starts (default below)
+
+    [[outputs]]                       # a model output against a recorded channel
+    simulated = "power.P_total"       # "instance.variable", an output computed by the models/ equations
+    recorded = "spindle_power"        # a channel of the scenario's [recorded] data
+    weight = 1.0                      # optional, > 0
+    unit = "kW"                       # optional display unit of the report
+    sigma = 0.02                      # optional noise standard deviation (display unit); see [solver].noise
+
+    [segments]                        # recorded-time windows [start, end] in s
+    learning = [[0.0, 70.0]]
+    validation = [[70.0, 105.4]]      # optional (no validation figures without it)
+
+    [alignment]                       # optional; default method "none" (recorded time = simulated time)
+    method = "dtw"                    # "none" or a method of orchestrator.align ("multiscale", "dtw", "patent")
+    simulated = ["power.spindle_speed", "mrr.feed_velocity_x", "mrr.feed_velocity_y"]
+    recorded = ["spindle_speed", "feed_x", "feed_y"]   # three of each, same units pairwise
+    output_delay = 0.0                # s, see orchestrator.align.trajectory
+    min_confidence = 0.0              # pairs whose alignment confidence is lower are not used
+
+    [inputs."power.mrr"]              # optional, per input of the fitted equations (data or connection)
+    floor = 1e-300                    # SI: the fit reads the input as max(value, floor) (see README: a
+                                      # derivative the models/ expression leaves undefined at 0)
+
+    [solver]                          # all optional
+    starts = 4                        # multi-start: the initial values, then starts - 1 drawn ones
+    seed = 0
+    max_iterations = 200
+    tolerance = 1e-10                 # IPOPT tol
+    hessian = "gauss-newton"          # or "exact"
+    shooting = "multiple"             # models with states: "multiple" or "single"
+    shooting_interval = 100           # steps per shooting interval
+    noise = "estimate"                # per-output noise level: "estimate" (two-stage: refit with each
+                                      # output weighted by 1/its residual RMS) or "sigma" (given sigmas)
+
+    [statistics]                      # all optional: flag thresholds
+    condition = 100.0                 # near-singular direction: condition index above this
+    correlation = 0.95                # |correlation| above this is flagged
+    relative_se = 0.5                 # standard error above this fraction of |estimate|: poorly determined
+
+Default start ranges: ``start_range`` if given; else the bounds when both are finite and at most
+100 scales apart; else initial/4 .. initial*4 (log-uniform) for a positive initial value, and
+initial -/+ 2 scales otherwise, clipped to the bounds.
+
+Kind "slot_forces" (the cutting-force coefficients from the slot-milling recordings, read as
+``orchestrator.validation.slot_milling`` reads them; ``[[outputs]]``, ``[segments]``,
+``[alignment]`` and ``[inputs]`` do not apply)::
+
+    [calibration]
+    kind = "slot_forces"
+    scenario = "../slot_milling.toml" # the CuttingForce instance "force" and its assumed geometry
+    ...
+    [slot_forces]
+    learning_feeds = [300, 900, 1500] # mm/min, files of the data folder
+    validation_feeds = [600, 1200]
+    runout = true                     # also fit force.runout_offset and force.runout_angle
+    revolutions = 0                   # whole revolutions used per recording (0: all)
+    [parameters."force.Ktc"]          # the six coefficients (and runout ones): bounds, units, ...
+"""
+from __future__ import annotations
+
+import hashlib
+import math
+import re
+import tomllib
+from collections.abc import Sequence
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any, NoReturn
+
+from orchestrator.calibrate.errors import CalibrationSpecError
+
+__all__ = ["AlignmentSpec", "CalibrationSpec", "OutputSpec", "ParameterSpec", "SlotForcesSpec",
+           "SolverSpec", "StatisticsSpec", "load_spec"]
+
+KINDS = ("scenario", "slot_forces")
+ALIGNMENT_METHODS = ("none", "multiscale", "dtw", "patent")
+_NAME_RE = re.compile(r"^[A-Za-z0-9_.-]+$")
+
+
+@dataclass(frozen=True)
+class ParameterSpec:
+    """One parameter to fit, as written (values in ``unit``; None: take the default)."""
+
+    name: str  # "instance.variable"
+    key: str  # the TOML key, for messages
+    initial: float | None = None
+    min: float | None = None
+    max: float | None = None
+    unit: str | None = None
+    scale: float | None = None
+    start_range: tuple[float, float] | None = None
+
+    @property
+    def instance(self) -> str:
+        return self.name.split(".", 1)[0]
+
+    @property
+    def variable(self) -> str:
+        return self.name.split(".", 1)[1]
+
+
+@dataclass(frozen=True)
+class OutputSpec:
+    simulated: str
+    recorded: str
+    key: str
+    weight: float = 1.0
+    unit: str | None = None
+    sigma: float | None = None  # in ``unit`` (else the output's SI unit)
+
+
+@dataclass(frozen=True)
+class AlignmentSpec:
+    method: str = "none"
+    simulated: tuple[str, ...] = ()
+    recorded: tuple[str, ...] = ()
+    output_delay: float = 0.0
+    min_confidence: float = 0.0
+
+
+@dataclass(frozen=True)
+class SolverSpec:
+    starts: int = 4
+    seed: int = 0
+    max_iterations: int = 200
+    tolerance: float = 1e-10
+    hessian: str = "gauss-newton"
+    shooting: str = "multiple"
+    shooting_interval: int = 100
+    noise: str = "estimate"
+
+
+@dataclass(frozen=True)
+class StatisticsSpec:
+    condition: float = 100.0
+    correlation: float = 0.95
+    relative_se: float = 0.5
+
+
+@dataclass(frozen=True)
+class SlotForcesSpec:
+    learning_feeds: tuple[float, ...]
+    validation_feeds: tuple[float, ...]
+    runout: bool = True
+    revolutions: int = 0
+
+
+@dataclass(frozen=True)
+class CalibrationSpec:
+    path: Path
+    sha256: str
+    name: str
+    description: str
+    kind: str
+    scenario: Path
+    parameter_set: Path
+    calibrated_scenario: Path | None
+    parameters: tuple[ParameterSpec, ...]
+    outputs: tuple[OutputSpec, ...] = ()
+    learning: tuple[tuple[float, float], ...] = ()
+    validation: tuple[tuple[float, float], ...] = ()
+    alignment: AlignmentSpec = field(default_factory=AlignmentSpec)
+    input_floors: dict[str, float] = field(default_factory=dict)
+    solver: SolverSpec = field(default_factory=SolverSpec)
+    statistics: StatisticsSpec = field(default_factory=StatisticsSpec)
+    slot_forces: SlotForcesSpec | None = None
+
+    def fail(self, key: str, message: str) -> NoReturn:
+        raise CalibrationSpecError(self.path, key, message)
+
+
+class _Ctx:
+    def __init__(self, path: Path) -> None:
+        self.path = path
+
+    def fail(self, key: str, message: str) -> NoReturn:
+        raise CalibrationSpecError(self.path, key, message)
+
+    def table(self, value: Any, key: str, allowed: Sequence[str]) -> dict[str, Any]:
+        if not isinstance(value, dict):
+            self.fail(key, f"expected a table, got {type(value).__name__} {value!r}")
+        for name in value:
+            if name not in allowed:
+                self.fail(f"{key}.{name}" if key else name, f"unknown key {name!r}; known keys: {', '.join(allowed)}")
+        return value
+
+    def number(self, table: dict, key: str, name: str, default: Any = ..., positive: bool = False,
+               minimum: float | None = None) -> Any:
+        if name not in table:
+            if default is ...:
+                self.fail(f"{key}.{name}", "missing required key")
+            return default
+        value = table[name]
+        if isinstance(value, bool) or not isinstance(value, (int, float)) or not math.isfinite(value):
+            self.fail(f"{key}.{name}", f"expected a finite number, got {value!r}")
+        if positive and value <= 0:
+            self.fail(f"{key}.{name}", f"must be > 0, got {value!r}")
+        if minimum is not None and value < minimum:
+            self.fail(f"{key}.{name}", f"must be >= {minimum!r}, got {value!r}")
+        return float(value)
+
+    def integer(self, table: dict, key: str, name: str, default: int, minimum: int) -> int:
+        value = table.get(name, default)
+        if isinstance(value, bool) or not isinstance(value, int) or value < minimum:
+            self.fail(f"{key}.{name}", f"expected a whole number >= {minimum}, got {value!r}")
+        return value
+
+    def string(self, table: dict, key: str, name: str, default: Any = ..., choices: Sequence[str] | None = None) -> Any:
+        if name not in table:
+            if default is ...:
+                self.fail(f"{key}.{name}", "missing required key")
+            return default
+        value = table[name]
+        if not isinstance(value, str):
+            self.fail(f"{key}.{name}", f"expected a string, got {value!r}")
+        if choices is not None and value not in choices:
+            self.fail(f"{key}.{name}", f"{value!r} is not one of {', '.join(choices)}")
+        return value
+
+    def strings(self, table: dict, key: str, name: str, count: int) -> tuple[str, ...]:
+        value = table.get(name, [])
+        if not isinstance(value, list) or not all(isinstance(v, str) for v in value) or len(value) != count:
+            self.fail(f"{key}.{name}", f"expected a list of {count} strings, got {value!r}")
+        return tuple(value)
+
+    def ref(self, value: Any, key: str) -> str:
+        if not isinstance(value, str) or value.count(".") < 1 or not all(value.split(".", 1)):
+            self.fail(key, f"expected \"instance.variable\", got {value!r}")
+        return value
+
+
+def _segments(ctx: _Ctx, table: dict, name: str, required: bool) -> tuple[tuple[float, float], ...]:
+    key = f"[segments].{name}"
+    if name not in table:
+        if required:
+            ctx.fail(key, "missing required key: a list of [start, end] windows in s")
+        return ()
+    raw = table[name]
+    if not isinstance(raw, list) or not raw:
+        ctx.fail(key, f"expected a non-empty list of [start, end] windows, got {raw!r}")
+    out = []
+    for i, item in enumerate(raw):
+        if (not isinstance(item, list) or len(item) != 2
+                or not all(isinstance(v, (int, float)) and not isinstance(v, bool) and math.isfinite(v) for v in item)):
+            ctx.fail(f"{key}[{i}]", f"expected [start, end] in s, got {item!r}")
+        if item[1] <= item[0]:
+            ctx.fail(f"{key}[{i}]", f"end {item[1]!r} must be after start {item[0]!r}")
+        out.append((float(item[0]), float(item[1])))
+    return tuple(out)
+
+
+def _parameter(ctx: _Ctx, name: str, raw: Any) -> ParameterSpec:
+    key = f'[parameters."{name}"]'
+    ctx.ref(name, key)
+    table = ctx.table(raw, key, ("initial", "min", "max", "unit", "scale", "start_range"))
+    lo, hi = ctx.number(table, key, "min", None), ctx.number(table, key, "max", None)
+    if lo is not None and hi is not None and lo >= hi:
+        ctx.fail(f"{key}.max", f"bounds reversed or empty: min {lo!r} >= max {hi!r}")
+    initial = ctx.number(table, key, "initial", None)
+    if initial is not None and ((lo is not None and initial < lo) or (hi is not None and initial > hi)):
+        ctx.fail(f"{key}.initial", f"{initial!r} lies outside [min, max] = [{lo!r}, {hi!r}]")
+    start_range = None
+    if "start_range" in table:
+        sr = table["start_range"]
+        if (not isinstance(sr, list) or len(sr) != 2
+                or not all(isinstance(v, (int, float)) and not isinstance(v, bool) and math.isfinite(v) for v in sr)
+                or sr[1] <= sr[0]):
+            ctx.fail(f"{key}.start_range", f"expected [low, high] with low < high, got {sr!r}")
+        start_range = (float(sr[0]), float(sr[1]))
+    return ParameterSpec(name=name, key=key, initial=initial, min=lo, max=hi, unit=ctx.string(table, key, "unit", None),
+                         scale=ctx.number(table, key, "scale", None, positive=True), start_range=start_range)
+
+
+def _outputs(ctx: _Ctx, doc: dict) -> tuple[OutputSpec, ...]:
+    items = doc.get("outputs")
+    if not isinstance(items, list) or not items:
+        ctx.fail("[[outputs]]", "define at least one [[outputs]] table (simulated output vs recorded channel)")
+    out = []
+    for i, item in enumerate(items):
+        key = f"[[outputs]][{i}]"
+        table = ctx.table(item, key, ("simulated", "recorded", "weight", "unit", "sigma"))
+        out.append(OutputSpec(simulated=ctx.ref(table.get("simulated"), f"{key}.simulated"),
+                              recorded=ctx.string(table, key, "recorded"), key=key,
+                              weight=ctx.number(table, key, "weight", 1.0, positive=True),
+                              unit=ctx.string(table, key, "unit", None),
+                              sigma=ctx.number(table, key, "sigma", None, positive=True)))
+    seen = [o.simulated + "|" + o.recorded for o in out]
+    for i, s in enumerate(seen):
+        if s in seen[:i]:
+            ctx.fail(f"[[outputs]][{i}]", f"the pair {out[i].simulated} / {out[i].recorded} is listed twice")
+    return tuple(out)
+
+
+def _alignment(ctx: _Ctx, raw: Any) -> AlignmentSpec:
+    key = "[alignment]"
+    table = ctx.table(raw, key, ("method", "simulated", "recorded", "output_delay", "min_confidence"))
+    method = ctx.string(table, key, "method", "none", ALIGNMENT_METHODS)
+    delay = ctx.number(table, key, "output_delay", 0.0, minimum=0.0)
+    confidence = ctx.number(table, key, "min_confidence", 0.0, minimum=0.0)
+    if confidence > 1:
+        ctx.fail(f"{key}.min_confidence", f"must lie in [0, 1], got {confidence!r}")
+    if method == "none":
+        for name in ("simulated", "recorded"):
+            if name in table:
+                ctx.fail(f"{key}.{name}", "not used with method = \"none\"")
+        return AlignmentSpec("none", (), (), delay, confidence)
+    simulated = ctx.strings(table, key, "simulated", 3)
+    for i, s in enumerate(simulated):
+        ctx.ref(s, f"{key}.simulated[{i}]")
+    return AlignmentSpec(method, simulated, ctx.strings(table, key, "recorded", 3), delay, confidence)
+
+
+def _solver(ctx: _Ctx, raw: Any) -> SolverSpec:
+    key = "[solver]"
+    table = ctx.table(raw, key, ("starts", "seed", "max_iterations", "tolerance", "hessian", "shooting",
+                                 "shooting_interval", "noise"))
+    return SolverSpec(starts=ctx.integer(table, key, "starts", 4, 1), seed=ctx.integer(table, key, "seed", 0, 0),
+                      max_iterations=ctx.integer(table, key, "max_iterations", 200, 1),
+                      tolerance=ctx.number(table, key, "tolerance", 1e-10, positive=True),
+                      hessian=ctx.string(table, key, "hessian", "gauss-newton", ("gauss-newton", "exact")),
+                      shooting=ctx.string(table, key, "shooting", "multiple", ("multiple", "single")),
+                      shooting_interval=ctx.integer(table, key, "shooting_interval", 100, 1),
+                      noise=ctx.string(table, key, "noise", "estimate", ("estimate", "sigma")))
+
+
+def _statistics(ctx: _Ctx, raw: Any) -> StatisticsSpec:
+    key = "[statistics]"
+    table = ctx.table(raw, key, ("condition", "correlation", "relative_se"))
+    correlation = ctx.number(table, key, "correlation", 0.95, positive=True)
+    if correlation >= 1:
+        ctx.fail(f"{key}.correlation", f"must lie in (0, 1), got {correlation!r}")
+    return StatisticsSpec(condition=ctx.number(table, key, "condition", 100.0, positive=True), correlation=correlation,
+                          relative_se=ctx.number(table, key, "relative_se", 0.5, positive=True))
+
+
+def _feeds(ctx: _Ctx, table: dict, name: str) -> tuple[float, ...]:
+    key = f"[slot_forces].{name}"
+    raw = table.get(name)
+    if (not isinstance(raw, list) or not raw
+            or not all(isinstance(v, (int, float)) and not isinstance(v, bool) and v > 0 for v in raw)):
+        ctx.fail(key, f"expected a non-empty list of feeds in mm/min, got {raw!r}")
+    if len(set(raw)) != len(raw):
+        ctx.fail(key, f"a feed is listed twice: {raw!r}")
+    return tuple(float(v) for v in raw)
+
+
+def _slot_forces(ctx: _Ctx, raw: Any) -> SlotForcesSpec:
+    key = "[slot_forces]"
+    table = ctx.table(raw, key, ("learning_feeds", "validation_feeds", "runout", "revolutions"))
+    learning, validation = _feeds(ctx, table, "learning_feeds"), _feeds(ctx, table, "validation_feeds")
+    if len(learning) < 2:
+        ctx.fail(f"{key}.learning_feeds", "give at least two feeds (a line per axis needs two)")
+    both = sorted(set(learning) & set(validation))
+    if both:
+        ctx.fail(f"{key}.validation_feeds", f"feed(s) {both} are also learning feeds: validation data must be unseen")
+    runout = table.get("runout", True)
+    if not isinstance(runout, bool):
+        ctx.fail(f"{key}.runout", f"expected true or false, got {runout!r}")
+    return SlotForcesSpec(learning, validation, runout, ctx.integer(table, key, "revolutions", 0, 0))
+
+
+def load_spec(path: str | Path) -> CalibrationSpec:
+    """Parse and check a calibration spec file (see the module text)."""
+    path = Path(path)
+    ctx = _Ctx(path)
+    try:
+        raw = path.read_bytes()
+        doc = tomllib.loads(raw.decode("utf-8"))
+    except FileNotFoundError:
+        ctx.fail("", "calibration spec not found")
+    except (tomllib.TOMLDecodeError, UnicodeDecodeError) as exc:
+        ctx.fail("", f"invalid TOML: {exc}")
+    ctx.table(doc, "", ("calibration", "parameters", "outputs", "segments", "alignment", "inputs", "solver",
+                        "statistics", "slot_forces"))
+    key = "[calibration]"
+    head = ctx.table(doc.get("calibration"), key, ("name", "description", "kind", "scenario", "parameter_set",
+                                                   "calibrated_scenario"))
+    name = ctx.string(head, key, "name")
+    if not _NAME_RE.match(name):
+        ctx.fail(f"{key}.name", f"{name!r}: use only letters, digits, '_', '-' and '.'")
+    kind = ctx.string(head, key, "kind", "scenario", KINDS)
+    base = path.parent
+    scenario = base / ctx.string(head, key, "scenario")
+    if not scenario.is_file():
+        ctx.fail(f"{key}.scenario", f"scenario file {scenario} not found")
+    parameter_set = base / ctx.string(head, key, "parameter_set")
+    if parameter_set.suffix != ".toml":
+        ctx.fail(f"{key}.parameter_set", f"{parameter_set.name}: the parameter set is a .toml file")
+    calibrated = ctx.string(head, key, "calibrated_scenario", None)
+    calibrated_path = base / calibrated if calibrated is not None else None
+    if calibrated_path is not None and not calibrated_path.is_file():
+        ctx.fail(f"{key}.calibrated_scenario", f"scenario file {calibrated_path} not found")
+
+    params = ctx.table(doc.get("parameters"), "[parameters]", list(doc.get("parameters") or {}))
+    if not params:
+        ctx.fail("[parameters]", "name at least one parameter to fit as [parameters.\"instance.variable\"]")
+    parameters = tuple(_parameter(ctx, n, v) for n, v in params.items())
+
+    common = dict(path=path, sha256=hashlib.sha256(raw).hexdigest(), name=name,
+                  description=ctx.string(head, key, "description", ""), kind=kind, scenario=scenario,
+                  parameter_set=parameter_set, calibrated_scenario=calibrated_path, parameters=parameters,
+                  solver=_solver(ctx, doc.get("solver", {})), statistics=_statistics(ctx, doc.get("statistics", {})))
+    if kind == "slot_forces":
+        for section in ("outputs", "segments", "alignment", "inputs"):
+            if section in doc:
+                ctx.fail(f"[{section}]", "not used by kind = \"slot_forces\" (its data and outputs are fixed)")
+        if "slot_forces" not in doc:
+            ctx.fail("[slot_forces]", "missing required table for kind = \"slot_forces\"")
+        return CalibrationSpec(**common, slot_forces=_slot_forces(ctx, doc["slot_forces"]))
+
+    if "slot_forces" in doc:
+        ctx.fail("[slot_forces]", "only used by kind = \"slot_forces\"")
+    segments = ctx.table(doc.get("segments"), "[segments]", ("learning", "validation"))
+    learning, validation = _segments(ctx, segments, "learning", True), _segments(ctx, segments, "validation", False)
+    for i, (a, b) in enumerate(validation):
+        for c, d in learning:
+            if a < d and c < b:
+                ctx.fail(f"[segments].validation[{i}]", f"[{a!r}, {b!r}] overlaps the learning window [{c!r}, {d!r}]: "
+                                                        "validation data must be unseen")
+    floors: dict[str, float] = {}
+    inputs = ctx.table(doc.get("inputs", {}), "[inputs]", list(doc.get("inputs") or {}))
+    for ref, item in inputs.items():
+        k = f'[inputs."{ref}"]'
+        ctx.ref(ref, k)
+        floors[ref] = ctx.number(ctx.table(item, k, ("floor",)), k, "floor")
+    return CalibrationSpec(**common, outputs=_outputs(ctx, doc), learning=learning, validation=validation,
+                           alignment=_alignment(ctx, doc.get("alignment", {})), input_floors=floors)

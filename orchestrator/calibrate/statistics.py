@@ -1,0 +1,139 @@
+"""Uncertainty of a least-squares estimate from the Jacobian at the optimum.
+
+With residuals r (weighted, n of them) and J = dr/dtheta (n x p, SI parameters) at the estimate:
+
+* ``sigma2 = SSR / (n - p)``, the residual variance (the weights make it 1 when they are the
+  true noise levels);
+* ``Cov = sigma2 * (J^T J)^-1``, computed through the SVD of J with columns normalised to unit
+  length (J = Jn D, D = column norms), so that the units of the parameters do not matter;
+* standard error ``sqrt(Cov_ii)``, 95 % confidence interval ``estimate -/+ t(0.975, n - p) * se``;
+* correlation ``Cov_ij / sqrt(Cov_ii Cov_jj)``.
+
+Flags (thresholds in :class:`~orchestrator.calibrate.spec.StatisticsSpec`):
+
+* **not identifiable**: the parameter dominates (variance-decomposition proportion >= 0.5, the
+  Belsley-Kuh-Welsch rule) a near-singular direction of Jn, i.e. one whose condition index
+  ``s_max / s_j`` exceeds ``condition``; the data cannot tell that combination of parameters
+  apart. A parameter that does not change the residuals at all is "no effect".
+* **poorly determined**: standard error above ``relative_se`` of |estimate| (not said of an
+  estimate at a bound).
+* **correlated with X**: |correlation| above ``correlation``.
+* **at lower/upper bound**: within 1e-6 of the range (or of the scale) from a bound; the
+  interval then is not a valid confidence interval (the optimum is constrained).
+"""
+from __future__ import annotations
+
+import math
+from collections.abc import Sequence
+from dataclasses import dataclass
+
+import numpy as np
+from scipy import stats as scipy_stats
+
+from orchestrator.calibrate.parameters import Parameter
+from orchestrator.calibrate.spec import StatisticsSpec
+
+__all__ = ["FitStatistics", "ParameterStatistics", "fit_statistics"]
+
+
+@dataclass(frozen=True)
+class ParameterStatistics:
+    name: str
+    estimate: float
+    standard_error: float
+    ci_low: float
+    ci_high: float
+    at_bound: str | None  # "lower", "upper" or None
+    flags: tuple[str, ...]
+
+    @property
+    def identifiable(self) -> bool:
+        return not any(f.startswith(("not identifiable", "no effect")) for f in self.flags) and self.at_bound is None
+
+    def covers(self, value: float) -> bool:
+        return self.ci_low <= value <= self.ci_high
+
+
+@dataclass(frozen=True)
+class FitStatistics:
+    n_residuals: int
+    n_parameters: int
+    dof: int
+    ssr: float
+    sigma2: float
+    t_quantile: float
+    covariance: np.ndarray
+    correlation: np.ndarray
+    singular_values: np.ndarray  # of the column-normalised Jacobian, descending
+    condition_indices: np.ndarray
+    directions: np.ndarray  # right singular vectors (columns), same order
+    parameters: tuple[ParameterStatistics, ...]
+
+    def by_name(self, name: str) -> ParameterStatistics:
+        return next(p for p in self.parameters if p.name == name)
+
+
+def fit_statistics(jacobian: np.ndarray, residual: np.ndarray, estimates: Sequence[float],
+                   parameters: Sequence[Parameter], thresholds: StatisticsSpec | None = None, *,
+                   n_residuals: int | None = None, extra_ssr: float = 0.0) -> FitStatistics:
+    """Statistics of ``estimates`` (SI) from the weighted ``residual`` and ``jacobian`` = dr/dtheta (SI).
+    Binned data: ``n_residuals`` samples stand behind the rows, ``extra_ssr`` is their within-bin part."""
+    thresholds = thresholds or StatisticsSpec()
+    J = np.asarray(jacobian, dtype=float)
+    r = np.asarray(residual, dtype=float).ravel()
+    p = J.shape[1]
+    n = int(n_residuals) if n_residuals is not None else J.shape[0]
+    est = np.asarray(estimates, dtype=float)
+    dof = n - p
+    ssr = float(r @ r) + float(extra_ssr)
+    sigma2 = ssr / dof if dof > 0 else math.nan
+    t = float(scipy_stats.t.ppf(0.975, dof)) if dof > 0 else math.nan
+    norms = np.linalg.norm(J, axis=0)
+    effect = norms > 0
+    Jn = np.where(effect, J / np.where(effect, norms, 1.0), 0.0)
+    _, s, vt = np.linalg.svd(Jn, full_matrices=False)
+    v = vt.T
+    s_max = s[0] if s.size and s[0] > 0 else 1.0
+    with np.errstate(divide="ignore"):
+        condition = np.where(s > 0, s_max / np.where(s > 0, s, 1.0), np.inf)
+    singular = s <= s_max * 1e-13
+    inv_s2 = np.where(singular, 0.0, 1.0 / np.where(singular, 1.0, s) ** 2)
+    cov_n = (v * inv_s2) @ v.T
+    scale = np.where(effect, 1.0 / np.where(effect, norms, 1.0), 0.0)
+    cov = sigma2 * cov_n * np.outer(scale, scale)
+    # a parameter that loads on an exactly singular direction (or has no effect) has no finite variance
+    unbounded = (~effect) | (np.abs(v[:, singular]) > 1e-8).any(axis=1)
+    var = np.where(unbounded, np.inf, np.diag(cov))
+    se = np.sqrt(np.maximum(var, 0.0))
+    with np.errstate(invalid="ignore", divide="ignore"):
+        corr = cov / np.sqrt(np.outer(np.diag(cov), np.diag(cov)))
+    corr[unbounded, :] = np.nan
+    corr[:, unbounded] = np.nan
+    np.fill_diagonal(corr, 1.0)
+    # variance-decomposition proportions (Belsley, Kuh, Welsch)
+    phi = v ** 2 / np.maximum(s, s_max * 1e-13)[None, :] ** 2
+    proportions = phi / np.maximum(phi.sum(axis=1, keepdims=True), 1e-300)
+    results = []
+    for j, q in enumerate(parameters):
+        flags: list[str] = []
+        if not effect[j]:
+            flags.append("no effect on the residuals")
+        else:
+            weak = [k for k in range(len(s)) if condition[k] > thresholds.condition and proportions[j, k] >= 0.5]
+            if weak:
+                k = weak[0]
+                flags.append(f"not identifiable (near-singular direction, condition index "
+                             f"{condition[k]:.3g})")
+        tol = 1e-6 * min(q.upper - q.lower, q.scale) if math.isfinite(q.upper - q.lower) else 1e-6 * q.scale
+        bound = "lower" if est[j] - q.lower <= tol else "upper" if q.upper - est[j] <= tol else None
+        if bound is None and np.isfinite(se[j]) and se[j] > thresholds.relative_se * abs(est[j]):
+            flags.append(f"poorly determined (se {100 * se[j] / abs(est[j]) if est[j] else math.inf:.3g} %)")
+        for k in range(p):
+            if k != j and np.isfinite(corr[j, k]) and abs(corr[j, k]) > thresholds.correlation:
+                flags.append(f"correlated with {parameters[k].name} ({corr[j, k]:+.3f})")
+        if bound:
+            flags.append(f"at {bound} bound")
+        half = t * se[j]
+        results.append(ParameterStatistics(q.name, float(est[j]), float(se[j]), float(est[j] - half),
+                                           float(est[j] + half), bound, tuple(flags)))
+    return FitStatistics(n, p, dof, ssr, sigma2, t, cov, corr, s, condition, v, tuple(results))

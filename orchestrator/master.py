@@ -221,7 +221,7 @@ class _Slave:
         vr = lambda names: [self.inst.variables[n].value_reference for n in names]  # noqa: E731
         for kind, setter in (("real", self.fmu.setFloat64 if self.fmi3 else self.fmu.setReal),
                              ("int", self.fmu.setInt32 if self.fmi3 else self.fmu.setInteger),
-                             ("bool", self.fmu.setBoolean)):
+                             ("bool", self.fmu.setBoolean), ("string", self.fmu.setString)):
             names = [n for n in params if kinds[n] == kind]
             if names:
                 setter(vr(names), [params[n] for n in names])

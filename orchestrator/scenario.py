@@ -102,7 +102,8 @@ __all__ = [
 ]
 
 MAX_STEP_RATIO = 10_000  # largest step / base step; beyond it steps are incommensurate
-_SUPPORTED_TYPES = {"Real": "real", "Float64": "real", "Boolean": "bool", "Integer": "int", "Int32": "int"}
+_SUPPORTED_TYPES = {"Real": "real", "Float64": "real", "Boolean": "bool", "Integer": "int", "Int32": "int",
+                    "String": "string"}
 _NAME_RE = re.compile(r"^[A-Za-z0-9_.-]+$")
 
 
@@ -305,8 +306,19 @@ def _parameters(ctx: _Ctx, inst: str, table: Any, variables: Mapping[str, Variab
         if var is None or var.causality != causality:
             what = "unknown variable" if var is None else f"{var.causality} variable"
             ctx.fail(k, f"{what} {name!r} in {model}; known {section}: {', '.join(known)}")
-        if var.type not in ("real", "bool", "int"):
+        if var.type not in ("real", "bool", "int", "string"):
             ctx.fail(k, f"{causality} {name!r} has unsupported type {var.type}")
+        if var.type == "string":  # text as given, or { path = "..." }: a file relative to the scenario
+            if isinstance(raw, dict):
+                ctx.table(raw, k, ("path",))
+                resolved = (ctx.path.parent / ctx.string(raw, k, "path")).resolve()
+                if not resolved.is_file():
+                    ctx.fail(f"{k}.path", f"no file {resolved}")
+                raw = str(resolved)
+            if not isinstance(raw, str):
+                ctx.fail(k, f"{name!r} is a String: give text or {{ path = \"...\" }}, got {raw!r}")
+            values[name] = raw
+            continue
         unit = None
         if isinstance(raw, dict):
             ctx.table(raw, k, ("value", "unit"))

@@ -112,19 +112,30 @@ def test_the_program_reproduces_the_recorded_path_and_time(reconstruction: rc.Re
 def test_the_scenario_names_the_program_and_the_recording() -> None:
     with open(SCENARIO, "rb") as f:
         table = tomllib.load(f)
-    assert (SCENARIO.parent / table["fmus"]["interp"]["parameters"]["program"]).resolve() == PROGRAM.resolve()
+    assert (SCENARIO.parent / table["fmus"]["interp"]["parameters"]["program"]["path"]).resolve() == PROGRAM.resolve()
     assert (SCENARIO.parent / table["recorded"]["file"]).resolve() == RECORDING.resolve()
     start = [table["fmus"]["interp"]["parameters"][f"start_{a}"]["value"] for a in "xyz"]
     first = [float(w[1:]) for w in PROGRAM.read_text().splitlines()[5].split()[1:]]
     assert start == first
 
 
-@pytest.mark.xfail(strict=True, reason="the orchestrator has no String parameters yet (scenario.py _SUPPORTED_TYPES, "
-                                       "master: setString, a path relative to the scenario file)")
-def test_the_scenario_loads_in_the_orchestrator() -> None:
+def test_the_scenario_runs_in_the_orchestrator(tmp_path: Path) -> None:
+    """The program is a String parameter given as { path = ... } relative to the scenario; both stepping
+    paths run it to the end of the program, at rest on its last point."""
+    from orchestrator.master import run
+    from orchestrator.results import load_results
     from orchestrator.scenario import load_scenario
 
-    load_scenario(SCENARIO, fmu_dir())
+    scenario = load_scenario(SCENARIO, fmu_dir())
+    assert scenario.instance("interp").parameters["program"] == str(PROGRAM.resolve())
+    frames = []
+    for stepping in ("python", "fast"):
+        result = run(scenario, tmp_path / stepping, progress=False, stepping=stepping)
+        assert result.status == "completed" and result.stepping == stepping
+        frames.append(load_results(result.run_dir))
+    assert frames[0].equals(frames[1])
+    last = frames[0].iloc[-1]
+    assert last["interp.finished"] and last["interp.feed"] == 0.0
 
 
 def test_the_fmu_runs_the_scenario_setup(tmp_path: Path) -> None:

@@ -354,3 +354,29 @@ def test_with_values_rejects_what_the_file_would_reject(make_case, fmu_dir):
         assert str(info.value).startswith(f"{sc.path}: {expected}"), str(info.value)
     with pytest.raises(ScenarioError, match="use letters, digits"):
         with_values(sc, {}, name="a b")
+
+
+STRING_TOML = """\
+[scenario]
+name = "strings"
+stop_time = 0.01
+output_interval = 0.01
+[fmus.interp]
+fmu = "Interpolator"
+step_size = 0.01
+[fmus.interp.parameters]
+program = {program}
+"""
+
+
+def test_string_parameters(tmp_path, fmu_dir):
+    (tmp_path / "part.nc").write_text("G21 G90 G54\nF600\nG1 X1\nM30\n")
+    path = tmp_path / "strings.toml"
+    path.write_text(STRING_TOML.format(program='{ path = "part.nc" }'))
+    assert load_scenario(path, fmu_dir).instance("interp").parameters["program"] == str((tmp_path / "part.nc").resolve())
+    path.write_text(STRING_TOML.format(program='"/some/absolute/file.nc"'))  # plain text is passed as given
+    assert load_scenario(path, fmu_dir).instance("interp").parameters["program"] == "/some/absolute/file.nc"
+    path.write_text(STRING_TOML.format(program='{ path = "missing.nc" }'))
+    assert f"[fmus.interp].parameters.program.path: no file {tmp_path / 'missing.nc'}" in error_of(path, fmu_dir)
+    path.write_text(STRING_TOML.format(program="3"))
+    assert "[fmus.interp].parameters.program: 'program' is a String: give text or" in error_of(path, fmu_dir)

@@ -93,6 +93,7 @@ from typing import Any, NoReturn
 
 from fmpy import read_model_description
 
+from orchestrator.toml_access import TomlAccess
 from orchestrator.recorded import ChannelSpec, RecordedData, RecordedDataError, load_recorded
 from models.units import UnitError, conversion_factor
 
@@ -206,44 +207,10 @@ class Scenario:
         return self.instance(ref.instance).variables[ref.variable]
 
 
-class _Ctx:
-    """Error reporting and typed access to TOML values, all naming file and key."""
+class _Ctx(TomlAccess):
+    """Typed access to this file's TOML values; errors are ScenarioErrors naming file and key."""
 
-    def __init__(self, path: Path) -> None:
-        self.path = path
-
-    def fail(self, key: str, message: str) -> NoReturn:
-        raise ScenarioError(self.path, key, message)
-
-    def table(self, value: Any, key: str, allowed: Sequence[str]) -> dict[str, Any]:
-        if not isinstance(value, dict):
-            self.fail(key, f"expected a table, got {type(value).__name__} {value!r}")
-        for name in value:
-            if name not in allowed:
-                self.fail(f"{key}.{name}" if key else name,
-                          f"unknown key {name!r}; known keys: {', '.join(allowed)}")
-        return value
-
-    def number(self, table: dict, key: str, name: str, default: Any = ..., positive: bool = False) -> Any:
-        if name not in table:
-            if default is ...:
-                self.fail(f"{key}.{name}", "missing required key")
-            return default
-        value = table[name]
-        if isinstance(value, bool) or not isinstance(value, (int, float)) or not math.isfinite(value):
-            self.fail(f"{key}.{name}", f"expected a finite number, got {value!r}")
-        if positive and value <= 0:
-            self.fail(f"{key}.{name}", f"must be > 0, got {value!r}")
-        return float(value)
-
-    def string(self, table: dict, key: str, name: str, default: Any = ...) -> Any:
-        if name not in table:
-            if default is ...:
-                self.fail(f"{key}.{name}", "missing required key")
-            return default
-        if not isinstance(table[name], str):
-            self.fail(f"{key}.{name}", f"expected a string, got {table[name]!r}")
-        return table[name]
+    error = ScenarioError
 
 
 def _factor(from_unit: str, to_unit: str) -> float:

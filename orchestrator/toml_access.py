@@ -1,0 +1,74 @@
+"""Typed access to the values of a parsed TOML file, every error naming the file and the key.
+
+Shared by the scenario and calibration-spec readers; each sets ``error`` to its own exception type,
+built as ``error(path, key, message)``."""
+from __future__ import annotations
+
+import math
+from collections.abc import Sequence
+from pathlib import Path
+from typing import Any, Callable, NoReturn
+
+
+class TomlAccess:
+    error: Callable[[Path, str, str], Exception]
+
+    def __init__(self, path: Path) -> None:
+        self.path = path
+
+    def fail(self, key: str, message: str) -> NoReturn:
+        raise type(self).error(self.path, key, message)
+
+    def table(self, value: Any, key: str, allowed: Sequence[str]) -> dict[str, Any]:
+        if not isinstance(value, dict):
+            self.fail(key, f"expected a table, got {type(value).__name__} {value!r}")
+        for name in value:
+            if name not in allowed:
+                self.fail(f"{key}.{name}" if key else name,
+                          f"unknown key {name!r}; known keys: {', '.join(allowed)}")
+        return value
+
+    def number(self, table: dict, key: str, name: str, default: Any = ..., positive: bool = False,
+               minimum: float | None = None) -> Any:
+        if name not in table:
+            if default is ...:
+                self.fail(f"{key}.{name}", "missing required key")
+            return default
+        value = table[name]
+        if isinstance(value, bool) or not isinstance(value, (int, float)) or not math.isfinite(value):
+            self.fail(f"{key}.{name}", f"expected a finite number, got {value!r}")
+        if positive and value <= 0:
+            self.fail(f"{key}.{name}", f"must be > 0, got {value!r}")
+        if minimum is not None and value < minimum:
+            self.fail(f"{key}.{name}", f"must be >= {minimum!r}, got {value!r}")
+        return float(value)
+
+    def integer(self, table: dict, key: str, name: str, default: int, minimum: int) -> int:
+        value = table.get(name, default)
+        if isinstance(value, bool) or not isinstance(value, int) or value < minimum:
+            self.fail(f"{key}.{name}", f"expected a whole number >= {minimum}, got {value!r}")
+        return value
+
+    def string(self, table: dict, key: str, name: str, default: Any = ...,
+               choices: Sequence[str] | None = None) -> Any:
+        if name not in table:
+            if default is ...:
+                self.fail(f"{key}.{name}", "missing required key")
+            return default
+        value = table[name]
+        if not isinstance(value, str):
+            self.fail(f"{key}.{name}", f"expected a string, got {value!r}")
+        if choices is not None and value not in choices:
+            self.fail(f"{key}.{name}", f"{value!r} is not one of {', '.join(choices)}")
+        return value
+
+    def strings(self, table: dict, key: str, name: str, count: int) -> tuple[str, ...]:
+        value = table.get(name, [])
+        if not isinstance(value, list) or not all(isinstance(v, str) for v in value) or len(value) != count:
+            self.fail(f"{key}.{name}", f"expected a list of {count} strings, got {value!r}")
+        return tuple(value)
+
+    def ref(self, value: Any, key: str) -> str:
+        if not isinstance(value, str) or value.count(".") < 1 or not all(value.split(".", 1)):
+            self.fail(key, f"expected \"instance.variable\", got {value!r}")
+        return value

@@ -16,6 +16,7 @@
 #include <math.h>
 #include <stdlib.h>
 #include <string.h>
+#include "cutting_state.h"
 #include "fmu_instance.h"
 
 #define TWO_PI 6.283185307179586 /* 2.0 * math.pi */
@@ -105,7 +106,7 @@ static FmuStatus grow_history(FmuInstance *instance) {
 FmuStatus model_do_step(FmuInstance *instance, double time, double step_size) {
     ModelVariables *v = &instance->v;
     ModelInternal *in = &instance->internal;
-    FmuStatus status = FMU_OK;
+    FmuStatus status;
     double *slot;
     if (in->count == in->capacity && in->capacity < (size_t)v->history_size && grow_history(instance) != FMU_OK)
         return FMU_ERROR;
@@ -129,20 +130,10 @@ FmuStatus model_do_step(FmuInstance *instance, double time, double step_size) {
         }
     }
 
-    if (v->spindle_speed < OMEGA_MIN && v->axial_depth > 0.0 && !in->warned_stopped) {
-        double feed = hypot(v->feed_velocity_x, v->feed_velocity_y);
-        double width = v->exit_angle - v->entry_angle;
-        width -= TWO_PI * floor(width / TWO_PI);
-        if (feed > 0.0 && width > 0.0) {
-            /* a stopped tool fed into the material would break; the model cuts nothing instead */
-            in->warned_stopped = true;
-            fmu_log(instance, FMU_WARNING, "logStatusWarning",
-                    "doStep: t = %g s: spindle_speed = %g rad/s is below %g rad/s (stopped) while the tool feeds at "
-                    "%g m/s into the cut (axial_depth = %g m): no chip, the forces are 0 (reported once)",
-                    time, v->spindle_speed, OMEGA_MIN, feed, v->axial_depth);
-            status = FMU_WARNING;
-        }
-    }
+    /* a stopped tool fed into the material would break; the model cuts nothing instead */
+    status = warn_feeding_a_stopped_spindle(instance, time, v->spindle_speed, OMEGA_MIN, v->feed_velocity_x,
+                                            v->feed_velocity_y, v->axial_depth, v->entry_angle, v->exit_angle,
+                                            &in->warned_stopped);
 
     model_update_states(v, step_size);
     return status;

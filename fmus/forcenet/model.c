@@ -13,6 +13,7 @@
 #include <string.h>
 
 #include "default_weights.h"
+#include "cutting_state.h"
 #include "fmu_instance.h"
 
 #define OMEGA_MIN 1.0 /* rad/s: below it the spindle counts as stopped (models/cutting_force.py) */
@@ -73,20 +74,9 @@ FmuStatus model_exit_initialization(FmuInstance *instance) {
 
 FmuStatus model_do_step(FmuInstance *instance, double time, double step_size) {
     ModelVariables *v = &instance->v;
-    FmuStatus status = FMU_OK;
-    if (v->spindle_speed < OMEGA_MIN && v->axial_depth > 0.0 && !instance->internal.warned_stopped) {
-        double feed = hypot(v->feed_velocity_x, v->feed_velocity_y);
-        double width = v->exit_angle - v->entry_angle;
-        width -= 6.283185307179586 * floor(width / 6.283185307179586);
-        if (feed > 0.0 && width > 0.0) {
-            instance->internal.warned_stopped = true;
-            fmu_log(instance, FMU_WARNING, "logStatusWarning",
-                    "doStep: t = %g s: spindle_speed = %g rad/s is below %g rad/s (stopped) while the tool feeds at "
-                    "%g m/s into the cut (axial_depth = %g m): no chip, the forces are 0 (reported once)",
-                    time, v->spindle_speed, OMEGA_MIN, feed, v->axial_depth);
-            status = FMU_WARNING;
-        }
-    }
+    FmuStatus status = warn_feeding_a_stopped_spindle(instance, time, v->spindle_speed, OMEGA_MIN, v->feed_velocity_x,
+                                            v->feed_velocity_y, v->axial_depth, v->entry_angle, v->exit_angle,
+                                            &instance->internal.warned_stopped);
     model_update_states(v, step_size);
     return status;
 }

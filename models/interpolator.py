@@ -473,18 +473,7 @@ class _Parser:
         if motion_g == 62:
             return self.nurbs(k, seen, gs, ms)
         # F, S
-        if "F" in seen:
-            f = seen["F"][0]
-            if not (f > 0.0) or f > MAX_FEED_WORD:
-                self.fail(number, f"a feed F > 0 and at most {MAX_FEED_WORD:g}, got F{seen['F'][1]}")
-            self.feed = self.length(f) / 60.0
-        if "S" in seen:
-            s = seen["S"][0]
-            if s < 0.0 or s > MAX_SPEED_WORD:
-                self.fail(number, f"a spindle speed S of 0 to {MAX_SPEED_WORD:g} rpm, got S{seen['S'][1]}")
-            self.speed = s
-        if "spindle" in ms:
-            self.spindle_dir = {3: 1, 4: -1, 5: 0}[ms["spindle"]]
+        self.feed_and_spindle(number, seen, ms)
         if "plane" in gs:
             self.plane = gs["plane"] // 10
         if "units" in gs:
@@ -650,6 +639,21 @@ class _Parser:
     def unit_factor(self) -> float:
         return 0.0254 if self.inch else 1e-3
 
+    def feed_and_spindle(self, number: int, seen: dict, ms: dict) -> None:
+        """The F, S and M3/M4/M5 words of a line (plain or G6.2), as gcode_parser.c takes them."""
+        if "F" in seen:
+            f = seen["F"][0]
+            if not (f > 0.0) or f > MAX_FEED_WORD:
+                self.fail(number, f"a feed F > 0 and at most {MAX_FEED_WORD:g}, got F{seen['F'][1]}")
+            self.feed = self.length(f) / 60.0
+        if "S" in seen:
+            s = seen["S"][0]
+            if s < 0.0 or s > MAX_SPEED_WORD:
+                self.fail(number, f"a spindle speed S of 0 to {MAX_SPEED_WORD:g} rpm, got S{seen['S'][1]}")
+            self.speed = s
+        if "spindle" in ms:
+            self.spindle_dir = {3: 1, 4: -1, 5: 0}[ms["spindle"]]
+
     def nurbs(self, k: int, seen, gs, ms) -> int:
         number = k + 1
         first_line = number
@@ -673,18 +677,7 @@ class _Parser:
             if pv not in (1.0, 2.0, 3.0, 4.0, 5.0):
                 self.fail(number, f"a degree P of 1 to {MAX_DEGREE}, got P{seen['P'][1]}")
             degree = int(pv)
-        if "F" in seen:
-            f = seen["F"][0]
-            if not (f > 0.0) or f > MAX_FEED_WORD:
-                self.fail(number, f"a feed F > 0 and at most {MAX_FEED_WORD:g}, got F{seen['F'][1]}")
-            self.feed = self.length(f) / 60.0
-        if "S" in seen:
-            s = seen["S"][0]
-            if s < 0.0 or s > MAX_SPEED_WORD:
-                self.fail(number, f"a spindle speed S of 0 to {MAX_SPEED_WORD:g} rpm, got S{seen['S'][1]}")
-            self.speed = s
-        if "spindle" in ms:
-            self.spindle_dir = {3: 1, 4: -1, 5: 0}[ms["spindle"]]
+        self.feed_and_spindle(number, seen, ms)
         for group in ("plane", "units", "distance", "offset"):
             if group in gs:
                 self.fail(number, "no other G code in the G6.2 line")

@@ -236,8 +236,9 @@ static void engagement(FmuInstance *instance) {
     const double x = w->x, y = w->y, z = w->z, fx = w->feed_x, fy = w->feed_y;
     const double column = 2.0 * PI / WORKPIECE_N_THETA;
     double axial = -INFINITY, entry, leave, r_top, widen, cos_entry, cos_exit;
-    size_t m, k, first = 0, last = 0;
-    int i, j;
+    double column_ux[WORKPIECE_N_THETA], column_uy[WORKPIECE_N_THETA];
+    size_t m, k, first = 0, last = 0, n_columns = 0;
+    int i, j, columns[WORKPIECE_N_THETA];
     bool engaged = false;
     for (i = 0; i < WORKPIECE_N_Z * WORKPIECE_N_THETA; i++) instance->v.engagement[i] = 0.0;
     instance->v.axial_depth = instance->v.radial_depth = instance->v.entry_angle = instance->v.exit_angle = 0.0;
@@ -293,15 +294,24 @@ static void engagement(FmuInstance *instance) {
     instance->v.entry_angle = acos(cos_entry);
     instance->v.exit_angle = acos(cos_exit);
     instance->v.radial_depth = r_top * (cos_entry - cos_exit);
+    /* the columns inside the cut and their directions, the same for every row */
+    for (j = 0; j < WORKPIECE_N_THETA && ((double)j + 0.5) * column < PI; j++) {
+        const double phi = ((double)j + 0.5) * column;
+        double c, s;
+        if (phi < instance->v.entry_angle || phi > instance->v.exit_angle) continue; /* outside the cut */
+        c = cos(phi);
+        s = sin(phi);
+        columns[n_columns] = j;
+        column_ux[n_columns] = s * fx - c * fy;
+        column_uy[n_columns] = s * fy + c * fx;
+        n_columns++;
+    }
     for (i = 0; i < WORKPIECE_N_Z; i++) {
         const double zi = ((double)i + 0.5) * (axial / WORKPIECE_N_Z);
         const double ri = radius_at(w, zi) + w->delta;
-        for (j = 0; j < WORKPIECE_N_THETA && ((double)j + 0.5) * column < PI; j++) {
-            const double phi = ((double)j + 0.5) * column, c = cos(phi), s = sin(phi);
-            const double ux = s * fx - c * fy, uy = s * fy + c * fx;
-            if (phi < instance->v.entry_angle || phi > instance->v.exit_angle) continue; /* outside the cut */
-            if (height_above(instance, x + ri * ux, y + ri * uy, z) > zi)
-                instance->v.engagement[i * WORKPIECE_N_THETA + j] = 1.0;
+        for (k = 0; k < n_columns; k++) {
+            if (height_above(instance, x + ri * column_ux[k], y + ri * column_uy[k], z) > zi)
+                instance->v.engagement[i * WORKPIECE_N_THETA + columns[k]] = 1.0;
         }
     }
 }

@@ -49,7 +49,7 @@ __all__ = ["LIBRARY_ENV", "LIBRARY_NAME", "Choice", "FastPathUnavailable", "Step
 
 LIBRARY_ENV = "MILLING_TWIN_STEPPER"
 LIBRARY_NAME = "libmilling_stepper.so"
-ABI_VERSION = 1
+ABI_VERSION = 2
 CHUNK_SECONDS = 0.1  # wall time a chunk should take: the Ctrl-C latency and progress-bar period
 FIRST_CHUNK_TICKS = 256
 MAX_CHUNK_TICKS = 1 << 18  # bounds the recorded-input arrays of a chunk
@@ -59,8 +59,8 @@ _REPO_BUILD = Path(__file__).resolve().parents[1] / "build" / "stepper" / LIBRAR
 REAL, BOOL_FMI2, BOOL_FMI3 = 0, 1, 2
 DONE, STOPPED, TERMINATED, FAILED = 0, 1, 2, 3
 # stp_outcome.function -> the FMI function's name without its fmi2/fmi3 prefix
-_FUNCTIONS = {2: ["", "SetReal", "SetBoolean", "DoStep", "GetReal", "GetBoolean"],
-              3: ["", "SetFloat64", "SetBoolean", "DoStep", "GetFloat64", "GetBoolean"]}
+_FUNCTIONS = {2: ["", "SetReal", "SetBoolean", "DoStep", "GetReal", "GetBoolean", "GetInteger"],
+              3: ["", "SetFloat64", "SetBoolean", "DoStep", "GetFloat64", "GetBoolean", "GetInt32"]}
 
 _vp, _i32, _i64, _f64 = ctypes.c_void_p, ctypes.c_int32, ctypes.c_int64, ctypes.c_double
 STOP_CALLBACK = ctypes.CFUNCTYPE(ctypes.c_int, ctypes.c_double)
@@ -87,7 +87,9 @@ class _Instance(ctypes.Structure):
                 ("n_real_in", _i64), ("n_bool_in", _i64), ("n_rec_real", _i64), ("n_rec_bool", _i64),
                 ("n_real_links", _i64), ("n_bool_links", _i64), ("n_real_out", _i64), ("n_bool_out", _i64),
                 ("fmi_version", _i32), ("ticks_per_step", _i32), ("get_after_step", _i32),
-                ("snapshot", _i32), ("get_at_rows", _i32), ("reserved", _i32)]
+                ("snapshot", _i32), ("get_at_rows", _i32), ("reserved", _i32),
+                ("fmi2_get_integer", _vp), ("fmi3_get_int32", _vp), ("vr_int_out", _vp), ("int_out", _vp),
+                ("n_int_out", _i64)]
 
 
 class _Plan(ctypes.Structure):
@@ -156,10 +158,10 @@ def unsupported(scenario: Scenario) -> str:
         if inst.fmi_version not in (2, 3):
             return f"instance {inst.name!r} is FMI {inst.fmi_version}"
     refs = ([i.target for i in scenario.inputs] + [c.source for c in scenario.connections]
-            + [c.target for c in scenario.connections] + list(scenario.outputs))
-    for ref in refs:
+            + [c.target for c in scenario.connections])
+    for ref, kinds in [(r, ("real", "bool")) for r in refs] + [(r, ("real", "bool", "int")) for r in scenario.outputs]:
         kind = scenario.variable(ref).type
-        if kind not in ("real", "bool"):
+        if kind not in kinds:
             return f"{ref} has type {kind}"
     rec = scenario.recorded
     for i in scenario.inputs:
@@ -197,6 +199,7 @@ def _address(buffer: Any, index: int = 0) -> int:
 
 
 def _kind(buffer: Any) -> int:
+    """The element kind; an int element (fmi2Boolean, fmi2Integer, fmi3Int32) is BOOL_FMI2, read as is."""
     return REAL if buffer._type_ is ctypes.c_double else (
         BOOL_FMI3 if buffer._type_ is ctypes.c_bool else BOOL_FMI2)
 
@@ -217,7 +220,8 @@ class Stepper:
 
     ``slaves``: the master's instances in execution order, each with (as in ``master._Slave``)
     ``fmu``, ``fmi3``, ``m``, ``name``, the ctypes buffers ``real_in/bool_in/real_out/bool_out/
-    real_prev/bool_prev``, value references ``vr_real_in/vr_bool_in/vr_real_out/vr_bool_out``,
+    real_prev/bool_prev/int_out``, value references ``vr_real_in/vr_bool_in/vr_real_out/vr_bool_out/
+    vr_int_out``,
     ``n_rec_real/n_rec_bool``, ``conn_real/conn_bool`` (connections, in input order),
     ``out_index``, ``feeds_connections`` and ``sample(scenario, times)``.
     """
@@ -234,22 +238,23 @@ class Stepper:
         self._instances = (_Instance * len(self.slaves))()
         for inst, s in zip(self._instances, self.slaves):
             fmu, prefix = s.fmu, "fmi3" if s.fmi3 else "fmi2"
-            names = (("SetFloat64", "SetBoolean", "GetFloat64", "GetBoolean", "DoStep") if s.fmi3 else
-                     ("SetReal", "SetBoolean", "GetReal", "GetBoolean", "DoStep"))
+            names = (("SetFloat64", "SetBoolean", "GetFloat64", "GetBoolean", "DoStep", "GetInt32") if s.fmi3 else
+                     ("SetReal", "SetBoolean", "GetReal", "GetBoolean", "DoStep", "GetInteger"))
             fields = (("fmi3_set_float64", "fmi3_set_boolean", "fmi3_get_float64", "fmi3_get_boolean",
-                       "fmi3_do_step") if s.fmi3 else
-                      ("fmi2_set_real", "fmi2_set_boolean", "fmi2_get_real", "fmi2_get_boolean", "fmi2_do_step"))
+                       "fmi3_do_step", "fmi3_get_int32") if s.fmi3 else
+                      ("fmi2_set_real", "fmi2_set_boolean", "fmi2_get_real", "fmi2_get_boolean", "fmi2_do_step",
+                       "fmi2_get_integer"))
             for field, name in zip(fields, names):
                 setattr(inst, field, ctypes.cast(getattr(fmu.dll, prefix + name), _vp).value)
             inst.component = fmu.component if isinstance(fmu.component, int) else fmu.component.value
             inst.fmi_version = 3 if s.fmi3 else 2
             inst.ticks_per_step = s.m
             for field in ("vr_real_in", "vr_bool_in", "real_in", "bool_in", "vr_real_out", "vr_bool_out",
-                          "real_out", "real_prev", "bool_out", "bool_prev"):
+                          "real_out", "real_prev", "bool_out", "bool_prev", "vr_int_out", "int_out"):
                 setattr(inst, field, _address(getattr(s, field)))
             inst.n_real_in, inst.n_bool_in = len(s.real_in), len(s.bool_in)
             inst.n_rec_real, inst.n_rec_bool = s.n_rec_real, s.n_rec_bool
-            inst.n_real_out, inst.n_bool_out = len(s.real_out), len(s.bool_out)
+            inst.n_real_out, inst.n_bool_out, inst.n_int_out = len(s.real_out), len(s.bool_out), len(s.int_out)
             inst.get_after_step = int(s.feeds_connections)
             inst.snapshot = int(s.name in delayed)
             inst.get_at_rows = int(bool(s.out_index))

@@ -67,8 +67,8 @@ import numpy as np
 from fmpy import extract
 from fmpy.fmi1 import FMICallException
 from fmpy.fmi2 import (FMU2Slave, defaultCallbacks, fmi2Boolean, fmi2CallbackFunctions,
-                       fmi2CallbackLoggerTYPE, fmi2Real, fmi2ValueReference)
-from fmpy.fmi3 import FMU3Slave, fmi3Boolean, fmi3Float64, fmi3ValueReference
+                       fmi2CallbackLoggerTYPE, fmi2Integer, fmi2Real, fmi2ValueReference)
+from fmpy.fmi3 import FMU3Slave, fmi3Boolean, fmi3Float64, fmi3Int32, fmi3ValueReference
 from fmpy.logging import addLoggerProxy
 from tqdm import tqdm
 
@@ -121,8 +121,8 @@ class _Slave:
                  fmi2_loggers: dict[bytes, Callable[[int, bytes | None], None]]) -> None:
         self.inst, self.name, self.m = inst, inst.name, inst.ticks_per_step
         fmi3 = inst.fmi_version == 3
-        vr_t, real_t, bool_t = ((fmi3ValueReference, fmi3Float64, fmi3Boolean) if fmi3
-                                else (fmi2ValueReference, fmi2Real, fmi2Boolean))
+        vr_t, real_t, bool_t, int_t = ((fmi3ValueReference, fmi3Float64, fmi3Boolean, fmi3Int32) if fmi3
+                                       else (fmi2ValueReference, fmi2Real, fmi2Boolean, fmi2Integer))
         cls = FMU3Slave if fmi3 else FMU2Slave
         fmu = cls(guid=inst.instantiation_token, unzipDirectory=unzip_dir,
                   modelIdentifier=inst.model_identifier, instanceName=inst.name)
@@ -158,21 +158,24 @@ class _Slave:
         self.conn_bool = [c for c in conns if not is_real(c.target.variable)]
         real_in = [x.target.variable for x in self.rec_real + self.conn_real]
         bool_in = [x.target.variable for x in self.rec_bool + self.conn_bool]
-        # Outputs: what connections read and what is recorded.
+        # Outputs: what connections read and what is recorded (Int32 outputs: recorded only).
         wanted = [c.source.variable for c in scenario.connections if c.source.instance == inst.name]
         self.feeds_connections = bool(wanted)
         wanted += [r.variable for r in scenario.outputs if r.instance == inst.name]
         wanted = list(dict.fromkeys(wanted))
         real_out = [n for n in wanted if is_real(n)]
-        bool_out = [n for n in wanted if not is_real(n)]
+        bool_out = [n for n in wanted if inst.variables[n].type == "bool"]
+        int_out = [n for n in wanted if inst.variables[n].type == "int"]
         self.out_index = {n: ("real", i) for i, n in enumerate(real_out)}
         self.out_index.update({n: ("bool", i) for i, n in enumerate(bool_out)})
+        self.out_index.update({n: ("int", i) for i, n in enumerate(int_out)})
 
         self.vr_real_in, self.vr_bool_in = vrs(real_in), vrs(bool_in)
-        self.vr_real_out, self.vr_bool_out = vrs(real_out), vrs(bool_out)
+        self.vr_real_out, self.vr_bool_out, self.vr_int_out = vrs(real_out), vrs(bool_out), vrs(int_out)
         self.real_in, self.bool_in = (real_t * len(real_in))(), (bool_t * len(bool_in))()
         self.real_out, self.bool_out = (real_t * len(real_out))(), (bool_t * len(bool_out))()
         self.real_prev, self.bool_prev = (real_t * len(real_out))(), (bool_t * len(bool_out))()
+        self.int_out = (int_t * len(int_out))()
         self.n_rec_real, self.n_rec_bool = len(self.rec_real), len(self.rec_bool)
         self.rec_real_rows: list = []
         self.rec_bool_rows: list = []
@@ -180,16 +183,17 @@ class _Slave:
         self.conn_bool_ops: list[tuple[int, Any, int]] = []
 
         c = fmu.component
-        set_r, set_b, get_r, get_b = ((fmu.fmi3SetFloat64, fmu.fmi3SetBoolean, fmu.fmi3GetFloat64,
-                                       fmu.fmi3GetBoolean) if fmi3 else
-                                      (fmu.fmi2SetReal, fmu.fmi2SetBoolean, fmu.fmi2GetReal,
-                                       fmu.fmi2GetBoolean))
+        set_r, set_b, get_r, get_b, get_i = ((fmu.fmi3SetFloat64, fmu.fmi3SetBoolean, fmu.fmi3GetFloat64,
+                                              fmu.fmi3GetBoolean, fmu.fmi3GetInt32) if fmi3 else
+                                             (fmu.fmi2SetReal, fmu.fmi2SetBoolean, fmu.fmi2GetReal,
+                                              fmu.fmi2GetBoolean, fmu.fmi2GetInteger))
         extra = (lambda n: (n,)) if fmi3 else (lambda n: ())  # FMI 3 repeats the value count
         calls_in, calls_out = [], []
         for fn, vr, buf, calls in ((set_r, self.vr_real_in, self.real_in, calls_in),
                                    (set_b, self.vr_bool_in, self.bool_in, calls_in),
                                    (get_r, self.vr_real_out, self.real_out, calls_out),
-                                   (get_b, self.vr_bool_out, self.bool_out, calls_out)):
+                                   (get_b, self.vr_bool_out, self.bool_out, calls_out),
+                                   (get_i, self.vr_int_out, self.int_out, calls_out)):
             if len(vr):
                 calls.append(partial(fn, c, vr, len(vr), buf, *extra(len(vr))))
         self._set_calls, self._get_calls = tuple(calls_in), tuple(calls_out)
@@ -233,6 +237,11 @@ class _Slave:
     def get_outputs(self) -> None:
         for call in self._get_calls:
             call()
+
+    def column(self, variable: str) -> tuple[Any, int]:
+        """The output buffer holding ``variable`` and its index there."""
+        kind, j = self.out_index[variable]
+        return {"real": self.real_out, "bool": self.bool_out, "int": self.int_out}[kind], j
 
     def snapshot(self) -> None:
         ctypes.memmove(self.real_prev, self.real_out, ctypes.sizeof(self.real_out))
@@ -435,11 +444,7 @@ class _Run:
         delayed = [self.slaves[n] for n in dict.fromkeys(
             c.source.instance for c in scenario.connections if c.delay)]
         recorders = [s for s in order if s.out_index]
-        record = []
-        for r in scenario.outputs:
-            s = self.slaves[r.instance]
-            kind, j = s.out_index[r.variable]
-            record.append((s.real_out if kind == "real" else s.bool_out, j))
+        record = [self.slaves[r.instance].column(r.variable) for r in scenario.outputs]
         append = self.writer.append
         append([self.start] + [buf[j] for buf, j in record])
 
@@ -484,11 +489,7 @@ class _Run:
                   library: ctypes.CDLL) -> None:
         """The loop above in C, a chunk of ticks per call (see orchestrator.fastpath)."""
         scenario, n_ticks = self.scenario, self.n_ticks
-        record = []
-        for r in scenario.outputs:
-            s = self.slaves[r.instance]
-            kind, j = s.out_index[r.variable]
-            record.append((s.real_out if kind == "real" else s.bool_out, j))
+        record = [self.slaves[r.instance].column(r.variable) for r in scenario.outputs]
         stepper = fastpath.Stepper(library, list(self.slaves.values()), scenario, n_ticks, record, should_stop)
         stepper.stop_requested = lambda: stop.set
         self.writer.append([self.start] + [buf[j] for buf, j in record])
@@ -546,11 +547,12 @@ def run(scenario: Scenario, out_dir: str | Path, *, progress: bool = True,
     choice = fastpath.choose(scenario, stepping)
     columns = ["time"] + [str(r) for r in scenario.outputs]
     bools = [str(r) for r in scenario.outputs if scenario.variable(r).type == "bool"]
+    ints = [str(r) for r in scenario.outputs if scenario.variable(r).type == "int"]
     info = {**_run_info(scenario), "stepping": {
         "path": choice.path, "library": None if choice.library is None else str(choice.library),
         "reason": choice.reason}}
     writer = _Writer(Path(out_dir) / scenario.name, columns, bools, info,
-                     flush_rows=flush_rows, flush_seconds=flush_seconds)
+                     flush_rows=flush_rows, flush_seconds=flush_seconds, int_columns=ints)
     state = _Run(scenario, writer)
     t0_wall = time.perf_counter()
     wall = 0.0

@@ -68,17 +68,19 @@ class RunWriter:
     """Writes the rows of one run into ``run_dir`` (created; earlier results there are removed).
 
     ``columns``: "time" first, then "instance.variable"; ``bool_columns``: those stored
-    as booleans. ``info``: provenance for ``run.json`` (scenario, FMUs, ...), to which
+    as booleans, ``int_columns``: as int32 (Int32 outputs; rows carry them as float64, which
+    holds every int32 exactly). ``info``: provenance for ``run.json`` (scenario, FMUs, ...), to which
     the writer adds versions, wall times, status, rows written and ``extra`` of
     :meth:`finish`.
     """
 
     def __init__(self, run_dir: str | Path, columns: Sequence[str], bool_columns: Sequence[str] = (),
                  info: dict[str, Any] | None = None, flush_rows: int = 10_000,
-                 flush_seconds: float = 1.0) -> None:
+                 flush_seconds: float = 1.0, int_columns: Sequence[str] = ()) -> None:
         self.run_dir = Path(run_dir)
         self.columns = list(columns)
-        self._bool = np.array([c in set(bool_columns) for c in self.columns])
+        self._types = [bool if c in set(bool_columns) else np.int32 if c in set(int_columns) else None
+                       for c in self.columns]
         self._buffer = np.empty((flush_rows, len(self.columns)))
         self._fill = 0
         self._flush_seconds = flush_seconds
@@ -92,6 +94,7 @@ class RunWriter:
             if stale.is_file():
                 stale.unlink()
         self.info = {**(info or {}), "columns": self.columns, "bool_columns": list(bool_columns),
+                     "int_columns": list(int_columns),
                      "versions": software_versions(), "start_wall_time": _now(),
                      "end_wall_time": None, "status": "running", "rows_written": 0}
         self._write_info()
@@ -107,8 +110,8 @@ class RunWriter:
         if self._fill == 0:
             return
         block = self._buffer[: self._fill]
-        arrays = [pa.array(block[:, i].astype(bool) if self._bool[i] else block[:, i])
-                  for i in range(len(self.columns))]
+        arrays = [pa.array(block[:, i] if kind is None else block[:, i].astype(kind))
+                  for i, kind in enumerate(self._types)]
         table = pa.Table.from_arrays(arrays, names=self.columns)
         self.chunks += 1
         path = self.run_dir / CHUNK_DIR / f"chunk_{self.chunks:06d}.parquet"

@@ -46,7 +46,7 @@ Format (all times in seconds; paths are relative to the scenario file's folder):
     delay = false               # true: value of the previous communication point
 
     [outputs]
-    record = ["power.P_total"]  # default: every output of every instance
+    record = ["power.P_total"]  # default: every output of every instance (Real, Boolean, Int32)
 
     [[compare]]                 # optional, for the report
     simulated = "power.P_total"
@@ -103,6 +103,7 @@ __all__ = [
 ]
 
 MAX_STEP_RATIO = 10_000  # largest step / base step; beyond it steps are incommensurate
+RECORDABLE_TYPES = ("real", "bool", "int")  # [outputs].record: Int32 outputs too (stored as int32)
 _SUPPORTED_TYPES = {"Real": "real", "Float64": "real", "Boolean": "bool", "Integer": "int", "Int32": "int",
                     "String": "string"}
 _NAME_RE = re.compile(r"^[A-Za-z0-9_.-]+$")
@@ -395,8 +396,8 @@ def _recorded(ctx: _Ctx, table: Any) -> RecordedData:
 
 
 def _resolve(ctx: _Ctx, key: str, text: Any, instances: Mapping[str, FmuInstance],
-             causality: str | None) -> tuple[Ref, Variable]:
-    """Look up "instance.variable"; ``causality`` None accepts any."""
+             causality: str | None, types: Sequence[str] = ("real", "bool")) -> tuple[Ref, Variable]:
+    """Look up "instance.variable"; ``causality`` None accepts any; ``types``: the accepted types."""
     if not isinstance(text, str) or "." not in text:
         ctx.fail(key, f"expected \"instance.variable\", got {text!r}")
     inst_name, var_name = text.split(".", 1)
@@ -413,8 +414,9 @@ def _resolve(ctx: _Ctx, key: str, text: Any, instances: Mapping[str, FmuInstance
     if causality is not None and var.causality != causality:
         ctx.fail(key, f"{text} is {_a(var.causality)}, not {_a(causality)}; {what} of {inst_name}: "
                       f"{', '.join(candidates)}")
-    if var.type not in ("real", "bool"):
-        ctx.fail(key, f"{text} has unsupported type {var.type} (only Real/Float64 and Boolean)")
+    if var.type not in types:
+        names = {"real": "Real/Float64", "bool": "Boolean", "int": "Integer/Int32"}
+        ctx.fail(key, f"{text} has unsupported type {var.type} (only {' and '.join(names[x] for x in types)})")
     return Ref(inst_name, var_name), var
 
 
@@ -574,11 +576,11 @@ def load_scenario(path: str | Path, fmu_dir: str | Path, parameter_sets: Sequenc
         names = out_table["record"]
         if not isinstance(names, list):
             ctx.fail("[outputs].record", "expected an array of \"instance.variable\" strings")
-        outputs = [_resolve(ctx, f"[outputs].record[{i}]", s, instances, None)[0]
+        outputs = [_resolve(ctx, f"[outputs].record[{i}]", s, instances, None, RECORDABLE_TYPES)[0]
                    for i, s in enumerate(names)]
     else:
         outputs = [Ref(i.name, v.name) for i in instances.values()
-                   for v in i.variables.values() if v.causality == "output" and v.type in ("real", "bool")]
+                   for v in i.variables.values() if v.causality == "output" and v.type in RECORDABLE_TYPES]
 
     compares = []
     for key, item in _array(ctx, doc, "compare", ("simulated", "recorded", "unit")):

@@ -120,6 +120,25 @@ def test_chatter_identical(fmu_dir, tmp_path, fmi):
     assert both["fast"][0].steps == 3000 and np.abs(both["fast"][1]["vibration.tip_displacement_y"]).max() > 0
 
 
+def test_int32_outputs_recorded_identical(fmu_dir, tmp_path):
+    """The Interpolator's Int32 outputs (program line, N word) are recorded as int32 columns, the same on both
+    paths, with the values the program has."""
+    program = (REPO_ROOT / "scenarios" / "programs" / "umich_01.nc").read_text().splitlines()
+    n_words = {int(line.split()[0][1:]) for line in program if line.startswith("N")}
+    scenario = dataclasses.replace(load_scenario(REPO_ROOT / "scenarios" / "umich_motion.toml", fmu_dir),
+                                   stop_time=30.0)
+    assert fastpath.unsupported(scenario) == ""
+    both = run_both(scenario, tmp_path)
+    assert_identical(both)
+    frame = both["fast"][1]
+    assert str(frame["interp.line_number"].dtype) == "int32" and str(frame["interp.block_number"].dtype) == "int32"
+    lines, blocks = frame["interp.line_number"].to_numpy(), frame["interp.block_number"].to_numpy()
+    assert lines[0] == 0 and np.all(np.diff(lines) >= 0) and 10 < lines[-1] <= len(program)
+    assert set(blocks[lines > 0]) - {0} <= n_words and len(set(blocks)) > 5
+    for r in (result for result, _ in both.values()):
+        assert read_run_info(r.run_dir)["int_columns"] == ["interp.line_number", "interp.block_number"]
+
+
 # ---- stopping ----
 
 
@@ -344,6 +363,8 @@ class FakeFmu:
         setattr(self.dll, p + "SetBoolean", setter_b(ok))
         setattr(self.dll, p + "GetBoolean", setter_b(ok))
         setattr(self.dll, p + "DoStep", step(do_step))
+        setter_i = c.CFUNCTYPE(c.c_int, c.c_void_p, vr, n, c.POINTER(c.c_int32), *extra)
+        setattr(self.dll, p + ("GetInt32" if fmi3 else "GetInteger"), setter_i(ok))
         self.component = 1234
 
     def slave(self, fmi3: bool):
@@ -355,7 +376,7 @@ class FakeFmu:
             fmu=self, fmi3=fmi3, m=1, name="fake", real_in=(c.c_double * 0)(), bool_in=(b * 0)(),
             real_out=(c.c_double * 1)(), real_prev=(c.c_double * 1)(), bool_out=(b * 0)(), bool_prev=(b * 0)(),
             vr_real_in=(c.c_uint32 * 0)(), vr_bool_in=(c.c_uint32 * 0)(), vr_real_out=(c.c_uint32 * 1)(7),
-            vr_bool_out=(c.c_uint32 * 0)(), n_rec_real=0, n_rec_bool=0, conn_real=[], conn_bool=[],
+            vr_bool_out=(c.c_uint32 * 0)(), vr_int_out=(c.c_uint32 * 0)(), int_out=(c.c_int32 * 0)(), n_rec_real=0, n_rec_bool=0, conn_real=[], conn_bool=[],
             out_index={"t": ("real", 0)}, feeds_connections=False)
 
 

@@ -99,6 +99,7 @@ static int set_inputs(stp_instance *s, stp_outcome *o) {
                                            (const fmi2Boolean *)s->bool_in), o, STP_FN_SET_BOOLEAN);
 }
 
+/* Outputs in the order the Python path reads them: reals, booleans, Int32s. */
 static int get_outputs(stp_instance *s, stp_outcome *o) {
     if (s->fmi_version == 3) {
         if (s->n_real_out > 0 &&
@@ -106,19 +107,29 @@ static int get_outputs(stp_instance *s, stp_outcome *o) {
                                              (size_t)s->n_real_out), o, STP_FN_GET_REAL)) {
             return 1;
         }
-        return s->n_bool_out > 0 &&
-               failed((int)s->fmi3_get_boolean(s->component, s->vr_bool_out, (size_t)s->n_bool_out,
-                                               (fmi3Boolean *)s->bool_out, (size_t)s->n_bool_out),
-                      o, STP_FN_GET_BOOLEAN);
+        if (s->n_bool_out > 0 &&
+            failed((int)s->fmi3_get_boolean(s->component, s->vr_bool_out, (size_t)s->n_bool_out,
+                                            (fmi3Boolean *)s->bool_out, (size_t)s->n_bool_out), o,
+                   STP_FN_GET_BOOLEAN)) {
+            return 1;
+        }
+        return s->n_int_out > 0 &&
+               failed((int)s->fmi3_get_int32(s->component, s->vr_int_out, (size_t)s->n_int_out, s->int_out,
+                                             (size_t)s->n_int_out), o, STP_FN_GET_INTEGER);
     }
     if (s->n_real_out > 0 &&
         failed((int)s->fmi2_get_real(s->component, s->vr_real_out, (size_t)s->n_real_out, s->real_out), o,
                STP_FN_GET_REAL)) {
         return 1;
     }
-    return s->n_bool_out > 0 &&
-           failed((int)s->fmi2_get_boolean(s->component, s->vr_bool_out, (size_t)s->n_bool_out,
-                                           (fmi2Boolean *)s->bool_out), o, STP_FN_GET_BOOLEAN);
+    if (s->n_bool_out > 0 &&
+        failed((int)s->fmi2_get_boolean(s->component, s->vr_bool_out, (size_t)s->n_bool_out,
+                                        (fmi2Boolean *)s->bool_out), o, STP_FN_GET_BOOLEAN)) {
+        return 1;
+    }
+    return s->n_int_out > 0 &&
+           failed((int)s->fmi2_get_integer(s->component, s->vr_int_out, (size_t)s->n_int_out, s->int_out), o,
+                  STP_FN_GET_INTEGER);
 }
 
 /* doStep; *terminate is set when an FMI 3 instance asks to end the simulation. */

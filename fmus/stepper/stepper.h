@@ -20,7 +20,7 @@
 #include "fmi2FunctionTypes.h"
 #include "fmi3FunctionTypes.h"
 
-#define STP_ABI_VERSION 1
+#define STP_ABI_VERSION 2
 
 #if defined(__GNUC__)
 #define STP_EXPORT __attribute__((visibility("default")))
@@ -28,7 +28,7 @@
 #define STP_EXPORT
 #endif
 
-/* Element type of a buffer a link or column reads. */
+/* Element type of a buffer a link or column reads (STP_BOOL_FMI2: an int, also that of Int32 columns). */
 enum { STP_REAL = 0, STP_BOOL_FMI2 = 1, STP_BOOL_FMI3 = 2 };
 
 /* stp_outcome.code */
@@ -40,7 +40,10 @@ enum {
 };
 
 /* stp_outcome.function */
-enum { STP_FN_NONE = 0, STP_FN_SET_REAL, STP_FN_SET_BOOLEAN, STP_FN_DO_STEP, STP_FN_GET_REAL, STP_FN_GET_BOOLEAN };
+enum {
+    STP_FN_NONE = 0, STP_FN_SET_REAL, STP_FN_SET_BOOLEAN, STP_FN_DO_STEP, STP_FN_GET_REAL, STP_FN_GET_BOOLEAN,
+    STP_FN_GET_INTEGER
+};
 
 /* One connection into an instance's input buffer. */
 typedef struct {
@@ -104,6 +107,13 @@ typedef struct {
     int32_t snapshot;         /* source of a delayed connection: copy outputs at each tick's start */
     int32_t get_at_rows;      /* has outputs: read them at each output row */
     int32_t reserved;
+
+    /* Int32 outputs (recorded only; fmi2Integer or fmi3Int32 elements, both int32) */
+    fmi2GetIntegerTYPE *fmi2_get_integer;
+    fmi3GetInt32TYPE *fmi3_get_int32;
+    const uint32_t *vr_int_out;
+    int32_t *int_out;
+    int64_t n_int_out;
 } stp_instance;
 
 typedef int (*stp_should_stop)(double time);

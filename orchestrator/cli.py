@@ -10,14 +10,17 @@ import argparse
 import os
 import sys
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 from orchestrator.calibrate import cli as calibrate_cli
 from orchestrator.fastpath import FastPathUnavailable
 from orchestrator.master import RunResult, SimulationError, run
 from orchestrator.recorded import RecordedDataError
-from orchestrator.report import Report, write_report
 from orchestrator.scenario import ScenarioError, load_scenario
 from models.units import UnitError, conversion_factor
+
+if TYPE_CHECKING:  # the report (pandas, matplotlib) is imported only for scenarios with comparisons
+    from orchestrator.report import Report
 
 FMU_DIR_ENV = "MILLING_TWIN_FMU_DIR"
 
@@ -78,6 +81,10 @@ def main(argv: list[str] | None = None) -> int:
     except KeyboardInterrupt:
         print(f"interrupted; results so far in {args.out / scenario.name}", file=sys.stderr)
         return 130
-    report = write_report(scenario, result.run_dir) if scenario.compare and result.rows else None
+    report = None
+    if scenario.compare and result.rows:
+        from orchestrator.report import write_report
+
+        report = write_report(scenario, result.run_dir)
     print(_summary(result, report))
     return 130 if result.status == "interrupted" else 0

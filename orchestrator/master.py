@@ -64,7 +64,6 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
-from fmpy import extract
 from fmpy.fmi1 import FMICallException
 from fmpy.fmi2 import (FMU2Slave, defaultCallbacks, fmi2Boolean, fmi2CallbackFunctions,
                        fmi2CallbackLoggerTYPE, fmi2Integer, fmi2Real, fmi2ValueReference)
@@ -72,7 +71,7 @@ from fmpy.fmi3 import FMU3Slave, fmi3Boolean, fmi3Float64, fmi3Int32, fmi3ValueR
 from fmpy.logging import addLoggerProxy
 from tqdm import tqdm
 
-from orchestrator import fastpath
+from orchestrator import fastpath, fmu_cache
 from orchestrator.results import RunWriter, sha256_of
 from orchestrator.scenario import FmuInstance, Scenario
 
@@ -297,13 +296,13 @@ def _feed(s: _Slave, row: int) -> None:
     s.set_inputs()
 
 
-def _run_info(scenario: Scenario) -> dict[str, Any]:
+def _run_info(scenario: Scenario, fmu_hashes: dict[Path, str]) -> dict[str, Any]:
     rec = scenario.recorded
     return {
         "scenario": {"name": scenario.name, "path": str(scenario.path.resolve()),
                      "sha256": sha256_of(scenario.path)},
         "recorded": None if rec is None else {"path": str(rec.path.resolve()), "sha256": sha256_of(rec.path)},
-        "fmus": [{"instance": i.name, "path": str(i.path.resolve()), "sha256": sha256_of(i.path),
+        "fmus": [{"instance": i.name, "path": str(i.path.resolve()), "sha256": fmu_hashes[i.path],
                   "fmi_version": i.fmi_version, "model_identifier": i.model_identifier,
                   "instantiation_token": i.instantiation_token, "step_size": i.step_size,
                   "parameters": dict(i.parameters), "inputs": dict(i.inputs)} for i in scenario.instances],
@@ -393,12 +392,12 @@ class _StopFlag:
 class _Run:
     """The state of one run; ``run()`` is the public entry point."""
 
-    def __init__(self, scenario: Scenario, writer: RunWriter) -> None:
-        self.scenario, self.writer = scenario, writer
+    def __init__(self, scenario: Scenario, writer: RunWriter, fmu_hashes: dict[Path, str]) -> None:
+        self.scenario, self.writer, self.fmu_hashes = scenario, writer, fmu_hashes
         self.base, self.start = scenario.base_step, scenario.start_time
         self.n_ticks = math.floor((scenario.stop_time - self.start) / scenario.output_interval
                                   + 1e-9) * scenario.ticks_per_output
-        self.unzip_dirs: dict[Path, str] = {}
+        self.unzip_dirs: dict[Path, fmu_cache.Unpacked] = {}
         self.slaves: dict[str, _Slave] = {}
         self.fmi2_loggers: dict[bytes, Callable[[int, bytes | None], None]] = {}
         self.tick = 0
@@ -415,8 +414,8 @@ class _Run:
         for inst in scenario.instances:
             self.current = inst.name
             if inst.path not in self.unzip_dirs:
-                self.unzip_dirs[inst.path] = extract(str(inst.path))
-            self.slaves[inst.name] = _Slave(inst, self.unzip_dirs[inst.path], scenario, self.fmi2_loggers)
+                self.unzip_dirs[inst.path] = fmu_cache.unpack(inst.path, self.fmu_hashes[inst.path])
+            self.slaves[inst.name] = _Slave(inst, self.unzip_dirs[inst.path].folder, scenario, self.fmi2_loggers)
             self.slaves[inst.name].set_parameters()
         _wire(self.slaves, scenario)
         order = list(self.slaves.values())
@@ -530,7 +529,8 @@ class _Run:
             except Exception:  # a failed FMU may refuse to terminate; free the others anyway
                 pass
         for d in self.unzip_dirs.values():
-            shutil.rmtree(d, ignore_errors=True)
+            if d.temporary:
+                shutil.rmtree(d.folder, ignore_errors=True)
 
 
 def run(scenario: Scenario, out_dir: str | Path, *, progress: bool = True,
@@ -548,12 +548,14 @@ def run(scenario: Scenario, out_dir: str | Path, *, progress: bool = True,
     columns = ["time"] + [str(r) for r in scenario.outputs]
     bools = [str(r) for r in scenario.outputs if scenario.variable(r).type == "bool"]
     ints = [str(r) for r in scenario.outputs if scenario.variable(r).type == "int"]
-    info = {**_run_info(scenario), "stepping": {
+    # each FMU file hashed once, for run.json and as the key of its unpacked folder (orchestrator.fmu_cache)
+    fmu_hashes = {path: sha256_of(path) for path in dict.fromkeys(i.path for i in scenario.instances)}
+    info = {**_run_info(scenario, fmu_hashes), "stepping": {
         "path": choice.path, "library": None if choice.library is None else str(choice.library),
         "reason": choice.reason}}
     writer = _Writer(Path(out_dir) / scenario.name, columns, bools, info,
                      flush_rows=flush_rows, flush_seconds=flush_seconds, int_columns=ints)
-    state = _Run(scenario, writer)
+    state = _Run(scenario, writer, fmu_hashes)
     t0_wall = time.perf_counter()
     wall = 0.0
     try:

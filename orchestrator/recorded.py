@@ -35,7 +35,6 @@ from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
-import pandas as pd
 
 from models.units import UnitError, convert, parse_unit, si_unit_of
 
@@ -326,6 +325,8 @@ def _missing_check(path: Path, column: str, texts: np.ndarray, lines: list[int])
 
 
 def _parse_numeric(path: Path, column: str, texts: np.ndarray, lines: list[int]) -> np.ndarray:
+    import pandas as pd  # here, not at import: scenarios without recorded data do not load pandas
+
     _missing_check(path, column, texts, lines)
     stripped = pd.Series(texts, dtype=object).map(str.strip)
     values = pd.to_numeric(stripped, errors="coerce").to_numpy(dtype=np.float64)
@@ -409,6 +410,8 @@ def load_recorded(
             f"{path}: fewer than 2 data rows (found {n_rows}); a recording needs at "
             f"least 2 samples"
         )
+
+    import pandas as pd
 
     indices = sorted(set(needed.values()))
     try:

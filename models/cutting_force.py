@@ -137,6 +137,7 @@ CUTTING_FORCE = ModelDefinition(
     equations=equations,
     update=update,
     native_states=("delayed_displacement_x", "delayed_displacement_y"),
+    specialize_on="n_flutes",  # C code per flute count: absent flutes cost nothing
     states=(
         State("angle", "Spindle angle: flute 0 at the tool tip, clockwise from +y", unit="rad"),
         State("delayed_displacement_x", "Tool displacement in x one tooth period ago (model.c)", unit="m"),

@@ -94,11 +94,23 @@ class ModelDefinition:
     # test proves the two equal. Everything else is generated from the expressions here.
     native_outputs: tuple[str, ...] = ()
     native_states: tuple[str, ...] = ()
+    # An Int32 parameter (with min and max) whose value shapes the equations, e.g. the number of
+    # flutes: the C code gets one copy of the equations per value in its range, the value folded in
+    # as a constant (casadi then drops what cannot count at that value, e.g. the terms of absent
+    # flutes), and runs the copy for the parameter's value (the generic equations otherwise). Only
+    # the C code is specialized; it computes the same expressions.
+    specialize_on: str | None = None
     default_step_size: float = 1e-3
     default_stop_time: float = 10.0
     _cache: dict = field(default_factory=dict, compare=False, repr=False)
 
     def __post_init__(self) -> None:
+        if self.specialize_on is not None:
+            v = self.variable(self.specialize_on)
+            if (v.type != "Int32" or v.causality != "parameter" or v.min is None or v.max is None
+                    or not 0 <= v.max - v.min <= 16):
+                raise ValueError(f"{self.identifier}.{v.name}: specialize_on needs an Int32 parameter with min and "
+                                 "max at most 16 apart")
         for v in self.variables:
             if v.shape and (v.type != "Float64" or v.causality != "output" or v.name not in self.native_outputs):
                 raise ValueError(f"{self.identifier}.{v.name}: arrays are supported for Float64 outputs that "
@@ -150,24 +162,34 @@ class ModelDefinition:
             )
         return self._cache["update"]
 
-    def function(self) -> ca.Function:
-        """The equations as one casadi Function (arguments -> outputs), scalar in and out."""
-        if "function" not in self._cache:
+    def specialized_values(self) -> range:
+        """The values of ``specialize_on`` the C code has its own copy of the equations for."""
+        if self.specialize_on is None:
+            return range(0)
+        v = self.variable(self.specialize_on)
+        return range(int(v.min), int(v.max) + 1)
+
+    def function(self, specialized: int | None = None) -> ca.Function:
+        """The equations as one casadi Function (arguments -> outputs), scalar in and out;
+        ``specialized``: with ``specialize_on`` fixed to this value (its argument is then unused)."""
+        key = "function" if specialized is None else f"function_{specialized}"
+        if key not in self._cache:
             symbols = self._symbols()
-            outputs = self.equations(symbols) if self.equations else {}
+            given = symbols if specialized is None else {**symbols, self.specialize_on: ca.SX(float(specialized))}
+            outputs = self.equations(given) if self.equations else {}
             expected = {v.name for v in self.computed_outputs}
             if set(outputs) != expected:
                 raise ValueError(
                     f"{self.identifier}: equations give {sorted(outputs)}, outputs are {sorted(expected)}"
                 )
-            self._cache["function"] = ca.Function(
+            self._cache[key] = ca.Function(
                 self.identifier,
                 [symbols[v.name] for v in self.arguments],
                 [outputs[v.name] for v in self.computed_outputs],
                 [v.name for v in self.arguments],
                 [v.name for v in self.computed_outputs],
             )
-        return self._cache["function"]
+        return self._cache[key]
 
     def defaults(self) -> dict[str, float]:
         """Start values of parameters and inputs (booleans as 0.0/1.0)."""

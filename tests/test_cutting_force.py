@@ -118,6 +118,47 @@ def test_mean_forces_equal_the_closed_form(fmu: Path, case: str) -> None:
         assert [mean["Fx"], mean["Fy"], mean["Fz"]] == pytest.approx([slot["Fx"], slot["Fy"], slot["Fz"]], rel=1e-3)
 
 
+# ---- the C code specialized per flute count (ModelDefinition.specialize_on) ----
+
+
+def test_the_equations_specialized_per_flute_count_are_the_generic_ones() -> None:
+    generic = CUTTING_FORCE.function()
+    names = [v.name for v in CUTTING_FORCE.arguments]
+    rng = np.random.default_rng(7)
+    defaults = CUTTING_FORCE.defaults()
+    for n in CUTTING_FORCE.specialized_values():
+        special = CUTTING_FORCE.function(n)
+        assert special.n_instructions() < generic.n_instructions() * (n + 0.5) / 6  # absent flutes dropped
+        for _ in range(20):
+            values = {**defaults, "n_flutes": float(n), "spindle_speed": OMEGA, "axial_depth": 0.003,
+                      "feed_velocity_x": rng.uniform(-0.05, 0.05), "feed_velocity_y": rng.uniform(-0.05, 0.05),
+                      "helix_angle": rng.uniform(0, 0.8), "runout_offset": rng.uniform(0, 2e-5),
+                      "runout_angle": rng.uniform(0, TWO_PI), "entry_angle": rng.uniform(0, TWO_PI),
+                      "exit_angle": rng.uniform(0, TWO_PI), "angle": rng.uniform(0, TWO_PI),
+                      "displacement_x": rng.uniform(-1e-5, 1e-5), "delayed_displacement_y": rng.uniform(-1e-5, 1e-5)}
+            args = [values[k] for k in names]
+            np.testing.assert_array_equal(np.array(special(*args), dtype=float).ravel(),
+                                          np.array(generic(*args), dtype=float).ravel())
+
+
+@pytest.mark.parametrize("n_flutes", range(1, 7))
+def test_every_flute_count_equals_the_reference(fmu: Path, n_flutes: int) -> None:
+    """The FMU runs the copy of the equations for its flute count (with helix and runout): equal to ForceReference."""
+    h = 1e-5
+    base = {"n_flutes": n_flutes, "spindle_speed": OMEGA, "feed_velocity_x": 0.02, "axial_depth": 0.003,
+            "helix_angle": 0.5, "runout_offset": 1e-5, "runout_angle": 0.4, "exit_angle": math.pi}
+    points = [{**base, "displacement_x": 1e-5 * math.sin(TWO_PI * 900 * h * k)} for k in range(300)]
+    rows = []
+    with Slave(fmu) as slave:
+        slave.instantiate()
+        slave.initialize(points[0])
+        for point in points:
+            slave.set(point, include_fixed=False)
+            assert slave.step(h) == OK
+            rows.append(slave.get(OUTPUTS))
+    assert_close(np.array(rows), reference_trajectory(points, h), what=f"outputs with {n_flutes} flutes")
+
+
 # ---- regenerative chip thickness ----
 
 SLOT = {"n_flutes": 2, "spindle_speed": OMEGA, "feed_velocity_x": 0.02, "axial_depth": 0.003}

@@ -12,6 +12,7 @@ typedef struct {
     size_t capacity;     /* samples the heap holds now (grows to history_size) */
     size_t count;        /* samples stored, <= capacity */
     size_t next;         /* slot the next sample goes to */
+    size_t hint;         /* the sample the last delayed displacement started from (a search hint) */
     bool warned_stopped; /* warned (once) that the spindle is stopped while feeding into the cut */
 } ModelInternal;
 

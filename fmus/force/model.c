@@ -34,10 +34,19 @@ static const double *sample(const FmuInstance *instance, size_t k) {
     return instance->heap + SAMPLE_SIZE * ((in->next + in->capacity - in->count + k) % in->capacity);
 }
 
-/* The displacement at time - T: linear between the samples and the current inputs at `time`. */
-static void delayed_displacement(const FmuInstance *instance, double *x, double *y) {
+/* Whether sample lo is the last one at or before td (index n: the current inputs, after td). */
+static bool brackets(const FmuInstance *instance, size_t lo, double td) {
+    size_t n = instance->internal.count;
+    return lo < n && sample(instance, lo)[0] <= td && (lo + 1 == n || sample(instance, lo + 1)[0] > td);
+}
+
+/* The displacement at time - T: linear between the samples and the current inputs at `time`. The
+ * sample found is remembered: one step later it is mostly the same or the one before (the ring
+ * dropped its oldest sample), checked before a bisection; the sample times increase strictly, so
+ * the answer is the bisection's. */
+static void delayed_displacement(FmuInstance *instance, double *x, double *y) {
     const ModelVariables *v = &instance->v;
-    size_t n = instance->internal.count, lo = 0, hi = n;
+    size_t n = instance->internal.count, lo = 0, hi = n, hint = instance->internal.hint;
     double td = instance->time - tooth_period(v);
     const double *a, *b;
     double current[SAMPLE_SIZE];
@@ -50,14 +59,23 @@ static void delayed_displacement(const FmuInstance *instance, double *x, double 
         *y = a[2];
         return;
     }
-    /* t(lo) <= td < t(hi), where index n is the current inputs */
-    while (hi - lo > 1) {
-        size_t mid = lo + (hi - lo) / 2;
-        if (sample(instance, mid)[0] <= td)
-            lo = mid;
-        else
-            hi = mid;
+    if (brackets(instance, hint, td)) {
+        lo = hint;
+    } else if (hint > 0 && brackets(instance, hint - 1, td)) {
+        lo = hint - 1;
+    } else if (brackets(instance, hint + 1, td)) {
+        lo = hint + 1;
+    } else {
+        /* t(lo) <= td < t(hi), where index n is the current inputs */
+        while (hi - lo > 1) {
+            size_t mid = lo + (hi - lo) / 2;
+            if (sample(instance, mid)[0] <= td)
+                lo = mid;
+            else
+                hi = mid;
+        }
     }
+    instance->internal.hint = lo;
     a = sample(instance, lo);
     b = lo + 1 < n ? sample(instance, lo + 1) : current;
     {
@@ -75,6 +93,7 @@ FmuStatus model_exit_initialization(FmuInstance *instance) {
     in->capacity = capacity;
     in->count = 0;
     in->next = 0;
+    in->hint = 0;
     in->warned_stopped = false;
     return FMU_OK;
 }

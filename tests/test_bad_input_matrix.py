@@ -8,15 +8,18 @@ from __future__ import annotations
 import re
 import subprocess
 import sys
+import zipfile
 from pathlib import Path
 
 import pytest
 
 from conftest import CASE_CSV, REPO_ROOT
 from fmu_helpers import ERROR, Slave, fmu_dir, fmu_file_name, require_fmu, status_of
+from models import MODELS
 from orchestrator.calibrate import CalibrationSpecError, load_spec
 from orchestrator.calibrate.scenario_fit import prepare
 from orchestrator.calibrate.synthetic import write_power_case
+from orchestrator.cli import main
 from orchestrator.scenario import ScenarioError, load_scenario
 
 README = REPO_ROOT / "README.md"
@@ -284,3 +287,37 @@ def test_part_program_values_and_truncation(tmp_path: Path, version: int, text: 
         slave.fmu.setString([slave.vr["program"]], [str(program)])
         assert status_of(lambda: slave.exit_initialization()) == ERROR
         assert slave.last_error() == f"exitInitializationMode: part program {program} line {line}: {tail}"
+
+
+# ---- an FMU whose model description and binary do not belong together, run by the orchestrator ----
+
+
+def _with_token(src: Path, dst: Path, token: str) -> None:
+    """A copy of the FMU whose model description carries ``token`` (FMI 3 instantiationToken, FMI 2 guid)."""
+    with zipfile.ZipFile(src) as zin, zipfile.ZipFile(dst, "w") as zout:
+        for item in zin.infolist():
+            data = zin.read(item)
+            if item.filename == "modelDescription.xml":
+                data, n = re.subn(rb'(instantiationToken|guid)="\{[^}]*\}"', rb'\1="' + token.encode() + b'"', data)
+                assert n == 1
+            zout.writestr(item, data)
+
+
+@pytest.mark.parametrize("fmi", [3, 2])
+@pytest.mark.parametrize("stepping", ["python", "fast"])
+def test_a_wrong_token_in_a_scenario_fmu_is_one_clean_error(make_case, fmu_dir: Path, tmp_path: Path, capsys,
+                                                             fmi: int, stepping: str) -> None:
+    """The FMU refuses to instantiate: the CLI prints the FMU's own message (no traceback) and exits 1."""
+    wrong = "{00000000-0000-0000-0000-000000000000}"
+    bad = tmp_path / "Bad.fmu"
+    _with_token(fmu_dir / fmu_file_name("SpindlePower", fmi), bad, wrong)
+    path = make_case(('fmu = "SpindlePower"\nfmi = 3', f'fmu = "{bad}"\nfmi = {fmi}'))
+    code = main(["run", str(path), "--fmu-dir", str(fmu_dir), "--out", str(tmp_path / "runs"), "--no-progress",
+                 "--path", stepping])
+    err = capsys.readouterr().err
+    function = "fmi3InstantiateCoSimulation" if fmi == 3 else "fmi2Instantiate"
+    token = MODELS["SpindlePower"].instantiation_token()
+    assert code == 1 and err == (
+        f"error: instantiate of instance 'power' at t = 0.0 s returned NULL: {function}: wrong instantiation "
+        f"token/GUID '{wrong}'; this FMU (SpindlePower) has '{token}': the model description and the binary do not "
+        f"belong together; results so far in {tmp_path / 'runs' / 'case'}\n")

@@ -727,6 +727,36 @@ def test_interpolator_step_after_the_program_end_equals_small_steps(version: int
     assert np.array_equal(rows[0], rows[1])
 
 
+
+@pytest.mark.parametrize("version", [3, 2])
+def test_interpolator_step_in_a_feed_hold_equals_small_steps(version: int) -> None:
+    """Feed hold (feed_override = 0) in the middle of the program: once the tool stands still the Interpolator
+    skips the ticks, so a 60 s step gives what 60,000 steps of 1 ms give, a 1e9 s step returns at once, and
+    after the hold is released both continue identically."""
+    path = require_fmu(fmu_dir() / ("Interpolator.fmu" if version == 3 else "Interpolator_fmi2.fmu"))
+    names = output_names(model_of(path))
+    runs = []
+    for steps in ([60.0], [1e-3] * 60_000):
+        with Slave(path) as slave:
+            slave.instantiate()
+            slave.initialize()
+            assert slave.step(0.5) == OK
+            slave.set({"feed_override": 0.0})
+            for h in steps:
+                assert slave.step(h) == OK
+            held = slave.get(names)
+            assert slave.get(["feed", "finished"]).tolist() == [0.0, 0.0]  # stopped mid-program
+            start = time.perf_counter()
+            assert slave.step(1e9) == OK
+            assert time.perf_counter() - start < 0.1
+            assert np.array_equal(slave.get(names), held)
+            slave.set({"feed_override": 1.0})
+            for _ in range(2000):
+                assert slave.step(1e-3) == OK
+            runs.append((held, slave.get(names)))
+    assert np.array_equal(runs[0][0], runs[1][0]) and np.array_equal(runs[0][1], runs[1][1])
+    assert not np.array_equal(runs[0][0], runs[0][1])  # it moved again after the hold
+
 def test_wrong_call_order_is_an_illegal_call_sequence(slave: Slave) -> None:
     p = slave.prefix
     expected = "{}: illegal call sequence: not allowed in state {}"

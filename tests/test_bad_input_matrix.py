@@ -321,3 +321,33 @@ def test_a_wrong_token_in_a_scenario_fmu_is_one_clean_error(make_case, fmu_dir: 
         f"error: instantiate of instance 'power' at t = 0.0 s returned NULL: {function}: wrong instantiation "
         f"token/GUID '{wrong}'; this FMU (SpindlePower) has '{token}': the model description and the binary do not "
         f"belong together; results so far in {tmp_path / 'runs' / 'case'}\n")
+
+
+@pytest.mark.parametrize("fmi", [3, 2])
+def test_an_fmu_without_a_binary_for_this_platform_is_a_scenario_error(make_case, fmu_dir: Path, tmp_path: Path,
+                                                                        fmi: int) -> None:
+    """Caught when the scenario is read (fmpy would fail at instantiation with a bare Exception)."""
+    platform = "x86_64-linux" if fmi == 3 else "linux64"
+    library = f"binaries/{platform}/SpindlePower.so"
+    for other, holds in ((None, "nothing"), ("aarch64-darwin", "aarch64-darwin")):
+        bad = tmp_path / f"NoBinary{other or ''}.fmu"
+        with zipfile.ZipFile(fmu_dir / fmu_file_name("SpindlePower", fmi)) as zin, zipfile.ZipFile(bad, "w") as zout:
+            for item in zin.infolist():
+                if item.filename.startswith("binaries/"):
+                    if other is None:
+                        continue
+                    zout.writestr(item.filename.replace(platform, other), zin.read(item))
+                else:
+                    zout.writestr(item, zin.read(item))
+        path = make_case(('fmu = "SpindlePower"\nfmi = 3', f'fmu = "{bad.name}"\nfmi = {fmi}'))
+        assert scenario_error(path, fmu_dir) == (f"[fmus.power].fmu: <dir>/{bad.name} has no binary for this platform "
+                                                 f"({library}); its binaries/ holds {holds}")
+
+
+def test_a_broken_fmu_file_is_a_scenario_error(make_case, fmu_dir: Path) -> None:
+    path = make_case(('fmu = "SpindlePower"', 'fmu = "t.fmu"'))
+    data = (fmu_dir / "SpindlePower.fmu").read_bytes()
+    for content in (b"", data[: len(data) // 2], b"hello"):
+        (path.parent / "t.fmu").write_bytes(content)
+        assert scenario_error(path, fmu_dir) == ("[fmus.power].fmu: cannot read the model description of <dir>/t.fmu: "
+                                                 "File is not a zip file")

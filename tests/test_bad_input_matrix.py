@@ -351,3 +351,11 @@ def test_a_broken_fmu_file_is_a_scenario_error(make_case, fmu_dir: Path) -> None
         (path.parent / "t.fmu").write_bytes(content)
         assert scenario_error(path, fmu_dir) == ("[fmus.power].fmu: cannot read the model description of <dir>/t.fmu: "
                                                  "File is not a zip file")
+
+
+def test_an_unwritable_results_folder_is_one_clean_error(make_case, fmu_dir: Path, tmp_path: Path, capsys) -> None:
+    (tmp_path / "afile").write_text("")
+    out = tmp_path / "afile" / "runs"
+    code = main(["run", str(make_case()), "--fmu-dir", str(fmu_dir), "--out", str(out), "--no-progress"])
+    assert code == 1 and capsys.readouterr().err == (
+        f"error: cannot write the results to {out / 'case'}: [Errno 20] Not a directory: '{out / 'case' / 'chunks'}'\n")

@@ -346,6 +346,8 @@ int interp_holds_still(const double *heap, const InterpLayout *L, const InterpSt
     if (!after->hold || after->n_pieces == 0 || after->piece + 1 != after->n_pieces) return 0;
     pc = heap + L->pieces + PIECE_DOUBLES * after->piece;
     if (pc[2] != 0.0 || pc[3] != 0.0 || pc[4] != 0.0) return 0; /* s, v, a no longer depend on t */
+    /* bytewise, padding included: interp_start zeroes the state and the ticks write it field by field, so the
+     * padding is zero; were it not, the comparison would only fail and nothing be skipped */
     memcpy(&same, before, sizeof same);
     same.tick = after->tick;
     return memcmp(&same, after, sizeof same) == 0;

@@ -128,20 +128,24 @@ class _Slave:
                   modelIdentifier=inst.model_identifier, instanceName=inst.name)
         self.fmu, self.fmi3 = fmu, fmi3
         self.errors: deque[str] = deque(maxlen=3)  # the FMU's latest Discard/Error messages
-        if fmi3:
-            fmu.instantiate(logMessage=lambda env, status, category, message: self._log(status, message))
-        else:
-            # fmpy's native proxy formats the printf-style arguments before calling us, but it
-            # keeps only the logger installed last: route each message by its instance name.
-            fmi2_loggers[inst.name.encode()] = self._log
-            self._callbacks = fmi2CallbackFunctions()
-            self._callbacks.logger = fmi2CallbackLoggerTYPE(
-                lambda env, name, status, category, message:
-                    fmi2_loggers.get(name or b"", self._log)(status, message))
-            self._callbacks.allocateMemory = defaultCallbacks.allocateMemory
-            self._callbacks.freeMemory = defaultCallbacks.freeMemory
-            addLoggerProxy(ctypes.byref(self._callbacks))
-            fmu.instantiate(callbacks=self._callbacks)
+        try:
+            if fmi3:
+                fmu.instantiate(logMessage=lambda env, status, category, message: self._log(status, message))
+            else:
+                # fmpy's native proxy formats the printf-style arguments before calling us, but it
+                # keeps only the logger installed last: route each message by its instance name.
+                fmi2_loggers[inst.name.encode()] = self._log
+                self._callbacks = fmi2CallbackFunctions()
+                self._callbacks.logger = fmi2CallbackLoggerTYPE(
+                    lambda env, name, status, category, message:
+                        fmi2_loggers.get(name or b"", self._log)(status, message))
+                self._callbacks.allocateMemory = defaultCallbacks.allocateMemory
+                self._callbacks.freeMemory = defaultCallbacks.freeMemory
+                addLoggerProxy(ctypes.byref(self._callbacks))
+                fmu.instantiate(callbacks=self._callbacks)
+        except Exception as exc:  # fmpy raises a bare Exception when instantiate returns NULL
+            fmu.freeLibrary()
+            raise SimulationError(inst.name, scenario.start_time, "NULL", "instantiate", list(self.errors)) from exc
 
         def vrs(names: list[str]) -> Any:
             return (vr_t * len(names))(*(inst.variables[n].value_reference for n in names))

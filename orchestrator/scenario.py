@@ -85,12 +85,14 @@ from __future__ import annotations
 import math
 import re
 import tomllib
+import zipfile
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field, replace
 from fractions import Fraction
 from pathlib import Path
 from typing import Any, NoReturn
 
+import fmpy
 from fmpy import read_model_description
 
 from orchestrator.toml_access import TomlAccess
@@ -254,6 +256,14 @@ def _load_fmu(ctx: _Ctx, name: str, table: dict, fmu_dir: Path) -> tuple[dict, P
         ctx.fail(f"{key}.fmi", f"{path} is an FMI {md.fmiVersion} FMU, not FMI {fmi}")
     if md.coSimulation is None:
         ctx.fail(f"{key}.fmu", f"{path} does not support co-simulation")
+    binary = (f"binaries/{fmpy.platform_tuple if fmi == 3 else fmpy.platform}/"
+              f"{md.coSimulation.modelIdentifier}{fmpy.sharedLibraryExtension}")
+    with zipfile.ZipFile(path) as archive:
+        names = archive.namelist()
+    if binary not in names:  # else fmpy fails at instantiation with a bare Exception
+        folders = sorted({n.split("/")[1] for n in names if n.startswith("binaries/") and n.count("/") >= 2})
+        ctx.fail(f"{key}.fmu", f"{path} has no binary for this platform ({binary}); its binaries/ holds "
+                               f"{', '.join(folders) if folders else 'nothing'}")
     return table, path, md
 
 

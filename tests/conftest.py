@@ -144,30 +144,39 @@ record = ["power.P_total", "power.spindle_on"]
 LONG_P_TOTAL = 300.0
 
 
+def start_run(scenario: Path, fmu_dir: Path, tmp_path: Path, *options: str):
+    """Start the CLI on ``scenario`` in a subprocess writing to tmp_path/runs; returns the process.
+    TMPDIR: a killed run cannot remove its extracted FMUs; keep them in pytest's tmp_path."""
+    import subprocess
+    import sys
+
+    return subprocess.Popen(
+        [sys.executable, "-m", "orchestrator", "run", str(scenario), "--fmu-dir", str(fmu_dir),
+         "--out", str(tmp_path / "runs"), "--no-progress", *options],
+        cwd=REPO_ROOT, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
+        env={**os.environ, "TMPDIR": str(tmp_path)})
+
+
+def wait_for_first_chunk(proc, run_dir: Path, timeout: float = 60.0) -> None:
+    import time
+
+    deadline = time.monotonic() + timeout
+    while not list((run_dir / "chunks").glob("chunk_*.parquet")):
+        assert proc.poll() is None, f"run ended early: {proc.communicate()}"
+        assert time.monotonic() < deadline, f"no chunk within {timeout} s"
+        time.sleep(0.02)
+
+
 @pytest.fixture
 def long_run(tmp_path: Path, fmu_dir: Path):
     """Start the CLI on a run of ~10 minutes in a subprocess; yields (process, run folder)
     once the first chunk is on disk. The process is killed at teardown if still alive."""
-    import subprocess
-    import sys
-    import time
-
     scenario = tmp_path / "long.toml"
     scenario.write_text(LONG_TOML)
-    out = tmp_path / "runs"
-    # TMPDIR: a killed run cannot remove its extracted FMUs; keep them in pytest's tmp_path
-    proc = subprocess.Popen(
-        [sys.executable, "-m", "orchestrator", "run", str(scenario), "--fmu-dir", str(fmu_dir),
-         "--out", str(out), "--no-progress"],
-        cwd=REPO_ROOT, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
-        env={**os.environ, "TMPDIR": str(tmp_path)})
-    run_dir = out / "long"
-    deadline = time.monotonic() + 60
+    proc = start_run(scenario, fmu_dir, tmp_path)
+    run_dir = tmp_path / "runs" / "long"
     try:
-        while not list((run_dir / "chunks").glob("chunk_*.parquet")):
-            assert proc.poll() is None, f"run ended early: {proc.communicate()}"
-            assert time.monotonic() < deadline, "no chunk within 60 s"
-            time.sleep(0.05)
+        wait_for_first_chunk(proc, run_dir)
         yield proc, run_dir
     finally:
         if proc.poll() is None:

@@ -73,6 +73,14 @@ def _patched(data: bytes, offset: int, value: int, fix_checksum: bool) -> bytes:
     return bytes(out)
 
 
+def _patched_double(data: bytes, offset: int, value: float) -> bytes:
+    """A float64 replaced and the checksum made valid again: only the value checks can catch it."""
+    out = bytearray(data)
+    out[offset:offset + 8] = struct.pack("<d", value)
+    out[-8:] = struct.pack("<Q", fn._fnv1a64(bytes(out[:-8])))
+    return bytes(out)
+
+
 LAYER1_ROWS = 56 + 8 + 8 * (16 * 7 + 16)  # offset of the row count of layer 1 (after the header and layer 0)
 BAD_FILES = {  # name -> (bytes from the committed file, expected message)
     "missing": (None, "cannot open"),
@@ -85,6 +93,9 @@ BAD_FILES = {  # name -> (bytes from the committed file, expected message)
                                                                   "32 x 16"),
     "corrupted": (lambda d: d[:500] + bytes([d[500] ^ 1]) + d[501:], "checksum mismatch"),
     "magic": (lambda d: b"FORCENEX" + d[8:], "not a force-net weights file"),
+    "nan weight": (lambda d: _patched_double(d, 56 + 8, math.nan), "layer 0 holds non-finite values"),
+    "inf bias": (lambda d: _patched_double(d, 56 + 8 + 8 * 16 * 7, math.inf), "layer 0 holds non-finite values"),
+    "zero scale": (lambda d: _patched_double(d, 32, 0.0), "scales h_ref, v_ref, load_ref must be positive and finite"),
 }
 
 

@@ -225,7 +225,19 @@ FmuStatus model_do_step(FmuInstance *instance, double time, double step_size) {
         return FMU_ERROR;
     }
     until = (int64_t)target;
-    while (w->state.tick < until) interp_tick(instance->heap, &w->layout, &w->state, &w->settings);
+    while (w->state.tick < until) {
+        const bool still = w->state.hold && w->state.v == 0.0 && w->state.a == 0.0;
+        InterpState before;
+        if (still) memcpy(&before, &w->state, sizeof before);
+        interp_tick(instance->heap, &w->layout, &w->state, &w->settings);
+        /* After the program's end every further tick changes only the tick count and the piece index, which
+         * the last tick sets as every tick would; in a feed hold at standstill nothing but the tick count
+         * changes. Skip to the last tick (a long step would otherwise spin through one tick per period: 112 s
+         * for a 1e9 s step at 0.1 s). */
+        if (w->state.tick + 1 < until &&
+            (w->state.finished || (still && interp_holds_still(instance->heap, &w->layout, &before, &w->state))))
+            w->state.tick = until - 1;
+    }
     return FMU_OK;
 }
 

@@ -18,13 +18,18 @@ CuttingForce are not modelled: ForceNet has no displacement inputs).
    cutting-element matrix ``C = [h; v; theta0]``: the undeformed chip thickness
    ``h = step(engaged) * f . n = step(engaged) * T_tooth * (v_x sin(phi) + v_y cos(phi))`` (the feed per
    tooth projected on the envelope normal ``n = (sin phi, cos phi, 0)`` of a flat end mill; 0 where the
-   pixel is not in material, i.e. outside the window ``entry_angle .. exit_angle`` measured from the
-   feed direction, or where that chip is not positive), the cutting speed ``v = omega * r(z) = omega * D/2``
-   and the current tool angle ``theta0`` (the spindle angle of flute 0 at the tip). Material comes from the
-   cutting-state inputs (``axial_depth``, ``entry_angle``, ``exit_angle``: what the Workpiece FMU outputs)
-   rather than from the Workpiece's 8 x 24 engagement map, because the FMU wrapper has no array inputs
-   (a flat end mill's map is that window on every row). The image is a continuous field: the network reads
-   it at the exact position of each edge element (:func:`geometry_image` samples it on a W x H grid).
+   pixel is not in material or where that chip is not positive), the cutting speed ``v = omega * r(z) = omega * D/2``
+   and the current tool angle ``theta0`` (the spindle angle of flute 0 at the tip). **Material** comes from the
+   Workpiece FMU's engagement map, the input ``engagement`` (8 heights x 24 angles, row i the heights
+   ``[i, i+1) a_p / 8``, column j the feed-frame angles ``[15 j, 15 (j+1))`` deg): edge element k (of every
+   flute) at feed-frame angle ``theta`` reads the cell that holds it, row ``k * 8 // 16`` (the map's rows halve
+   the H = 16 element heights: elements 2i and 2i+1 share row i) and column ``floor(theta / 15 deg)``; it is in
+   material when that cell is >= 0.5. A negative cell (the start value -1 in every cell: no map connected)
+   leaves the element to the cutting-state window ``entry_angle .. exit_angle`` (measured from the feed
+   direction), so a scenario written for CuttingForce (depth and window, no map) gives the same material
+   with ForceNet, and a full-slot map gives exactly the slot window's elements. ``axial_depth`` still sets
+   the element heights (the map's rows are fractions of it). The image is a continuous field: the network
+   reads it at the exact position of each edge element (:func:`geometry_image` samples it on a W x H grid).
 2. **Position encoding.** Each edge element has a horizontal angle ``theta`` (its immersion angle in the
    feed frame, ``phi + atan2(v_y, v_x)`` wrapped to [0, 2*pi)) and an axial angle ``psi = z tan(helix) / R``
    (the helix lag of the element behind the tip). They expand into four matrices
@@ -68,6 +73,8 @@ import numpy as np
 from models.cutting_force import AL7075_CARBIDE, CUTTING_FORCE, OMEGA_MIN, TWO_PI, _tooth_period
 from models.cutting_force import update as _angle_update
 from models.definition import ModelDefinition, State, Variable
+from models.workpiece import N_THETA as MAP_COLUMNS
+from models.workpiece import N_Z as MAP_ROWS
 
 ELEMENTS_PER_FLUTE = 16  # H: edge elements per flute (the rows of the geometry image)
 MAX_FLUTES = 6
@@ -116,6 +123,11 @@ FORCE_NET = ModelDefinition(
                  "Height above the tool tip of the point of the axis the moment Mx, My, Mz is taken about",
                  unit="m", display_unit="mm", start=0.0, min=-1.0, max=1.0),
         *(CUTTING_FORCE.variable(n) for n in _SHARED_INPUTS),
+        Variable("engagement", "Float64", "input",
+                 f"Engagement map of the Workpiece FMU, {MAP_ROWS} heights x {MAP_COLUMNS} angles (its output "
+                 "'engagement'): a cell >= 0 says whether the edge elements in it are in material (from 0.5 on); "
+                 "-1 (the start value: not connected) leaves the cell to the window entry_angle..exit_angle",
+                 start=-1.0, min=-1.0, max=1.0, shape=(MAP_ROWS, MAP_COLUMNS)),
         *(CUTTING_FORCE.variable(n) for n in _SHARED_OUTPUTS[:5]),
         Variable("Mx", "Float64", "output", "Moment of the cutting forces on the tool about x, at moment_height",
                  unit="N.m"),
@@ -355,38 +367,69 @@ class Elements:
     radius: float
 
 
+def _in_material(engagement: np.ndarray | None, k: int, theta: float, in_window: bool) -> bool:
+    """Edge element k (of any flute) at feed-frame angle theta in material: the map cell holding it (row
+    k * MAP_ROWS // H, column floor(theta / 15 deg)) when given (>= 0; in material from 0.5 on), else the
+    window (fmus/forcenet/forcenet.c in_material)."""
+    if engagement is not None:
+        row = k * MAP_ROWS // ELEMENTS_PER_FLUTE
+        column = min(int(theta * (MAP_COLUMNS / TWO_PI)), MAP_COLUMNS - 1)
+        value = float(engagement[row * MAP_COLUMNS + column])
+        if value >= 0.0:
+            return value >= 0.5
+    return in_window
+
+
+def engagement_of(values: Mapping[str, object]) -> np.ndarray | None:
+    """The engagement map of ``values`` flattened row-major (None when not given)."""
+    if values.get("engagement") is None:
+        return None
+    flat = np.asarray(values["engagement"], dtype=float).reshape(-1)
+    if flat.size != MAP_ROWS * MAP_COLUMNS:
+        raise ValueError(f"engagement: {flat.size} values, the map has {MAP_ROWS} x {MAP_COLUMNS}")
+    return flat
+
+
 def elements(values: Mapping[str, float], angle: float, weights: Weights | None = None) -> Elements:
-    """The elements in contact, with the scalar libm functions (math) the C code calls, in its order."""
+    """The elements in contact, with the scalar libm functions (math) the C code calls, in its order: the
+    sines and cosines of the helix lags per height and of each flute's angle, the elements' angles by the
+    addition theorems."""
     w = weights or default_weights()
     n = int(values["n_flutes"])
     omega = float(values["spindle_speed"])
     vx, vy = float(values["feed_velocity_x"]), float(values["feed_velocity_y"])
     radius = float(values["tool_diameter"]) / 2
     dz = float(values["axial_depth"]) / ELEMENTS_PER_FLUTE
+    engagement = engagement_of(values)
     rows: list[list[float]] = []
     trig: list[tuple[float, float, float, float]] = []
     if omega >= OMEGA_MIN and dz > 0.0:
         period = TWO_PI / (n * omega)
         feed_angle = math.atan2(vy, vx)
+        sin_feed, cos_feed = math.sin(feed_angle), math.cos(feed_angle)
         lag_per_height = math.tan(float(values["helix_angle"])) / radius
         entry = float(values["entry_angle"])
         width = _wrap_scalar(float(values["exit_angle"]) - entry)
         pitch = TWO_PI / n
         v_feature = omega * radius / w.v_ref
         theta0_feature = angle / math.pi - 1.0
+        z = [(k + 0.5) * dz for k in range(ELEMENTS_PER_FLUTE)]
+        psi = [zk * lag_per_height for zk in z]
+        sin_psi, cos_psi = [math.sin(p) for p in psi], [math.cos(p) for p in psi]
         for m in range(n):
+            flute = angle + m * pitch
+            sin_flute, cos_flute = math.sin(flute), math.cos(flute)
             for k in range(ELEMENTS_PER_FLUTE):
-                z = (k + 0.5) * dz
-                psi = z * lag_per_height
-                phi = angle + m * pitch - psi
-                s, c = math.sin(phi), math.cos(phi)
+                phi = flute - psi[k]
+                s = sin_flute * cos_psi[k] - cos_flute * sin_psi[k]
+                c = cos_flute * cos_psi[k] + sin_flute * sin_psi[k]
                 h = period * (vx * s + vy * c)
-                if not (_wrap_scalar(phi + feed_angle - entry) < width and h > 0.0):
+                if not (h > 0.0 and _in_material(engagement, k, _wrap_scalar(phi + feed_angle),
+                                                 _wrap_scalar(phi + feed_angle - entry) < width)):
                     continue
-                theta = _wrap_scalar(phi + feed_angle)
-                rows.append([h / w.h_ref, v_feature, theta0_feature, math.sin(theta), math.cos(theta),
-                             math.sin(psi), math.cos(psi)])
-                trig.append((s, c, z, h))
+                rows.append([h / w.h_ref, v_feature, theta0_feature, s * cos_feed + c * sin_feed,
+                             c * cos_feed - s * sin_feed, sin_psi[k], cos_psi[k]])
+                trig.append((s, c, z[k], h))
     t = np.array(trig, dtype=float).reshape(-1, 4)
     return Elements(np.array(rows, dtype=float).reshape(-1, N_FEATURES), t[:, 0], t[:, 1], t[:, 2], t[:, 3], dz,
                     radius)
@@ -554,7 +597,7 @@ def _all_outputs(values: Mapping[str, float], angle: float, weights: Weights | N
     return [native[n] if n in native else float(generated[n]) for n in OUTPUTS]
 
 
-_ARGUMENTS = {v.name for v in FORCE_NET.of("parameter") + FORCE_NET.of("input")}
+_ARGUMENTS = {v.name for v in FORCE_NET.arguments if isinstance(v, Variable)}  # not the map (C reads it)
 
 
 class ForceNetReference:
@@ -562,19 +605,20 @@ class ForceNetReference:
     angle reached (with :func:`tool_outputs`)."""
 
     def __init__(self, values: Mapping[str, float], weights: Weights | None = None):
-        names = {v.name for v in FORCE_NET.of("parameter") + FORCE_NET.of("input")}
-        self.values = {k: x for k, x in {**FORCE_NET.defaults(), **values}.items() if k in names}
+        self.names = {v.name for v in FORCE_NET.of("parameter") + FORCE_NET.of("input")}
+        self.values = {k: x for k, x in {**FORCE_NET.defaults(), **values}.items() if k in self.names}
         self.angle = 0.0
         self.weights = weights
 
     def set(self, values: Mapping[str, float]) -> None:
-        self.values.update({k: x for k, x in values.items() if k in self.values})
+        self.values.update({k: x for k, x in values.items() if k in self.names})
 
     def outputs(self) -> np.ndarray:
         return np.array(_all_outputs(self.values, self.angle, self.weights))
 
     def step(self, h: float) -> np.ndarray:
-        self.angle = float(FORCE_NET.step(h, **self.values, angle=self.angle)["angle"])
+        scalars = {k: x for k, x in self.values.items() if k in _ARGUMENTS}
+        self.angle = float(FORCE_NET.step(h, **scalars, angle=self.angle)["angle"])
         return self.outputs()
 
 

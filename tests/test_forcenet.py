@@ -287,6 +287,100 @@ def test_geometry_image_shows_the_chip_in_the_window() -> None:
     assert np.allclose(image["v"], SLOT["spindle_speed"] * 0.0125)
 
 
+# ---- the engagement map ----
+
+MAP_SIZE = fn.MAP_ROWS * fn.MAP_COLUMNS
+
+
+def slot_map() -> np.ndarray:
+    """What the Workpiece FMU gives for a full slot: every height in material over the front half (columns
+    0..11 = 0..180 deg), nothing behind."""
+    engagement = np.zeros((fn.MAP_ROWS, fn.MAP_COLUMNS))
+    engagement[:, : fn.MAP_COLUMNS // 2] = 1.0
+    return engagement.reshape(-1)
+
+
+def set_map(slave: Slave, engagement: np.ndarray) -> None:
+    if slave.fmi_version == 3:
+        slave.set_real([slave.vr["engagement"]], list(engagement))
+    else:
+        slave.set_real(slave.elements["engagement"], list(engagement))
+
+
+def run_with_maps(version: int, values: dict, maps: list[np.ndarray | None]) -> np.ndarray:
+    """One instance: initialize at ``values``, then per map (None: leave the map as it is) set it and step."""
+    with Slave(fmu_path(version)) as slave:
+        slave.instantiate()
+        slave.initialize(values)
+        rows = []
+        for engagement in maps:
+            if engagement is not None:
+                set_map(slave, engagement)
+            assert slave.step(STEP) == OK, slave.messages[-2:]
+            rows.append(slave.get(list(fn.OUTPUTS)))
+        return np.array(rows)
+
+
+@pytest.mark.parametrize("version", [3, 2])
+def test_a_slot_map_gives_exactly_the_forces_of_the_slot_window(version: int) -> None:
+    """Unconnected (the start value -1 everywhere), the window entry..exit decides; the Workpiece's map of a
+    slot holds the same elements, so the forces are bit-identical; a map without material gives none."""
+    without = run_with_maps(version, SLOT, [None] * 40)
+    assert np.count_nonzero(without[:, 0]) > 30
+    assert np.array_equal(run_with_maps(version, SLOT, [slot_map()] + [None] * 39), without)
+    assert np.array_equal(run_with_maps(version, SLOT, [np.full(MAP_SIZE, -1.0)] * 40), without)
+    empty = run_with_maps(version, SLOT, [np.zeros(MAP_SIZE)] + [None] * 39)
+    native = [fn.OUTPUTS.index(n) for n in fn.NATIVE_OUTPUTS]
+    assert not np.any(empty[:, native])
+    assert np.array_equal(empty[:, fn.OUTPUTS.index("spindle_angle")], without[:, fn.OUTPUTS.index("spindle_angle")])
+
+
+@pytest.mark.parametrize("version", [3, 2])
+def test_the_fmu_reads_the_map_as_the_reference_does(version: int) -> None:
+    """Random maps (given cells 0/1 or fractions, unknown cells -1) at random operating points: the FMU equals
+    the numpy reference to 1e-12, and the maps change the forces."""
+    rng = np.random.default_rng(17)
+    values = fn.random_arguments(12, rng)
+    points = [{k: float(c[i]) for k, c in values.items()} for i in range(12)]
+    points[7]["spindle_speed"] = points[6]["spindle_speed"]  # no stopped spindle here (a warning)
+    maps = [rng.choice([-1.0, 0.0, 1.0, 0.3, 0.7], MAP_SIZE, p=[0.2, 0.3, 0.3, 0.1, 0.1]) for _ in points]
+    with Slave(fmu_path(version)) as slave:
+        slave.instantiate()
+        slave.initialize(points[0])
+        actual = []
+        for point, engagement in zip(points, maps):
+            slave.set(point, include_fixed=False)
+            set_map(slave, engagement)
+            assert slave.step(1e-3) == OK, slave.messages[-2:]
+            actual.append(slave.get(list(fn.OUTPUTS)))
+    expected = fn.reference_trajectory([{**p, "engagement": m} for p, m in zip(points, maps)], 1e-3)
+    assert_close(np.array(actual), expected)
+    windows = fn.reference_trajectory(points, 1e-3)
+    assert np.count_nonzero(np.abs(expected[:, 0] - windows[:, 0]) > 1e-6 * np.abs(windows[:, 0]).max()) >= 6
+
+
+def test_how_the_map_is_sampled_onto_the_edge_elements() -> None:
+    """Map row i holds the elements k = 2i, 2i + 1 of every flute (the rows halve the 16 heights), column j the
+    feed-frame angles [15 j, 15 (j + 1)) deg."""
+    values = {**SLOT, "helix_angle": 0.0, "n_flutes": 4}
+    everything = fn.elements(values, 0.9)
+    dz = SLOT["axial_depth"] / fn.ELEMENTS_PER_FLUTE
+    for row in range(fn.MAP_ROWS):
+        engagement = np.zeros((fn.MAP_ROWS, fn.MAP_COLUMNS))
+        engagement[row] = 1.0
+        some = fn.elements({**values, "engagement": engagement}, 0.9)
+        heights = sorted(set(np.round(some.z / dz - 0.5).astype(int)))
+        assert heights == [2 * row, 2 * row + 1]
+        assert len(some.z) == len(everything.z) * 2 // fn.ELEMENTS_PER_FLUTE
+    theta = np.mod(np.arctan2(everything.features[:, 3], everything.features[:, 4]), 2 * math.pi)
+    for column in range(fn.MAP_COLUMNS):
+        engagement = np.zeros((fn.MAP_ROWS, fn.MAP_COLUMNS))
+        engagement[:, column] = 1.0
+        some = fn.elements({**values, "engagement": engagement}, 0.9)
+        inside = (theta >= math.radians(15 * column) - 1e-12) & (theta < math.radians(15 * (column + 1)) + 1e-12)
+        assert len(some.z) == np.count_nonzero(inside)
+
+
 # ---- scenarios ----
 
 REPO = Path(__file__).resolve().parents[1]

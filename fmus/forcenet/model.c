@@ -7,7 +7,8 @@
  *   all is the built-in copy of the default file (default_weights.h) used. A retrained network is a new
  *   weights.bin in the FMU (models.force_net.install_weights): no recompilation.
  * - each doStep advances the spindle angle (generated), and the outputs are one evaluation of the tool at
- *   the angle reached (forcenet_tool: elements in contact, network, forces and moments). */
+ *   the angle reached (forcenet_tool: elements in contact, network, forces and moments). Material comes from
+ *   the engagement map input where its cells are given (>= 0), else from the entry/exit window. */
 #include <math.h>
 #include <stdlib.h>
 #include <string.h>
@@ -15,6 +16,10 @@
 #include "default_weights.h"
 #include "cutting_state.h"
 #include "fmu_instance.h"
+#include "resource_location.h"
+
+/* the engagement input is the Workpiece's map (models/force_net.py: shape of "engagement") */
+typedef char map_size_matches_the_model[(SIZE_engagement == FORCENET_MAP_ROWS * FORCENET_MAP_COLUMNS) ? 1 : -1];
 
 #define OMEGA_MIN 1.0 /* rad/s: below it the spindle counts as stopped (models/cutting_force.py) */
 
@@ -33,7 +38,7 @@ FmuStatus model_instantiate(FmuInstance *instance, const char *function) {
         source = "the built-in copy of resources/" FORCENET_WEIGHTS_FILE;
         fmu_log(instance, FMU_OK, "logEvents", "%s: no resource location was given: %s is used", function, source);
     } else {
-        if (forcenet_resource_file(instance->resource_path, FORCENET_WEIGHTS_FILE, path, sizeof path, message,
+        if (fmu_resource_file(instance->resource_path, FORCENET_WEIGHTS_FILE, path, sizeof path, message,
                                    sizeof message) != 0) {
             fmu_log(instance, FMU_ERROR, "logStatusError", "%s: %s", function, message);
             return FMU_ERROR;
@@ -99,6 +104,7 @@ void model_update_outputs(FmuInstance *instance) {
         cut.entry_angle = v->entry_angle;
         cut.exit_angle = v->exit_angle;
         cut.angle = v->states.angle;
+        cut.engagement = v->engagement;
         forcenet_tool(&instance->internal.net, instance->heap, &cut, &tool);
     }
     v->Fx = tool.Fx;

@@ -25,7 +25,7 @@ import numpy as np
 
 REPO = Path(__file__).resolve().parents[2]
 FORCENET = REPO / "fmus" / "forcenet"
-C_FLAGS = ["-std=c99", "-O2", "-Wall", "-Wextra", "-Wpedantic", "-Werror", "-Wconversion", "-Wno-sign-conversion"]
+C_FLAGS = ["-std=c99", "-O2", "-g", "-Wall", "-Wextra", "-Wpedantic", "-Werror", "-Wconversion", "-Wno-sign-conversion"]
 CASES = {  # name -> (n_flutes, diameter m, helix rad, omega rad/s, feed m/s, depth m, entry, exit)
     "slot milling scenario (2 flutes, 25 mm, ap 3 mm)": (2, 0.025, math.radians(30), 6000 * math.pi / 30, 0.015,
                                                          0.003, 0.0, math.pi),

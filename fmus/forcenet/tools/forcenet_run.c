@@ -82,6 +82,7 @@ int main(int argc, char **argv) {
         cut.entry_angle = atof(argv[11]);
         cut.exit_angle = atof(argv[12]);
         cut.angle = atof(argv[13]);
+        cut.engagement = NULL;
         forcenet_tool(&layout, params, &cut, &out);
         printf("%.17g %.17g %.17g %.17g %.17g %.17g %.17g %.17g %zu\n", out.Fx, out.Fy, out.Fz, out.torque,
                out.power, out.Mx, out.My, out.Mz, out.elements);

@@ -11,6 +11,7 @@ import math
 import re
 import shutil
 import struct
+import subprocess
 import tomllib
 import zipfile
 from pathlib import Path
@@ -285,6 +286,48 @@ def test_geometry_image_shows_the_chip_in_the_window() -> None:
     inside = (theta >= math.pi / 2) & (theta < math.pi)
     assert np.allclose(image["h"][3], np.where(inside, ft * np.sin(theta), 0.0))
     assert np.allclose(image["v"], SLOT["spindle_speed"] * 0.0125)
+
+
+# ---- the C kernels ----
+
+C_FLAGS = ["-std=c99", "-O2", "-Wall", "-Wextra", "-Wpedantic", "-Werror", "-Wconversion", "-Wno-sign-conversion"]
+
+
+def _kernel_driver(tmp_path: Path, kernel: int) -> Path:
+    """tools/forcenet_run.c with the network's kernel forced (1: the baseline, 2: AVX2)."""
+    compiler = shutil.which("cc") or shutil.which("gcc")
+    if compiler is None:
+        pytest.skip("no C compiler")
+    folder = REPO / "fmus" / "forcenet"
+    out = tmp_path / f"forcenet_run_{kernel}"
+    subprocess.run([compiler, *C_FLAGS, f"-DFORCENET_KERNEL={kernel}", "-I", str(folder),
+                    str(folder / "tools" / "forcenet_run.c"), str(folder / "forcenet.c"), "-o", str(out), "-lm"],
+                   check=True)
+    return out
+
+
+def _loads(driver: Path, features: np.ndarray) -> np.ndarray:
+    text = f"{len(features)}\n" + "\n".join(" ".join(repr(float(x)) for x in f) for f in features) + "\n"
+    result = subprocess.run([str(driver), "loads", str(fn.WEIGHTS_FILE)], input=text, capture_output=True, text=True,
+                            check=True)
+    return np.array([[float(x) for x in line.split()] for line in result.stdout.splitlines()]).reshape(-1, 3)
+
+
+def test_the_avx2_and_baseline_kernels_give_bit_identical_loads(tmp_path: Path) -> None:
+    """The FMU picks the AVX2 kernel where the CPU has it, else the x86-64 baseline: same operations, same order,
+    the same bits (and the numpy reference's), for batches of every size (4-row blocks and their remainders)."""
+    if "avx2" not in Path("/proc/cpuinfo").read_text():
+        pytest.skip("this CPU has no AVX2")
+    rng = np.random.default_rng(3)
+    values, angle, _ = fn.repeat_angles(fn.sample_conditions(30, rng), 4, rng)
+    arrays = fn.element_arrays(values, angle)
+    features = arrays["features"][arrays["mask"]][:203]
+    drivers = [_kernel_driver(tmp_path, k) for k in (1, 2)]
+    baseline, avx2 = (_loads(d, features) for d in drivers)
+    assert np.array_equal(baseline, avx2)
+    assert np.array_equal(avx2, fn.network(fn.default_weights(), features))
+    for n in (1, 2, 3, 5, 7, 9):  # every remainder of the row blocks
+        assert np.array_equal(_loads(drivers[1], features[:n]), baseline[:n])
 
 
 # ---- the engagement map ----

@@ -205,6 +205,9 @@ unsigned char *forcenet_read_file(const char *path, size_t *size, char *message,
 
 /* Outputs o_start.. of a block of rows (the 3 loads of the output layer): four rows at a time, so four
  * independent sums are in flight instead of one long chain of dependent additions. */
+#if defined(__GNUC__)
+__attribute__((always_inline)) /* compiled into each kernel, for its target */
+#endif
 static inline void dense_tail(const double *restrict w, const double *restrict b, size_t n_in, size_t n_out,
                               size_t o_start, const double *restrict x, size_t rows, double *restrict y) {
     size_t r = 0, i, o;
@@ -342,50 +345,74 @@ __attribute__((target("avx2"))) static void dense_avx2(const double *restrict w,
 #define FORCENET_KERNEL 0
 #endif
 
-static void dense(const double *restrict w, const double *restrict b, size_t n_in, size_t n_out,
-                  const double *restrict x, size_t rows, double *restrict y) {
 #ifdef FORCENET_WIDE_KERNELS
-    if (FORCENET_KERNEL == 2 || (FORCENET_KERNEL == 0 && __builtin_cpu_supports("avx2"))) {
-        dense_avx2(w, b, n_in, n_out, x, rows, y);
-        return;
-    }
+#define DENSE(...) (wide ? dense_avx2(__VA_ARGS__) : dense_baseline(__VA_ARGS__))
+#else
+#define DENSE(...) dense_baseline(__VA_ARGS__)
 #endif
-    dense_baseline(w, b, n_in, n_out, x, rows, y);
-}
 
 static void relu(double *x, size_t n) {
     size_t i;
     for (i = 0; i < n; i++) x[i] = x[i] > 0.0 ? x[i] : 0.0;
 }
 
-void forcenet_network(const ForceNetLayout *layout, const double *params, const double *features, size_t n,
-                      double *loads) {
+/* The network on n elements with one kernel (wide: AVX2); inlined into one function per target, so that
+ * the whole network, activations included, runs in that target's instructions. */
+#if defined(__GNUC__)
+__attribute__((always_inline))
+#endif
+static inline void network(const ForceNetLayout *layout, const double *params, const double *features, size_t n,
+                           double *loads, int wide) {
     double a[CHUNK * FORCENET_MAX_WIDTH], t[CHUNK * FORCENET_MAX_WIDTH], u[CHUNK * FORCENET_MAX_WIDTH];
     const size_t K = layout->kernel, W = layout->width, last = layout->layers - 1;
     size_t start, i, block;
+    (void)wide;
     for (start = 0; start < n; start += CHUNK) {
         size_t rows = n - start < CHUNK ? n - start : CHUNK;
         double *out = loads + start * FORCENET_LOADS;
         /* kernel-function block: cube */
-        dense(params + layout->weight[0], params + layout->bias[0], FORCENET_FEATURES, K,
+        DENSE(params + layout->weight[0], params + layout->bias[0], FORCENET_FEATURES, K,
               features + start * FORCENET_FEATURES, rows, t);
         for (i = 0; i < rows * K; i++) t[i] = t[i] * t[i] * t[i];
         /* linear-transform block: ReLU */
-        dense(params + layout->weight[1], params + layout->bias[1], K, W, t, rows, a);
+        DENSE(params + layout->weight[1], params + layout->bias[1], K, W, t, rows, a);
         relu(a, rows * W);
         for (block = 0; block < layout->blocks; block++) {
             size_t l = 2 + 2 * block;
-            dense(params + layout->weight[l], params + layout->bias[l], W, W, a, rows, t);
+            DENSE(params + layout->weight[l], params + layout->bias[l], W, W, a, rows, t);
             relu(t, rows * W);
-            dense(params + layout->weight[l + 1], params + layout->bias[l + 1], W, W, t, rows, u);
+            DENSE(params + layout->weight[l + 1], params + layout->bias[l + 1], W, W, t, rows, u);
             for (i = 0; i < rows * W; i++) {
                 double sum = a[i] + u[i];
                 a[i] = sum > 0.0 ? sum : 0.0;
             }
         }
-        dense(params + layout->weight[last], params + layout->bias[last], W, FORCENET_LOADS, a, rows, out);
+        DENSE(params + layout->weight[last], params + layout->bias[last], W, FORCENET_LOADS, a, rows, out);
         for (i = 0; i < rows * FORCENET_LOADS; i++) out[i] = out[i] * layout->load_ref;
     }
+}
+
+static void network_baseline(const ForceNetLayout *layout, const double *params, const double *features, size_t n,
+                             double *loads) {
+    network(layout, params, features, n, loads, 0);
+}
+
+#ifdef FORCENET_WIDE_KERNELS
+__attribute__((target("avx2"))) static void network_avx2(const ForceNetLayout *layout, const double *params,
+                                                          const double *features, size_t n, double *loads) {
+    network(layout, params, features, n, loads, 1);
+}
+#endif
+
+void forcenet_network(const ForceNetLayout *layout, const double *params, const double *features, size_t n,
+                      double *loads) {
+#ifdef FORCENET_WIDE_KERNELS
+    if (FORCENET_KERNEL == 2 || (FORCENET_KERNEL == 0 && __builtin_cpu_supports("avx2"))) {
+        network_avx2(layout, params, features, n, loads);
+        return;
+    }
+#endif
+    network_baseline(layout, params, features, n, loads);
 }
 
 /* ---- the tool ---- */

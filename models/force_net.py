@@ -10,8 +10,13 @@ Conventions: those of :mod:`models.cutting_force` (Altintas): z towards the spin
 (M3), the immersion angle ``phi`` of an edge point clockwise from +y, entry/exit angles relative to the feed
 direction, ``Fx, Fy, Fz`` the force **on the tool**, ``torque`` the cutting torque. Inputs, parameters and
 outputs carry the names, units and ranges of the CuttingForce FMU, so a scenario swaps one for the other by
-changing ``fmu = "CuttingForce"`` into ``fmu = "ForceNet"`` (the regenerative chip and runout of
-CuttingForce are not modelled: ForceNet has no displacement inputs).
+changing ``fmu = "CuttingForce"`` into ``fmu = "ForceNet"``; ForceNet has no cutting coefficients (its network
+learnt them). The regenerative chip and runout are CuttingForce's: the displacement inputs go into the same
+displacement history (``fmus/common/displacement_history.c``, :class:`models.cutting_force.DisplacementHistory`)
+and the chip of flute m is ``h = T_tooth (v_x sin(phi) + v_y cos(phi)) + dx sin(phi) + dy cos(phi) + r_m - r_(m-1)``
+with ``(dx, dy)`` the displacement now minus one tooth period ago and ``r_m = runout_offset cos(runout_angle -
+m 2 pi / N)``; the network reads that h (trained on static chips only, it follows CuttingForce in the chatter
+loop: tests/test_forcenet.py).
 
 1. **Cutting geometry image.** Over the tool envelope, a grid of H rows (heights ``z_k = (k + 1/2) a_p / H``,
    ``k = 0 .. H-1``, ``H = ELEMENTS_PER_FLUTE = 16``) by W columns (angles around the axis). Per pixel the
@@ -45,8 +50,9 @@ CuttingForce are not modelled: ForceNet has no displacement inputs).
    m's element k lies at ``phi = theta0 + m 2 pi / N - psi_k``. Elements in contact (engaged, chip > 0,
    spindle turning) carry ``dF = F'(m, k) dz`` (others 0), projected as in CuttingForce:
    ``dFx = -dFt cos(phi) - dFr sin(phi)``, ``dFy = dFt sin(phi) - dFr cos(phi)``, ``dFz = dFa``; summed into
-   ``Fx, Fy, Fz``, ``torque = sum(dFt) R`` and the moment about the point ``(0, 0, moment_height)`` of the
-   tool axis (``moment_height`` above the tip), with the element at ``(R sin(phi), R cos(phi), z)``:
+   ``Fx, Fy, Fz``, ``torque = sum(dFt) R_m`` (``R_m = R + r_m``, the radius of the element's flute) and the
+   moment about the point ``(0, 0, moment_height)`` of the tool axis (``moment_height`` above the tip), with
+   the element at ``(R_m sin(phi), R_m cos(phi), z)``:
    ``M = sum((p - (0, 0, z')) x dF)``, output ``Mx, My, Mz``. ``power = torque * omega``.
 
 Weights file (``fmus/forcenet/resources/weights.bin``, packed into the FMU's resources/ and loaded when the
@@ -70,7 +76,8 @@ from typing import Mapping, Sequence
 import casadi as ca
 import numpy as np
 
-from models.cutting_force import AL7075_CARBIDE, CUTTING_FORCE, OMEGA_MIN, TWO_PI, _tooth_period
+from models.cutting_force import AL7075_CARBIDE, CUTTING_FORCE, OMEGA_MIN, TWO_PI, DisplacementHistory, _tooth_period
+from models.cutting_force import tooth_period as history_period
 from models.cutting_force import update as _angle_update
 from models.definition import ModelDefinition, State, Variable
 from models.workpiece import N_THETA as MAP_COLUMNS
@@ -102,8 +109,9 @@ def _equations(v):
                                                                   + v["feed_velocity_y"] ** 2), 0)}
 
 
-_SHARED_PARAMETERS = ("tool_diameter", "helix_angle", "n_flutes")
-_SHARED_INPUTS = ("spindle_speed", "feed_velocity_x", "feed_velocity_y", "axial_depth", "entry_angle", "exit_angle")
+_SHARED_PARAMETERS = ("tool_diameter", "helix_angle", "n_flutes", "runout_offset", "runout_angle", "history_size")
+_SHARED_INPUTS = ("spindle_speed", "feed_velocity_x", "feed_velocity_y", "axial_depth", "entry_angle", "exit_angle",
+                  "displacement_x", "displacement_y")
 _SHARED_OUTPUTS = ("Fx", "Fy", "Fz", "torque", "power", "spindle_angle", "feed_per_tooth")
 NATIVE_OUTPUTS = ("Fx", "Fy", "Fz", "torque", "power", "Mx", "My", "Mz")
 
@@ -116,7 +124,10 @@ FORCE_NET = ModelDefinition(
     equations=_equations,
     update=_angle_update,
     native_outputs=NATIVE_OUTPUTS,
-    states=(State("angle", "Spindle angle: flute 0 at the tool tip, clockwise from +y", unit="rad"),),
+    native_states=("delayed_displacement_x", "delayed_displacement_y"),
+    states=(State("angle", "Spindle angle: flute 0 at the tool tip, clockwise from +y", unit="rad"),
+            State("delayed_displacement_x", "Tool displacement in x one tooth period ago (model.c)", unit="m"),
+            State("delayed_displacement_y", "Tool displacement in y one tooth period ago (model.c)", unit="m")),
     variables=(
         *(CUTTING_FORCE.variable(n) for n in _SHARED_PARAMETERS),
         Variable("moment_height", "Float64", "parameter",
@@ -364,7 +375,7 @@ class Elements:
     z: np.ndarray          # n, height above the tip [m]
     h: np.ndarray          # n, chip thickness [m]
     dz: float
-    radius: float
+    radius: np.ndarray     # n, the radius of the element's flute (R + runout) [m]
 
 
 def _in_material(engagement: np.ndarray | None, k: int, theta: float, in_window: bool) -> bool:
@@ -390,19 +401,24 @@ def engagement_of(values: Mapping[str, object]) -> np.ndarray | None:
     return flat
 
 
-def elements(values: Mapping[str, float], angle: float, weights: Weights | None = None) -> Elements:
+def elements(values: Mapping[str, float], angle: float, weights: Weights | None = None,
+             delayed: tuple[float, float] = (0.0, 0.0)) -> Elements:
     """The elements in contact, with the scalar libm functions (math) the C code calls, in its order: the
     sines and cosines of the helix lags per height and of each flute's angle, the elements' angles by the
-    addition theorems."""
+    addition theorems. ``delayed``: the displacement one tooth period ago (the regenerative chip takes the
+    displacement now minus it); no displacement inputs in ``values`` count as 0."""
     w = weights or default_weights()
     n = int(values["n_flutes"])
     omega = float(values["spindle_speed"])
     vx, vy = float(values["feed_velocity_x"]), float(values["feed_velocity_y"])
     radius = float(values["tool_diameter"]) / 2
     dz = float(values["axial_depth"]) / ELEMENTS_PER_FLUTE
+    dx = float(values.get("displacement_x", 0.0)) - delayed[0]
+    dy = float(values.get("displacement_y", 0.0)) - delayed[1]
+    offset, direction = float(values.get("runout_offset", 0.0)), float(values.get("runout_angle", 0.0))
     engagement = engagement_of(values)
     rows: list[list[float]] = []
-    trig: list[tuple[float, float, float, float]] = []
+    trig: list[tuple[float, float, float, float, float]] = []
     if omega >= OMEGA_MIN and dz > 0.0:
         period = TWO_PI / (n * omega)
         feed_angle = math.atan2(vy, vx)
@@ -419,30 +435,36 @@ def elements(values: Mapping[str, float], angle: float, weights: Weights | None 
         for m in range(n):
             flute = angle + m * pitch
             sin_flute, cos_flute = math.sin(flute), math.cos(flute)
+            runout, flute_radius = 0.0, radius
+            if offset != 0.0:
+                runout = offset * (math.cos(direction - m * pitch) - math.cos(direction - (m - 1) * pitch))
+                flute_radius = radius + offset * math.cos(direction - m * pitch)
             for k in range(ELEMENTS_PER_FLUTE):
                 phi = flute - psi[k]
                 s = sin_flute * cos_psi[k] - cos_flute * sin_psi[k]
                 c = cos_flute * cos_psi[k] + sin_flute * sin_psi[k]
-                h = period * (vx * s + vy * c)
+                h = period * (vx * s + vy * c) + dx * s + dy * c + runout
                 if not (h > 0.0 and _in_material(engagement, k, _wrap_scalar(phi + feed_angle),
                                                  _wrap_scalar(phi + feed_angle - entry) < width)):
                     continue
                 rows.append([h / w.h_ref, v_feature, theta0_feature, s * cos_feed + c * sin_feed,
                              c * cos_feed - s * sin_feed, sin_psi[k], cos_psi[k]])
-                trig.append((s, c, z[k], h))
-    t = np.array(trig, dtype=float).reshape(-1, 4)
+                trig.append((s, c, z[k], h, flute_radius))
+    t = np.array(trig, dtype=float).reshape(-1, 5)
     return Elements(np.array(rows, dtype=float).reshape(-1, N_FEATURES), t[:, 0], t[:, 1], t[:, 2], t[:, 3], dz,
-                    radius)
+                    t[:, 4])
 
 
 def _wrap_scalar(a: float) -> float:
     return a - TWO_PI * math.floor(a / TWO_PI)
 
 
-def tool_outputs(values: Mapping[str, float], angle: float, weights: Weights | None = None) -> dict[str, float]:
-    """The native outputs (NATIVE_OUTPUTS) at spindle angle ``angle``: element loads summed in the C order."""
+def tool_outputs(values: Mapping[str, float], angle: float, weights: Weights | None = None,
+                 delayed: tuple[float, float] = (0.0, 0.0)) -> dict[str, float]:
+    """The native outputs (NATIVE_OUTPUTS) at spindle angle ``angle``: element loads summed in the C order
+    (``delayed``: the displacement one tooth period ago, see :func:`elements`)."""
     w = weights or default_weights()
-    e = elements(values, angle, w)
+    e = elements(values, angle, w, delayed)
     out = dict.fromkeys(NATIVE_OUTPUTS, 0.0)
     if len(e.features) == 0:
         return out
@@ -451,14 +473,14 @@ def tool_outputs(values: Mapping[str, float], angle: float, weights: Weights | N
     fx = fy = fz = torque = mx = my = mz = 0.0
     for i in range(len(loads)):
         ft, fr, fa = loads[i, 0] * e.dz, loads[i, 1] * e.dz, loads[i, 2] * e.dz
-        s, c = e.sin_phi[i], e.cos_phi[i]
+        s, c, r = e.sin_phi[i], e.cos_phi[i], e.radius[i]
         dfx = -ft * c - fr * s
         dfy = ft * s - fr * c
-        px, py, pz = e.radius * s, e.radius * c, e.z[i] - zp
+        px, py, pz = r * s, r * c, e.z[i] - zp
         fx += dfx
         fy += dfy
         fz += fa
-        torque += ft * e.radius
+        torque += ft * r
         mx += py * fa - pz * dfy
         my += pz * dfx - px * fa
         mz += px * dfy - py * dfx
@@ -591,9 +613,11 @@ def projection(arrays: dict) -> np.ndarray:
 
 # ---- what the generic FMU tests (tests/fmu_helpers.py) use for this model ----
 
-def _all_outputs(values: Mapping[str, float], angle: float, weights: Weights | None = None) -> list[float]:
-    native = tool_outputs(values, angle, weights)
-    generated = FORCE_NET.evaluate(**{k: v for k, v in values.items() if k in _ARGUMENTS}, angle=angle)
+def _all_outputs(values: Mapping[str, float], angle: float, weights: Weights | None = None,
+                 delayed: tuple[float, float] = (0.0, 0.0)) -> list[float]:
+    native = tool_outputs(values, angle, weights, delayed)
+    generated = FORCE_NET.evaluate(**{k: v for k, v in values.items() if k in _ARGUMENTS}, angle=angle,
+                                   delayed_displacement_x=delayed[0], delayed_displacement_y=delayed[1])
     return [native[n] if n in native else float(generated[n]) for n in OUTPUTS]
 
 
@@ -601,24 +625,35 @@ _ARGUMENTS = {v.name for v in FORCE_NET.arguments if isinstance(v, Variable)}  #
 
 
 class ForceNetReference:
-    """The FMU step by step: the spindle angle advanced by the generated update, the outputs at the
-    angle reached (with :func:`tool_outputs`)."""
+    """The FMU step by step: the displacement history of CuttingForce (:class:`DisplacementHistory`), the
+    spindle angle advanced by the generated update, the outputs at the angle reached (:func:`tool_outputs`)."""
 
     def __init__(self, values: Mapping[str, float], weights: Weights | None = None):
         self.names = {v.name for v in FORCE_NET.of("parameter") + FORCE_NET.of("input")}
         self.values = {k: x for k, x in {**FORCE_NET.defaults(), **values}.items() if k in self.names}
         self.angle = 0.0
+        self.time = 0.0
+        self.history = DisplacementHistory(int(self.values["history_size"]))
         self.weights = weights
 
     def set(self, values: Mapping[str, float]) -> None:
         self.values.update({k: x for k, x in values.items() if k in self.names})
 
+    def delayed(self) -> tuple[float, float]:
+        return self.history.delayed(self.time, history_period(self.values), self.values["displacement_x"],
+                                    self.values["displacement_y"])
+
     def outputs(self) -> np.ndarray:
-        return np.array(_all_outputs(self.values, self.angle, self.weights))
+        return np.array(_all_outputs(self.values, self.angle, self.weights, self.delayed()))
 
     def step(self, h: float) -> np.ndarray:
-        scalars = {k: x for k, x in self.values.items() if k in _ARGUMENTS}
-        self.angle = float(FORCE_NET.step(h, **scalars, angle=self.angle)["angle"])
+        v = self.values
+        self.history.record(self.time, h, v["displacement_x"], v["displacement_y"], history_period(v),
+                            v["spindle_speed"] >= OMEGA_MIN and v["axial_depth"] > 0)
+        scalars = {k: x for k, x in v.items() if k in _ARGUMENTS}
+        self.angle = float(FORCE_NET.step(h, **scalars, angle=self.angle, delayed_displacement_x=0.0,
+                                          delayed_displacement_y=0.0)["angle"])
+        self.time = self.time + h
         return self.outputs()
 
 
@@ -632,13 +667,14 @@ def reference_trajectory(points: Sequence[Mapping[str, float]], step_size: float
 
 
 def initial_outputs(values: Mapping[str, float | np.ndarray]) -> np.ndarray:
-    """Outputs in initialization mode (points x outputs): at the start angle 0."""
+    """Outputs in initialization mode (points x outputs): at the start angle 0, no history yet (the delayed
+    displacement is the current one: no regeneration)."""
     columns = {k: np.atleast_1d(np.asarray(v, dtype=float)) for k, v in values.items()}
     count = max([len(c) for c in columns.values()] + [1])
     rows = []
     for i in range(count):
         point = {**FORCE_NET.defaults(), **{k: float(c[min(i, len(c) - 1)]) for k, c in columns.items()}}
-        rows.append(_all_outputs(point, 0.0))
+        rows.append(_all_outputs(point, 0.0, delayed=(point["displacement_x"], point["displacement_y"])))
     return np.array(rows)
 
 
@@ -663,6 +699,11 @@ def random_arguments(count: int, rng: np.random.Generator) -> dict[str, np.ndarr
     values["entry_angle"] = np.where(rng.random(count) < 0.5, 0.0, entry)
     values["exit_angle"] = np.where(rng.random(count) < 0.5, math.pi, rng.uniform(values["entry_angle"] + 0.3, math.pi))
     values["entry_angle"][0], values["exit_angle"][0] = 0.0, math.pi
+    values["history_size"] = np.full(count, 16384.0)
+    values["runout_offset"] = np.full(count, rng.uniform(0.0, 20e-6))  # a few um, like a real tool holder
+    values["runout_angle"] = np.full(count, rng.uniform(0.0, TWO_PI))
+    values["displacement_x"] = rng.uniform(-20e-6, 20e-6, count)  # a vibrating tool: the regenerative chip
+    values["displacement_y"] = rng.uniform(-20e-6, 20e-6, count)
     if count > 7:  # a stopped spindle (no forces, a warning) late enough to follow the FMU-state tests' snapshot
         values["spindle_speed"][7] = 0.0
     return values

@@ -456,6 +456,62 @@ def test_forcenet_and_cuttingforce_give_the_same_slot_forces(tmp_path: Path) -> 
         assert n.mean() == pytest.approx(m.mean(), rel=0.03), axis
 
 
+def test_the_forcenet_chatter_scenario_is_the_mechanistic_one_without_its_coefficients() -> None:
+    mech = tomllib.loads((REPO / "scenarios" / "chatter.toml").read_text())
+    net = tomllib.loads((REPO / "scenarios" / "chatter_forcenet.toml").read_text())
+    assert mech["fmus"]["force"].pop("fmu") == "CuttingForce" and net["fmus"]["force"].pop("fmu") == "ForceNet"
+    assert [mech["fmus"]["force"]["parameters"].pop(k) for k in ("Kte", "Kre", "Kae")] == [0.0, 0.0, 0.0]
+    for doc in (mech, net):
+        doc["scenario"].pop("name"), doc["scenario"].pop("description")
+    assert mech == net
+
+
+def _chatter_runs(tmp_path: Path, depth: float) -> dict:
+    """chatter_forcenet.toml and chatter.toml with CuttingForce at the literature coefficients (those the network
+    learnt, edge coefficients included), both at ``depth``."""
+    from orchestrator.master import run
+    from orchestrator.results import load_results
+    from orchestrator.scenario import load_scenario, with_values
+
+    mech = (REPO / "scenarios" / "chatter.toml").read_text()
+    for name in ("Kte", "Kre", "Kae"):
+        mech = mech.replace(f"{name} = 0.0", f"{name} = {AL7075_CARBIDE[name]!r}")
+    tmp_path.mkdir(parents=True, exist_ok=True)
+    (tmp_path / "chatter_literature.toml").write_text(mech)
+    frames = {}
+    for name, path in (("net", REPO / "scenarios" / "chatter_forcenet.toml"),
+                       ("mech", tmp_path / "chatter_literature.toml")):
+        scenario = with_values(load_scenario(path, fmu_dir()), {"force.axial_depth": depth}, name=name)
+        frames[name] = load_results(run(scenario, tmp_path / "runs", progress=False).run_dir)
+    return frames
+
+
+def _r2(actual: np.ndarray, expected: np.ndarray) -> float:
+    return float(1 - np.sum((actual - expected) ** 2) / np.sum((expected - expected.mean()) ** 2))
+
+
+def test_the_regenerative_chip_follows_the_mechanistic_model_in_the_chatter_loop(tmp_path: Path) -> None:
+    """ForceNet's displacement inputs make the chip regenerative (the history of CuttingForce): coupled with
+    ToolVibration below the stability limit (0.8 x 0.0398 mm at 6000 rpm) its forces and the tool's vibration
+    follow CuttingForce's (r^2 > 0.999); above it (1.25 x) both chatter, the vibration growing alike."""
+    from models.stability import Mode, stability_lobes
+
+    mode = (Mode(922.0, 0.011, 1.34e6),)
+    k = AL7075_CARBIDE
+    limit = float(stability_lobes(mode, mode, k["Ktc"], k["Krc"], 2, 0.0, math.pi).limit(np.array([6000.0]))[0])
+    assert limit == pytest.approx(3.985e-5, rel=1e-3)
+    stable = _chatter_runs(tmp_path / "stable", 0.8 * limit)
+    for column in ("force.Fx", "force.Fy", "vibration.tip_displacement_x", "vibration.tip_displacement_y"):
+        assert _r2(stable["net"][column].to_numpy(), stable["mech"][column].to_numpy()) > 0.999, column
+    chatter = _chatter_runs(tmp_path / "chatter", 1.25 * limit)
+    t = chatter["net"]["time"].to_numpy()
+    for column in ("vibration.tip_displacement_x", "vibration.tip_displacement_y"):
+        growth = {name: np.std(f[column].to_numpy()[t > 0.15]) / np.std(f[column].to_numpy()[(t > 0.05) & (t < 0.1)])
+                  for name, f in chatter.items()}
+        assert growth["mech"] > 2 and growth["net"] == pytest.approx(growth["mech"], rel=0.2), growth
+        assert _r2(chatter["net"][column].to_numpy(), chatter["mech"][column].to_numpy()) > 0.95, column
+
+
 @pytest.fixture(scope="module")
 def literature_recordings(tmp_path_factory) -> Path:
     """Synthetic recordings made by the mechanistic model with the literature coefficients (what the

@@ -435,10 +435,11 @@ static int in_material(const double *map, int k, double theta, int in_window) {
 }
 
 size_t forcenet_elements(const ForceNetLayout *layout, const ForceNetCut *cut, double *features, double *sin_phi,
-                         double *cos_phi, double *z_out) {
+                         double *cos_phi, double *z_out, double *radius_out) {
     const int n = cut->n_flutes < FORCENET_MAX_FLUTES ? cut->n_flutes : FORCENET_MAX_FLUTES;
     const double omega = cut->spindle_speed, vx = cut->feed_velocity_x, vy = cut->feed_velocity_y;
     const double radius = cut->tool_diameter / 2.0, dz = cut->axial_depth / FORCENET_ELEMENTS_PER_FLUTE;
+    const double dx = cut->displacement_x, dy = cut->displacement_y, offset = cut->runout_offset;
     double period, feed_angle, sin_feed, cos_feed, lag_per_height, entry, width, pitch, v_feature, theta0_feature;
     double z[FORCENET_ELEMENTS_PER_FLUTE], psi[FORCENET_ELEMENTS_PER_FLUTE];
     double sin_psi[FORCENET_ELEMENTS_PER_FLUTE], cos_psi[FORCENET_ELEMENTS_PER_FLUTE];
@@ -465,11 +466,17 @@ size_t forcenet_elements(const ForceNetLayout *layout, const ForceNetCut *cut, d
     }
     for (m = 0; m < n; m++) {
         const double flute = cut->angle + (double)m * pitch, sin_flute = sin(flute), cos_flute = cos(flute);
+        double runout = 0.0, flute_radius = radius; /* r_m - r_(m-1): the chip the runout adds (CuttingForce's) */
+        if (offset != 0.0) {
+            const double own = cos(cut->runout_angle - (double)m * pitch);
+            runout = offset * (own - cos(cut->runout_angle - (double)(m - 1) * pitch));
+            flute_radius = radius + offset * own;
+        }
         for (k = 0; k < FORCENET_ELEMENTS_PER_FLUTE; k++) {
             const double phi = flute - psi[k];
             const double s = sin_flute * cos_psi[k] - cos_flute * sin_psi[k]; /* sin(phi) */
             const double c = cos_flute * cos_psi[k] + sin_flute * sin_psi[k]; /* cos(phi) */
-            const double h = period * (vx * s + vy * c);
+            const double h = period * (vx * s + vy * c) + dx * s + dy * c + runout;
             double *f = features + count * FORCENET_FEATURES;
             if (!(h > 0.0 && in_material(cut->engagement, k, wrap(phi + feed_angle),
                                          wrap(phi + feed_angle - entry) < width)))
@@ -484,6 +491,7 @@ size_t forcenet_elements(const ForceNetLayout *layout, const ForceNetCut *cut, d
             sin_phi[count] = s;
             cos_phi[count] = c;
             z_out[count] = z[k];
+            radius_out[count] = flute_radius;
             count++;
         }
     }
@@ -492,22 +500,22 @@ size_t forcenet_elements(const ForceNetLayout *layout, const ForceNetCut *cut, d
 
 void forcenet_tool(const ForceNetLayout *layout, const double *params, const ForceNetCut *cut, ForceNetTool *out) {
     double features[FORCENET_MAX_ELEMENTS * FORCENET_FEATURES], loads[FORCENET_MAX_ELEMENTS * FORCENET_LOADS];
-    double s[FORCENET_MAX_ELEMENTS], c[FORCENET_MAX_ELEMENTS], z[FORCENET_MAX_ELEMENTS];
-    const double radius = cut->tool_diameter / 2.0, dz = cut->axial_depth / FORCENET_ELEMENTS_PER_FLUTE;
+    double s[FORCENET_MAX_ELEMENTS], c[FORCENET_MAX_ELEMENTS], z[FORCENET_MAX_ELEMENTS], r[FORCENET_MAX_ELEMENTS];
+    const double dz = cut->axial_depth / FORCENET_ELEMENTS_PER_FLUTE;
     const double zp = cut->moment_height;
     double fx = 0.0, fy = 0.0, fz = 0.0, torque = 0.0, mx = 0.0, my = 0.0, mz = 0.0, max_chip = 0.0;
-    size_t n = forcenet_elements(layout, cut, features, s, c, z), i;
+    size_t n = forcenet_elements(layout, cut, features, s, c, z, r), i;
     memset(out, 0, sizeof *out);
     if (n == 0) return;
     forcenet_network(layout, params, features, n, loads);
     for (i = 0; i < n; i++) {
         double ft = loads[3 * i] * dz, fr = loads[3 * i + 1] * dz, fa = loads[3 * i + 2] * dz;
         double dfx = -ft * c[i] - fr * s[i], dfy = ft * s[i] - fr * c[i];
-        double px = radius * s[i], py = radius * c[i], pz = z[i] - zp;
+        double px = r[i] * s[i], py = r[i] * c[i], pz = z[i] - zp;
         fx += dfx;
         fy += dfy;
         fz += fa;
-        torque += ft * radius;
+        torque += ft * r[i];
         mx += py * fa - pz * dfy;
         my += pz * dfx - px * fa;
         mz += px * dfy - py * dfx;

@@ -50,7 +50,10 @@ void forcenet_network(const ForceNetLayout *layout, const double *params, const 
 typedef struct {
     int n_flutes;
     double tool_diameter, helix_angle, moment_height;
+    double runout_offset, runout_angle; /* flute m's radius is R + offset * cos(angle - m * 2 pi / N) */
     double spindle_speed, feed_velocity_x, feed_velocity_y, axial_depth, entry_angle, exit_angle;
+    double displacement_x, displacement_y; /* the tool's displacement now minus one tooth period ago: the
+                                            * regenerative chip (0 and 0: the static chip) */
     double angle; /* spindle angle theta0 of flute 0 at the tip */
     const double *engagement; /* NULL, or the engagement map (FORCENET_MAP_ROWS x FORCENET_MAP_COLUMNS, row-major,
                                * feed frame): a cell >= 0 says whether its elements are in material (>= 0.5), a
@@ -63,9 +66,9 @@ typedef struct {
     double max_chip;                              /* largest chip thickness in contact [m] */
 } ForceNetTool;
 
-/* The elements in contact (features n x 7, and for each sin/cos(phi) and z): returns n. */
+/* The elements in contact (features n x 7, and for each sin/cos(phi), z and its flute's radius): returns n. */
 size_t forcenet_elements(const ForceNetLayout *layout, const ForceNetCut *cut, double *features, double *sin_phi,
-                         double *cos_phi, double *z);
+                         double *cos_phi, double *z, double *radius);
 
 /* One full evaluation of the tool: elements, network, forces and moments. */
 void forcenet_tool(const ForceNetLayout *layout, const double *params, const ForceNetCut *cut, ForceNetTool *out);

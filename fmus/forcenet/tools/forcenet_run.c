@@ -71,6 +71,7 @@ int main(int argc, char **argv) {
     } else if (strcmp(argv[1], "tool") == 0 && argc == 14) {
         ForceNetCut cut;
         ForceNetTool out;
+        memset(&cut, 0, sizeof cut); /* no runout, no vibration, no map */
         cut.n_flutes = atoi(argv[3]);
         cut.tool_diameter = atof(argv[4]);
         cut.helix_angle = atof(argv[5]);
@@ -82,7 +83,6 @@ int main(int argc, char **argv) {
         cut.entry_angle = atof(argv[11]);
         cut.exit_angle = atof(argv[12]);
         cut.angle = atof(argv[13]);
-        cut.engagement = NULL;
         forcenet_tool(&layout, params, &cut, &out);
         printf("%.17g %.17g %.17g %.17g %.17g %.17g %.17g %.17g %zu\n", out.Fx, out.Fy, out.Fz, out.torque,
                out.power, out.Mx, out.My, out.Mz, out.elements);

@@ -233,8 +233,8 @@ def generate_table(model: ModelDefinition, fmi: int) -> str:
     rows = [_table_row(model, None)]
     for v in model.variables:
         if v.shape and fmi == 2:  # the array's FMI 3 value reference is not in use in FMI 2
-            rows.append(f"    {{ VR_{v.name}, NULL, FMU_FLOAT64, FMU_{v.causality.upper()}, FMU_CONTINUOUS, 0, 0, 0.0, 0.0, "
-                        f"\"\", {_dims(None)} }},")
+            rows.append(f"    {{ VR_{v.name}, NULL, FMU_FLOAT64, FMU_{v.causality.upper()}, FMU_CONTINUOUS, 0, 0, "
+                        f"0.0, 0.0, \"\", {_dims(None)} }},")
         else:
             rows.append(_table_row(model, v, count=max(1, v.size)))
     for v in model.variables:

@@ -10,8 +10,8 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from fmu_helpers import (OK, WARNING, Slave, all_fmus, fmu_id, model_of, numeric_parameters, output_names, scalar_inputs,
-                         reference_trajectory, require_fmu)
+from fmu_helpers import (OK, WARNING, Slave, all_fmus, fmu_id, model_of, numeric_parameters, output_names,
+                         reference_trajectory, require_fmu, scalar_inputs)
 
 CYCLES = 2000
 WARM_UP = 200

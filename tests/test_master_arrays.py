@@ -1,8 +1,8 @@
 """Array variables in scenarios: the Workpiece's 8 x 24 engagement map connected to ForceNet's map input as one
 connection of the whole array (FMI 3: one variable with one value reference and 192 values per call; FMI 2:
 192 scalars engagement[i,j]), on both stepping paths, with the mistakes a scenario can make named. The run is
-scenarios/slot_entry_forcenet.toml, shortened: the tool starts with its centre 6 mm before the block, so the entry (where the map
-and the window differ) and the full slot (where they agree) both happen within 0.7 s."""
+scenarios/slot_entry_forcenet.toml, shortened: the tool starts with its centre 6 mm before the block, so the
+entry (where the map and the window differ) and the full slot (where they agree) both happen within 0.7 s."""
 from __future__ import annotations
 
 import re
@@ -18,7 +18,8 @@ from orchestrator.scenario import ScenarioError, load_scenario
 
 REPO = Path(__file__).resolve().parents[1]
 SCENARIO = REPO / "scenarios" / "slot_entry_forcenet.toml"
-MAP_CONNECTION = '[[connections]]\nfrom = "workpiece.engagement"       # the whole 8 x 24 map\nto = "force.engagement"\n'
+MAP_CONNECTION = ('[[connections]]\nfrom = "workpiece.engagement"       # the whole 8 x 24 map\n'
+                  'to = "force.engagement"\n')
 
 
 def scenario_text(fmi: int = 3, stop_time: float = 0.7, start_x_mm: float = -6.0, with_map: bool = True) -> str:
@@ -27,7 +28,8 @@ def scenario_text(fmi: int = 3, stop_time: float = 0.7, start_x_mm: float = -6.0
     text = text.replace('program = { path = "programs/slot_entry.nc" }',
                         f'program = {{ path = "{REPO / "scenarios" / "programs" / "slot_entry.nc"}" }}')
     text = text.replace("stop_time = 1.2", f"stop_time = {stop_time}")
-    text = text.replace("start_x = { value = -14.0, unit = \"mm\" }", f"start_x = {{ value = {start_x_mm}, unit = \"mm\" }}")
+    text = text.replace('start_x = { value = -14.0, unit = "mm" }',
+                        f'start_x = {{ value = {start_x_mm}, unit = "mm" }}')
     text = re.sub(r'(fmu = "\w+"\n)', rf"\1fmi = {fmi}\n", text)
     return text if with_map else text.replace(MAP_CONNECTION, "")
 
@@ -74,8 +76,8 @@ MISTAKES = {  # edit of the scenario text -> (the key, the message)
     "array to scalar": (('to = "force.engagement"', 'to = "force.axial_depth"'),
                         ("[[connections]][10].to", "shape mismatch: workpiece.engagement is an array of 8x24 "
                                                    "values, force.axial_depth is a scalar")),
-    "one element of an FMI 3 array": (('from = "workpiece.engagement"       # the whole 8 x 24 map\nto = "force.engagement"',
-                                       'from = "workpiece.radial_depth"\nto = "force.engagement[2,3]"'),
+    "one element of an FMI 3 array": ((MAP_CONNECTION.removeprefix("[[connections]]\n"),
+                                       'from = "workpiece.radial_depth"\nto = "force.engagement[2,3]"\n'),
                                       ("[[connections]][10].to", "force.engagement[2,3] is an element of the FMI 3 "
                                                                  "array force.engagement, which is set whole")),
     "recorded channel into an array": (("[outputs]", '[recorded]\nfile = "data.csv"\nsample_period = 0.1\n'

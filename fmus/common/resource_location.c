@@ -12,7 +12,8 @@ static int hex_value(char c) {
 }
 
 static int fail(char *message, size_t message_size, const char *location, const char *why) {
-    if (message && message_size > 0) snprintf(message, message_size, "the resource location '%.200s' %s", location, why);
+    if (message && message_size > 0)
+        snprintf(message, message_size, "the resource location '%.200s' %s", location, why);
     return -1;
 }
 

@@ -131,7 +131,8 @@ FmuStatus model_exit_initialization(FmuInstance *instance) {
         }
         text = owned;
     } else if (instance->resource_path[0] != '\0') {
-        if (fmu_resource_file(instance->resource_path, PROGRAM_FILE_NAME, path, sizeof path, error, sizeof error) != 0) {
+        if (fmu_resource_file(instance->resource_path, PROGRAM_FILE_NAME, path, sizeof path, error,
+                              sizeof error) != 0) {
             fmu_log(instance, FMU_ERROR, "logStatusError", "%s: parameter 'program' is empty and %s", function, error);
             return FMU_ERROR;
         }

@@ -148,7 +148,7 @@ class _Slave:
             raise SimulationError(inst.name, scenario.start_time, "NULL", "instantiate", list(self.errors)) from exc
 
         def vrs(names: list[str]) -> Any:
-            return (vr_t * len(names))(*(inst.variables[n].value_reference for n in names))
+            return _value_references(inst, names, vr_t)
 
         def is_real(name: str) -> bool:
             return inst.variables[name].type == "real"
@@ -166,7 +166,7 @@ class _Slave:
         wanted = [c.source.variable for c in scenario.connections if c.source.instance == inst.name]
         self.feeds_connections = bool(wanted)
         wanted += [r.variable for r in scenario.outputs if r.instance == inst.name]
-        wanted = list(dict.fromkeys(wanted))
+        wanted = _whole_arrays(inst, list(dict.fromkeys(wanted)))
         real_out = [n for n in wanted if is_real(n)]
         bool_out = [n for n in wanted if not is_real(n)]
         self.out_index = {n: ("real", i) for i, n in enumerate(real_out)}
@@ -195,7 +195,7 @@ class _Slave:
                                    (get_r, self.vr_real_out, self.real_out, calls_out),
                                    (get_b, self.vr_bool_out, self.bool_out, calls_out)):
             if len(vr):
-                calls.append(partial(fn, c, vr, len(vr), buf, *extra(len(vr))))
+                calls.append(partial(fn, c, vr, len(vr), buf, *extra(len(buf))))  # FMI 3 arrays: all elements
         self._set_calls, self._get_calls = tuple(calls_in), tuple(calls_out)
         if fmi3:
             flags = [ctypes.c_bool() for _ in range(3)] + [fmi3Float64()]
@@ -265,6 +265,35 @@ class _Slave:
             self.fmu.terminate()
         finally:
             self.fmu.freeInstance()
+
+
+def _whole_arrays(inst: FmuInstance, names: list[str]) -> list[str]:
+    """``names`` with each element of an FMI 3 array replaced, where the array first appears, by all its
+    elements in order: FMI 3 gets an array whole (one value reference, all its values)."""
+    out: list[str] = []
+    for name in names:
+        array = inst.variables[name].array
+        out += list(inst.variables[array].elements) if array else [name]
+    return list(dict.fromkeys(out))
+
+
+def _value_references(inst: FmuInstance, names: list[str], vr_type: Any) -> Any:
+    """The value references of ``names`` (one per value buffer slot), except that the elements of an FMI 3
+    array, which must follow each other completely and in order, are its one value reference."""
+    refs: list[int] = []
+    i = 0
+    while i < len(names):
+        var = inst.variables[names[i]]
+        if var.array:
+            elements = inst.variables[var.array].elements
+            if tuple(names[i:i + len(elements)]) != elements:
+                raise ValueError(f"instance {inst.name!r}: the elements of the FMI 3 array {var.array!r} must be "
+                                 "set or read whole and in order")
+            i += len(elements)
+        else:
+            i += 1
+        refs.append(var.value_reference)
+    return (vr_type * len(refs))(*refs)
 
 
 def _wire(slaves: dict[str, _Slave], scenario: Scenario) -> None:

@@ -8,6 +8,7 @@ import math
 import shutil
 import time
 import zipfile
+from collections.abc import Callable
 from pathlib import Path
 
 import numpy as np
@@ -34,6 +35,7 @@ from fmu_helpers import (
     random_arguments,
     require_fmu,
     row,
+    scalar_inputs,
     split_fmu_name,
     status_of,
 )
@@ -85,7 +87,7 @@ def derived_case(identifier: str) -> dict:
     above the maximum and one below the minimum of the first few ranged variables."""
     model = MODELS[identifier]
     ranged = [v for v in model.variables if v.causality in ("parameter", "input") and v.type != "Boolean"
-              and v.min is not None and v.max is not None][:3]
+              and v.min is not None and v.max is not None and not v.shape][:3]
     out_of_range = []
     for v in ranged:
         span = v.max - v.min
@@ -94,7 +96,7 @@ def derived_case(identifier: str) -> dict:
             unit = f" {v.unit}" if v.unit else ""
             out_of_range.append((v.name, value, f"= {c_number(value)}{unit} is out of its allowed range "
                                                f"[{c_number(v.min)}, {c_number(v.max)}]{unit}"))
-    inputs = [v for v in model.variables if v.causality == "input"]
+    inputs = [v for v in model.variables if v.causality == "input" and not v.shape]
     return {
         "out_of_range": out_of_range,
         "real_input": next(v.name for v in inputs if v.type == "Float64"),
@@ -244,7 +246,8 @@ def test_range_limits_themselves_are_accepted(fmu: Path) -> None:
     with Slave(fmu) as slave:
         slave.instantiate()
         for bound in ("min", "max"):
-            point = {v.name: getattr(v, bound) for v in model.of("parameter") + model.of("input") if v.type != "Boolean"}
+            point = {v.name: getattr(v, bound) for v in model.of("parameter") + scalar_inputs(model)
+                     if v.type != "Boolean" and not v.shape}
             slave.set(point)
         slave.initialize()
         assert slave.step(1e-3) in (OK, WARNING)
@@ -428,7 +431,7 @@ def test_reset_restores_start_values(slave: Slave) -> None:
     slave.initialize()
     assert slave.get(["time"])[0] == 0.0
     names = [v.name for v in model.of("parameter") + model.of("input") if v.type == "Float64"]
-    assert_close(slave.get(names), [model.variable(n).start for n in names])
+    assert_close(slave.get(names), [model.variable(n).start for n in names for _ in range(model.variable(n).size)])
     assert_close(slave.get(output_names(model)), expected_outputs(model, {})[0])
 
 
@@ -842,3 +845,85 @@ def test_a_fixed_parameter_cannot_be_set_after_initialization(fmu: Path) -> None
             slave.set({v.name: v.max})
             assert slave.get([v.name])[0] == v.max
         assert slave.step(1e-3) in (OK, WARNING) and len(slave.errors()) == len(fixed)
+
+
+# ---- array inputs (FMI 3: one variable with dimensions, FMI 2: one scalar per element) ----
+
+ARRAY_INPUTS = [(p, v.name) for p in FMUS for v in model_of(p).variables if v.shape and v.causality != "output"]
+
+
+def _array_setter(slave: Slave, name: str) -> tuple[str, Callable[[np.ndarray], None]]:
+    """(the FMI function's name, a call setting the whole array) in either version."""
+    if slave.fmi_version == 3:
+        return "fmi3SetFloat64", lambda values: slave.set_real([slave.vr[name]], list(values))
+    return "fmi2SetReal", lambda values: slave.set_real(slave.elements[name], list(values))
+
+
+def _element(v, flat: int) -> str:
+    return v.element_names()[flat]
+
+
+@pytest.mark.parametrize("fmu, name", ARRAY_INPUTS, ids=[f"{fmu_id(p)}-{n}" for p, n in ARRAY_INPUTS])
+@pytest.mark.parametrize("bad", [math.nan, math.inf, "above", "below"])
+def test_array_input_elements_are_checked_one_by_one(fmu: Path, name: str, bad) -> None:
+    """A NaN, Inf or out-of-range element is rejected with a message naming the element (1-based, as the FMI 2
+    variant names it), and the array keeps its values (FMI 3: no element of the rejected call is stored)."""
+    v = model_of(fmu).variable(name)
+    flat = v.size // 3 + 5  # some element inside, not the first
+    value = {"above": v.max + 1.0, "below": v.min - 0.5}.get(bad, bad)
+    with Slave(require_fmu(fmu)) as slave:
+        slave.instantiate()
+        slave.initialize()
+        function, set_all = _array_setter(slave, name)
+        good = np.linspace(v.min, v.max, v.size)
+        set_all(good)
+        values = good.copy()
+        values[flat] = value
+        assert status_of(lambda: set_all(values)) == ERROR
+        unit = f" {v.unit}" if v.unit else ""
+        if isinstance(bad, str):
+            expected = (f"{function}: variable '{_element(v, flat)}' = {c_number(value)}{unit} is out of its allowed "
+                        f"range [{c_number(v.min)}, {c_number(v.max)}]{unit}")
+        else:
+            expected = f"{function}: variable '{_element(v, flat)}' set to {value}: must be a finite number"
+        assert slave.last_error() == expected
+        if slave.fmi_version == 3:  # checked before any element is stored
+            assert np.array_equal(slave.get([name]), good)
+        else:  # one scalar per element: those before the bad one were set, the bad one not
+            assert np.array_equal(slave.get([name])[flat:], good[flat:])
+
+
+@pytest.mark.parametrize("fmu, name", ARRAY_INPUTS, ids=[f"{fmu_id(p)}-{n}" for p, n in ARRAY_INPUTS])
+def test_array_input_round_trips_and_is_part_of_fmu_states(fmu: Path, name: str) -> None:
+    v = model_of(fmu).variable(name)
+    rng = np.random.default_rng(9)
+    first, second = (rng.uniform(v.min, v.max, v.size) for _ in range(2))
+    with Slave(require_fmu(fmu), "first") as slave, Slave(fmu, "second") as other:
+        slave.instantiate()
+        slave.initialize()
+        assert np.array_equal(slave.get([name]), np.full(v.size, v.start))  # the start value in every element
+        _, set_all = _array_setter(slave, name)
+        set_all(first)
+        assert np.array_equal(slave.get([name]), first)
+        if slave.fmi_version == 3:  # one value reference, nValues counts the elements
+            assert status_of(lambda: slave.fmu.fmi3SetFloat64(
+                slave.fmu.component, (fmi3ValueReference * 1)(slave.vr[name]), 1,
+                (fmi3Float64 * (v.size - 1))(*first[1:]), v.size - 1)) == ERROR
+            assert slave.last_error() == (f"fmi3SetFloat64: nValues = {v.size - 1} but the 1 value references "
+                                          f"stand for {v.size} values (arrays count all their elements)")
+            slave.fmu.reset()
+            slave.initialize()
+            set_all(first)
+        state = slave.fmu.getFMUState()
+        set_all(second)
+        assert np.array_equal(slave.get([name]), second)
+        slave.set_state(state)
+        assert np.array_equal(slave.get([name]), first)
+        data = slave.fmu.serializeFMUState(state)
+        slave.fmu.freeFMUState(state)
+        other.instantiate()
+        restored = other.fmu.deserializeFMUState(data)
+        other.set_state(restored)
+        other.fmu.freeFMUState(restored)
+        assert np.array_equal(other.get([name]), first)
+        assert len(slave.errors()) == (1 if slave.fmi_version == 3 else 0) and not other.errors()

@@ -22,7 +22,7 @@ from tqdm import tqdm
 from orchestrator.calibrate.errors import CalibrationError
 from orchestrator.calibrate.lsq import LeastSquaresSolver, StartOutcome
 from orchestrator.calibrate.parameters import Parameter, draw_starts
-from orchestrator.calibrate.residuals import ResidualModel
+from orchestrator.calibrate.residuals import EXACT, ResidualModel
 from orchestrator.calibrate.spec import SolverSpec, StatisticsSpec
 from orchestrator.calibrate.statistics import FitStatistics, fit_statistics
 
@@ -41,6 +41,7 @@ class FitOutcome:
     weights: np.ndarray  # per-output user weights
     solve_time: float  # all starts and the second stage, s
     note: str = ""
+    derivatives: str = EXACT  # the residual model's path: exact derivatives or FMU finite differences
 
     def estimate(self, name: str) -> float:
         return float(self.theta[[q.name for q in self.parameters].index(name)])
@@ -111,4 +112,4 @@ def fit(model: ResidualModel, recorded: np.ndarray, *, weights: Sequence[float],
     stats = fit_statistics(jac, r, theta, model.parameters, statistics, n_residuals=model.n_samples,
                            extra_ssr=model.extra_ssr(p[-model.n_outputs:]))
     return FitOutcome(model.parameters, theta, outcomes, best, refit, stats, noise, user,
-                      time.perf_counter() - t0, note)
+                      time.perf_counter() - t0, note, model.derivatives)

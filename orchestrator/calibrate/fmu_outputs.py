@@ -166,8 +166,10 @@ class FmuOutputs:
             self._jacobians.popitem(last=False)
         return jac
 
-    def failures_since(self, count: int) -> list[str]:
-        return [f.message for f in self.failures[count:]]
+    def clear_cache(self) -> None:
+        """Forget the cached evaluations (timing a repeated fit from the same start)."""
+        self._cache.clear()
+        self._jacobians.clear()
 
 
 class _Jacobian(ca.Callback):

@@ -27,7 +27,7 @@ recorded data)::
     start_range = [0.1, 1.0]          # optional: where multi-start draws its starts (default below)
 
     [[outputs]]                       # a model output against a recorded channel
-    simulated = "power.P_total"       # "instance.variable", an output computed by the models/ equations
+    simulated = "power.P_total"       # "instance.variable", a Float64 output of the instance
     recorded = "spindle_power"        # a channel of the scenario's [recorded] data
     weight = 1.0                      # optional, > 0
     unit = "kW"                       # optional display unit of the report
@@ -52,7 +52,8 @@ recorded data)::
     starts = 4                        # multi-start: the initial values, then starts - 1 drawn ones
     seed = 0
     max_iterations = 200
-    tolerance = 1e-10                 # IPOPT tol
+    tolerance = 1e-10                 # IPOPT tol; on the FMU path (Levenberg-Marquardt): relative decrease of the
+                                      # objective at which the iterations stop
     hessian = "gauss-newton"          # or "exact"
     shooting = "multiple"             # models with states: "multiple" or "single"
     shooting_interval = 100           # steps per shooting interval

@@ -137,51 +137,61 @@ def load_scenario_without_data(scenario_file: Path, fmu_dir: Path, folder: Path)
 
 POWER_TRUTH = {"power.P_standby": 350.0, "power.P_idle": 120.0, "power.c1": 0.8, "power.c2": 1500.0, "power.c3": 0.85}
 
-POWER_SCENARIO = """\
+# SpindlePower + MrrEstimator on a recording of speed, feeds, process and power: the tests' two-FMU case
+# (tests/conftest.py, CASE_TOML; "power" is listed before "mrr" on purpose: the execution order must still be
+# mrr, power) and, edited, the synthetic power calibration case (POWER_SCENARIO).
+TWO_FMU_CASE = """\
 [scenario]
-name = "power_case"
+name = "case"
 output_interval = 0.1
+
+[fmus.power]
+fmu = "SpindlePower"
+fmi = 3
+step_size = 0.1
+[fmus.power.parameters]
+P_standby = 100.0
+P_idle = { value = 0.2, unit = "kW" }
+c1 = 0.5
+c2 = 1000.0
+c3 = 1.0
 
 [fmus.mrr]
 fmu = "MrrEstimator"
+fmi = 3
 step_size = 0.1
 [fmus.mrr.parameters]
 width_of_cut = { value = 5.0, unit = "mm" }
 depth_of_cut = { value = 2.0, unit = "mm" }
 
-[fmus.power]
-fmu = "SpindlePower"
-step_size = 0.1
-[fmus.power.parameters]
-P_standby = 200.0
-P_idle = 300.0
-c1 = 0.3
-c2 = 1000.0
-c3 = 1.0
-
 [recorded]
-file = "power_case.csv"
+file = "data.csv"
 sample_period = 0.1
 [recorded.channels]
 speed = { column = "speed", unit = "rev/s" }
 spindle_on = { column = "speed", unit = "rev/s", above = 1.0 }
 vx = { column = "vx", unit = "mm/s" }
 vy = { column = "vy", unit = "mm/s" }
-cutting = { column = "process", match = "^cut" }
+cutting = { column = "process", match = "^Layer" }
 power = { column = "power", unit = "kW" }
 
 [[inputs]]
 from = "speed"
 to = "power.spindle_speed"
+interpolation = "hold"
+
 [[inputs]]
 from = "spindle_on"
 to = "power.spindle_on"
+
 [[inputs]]
 from = "vx"
 to = "mrr.feed_velocity_x"
+
 [[inputs]]
 from = "vy"
 to = "mrr.feed_velocity_y"
+
 [[inputs]]
 from = "cutting"
 to = "mrr.cutting"
@@ -189,10 +199,33 @@ to = "mrr.cutting"
 [[connections]]
 from = "mrr.mrr"
 to = "power.mrr"
+delay = false
 
 [outputs]
-record = ["power.P_total"]
+record = ["power.P_total", "mrr.mrr", "power.spindle_on"]
+
+[[compare]]
+simulated = "power.P_total"
+recorded = "power"
 """
+
+
+def edited(text: str, *edits: tuple[str, str]) -> str:
+    """``text`` with (old, new) replacements, each of which must apply."""
+    for old, new in edits:
+        if old not in text:
+            raise ValueError(f"edit does not apply: {old!r}")
+        text = text.replace(old, new, 1)
+    return text
+
+
+POWER_SCENARIO = edited(
+    TWO_FMU_CASE, ('name = "case"', 'name = "power_case"'),
+    ('P_standby = 100.0\nP_idle = { value = 0.2, unit = "kW" }\nc1 = 0.5', 'P_standby = 200.0\nP_idle = 300.0\nc1 = 0.3'),
+    ('file = "data.csv"', 'file = "power_case.csv"'), ('match = "^Layer"', 'match = "^cut"'),
+    ('interpolation = "hold"\n', ""),
+    ('record = ["power.P_total", "mrr.mrr", "power.spindle_on"]\n\n[[compare]]\nsimulated = "power.P_total"\n'
+     'recorded = "power"\n', 'record = ["power.P_total"]\n'))
 
 POWER_SPEC = """\
 [calibration]

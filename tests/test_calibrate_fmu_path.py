@@ -104,6 +104,8 @@ def test_same_estimates_as_the_exact_path(tmp_path: Path, fmu_dir: Path) -> None
     study = RecoveryStudy(fd_spec, fmu_dir, tmp_path / "fd", POWER_TRUTH)
     assert study.prepared.graph is None
     fd = study.run([5.0], 4).outcome
+    assert exact.derivatives.startswith("exact derivatives of the models/ equations")
+    assert fd.derivatives.startswith("FMU re-simulation with forward finite differences")
     se = np.array([p.standard_error for p in exact.statistics.parameters])
     assert np.all(np.abs(fd.theta - exact.theta) <= 1e-3 * se), (fd.theta - exact.theta) / se
     fd_se = np.array([p.standard_error for p in fd.statistics.parameters])

@@ -2,9 +2,9 @@
 
 1. Every output's residuals are divided by a noise level sigma_o and multiplied by sqrt(weight_o):
    the spec's ``sigma`` when given, else (first stage) the RMS of the recorded values.
-2. IPOPT runs from each start (the initial values, then drawn ones); a start that fails is
-   reported with its cause and the next one runs. The best converged start (lowest objective)
-   wins; if none converged, the best that ran out of iterations is taken and said so.
+2. The solver (lsq: IPOPT, or Levenberg-Marquardt on the FMU path) runs from each start (the initial
+   values, then drawn ones); a start that fails is reported with its cause and the next one runs.
+   The best converged start (lowest objective) wins; if none converged, the best that ran out of iterations is taken and said so.
 3. With ``noise = "estimate"`` and more than one output, sigma_o becomes each output's residual
    RMS at the first-stage optimum and the fit is repeated from it (two-stage weighted least
    squares: the residuals of every output then have unit variance, as the statistics assume).

@@ -14,7 +14,8 @@ Stages (each timed for the report):
    learning and validation segments; the graph (or the FMU re-simulation) evaluated at the initial
    values must reproduce the FMU's outputs at the learning pairs (reported, and an error beyond 1e-8
    relative).
-4. **fit**: multi-start IPOPT on the learning pairs (:mod:`orchestrator.calibrate.fit`), statistics.
+4. **fit**: multi-start on the learning pairs (:mod:`orchestrator.calibrate.fit`; IPOPT on the exact path,
+   projected Levenberg-Marquardt on the FMU path), statistics.
    With an alignment method, the fit is repeated once on identity pairs to show what the alignment
    changed.
 5. **write**: the parameter set (TOML the scenarios apply by name, and an .ssv copy).

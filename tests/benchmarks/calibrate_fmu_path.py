@@ -11,7 +11,10 @@
      starts, the second stage and the statistics; the alignment-effect refit is timed apart), the
      simulations, and the estimates' differences relative to the value and to the standard error.
    * ``power (synthetic inputs)``: the synthetic power case with 5 W noise (seed 0), one start each.
-2. **Synthetic recovery through the FMU path**: scenarios/calibration/slot_forces_synthetic.toml
+2. **Jacobian accuracy**: the finite-difference Jacobian (forward and central) of the synthetic power case's
+   outputs at the truth against the exact one (casadi on the models/ equations): per parameter, the largest
+   difference relative to the column's largest entry.
+3. **Synthetic recovery through the FMU path**: scenarios/calibration/slot_forces_synthetic.toml
    (CuttingForce coefficients; the data the FMU makes with SLOT_TRUTH plus 5 N noise per force, one seed per
    repeat), one start per repeat (the problem is linear in the coefficients), ``--repeats`` repeats, and the
    noise-free relative error.
@@ -98,6 +101,20 @@ def synthetic_power(fmu_dir: Path, tmp: Path, rounds: int) -> dict:
     return doc
 
 
+def jacobian_accuracy(fmu_dir: Path, tmp: Path) -> dict:
+    spec = load_spec(write_power_case(tmp / "case"))
+    exact = RecoveryStudy(spec, fmu_dir, tmp / "exact", POWER_TRUTH)
+    theta, n, k = exact.truth, exact.model.n_pairs, exact.model.n_outputs
+    p = np.concatenate([np.zeros(n * k), np.ones(k)])  # residual = outputs
+    reference = exact.model.residual_jacobian(theta, p)[1]
+    doc = {"parameters": [q.name for q in exact.prepared.parameters]}
+    for method in ("forward", "central"):
+        fd_spec = replace(spec, solver=replace(spec.solver, derivatives="finite-differences", fd_method=method))
+        jac = RecoveryStudy(fd_spec, fmu_dir, tmp / method, POWER_TRUTH).model.residual_jacobian(theta, p)[1]
+        doc[method] = (np.max(np.abs(jac - reference), axis=0) / np.max(np.abs(reference), axis=0)).tolist()
+    return doc
+
+
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     parser.add_argument("--repeats", type=int, default=20)
@@ -110,6 +127,7 @@ def main() -> None:
         tmp = Path(tmp)
         power = synthetic_power(args.fmu_dir, tmp / "power", args.rounds)
         umich_doc = umich(args.fmu_dir, tmp / "umich", args.rounds)
+        jacobian = jacobian_accuracy(args.fmu_dir, tmp / "jacobian")
         spec = load_spec(SLOT)
         spec = replace(spec, parameter_set=tmp / "slot.params.toml", solver=replace(spec.solver, starts=1))
         slot = study_case("CuttingForce coefficients through the FMU (slot_forces_synthetic)",
@@ -125,8 +143,11 @@ def main() -> None:
         for extra in ("max_se_relative_difference", "identified", "max_relative_difference_identified", "objective_exact", "objective_fd", "fd_notes"):
             if extra in doc:
                 print(f"  {extra}: {doc[extra]}")
+    print("\n### finite-difference Jacobian vs exact (synthetic power case at the truth; max error / column max)")
+    for method in ("forward", "central"):
+        print(f"{method}: " + ", ".join(f"{n} {e:.2e}" for n, e in zip(jacobian["parameters"], jacobian[method])))
     print_case(slot)
-    doc = {"synthetic_power": power, "umich_power": umich_doc, "slot_recovery": slot}
+    doc = {"synthetic_power": power, "umich_power": umich_doc, "jacobian": jacobian, "slot_recovery": slot}
     (args.out / "calibrate_fmu_path.json").write_text(json.dumps(doc, indent=2, default=str))
     print(f"written: {args.out / 'calibrate_fmu_path.json'}")
 

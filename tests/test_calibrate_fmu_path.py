@@ -160,3 +160,32 @@ def test_the_whole_loop_writes_the_path_in_the_report(tmp_path: Path, fmu_dir: P
     validation = [e for e in result.errors if e.dataset == "validation"]
     assert validation and all(e.rms_after < e.rms_before for e in validation)
     assert all(e.rms_after < 6.0 for e in validation)  # the recording's noise is 5 N
+
+
+def test_closed_force_vibration_loop_through_the_fmus(tmp_path: Path, fmu_dir: Path) -> None:
+    """scenarios/chatter.toml (CuttingForce and ToolVibration, the displacement fed back with a delay): a
+    cutting coefficient and a modal stiffness by name from the force and the tip displacement, which only the
+    co-simulation of both FMUs gives; noise-free data from the FMUs with known values come back."""
+    from orchestrator.calibrate.synthetic import edited, load_scenario_without_data
+
+    require_fmu(fmu_dir / "CuttingForce.fmu")
+    require_fmu(fmu_dir / "ToolVibration.fmu")
+    text = edited((REPO / "scenarios" / "chatter.toml").read_text(), ("stop_time = 0.2", "stop_time = 0.02"),
+                  ("output_interval = 1e-5 ", "output_interval = 1e-4 "))
+    text += ('\n[recorded]\nfile = "loop.csv"\ntime_column = "time"\n[recorded.channels]\n'
+             'fx = { column = "fx", unit = "N" }\ndx = { column = "dx", unit = "m" }\n')
+    (tmp_path / "loop.toml").write_text(text)
+    load_scenario_without_data(tmp_path / "loop.toml", fmu_dir, tmp_path)
+    (tmp_path / "spec.toml").write_text(
+        '[calibration]\nname = "loop"\nscenario = "loop.toml"\nparameter_set = "loop.params.toml"\n'
+        '[parameters."force.Ktc"]\nmin = 100.0\nmax = 3000.0\nunit = "N/mm2"\n'
+        '[parameters."vibration.stiffness_x1"]\nmin = 1e5\nmax = 1e8\n'
+        '[[outputs]]\nsimulated = "force.Fx"\nrecorded = "fx"\n'
+        '[[outputs]]\nsimulated = "vibration.tip_displacement_x"\nrecorded = "dx"\n'
+        '[segments]\nlearning = [[0.0, 0.02]]\n[solver]\nstarts = 1\n')
+    truth = {"force.Ktc": 900e6, "vibration.stiffness_x1": 1.0e6}
+    study = RecoveryStudy(load_spec(tmp_path / "spec.toml"), fmu_dir, tmp_path / "out", truth)
+    assert study.prepared.graph is None and "fit one dynamic instance at a time" in study.prepared.fd_reason
+    run = study.run([0.0, 0.0], None)
+    assert run.converged
+    assert np.all(run.relative_error < 1e-6), run.relative_error

@@ -33,7 +33,8 @@ from orchestrator.recorded import RecordedData
 from orchestrator.results import load_results
 from orchestrator.scenario import Scenario, load_scenario, with_values
 
-__all__ = ["IMPULSE_TRUTH", "POWER_TRUTH", "SLOT_TRUTH", "impulse_force", "truth_outputs", "with_channels",
+__all__ = ["IMPULSE_TRUTH", "POWER_TRUTH", "SLOT_TRUTH", "TWO_FMU_CASE", "edited", "impulse_force",
+           "load_scenario_without_data", "truth_outputs", "with_channels",
            "write_impulse_recording", "write_power_case", "write_slot_recording"]
 
 REPO = Path(__file__).resolve().parents[2]

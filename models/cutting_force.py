@@ -256,38 +256,59 @@ class HistoryTooShort(RuntimeError):
     """The displacement history does not reach one tooth period back (the FMU's doStep fails)."""
 
 
-class ForceReference:
-    """The FMU step by step, in Python: the displacement history (a ring of ``history_size``
-    samples ``(t, x, y)`` taken at each doStep from the inputs at its start), the delayed
-    displacement by linear interpolation at ``t - T_tooth`` over those samples and the current
-    inputs at ``t`` (before the oldest sample: its value, "no regeneration yet"), the generated
-    equations and the spindle-angle update. Same operations in the same order as model.c."""
+class DisplacementHistory:
+    """The displacement history of the force FMUs (fmus/common/displacement_history.c, CuttingForce and
+    ForceNet): a ring of ``size`` samples ``(t, x, y)`` taken at each doStep from the inputs at its start; the
+    delayed displacement by linear interpolation at ``t - T`` over those samples and the current inputs at ``t``
+    (before the oldest sample: its value, "no regeneration yet"). Same operations in the same order as the C."""
 
-    def __init__(self, values: Mapping[str, float], start_time: float = 0.0):
-        self.model = CUTTING_FORCE
-        names = {v.name for v in self.model.of("parameter") + self.model.of("input")}
-        self.values = {k: x for k, x in {**self.model.defaults(), **values}.items() if k in names}
-        self.time = start_time
-        self.history: deque[tuple[float, float, float]] = deque(maxlen=int(self.values["history_size"]))
-        self.angle = 0.0
+    def __init__(self, size: int):
+        self.samples: deque[tuple[float, float, float]] = deque(maxlen=int(size))
 
-    def set(self, values: Mapping[str, float]) -> None:
-        self.values.update(values)
-
-    def tooth_period(self) -> float:
-        omega = max(self.values["spindle_speed"], OMEGA_MIN)
-        return TWO_PI / (float(int(self.values["n_flutes"])) * omega)
-
-    def delayed(self) -> tuple[float, float]:
-        x, y = self.values["displacement_x"], self.values["displacement_y"]
-        samples = list(self.history) + [(self.time, x, y)]
-        td = self.time - self.tooth_period()
+    def delayed(self, time: float, period: float, x: float, y: float) -> tuple[float, float]:
+        samples = list(self.samples) + [(time, x, y)]
+        td = time - period
         if td <= samples[0][0]:
             return samples[0][1], samples[0][2]
         i = bisect.bisect_right([s[0] for s in samples], td) - 1
         (t0, x0, y0), (t1, x1, y1) = samples[i], samples[i + 1]
         w = (td - t0) / (t1 - t0)
         return x0 + w * (x1 - x0), y0 + w * (y1 - y0)
+
+    def record(self, time: float, step_size: float, x: float, y: float, period: float, cutting: bool) -> None:
+        """Stores the sample; raises HistoryTooShort when the full ring does not reach one period back."""
+        self.samples.append((time, x, y))
+        if len(self.samples) == self.samples.maxlen and cutting and self.samples[0][0] > time + step_size - period:
+            raise HistoryTooShort(f"history of {len(self.samples)} samples does not reach one tooth period back")
+
+
+def tooth_period(values: Mapping[str, float]) -> float:
+    """T = 2*pi/(N*omega) of the history (the spindle speed at least OMEGA_MIN)."""
+    return TWO_PI / (float(int(values["n_flutes"])) * max(values["spindle_speed"], OMEGA_MIN))
+
+
+class ForceReference:
+    """The FMU step by step, in Python: the displacement history (:class:`DisplacementHistory`), the
+    generated equations with the delayed displacement, and the spindle-angle update. Same operations in the
+    same order as model.c."""
+
+    def __init__(self, values: Mapping[str, float], start_time: float = 0.0):
+        self.model = CUTTING_FORCE
+        names = {v.name for v in self.model.of("parameter") + self.model.of("input")}
+        self.values = {k: x for k, x in {**self.model.defaults(), **values}.items() if k in names}
+        self.time = start_time
+        self.history = DisplacementHistory(int(self.values["history_size"]))
+        self.angle = 0.0
+
+    def set(self, values: Mapping[str, float]) -> None:
+        self.values.update(values)
+
+    def tooth_period(self) -> float:
+        return tooth_period(self.values)
+
+    def delayed(self) -> tuple[float, float]:
+        return self.history.delayed(self.time, self.tooth_period(), self.values["displacement_x"],
+                                    self.values["displacement_y"])
 
     def outputs(self) -> np.ndarray:
         dx, dy = self.delayed()
@@ -297,15 +318,12 @@ class ForceReference:
 
     def step(self, h: float) -> np.ndarray:
         v = self.values
-        self.history.append((self.time, v["displacement_x"], v["displacement_y"]))
-        end = self.time + h
-        if (len(self.history) == self.history.maxlen and v["spindle_speed"] >= OMEGA_MIN
-                and v["axial_depth"] > 0 and self.history[0][0] > end - self.tooth_period()):
-            raise HistoryTooShort(f"history of {len(self.history)} samples does not reach one tooth period back")
+        self.history.record(self.time, h, v["displacement_x"], v["displacement_y"], self.tooth_period(),
+                            v["spindle_speed"] >= OMEGA_MIN and v["axial_depth"] > 0)
         new = self.model.step(h, **v, angle=self.angle, delayed_displacement_x=0.0,
                               delayed_displacement_y=0.0)
         self.angle = float(new["angle"])
-        self.time = end
+        self.time = self.time + h
         return self.outputs()
 
 

@@ -36,7 +36,9 @@ class Variable:
     max: float | None = None
     variability: Variability | None = None
     # An array (FMI 3: one variable with <Dimension>s; FMI 2: one scalar per element, named
-    # name[i,j] with 1-based indices, in row-major order). Float64 outputs computed by model.c only.
+    # name[i,j] with 1-based indices, in row-major order). Float64 only; outputs are computed by model.c
+    # (native_outputs), inputs and parameters are read by model.c only (they are no arguments of the
+    # casadi equations). ``start``, ``min`` and ``max`` hold for every element.
     shape: tuple[int, ...] = ()
 
     @property
@@ -112,9 +114,13 @@ class ModelDefinition:
                 raise ValueError(f"{self.identifier}.{v.name}: specialize_on needs an Int32 parameter with min and "
                                  "max at most 16 apart")
         for v in self.variables:
-            if v.shape and (v.type != "Float64" or v.causality != "output" or v.name not in self.native_outputs):
-                raise ValueError(f"{self.identifier}.{v.name}: arrays are supported for Float64 outputs that "
-                                 "model.c computes (native_outputs) only")
+            if not v.shape:
+                continue
+            if v.type != "Float64" or (v.causality == "output" and v.name not in self.native_outputs):
+                raise ValueError(f"{self.identifier}.{v.name}: arrays are Float64 outputs that model.c computes "
+                                 "(native_outputs), or Float64 inputs and parameters that model.c reads")
+            if v.causality != "output" and v.start is None:
+                raise ValueError(f"{self.identifier}.{v.name}: an array input or parameter needs a start value")
 
     def of(self, causality: Causality) -> tuple[Variable, ...]:
         return tuple(v for v in self.variables if v.causality == causality)
@@ -127,9 +133,9 @@ class ModelDefinition:
 
     @property
     def arguments(self) -> tuple[Variable | State, ...]:
-        """The equations' arguments in order: parameters, inputs, then states (Strings are no
-        arguments: only a model's C code reads them, e.g. a file name)."""
-        numeric = tuple(v for v in self.of("parameter") + self.of("input") if v.type != "String")
+        """The equations' arguments in order: parameters, inputs, then states (Strings and arrays are no
+        arguments: only a model's C code reads them, e.g. a file name or a map)."""
+        numeric = tuple(v for v in self.of("parameter") + self.of("input") if v.type != "String" and not v.shape)
         return numeric + self.states
 
     @property

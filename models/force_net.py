@@ -10,21 +10,31 @@ Conventions: those of :mod:`models.cutting_force` (Altintas): z towards the spin
 (M3), the immersion angle ``phi`` of an edge point clockwise from +y, entry/exit angles relative to the feed
 direction, ``Fx, Fy, Fz`` the force **on the tool**, ``torque`` the cutting torque. Inputs, parameters and
 outputs carry the names, units and ranges of the CuttingForce FMU, so a scenario swaps one for the other by
-changing ``fmu = "CuttingForce"`` into ``fmu = "ForceNet"`` (the regenerative chip and runout of
-CuttingForce are not modelled: ForceNet has no displacement inputs).
+changing ``fmu = "CuttingForce"`` into ``fmu = "ForceNet"``; ForceNet has no cutting coefficients (its network
+learnt them). The regenerative chip and runout are CuttingForce's: the displacement inputs go into the same
+displacement history (``fmus/common/displacement_history.c``, :class:`models.cutting_force.DisplacementHistory`)
+and the chip of flute m is ``h = T_tooth (v_x sin(phi) + v_y cos(phi)) + dx sin(phi) + dy cos(phi) + r_m - r_(m-1)``
+with ``(dx, dy)`` the displacement now minus one tooth period ago and ``r_m = runout_offset cos(runout_angle -
+m 2 pi / N)``; the network reads that h (trained on static chips only, it follows CuttingForce in the chatter
+loop: tests/test_forcenet.py).
 
 1. **Cutting geometry image.** Over the tool envelope, a grid of H rows (heights ``z_k = (k + 1/2) a_p / H``,
    ``k = 0 .. H-1``, ``H = ELEMENTS_PER_FLUTE = 16``) by W columns (angles around the axis). Per pixel the
    cutting-element matrix ``C = [h; v; theta0]``: the undeformed chip thickness
    ``h = step(engaged) * f . n = step(engaged) * T_tooth * (v_x sin(phi) + v_y cos(phi))`` (the feed per
    tooth projected on the envelope normal ``n = (sin phi, cos phi, 0)`` of a flat end mill; 0 where the
-   pixel is not in material, i.e. outside the window ``entry_angle .. exit_angle`` measured from the
-   feed direction, or where that chip is not positive), the cutting speed ``v = omega * r(z) = omega * D/2``
-   and the current tool angle ``theta0`` (the spindle angle of flute 0 at the tip). Material comes from the
-   cutting-state inputs (``axial_depth``, ``entry_angle``, ``exit_angle``: what the Workpiece FMU outputs)
-   rather than from the Workpiece's 8 x 24 engagement map, because the FMU wrapper has no array inputs
-   (a flat end mill's map is that window on every row). The image is a continuous field: the network reads
-   it at the exact position of each edge element (:func:`geometry_image` samples it on a W x H grid).
+   pixel is not in material or where that chip is not positive), the cutting speed ``v = omega * r(z) = omega * D/2``
+   and the current tool angle ``theta0`` (the spindle angle of flute 0 at the tip). **Material** comes from the
+   Workpiece FMU's engagement map, the input ``engagement`` (8 heights x 24 angles, row i the heights
+   ``[i, i+1) a_p / 8``, column j the feed-frame angles ``[15 j, 15 (j+1))`` deg): edge element k (of every
+   flute) at feed-frame angle ``theta`` reads the cell that holds it, row ``k * 8 // 16`` (the map's rows halve
+   the H = 16 element heights: elements 2i and 2i+1 share row i) and column ``floor(theta / 15 deg)``; it is in
+   material when that cell is >= 0.5. A negative cell (the start value -1 in every cell: no map connected)
+   leaves the element to the cutting-state window ``entry_angle .. exit_angle`` (measured from the feed
+   direction), so a scenario written for CuttingForce (depth and window, no map) gives the same material
+   with ForceNet, and a full-slot map gives exactly the slot window's elements. ``axial_depth`` still sets
+   the element heights (the map's rows are fractions of it). The image is a continuous field: the network
+   reads it at the exact position of each edge element (:func:`geometry_image` samples it on a W x H grid).
 2. **Position encoding.** Each edge element has a horizontal angle ``theta`` (its immersion angle in the
    feed frame, ``phi + atan2(v_y, v_x)`` wrapped to [0, 2*pi)) and an axial angle ``psi = z tan(helix) / R``
    (the helix lag of the element behind the tip). They expand into four matrices
@@ -40,8 +50,9 @@ CuttingForce are not modelled: ForceNet has no displacement inputs).
    m's element k lies at ``phi = theta0 + m 2 pi / N - psi_k``. Elements in contact (engaged, chip > 0,
    spindle turning) carry ``dF = F'(m, k) dz`` (others 0), projected as in CuttingForce:
    ``dFx = -dFt cos(phi) - dFr sin(phi)``, ``dFy = dFt sin(phi) - dFr cos(phi)``, ``dFz = dFa``; summed into
-   ``Fx, Fy, Fz``, ``torque = sum(dFt) R`` and the moment about the point ``(0, 0, moment_height)`` of the
-   tool axis (``moment_height`` above the tip), with the element at ``(R sin(phi), R cos(phi), z)``:
+   ``Fx, Fy, Fz``, ``torque = sum(dFt) R_m`` (``R_m = R + r_m``, the radius of the element's flute) and the
+   moment about the point ``(0, 0, moment_height)`` of the tool axis (``moment_height`` above the tip), with
+   the element at ``(R_m sin(phi), R_m cos(phi), z)``:
    ``M = sum((p - (0, 0, z')) x dF)``, output ``Mx, My, Mz``. ``power = torque * omega``.
 
 Weights file (``fmus/forcenet/resources/weights.bin``, packed into the FMU's resources/ and loaded when the
@@ -65,9 +76,12 @@ from typing import Mapping, Sequence
 import casadi as ca
 import numpy as np
 
-from models.cutting_force import AL7075_CARBIDE, CUTTING_FORCE, OMEGA_MIN, TWO_PI, _tooth_period
+from models.cutting_force import AL7075_CARBIDE, CUTTING_FORCE, OMEGA_MIN, TWO_PI, DisplacementHistory, _tooth_period
+from models.cutting_force import tooth_period as history_period
 from models.cutting_force import update as _angle_update
 from models.definition import ModelDefinition, State, Variable
+from models.workpiece import N_THETA as MAP_COLUMNS
+from models.workpiece import N_Z as MAP_ROWS
 
 ELEMENTS_PER_FLUTE = 16  # H: edge elements per flute (the rows of the geometry image)
 MAX_FLUTES = 6
@@ -95,8 +109,9 @@ def _equations(v):
                                                                   + v["feed_velocity_y"] ** 2), 0)}
 
 
-_SHARED_PARAMETERS = ("tool_diameter", "helix_angle", "n_flutes")
-_SHARED_INPUTS = ("spindle_speed", "feed_velocity_x", "feed_velocity_y", "axial_depth", "entry_angle", "exit_angle")
+_SHARED_PARAMETERS = ("tool_diameter", "helix_angle", "n_flutes", "runout_offset", "runout_angle", "history_size")
+_SHARED_INPUTS = ("spindle_speed", "feed_velocity_x", "feed_velocity_y", "axial_depth", "entry_angle", "exit_angle",
+                  "displacement_x", "displacement_y")
 _SHARED_OUTPUTS = ("Fx", "Fy", "Fz", "torque", "power", "spindle_angle", "feed_per_tooth")
 NATIVE_OUTPUTS = ("Fx", "Fy", "Fz", "torque", "power", "Mx", "My", "Mz")
 
@@ -109,13 +124,21 @@ FORCE_NET = ModelDefinition(
     equations=_equations,
     update=_angle_update,
     native_outputs=NATIVE_OUTPUTS,
-    states=(State("angle", "Spindle angle: flute 0 at the tool tip, clockwise from +y", unit="rad"),),
+    native_states=("delayed_displacement_x", "delayed_displacement_y"),
+    states=(State("angle", "Spindle angle: flute 0 at the tool tip, clockwise from +y", unit="rad"),
+            State("delayed_displacement_x", "Tool displacement in x one tooth period ago (model.c)", unit="m"),
+            State("delayed_displacement_y", "Tool displacement in y one tooth period ago (model.c)", unit="m")),
     variables=(
         *(CUTTING_FORCE.variable(n) for n in _SHARED_PARAMETERS),
         Variable("moment_height", "Float64", "parameter",
                  "Height above the tool tip of the point of the axis the moment Mx, My, Mz is taken about",
                  unit="m", display_unit="mm", start=0.0, min=-1.0, max=1.0),
         *(CUTTING_FORCE.variable(n) for n in _SHARED_INPUTS),
+        Variable("engagement", "Float64", "input",
+                 f"Engagement map of the Workpiece FMU, {MAP_ROWS} heights x {MAP_COLUMNS} angles (its output "
+                 "'engagement'): a cell >= 0 says whether the edge elements in it are in material (from 0.5 on); "
+                 "-1 (the start value: not connected) leaves the cell to the window entry_angle..exit_angle",
+                 start=-1.0, min=-1.0, max=1.0, shape=(MAP_ROWS, MAP_COLUMNS)),
         *(CUTTING_FORCE.variable(n) for n in _SHARED_OUTPUTS[:5]),
         Variable("Mx", "Float64", "output", "Moment of the cutting forces on the tool about x, at moment_height",
                  unit="N.m"),
@@ -352,54 +375,96 @@ class Elements:
     z: np.ndarray          # n, height above the tip [m]
     h: np.ndarray          # n, chip thickness [m]
     dz: float
-    radius: float
+    radius: np.ndarray     # n, the radius of the element's flute (R + runout) [m]
 
 
-def elements(values: Mapping[str, float], angle: float, weights: Weights | None = None) -> Elements:
-    """The elements in contact, with the scalar libm functions (math) the C code calls, in its order."""
+def _in_material(engagement: np.ndarray | None, k: int, theta: float, in_window: bool) -> bool:
+    """Edge element k (of any flute) at feed-frame angle theta in material: the map cell holding it (row
+    k * MAP_ROWS // H, column floor(theta / 15 deg)) when given (>= 0; in material from 0.5 on), else the
+    window (fmus/forcenet/forcenet.c in_material)."""
+    if engagement is not None:
+        row = k * MAP_ROWS // ELEMENTS_PER_FLUTE
+        column = min(int(theta * (MAP_COLUMNS / TWO_PI)), MAP_COLUMNS - 1)
+        value = float(engagement[row * MAP_COLUMNS + column])
+        if value >= 0.0:
+            return value >= 0.5
+    return in_window
+
+
+def engagement_of(values: Mapping[str, object]) -> np.ndarray | None:
+    """The engagement map of ``values`` flattened row-major (None when not given)."""
+    if values.get("engagement") is None:
+        return None
+    flat = np.asarray(values["engagement"], dtype=float).reshape(-1)
+    if flat.size != MAP_ROWS * MAP_COLUMNS:
+        raise ValueError(f"engagement: {flat.size} values, the map has {MAP_ROWS} x {MAP_COLUMNS}")
+    return flat
+
+
+def elements(values: Mapping[str, float], angle: float, weights: Weights | None = None,
+             delayed: tuple[float, float] = (0.0, 0.0)) -> Elements:
+    """The elements in contact, with the scalar libm functions (math) the C code calls, in its order: the
+    sines and cosines of the helix lags per height and of each flute's angle, the elements' angles by the
+    addition theorems. ``delayed``: the displacement one tooth period ago (the regenerative chip takes the
+    displacement now minus it); no displacement inputs in ``values`` count as 0."""
     w = weights or default_weights()
     n = int(values["n_flutes"])
     omega = float(values["spindle_speed"])
     vx, vy = float(values["feed_velocity_x"]), float(values["feed_velocity_y"])
     radius = float(values["tool_diameter"]) / 2
     dz = float(values["axial_depth"]) / ELEMENTS_PER_FLUTE
+    dx = float(values.get("displacement_x", 0.0)) - delayed[0]
+    dy = float(values.get("displacement_y", 0.0)) - delayed[1]
+    offset, direction = float(values.get("runout_offset", 0.0)), float(values.get("runout_angle", 0.0))
+    engagement = engagement_of(values)
     rows: list[list[float]] = []
-    trig: list[tuple[float, float, float, float]] = []
+    trig: list[tuple[float, float, float, float, float]] = []
     if omega >= OMEGA_MIN and dz > 0.0:
         period = TWO_PI / (n * omega)
         feed_angle = math.atan2(vy, vx)
+        sin_feed, cos_feed = math.sin(feed_angle), math.cos(feed_angle)
         lag_per_height = math.tan(float(values["helix_angle"])) / radius
         entry = float(values["entry_angle"])
         width = _wrap_scalar(float(values["exit_angle"]) - entry)
         pitch = TWO_PI / n
         v_feature = omega * radius / w.v_ref
         theta0_feature = angle / math.pi - 1.0
+        z = [(k + 0.5) * dz for k in range(ELEMENTS_PER_FLUTE)]
+        psi = [zk * lag_per_height for zk in z]
+        sin_psi, cos_psi = [math.sin(p) for p in psi], [math.cos(p) for p in psi]
         for m in range(n):
+            flute = angle + m * pitch
+            sin_flute, cos_flute = math.sin(flute), math.cos(flute)
+            runout, flute_radius = 0.0, radius
+            if offset != 0.0:
+                runout = offset * (math.cos(direction - m * pitch) - math.cos(direction - (m - 1) * pitch))
+                flute_radius = radius + offset * math.cos(direction - m * pitch)
             for k in range(ELEMENTS_PER_FLUTE):
-                z = (k + 0.5) * dz
-                psi = z * lag_per_height
-                phi = angle + m * pitch - psi
-                s, c = math.sin(phi), math.cos(phi)
-                h = period * (vx * s + vy * c)
-                if not (_wrap_scalar(phi + feed_angle - entry) < width and h > 0.0):
+                phi = flute - psi[k]
+                s = sin_flute * cos_psi[k] - cos_flute * sin_psi[k]
+                c = cos_flute * cos_psi[k] + sin_flute * sin_psi[k]
+                h = period * (vx * s + vy * c) + dx * s + dy * c + runout
+                if not (h > 0.0 and _in_material(engagement, k, _wrap_scalar(phi + feed_angle),
+                                                 _wrap_scalar(phi + feed_angle - entry) < width)):
                     continue
-                theta = _wrap_scalar(phi + feed_angle)
-                rows.append([h / w.h_ref, v_feature, theta0_feature, math.sin(theta), math.cos(theta),
-                             math.sin(psi), math.cos(psi)])
-                trig.append((s, c, z, h))
-    t = np.array(trig, dtype=float).reshape(-1, 4)
+                rows.append([h / w.h_ref, v_feature, theta0_feature, s * cos_feed + c * sin_feed,
+                             c * cos_feed - s * sin_feed, sin_psi[k], cos_psi[k]])
+                trig.append((s, c, z[k], h, flute_radius))
+    t = np.array(trig, dtype=float).reshape(-1, 5)
     return Elements(np.array(rows, dtype=float).reshape(-1, N_FEATURES), t[:, 0], t[:, 1], t[:, 2], t[:, 3], dz,
-                    radius)
+                    t[:, 4])
 
 
 def _wrap_scalar(a: float) -> float:
     return a - TWO_PI * math.floor(a / TWO_PI)
 
 
-def tool_outputs(values: Mapping[str, float], angle: float, weights: Weights | None = None) -> dict[str, float]:
-    """The native outputs (NATIVE_OUTPUTS) at spindle angle ``angle``: element loads summed in the C order."""
+def tool_outputs(values: Mapping[str, float], angle: float, weights: Weights | None = None,
+                 delayed: tuple[float, float] = (0.0, 0.0)) -> dict[str, float]:
+    """The native outputs (NATIVE_OUTPUTS) at spindle angle ``angle``: element loads summed in the C order
+    (``delayed``: the displacement one tooth period ago, see :func:`elements`)."""
     w = weights or default_weights()
-    e = elements(values, angle, w)
+    e = elements(values, angle, w, delayed)
     out = dict.fromkeys(NATIVE_OUTPUTS, 0.0)
     if len(e.features) == 0:
         return out
@@ -408,14 +473,14 @@ def tool_outputs(values: Mapping[str, float], angle: float, weights: Weights | N
     fx = fy = fz = torque = mx = my = mz = 0.0
     for i in range(len(loads)):
         ft, fr, fa = loads[i, 0] * e.dz, loads[i, 1] * e.dz, loads[i, 2] * e.dz
-        s, c = e.sin_phi[i], e.cos_phi[i]
+        s, c, r = e.sin_phi[i], e.cos_phi[i], e.radius[i]
         dfx = -ft * c - fr * s
         dfy = ft * s - fr * c
-        px, py, pz = e.radius * s, e.radius * c, e.z[i] - zp
+        px, py, pz = r * s, r * c, e.z[i] - zp
         fx += dfx
         fy += dfy
         fz += fa
-        torque += ft * e.radius
+        torque += ft * r
         mx += py * fa - pz * dfy
         my += pz * dfx - px * fa
         mz += px * dfy - py * dfx
@@ -548,33 +613,47 @@ def projection(arrays: dict) -> np.ndarray:
 
 # ---- what the generic FMU tests (tests/fmu_helpers.py) use for this model ----
 
-def _all_outputs(values: Mapping[str, float], angle: float, weights: Weights | None = None) -> list[float]:
-    native = tool_outputs(values, angle, weights)
-    generated = FORCE_NET.evaluate(**{k: v for k, v in values.items() if k in _ARGUMENTS}, angle=angle)
+def _all_outputs(values: Mapping[str, float], angle: float, weights: Weights | None = None,
+                 delayed: tuple[float, float] = (0.0, 0.0)) -> list[float]:
+    native = tool_outputs(values, angle, weights, delayed)
+    generated = FORCE_NET.evaluate(**{k: v for k, v in values.items() if k in _ARGUMENTS}, angle=angle,
+                                   delayed_displacement_x=delayed[0], delayed_displacement_y=delayed[1])
     return [native[n] if n in native else float(generated[n]) for n in OUTPUTS]
 
 
-_ARGUMENTS = {v.name for v in FORCE_NET.of("parameter") + FORCE_NET.of("input")}
+_ARGUMENTS = {v.name for v in FORCE_NET.arguments if isinstance(v, Variable)}  # not the map (C reads it)
 
 
 class ForceNetReference:
-    """The FMU step by step: the spindle angle advanced by the generated update, the outputs at the
-    angle reached (with :func:`tool_outputs`)."""
+    """The FMU step by step: the displacement history of CuttingForce (:class:`DisplacementHistory`), the
+    spindle angle advanced by the generated update, the outputs at the angle reached (:func:`tool_outputs`)."""
 
     def __init__(self, values: Mapping[str, float], weights: Weights | None = None):
-        names = {v.name for v in FORCE_NET.of("parameter") + FORCE_NET.of("input")}
-        self.values = {k: x for k, x in {**FORCE_NET.defaults(), **values}.items() if k in names}
+        self.names = {v.name for v in FORCE_NET.of("parameter") + FORCE_NET.of("input")}
+        self.values = {k: x for k, x in {**FORCE_NET.defaults(), **values}.items() if k in self.names}
         self.angle = 0.0
+        self.time = 0.0
+        self.history = DisplacementHistory(int(self.values["history_size"]))
         self.weights = weights
 
     def set(self, values: Mapping[str, float]) -> None:
-        self.values.update({k: x for k, x in values.items() if k in self.values})
+        self.values.update({k: x for k, x in values.items() if k in self.names})
+
+    def delayed(self) -> tuple[float, float]:
+        return self.history.delayed(self.time, history_period(self.values), self.values["displacement_x"],
+                                    self.values["displacement_y"])
 
     def outputs(self) -> np.ndarray:
-        return np.array(_all_outputs(self.values, self.angle, self.weights))
+        return np.array(_all_outputs(self.values, self.angle, self.weights, self.delayed()))
 
     def step(self, h: float) -> np.ndarray:
-        self.angle = float(FORCE_NET.step(h, **self.values, angle=self.angle)["angle"])
+        v = self.values
+        self.history.record(self.time, h, v["displacement_x"], v["displacement_y"], history_period(v),
+                            v["spindle_speed"] >= OMEGA_MIN and v["axial_depth"] > 0)
+        scalars = {k: x for k, x in v.items() if k in _ARGUMENTS}
+        self.angle = float(FORCE_NET.step(h, **scalars, angle=self.angle, delayed_displacement_x=0.0,
+                                          delayed_displacement_y=0.0)["angle"])
+        self.time = self.time + h
         return self.outputs()
 
 
@@ -588,13 +667,14 @@ def reference_trajectory(points: Sequence[Mapping[str, float]], step_size: float
 
 
 def initial_outputs(values: Mapping[str, float | np.ndarray]) -> np.ndarray:
-    """Outputs in initialization mode (points x outputs): at the start angle 0."""
+    """Outputs in initialization mode (points x outputs): at the start angle 0, no history yet (the delayed
+    displacement is the current one: no regeneration)."""
     columns = {k: np.atleast_1d(np.asarray(v, dtype=float)) for k, v in values.items()}
     count = max([len(c) for c in columns.values()] + [1])
     rows = []
     for i in range(count):
         point = {**FORCE_NET.defaults(), **{k: float(c[min(i, len(c) - 1)]) for k, c in columns.items()}}
-        rows.append(_all_outputs(point, 0.0))
+        rows.append(_all_outputs(point, 0.0, delayed=(point["displacement_x"], point["displacement_y"])))
     return np.array(rows)
 
 
@@ -619,6 +699,11 @@ def random_arguments(count: int, rng: np.random.Generator) -> dict[str, np.ndarr
     values["entry_angle"] = np.where(rng.random(count) < 0.5, 0.0, entry)
     values["exit_angle"] = np.where(rng.random(count) < 0.5, math.pi, rng.uniform(values["entry_angle"] + 0.3, math.pi))
     values["entry_angle"][0], values["exit_angle"][0] = 0.0, math.pi
+    values["history_size"] = np.full(count, 16384.0)
+    values["runout_offset"] = np.full(count, rng.uniform(0.0, 20e-6))  # a few um, like a real tool holder
+    values["runout_angle"] = np.full(count, rng.uniform(0.0, TWO_PI))
+    values["displacement_x"] = rng.uniform(-20e-6, 20e-6, count)  # a vibrating tool: the regenerative chip
+    values["displacement_y"] = rng.uniform(-20e-6, 20e-6, count)
     if count > 7:  # a stopped spindle (no forces, a warning) late enough to follow the FMU-state tests' snapshot
         values["spindle_speed"][7] = 0.0
     return values

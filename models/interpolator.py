@@ -49,7 +49,7 @@ from __future__ import annotations
 import math
 from dataclasses import dataclass, field
 from pathlib import Path as FilePath
-from typing import Mapping, Sequence
+from typing import Callable, Mapping, Sequence
 
 import numpy as np
 
@@ -1411,46 +1411,37 @@ def reach_up(v0: float, length: float, a: float, j: float) -> float:
     return v0 + x
 
 
+def _bisect_fitting(fits: Callable[[float], bool], good: float, bad: float) -> float:
+    """Narrow [good, bad] (fits(good) holds, fits(bad) does not, fits changes once between them) by
+    BISECTIONS halvings and return the end that fits."""
+    for _ in range(BISECTIONS):
+        mid = 0.5 * (good + bad)
+        if fits(mid):
+            good = mid
+        else:
+            bad = mid
+    return good
+
+
 def lowest_feasible(v_high: float, v_low: float, length: float, a: float, j: float) -> float:
     """The lowest velocity in [v_low, v_high] to which one can slow down from v_high over length."""
     if s_curve_distance(v_low, v_high, a, j) <= length:
         return v_low
-    lo, hi = v_low, v_high
-    for _ in range(BISECTIONS):
-        mid = 0.5 * (lo + hi)
-        if s_curve_distance(mid, v_high, a, j) <= length:
-            hi = mid
-        else:
-            lo = mid
-    return hi
+    return _bisect_fitting(lambda v: s_curve_distance(v, v_high, a, j) <= length, v_high, v_low)
 
 
 def segment_peak(va: float, vb: float, length: float, cap: float, a: float, j: float) -> float:
     """Cruise velocity of a segment va -> vp -> vb of the given length: the highest up to cap when cap is
     above both ends, else the lowest from cap up (the segment starts or ends above its cap)."""
+
+    def fits(peak: float) -> bool:
+        return s_curve_distance(va, peak, a, j) + s_curve_distance(peak, vb, a, j) <= length
+
     top = max(va, vb)
     if cap >= top:
-        if s_curve_distance(va, cap, a, j) + s_curve_distance(cap, vb, a, j) <= length:
-            return cap
-        lo, hi = top, cap
-        for _ in range(BISECTIONS):
-            mid = 0.5 * (lo + hi)
-            if s_curve_distance(va, mid, a, j) + s_curve_distance(mid, vb, a, j) <= length:
-                lo = mid
-            else:
-                hi = mid
-        return lo
+        return cap if fits(cap) else _bisect_fitting(fits, top, cap)
     floor = max(cap, 0.0)
-    if s_curve_distance(va, floor, a, j) + s_curve_distance(floor, vb, a, j) <= length:
-        return floor
-    lo, hi = floor, top
-    for _ in range(BISECTIONS):
-        mid = 0.5 * (lo + hi)
-        if s_curve_distance(va, mid, a, j) + s_curve_distance(mid, vb, a, j) <= length:
-            hi = mid
-        else:
-            lo = mid
-    return hi
+    return floor if fits(floor) else _bisect_fitting(fits, top, floor)
 
 
 def s_curve_position(v0: float, v1: float, a: float, j: float, w: float) -> float:

@@ -81,6 +81,9 @@ def main(argv: list[str] | None = None) -> int:
     except KeyboardInterrupt:
         print(f"interrupted; results so far in {args.out / scenario.name}", file=sys.stderr)
         return 130
+    except OSError as exc:  # the results folder cannot be created or written (a file in the way, no space, ...)
+        print(f"error: cannot write the results to {args.out / scenario.name}: {exc}", file=sys.stderr)
+        return 1
     report = None
     if scenario.compare and result.rows:
         from orchestrator.report import write_report

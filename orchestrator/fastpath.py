@@ -163,10 +163,23 @@ def unsupported(scenario: Scenario) -> str:
         kind = scenario.variable(ref).type
         if kind not in kinds:
             return f"{ref} has type {kind}"
+    array = _fmi3_array(scenario, refs)
+    if array:
+        return array
     rec = scenario.recorded
     for i in scenario.inputs:
         if scenario.variable(i.target).type == "bool" and rec.channels[i.channel].dtype != np.bool_:
             return f"boolean input {i.target} is fed by the non-boolean channel {i.channel!r}"
+    return ""
+
+
+def _fmi3_array(scenario: Scenario, refs: Sequence[Any]) -> str:
+    """The compiled loop passes one value per value reference: an FMI 3 array (one reference, many values) is
+    for the Python path. (FMI 2 arrays are scalars and run on the fast path.)"""
+    for ref in refs:
+        array = scenario.variable(ref).array
+        if array:
+            return f"{ref.instance}.{array} is an FMI 3 array"
     return ""
 
 

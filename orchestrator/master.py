@@ -127,23 +127,27 @@ class _Slave:
                   modelIdentifier=inst.model_identifier, instanceName=inst.name)
         self.fmu, self.fmi3 = fmu, fmi3
         self.errors: deque[str] = deque(maxlen=3)  # the FMU's latest Discard/Error messages
-        if fmi3:
-            fmu.instantiate(logMessage=lambda env, status, category, message: self._log(status, message))
-        else:
-            # fmpy's native proxy formats the printf-style arguments before calling us, but it
-            # keeps only the logger installed last: route each message by its instance name.
-            fmi2_loggers[inst.name.encode()] = self._log
-            self._callbacks = fmi2CallbackFunctions()
-            self._callbacks.logger = fmi2CallbackLoggerTYPE(
-                lambda env, name, status, category, message:
-                    fmi2_loggers.get(name or b"", self._log)(status, message))
-            self._callbacks.allocateMemory = defaultCallbacks.allocateMemory
-            self._callbacks.freeMemory = defaultCallbacks.freeMemory
-            addLoggerProxy(ctypes.byref(self._callbacks))
-            fmu.instantiate(callbacks=self._callbacks)
+        try:
+            if fmi3:
+                fmu.instantiate(logMessage=lambda env, status, category, message: self._log(status, message))
+            else:
+                # fmpy's native proxy formats the printf-style arguments before calling us, but it
+                # keeps only the logger installed last: route each message by its instance name.
+                fmi2_loggers[inst.name.encode()] = self._log
+                self._callbacks = fmi2CallbackFunctions()
+                self._callbacks.logger = fmi2CallbackLoggerTYPE(
+                    lambda env, name, status, category, message:
+                        fmi2_loggers.get(name or b"", self._log)(status, message))
+                self._callbacks.allocateMemory = defaultCallbacks.allocateMemory
+                self._callbacks.freeMemory = defaultCallbacks.freeMemory
+                addLoggerProxy(ctypes.byref(self._callbacks))
+                fmu.instantiate(callbacks=self._callbacks)
+        except Exception as exc:  # fmpy raises a bare Exception when instantiate returns NULL
+            fmu.freeLibrary()
+            raise SimulationError(inst.name, scenario.start_time, "NULL", "instantiate", list(self.errors)) from exc
 
         def vrs(names: list[str]) -> Any:
-            return (vr_t * len(names))(*(inst.variables[n].value_reference for n in names))
+            return _value_references(inst, names, vr_t)
 
         def is_real(name: str) -> bool:
             return inst.variables[name].type == "real"
@@ -161,7 +165,7 @@ class _Slave:
         wanted = [c.source.variable for c in scenario.connections if c.source.instance == inst.name]
         self.feeds_connections = bool(wanted)
         wanted += [r.variable for r in scenario.outputs if r.instance == inst.name]
-        wanted = list(dict.fromkeys(wanted))
+        wanted = _whole_arrays(inst, list(dict.fromkeys(wanted)))
         real_out = [n for n in wanted if is_real(n)]
         bool_out = [n for n in wanted if inst.variables[n].type == "bool"]
         int_out = [n for n in wanted if inst.variables[n].type == "int"]
@@ -194,7 +198,7 @@ class _Slave:
                                    (get_b, self.vr_bool_out, self.bool_out, calls_out),
                                    (get_i, self.vr_int_out, self.int_out, calls_out)):
             if len(vr):
-                calls.append(partial(fn, c, vr, len(vr), buf, *extra(len(vr))))
+                calls.append(partial(fn, c, vr, len(vr), buf, *extra(len(buf))))  # FMI 3 arrays: all elements
         self._set_calls, self._get_calls = tuple(calls_in), tuple(calls_out)
         if fmi3:
             flags = [ctypes.c_bool() for _ in range(3)] + [fmi3Float64()]
@@ -269,6 +273,35 @@ class _Slave:
             self.fmu.terminate()
         finally:
             self.fmu.freeInstance()
+
+
+def _whole_arrays(inst: FmuInstance, names: list[str]) -> list[str]:
+    """``names`` with each element of an FMI 3 array replaced, where the array first appears, by all its
+    elements in order: FMI 3 gets an array whole (one value reference, all its values)."""
+    out: list[str] = []
+    for name in names:
+        array = inst.variables[name].array
+        out += list(inst.variables[array].elements) if array else [name]
+    return list(dict.fromkeys(out))
+
+
+def _value_references(inst: FmuInstance, names: list[str], vr_type: Any) -> Any:
+    """The value references of ``names`` (one per value buffer slot), except that the elements of an FMI 3
+    array, which must follow each other completely and in order, are its one value reference."""
+    refs: list[int] = []
+    i = 0
+    while i < len(names):
+        var = inst.variables[names[i]]
+        if var.array:
+            elements = inst.variables[var.array].elements
+            if tuple(names[i:i + len(elements)]) != elements:
+                raise ValueError(f"instance {inst.name!r}: the elements of the FMI 3 array {var.array!r} must be "
+                                 "set or read whole and in order")
+            i += len(elements)
+        else:
+            i += 1
+        refs.append(var.value_reference)
+    return (vr_type * len(refs))(*refs)
 
 
 def _wire(slaves: dict[str, _Slave], scenario: Scenario) -> None:

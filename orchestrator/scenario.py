@@ -45,6 +45,10 @@ Format (all times in seconds; paths are relative to the scenario file's folder):
     to = "power.mrr"
     delay = false               # true: value of the previous communication point
 
+    [[connections]]             # a whole array -> an array input of the same shape, element by element
+    from = "workpiece.engagement"   # FMI 3: one array variable; FMI 2: the scalars engagement[i,j]
+    to = "force.engagement"
+
     [outputs]
     record = ["power.P_total"]  # default: every output of every instance (Real, Boolean, Int32)
 
@@ -73,7 +77,11 @@ the FMU's min/max (Integer/Int32 ones take TOML integers); an instance's constan
 connections target ``input`` variables of type Real/Float64 or Boolean, each input at
 most once; units of connected variables (and of a channel and the input it feeds)
 have the same dimension, and the factor between them is applied by the master;
-booleans connect only to booleans. Step sizes are positive; the base step is their greatest common divisor
+booleans connect only to booleans. Arrays (Float64 with fixed dimensions in FMI 3; in FMI 2 the complete
+groups of scalars ``name[i,j]``) are named whole in connections and ``record`` (they stand for their
+elements, 1-based ``name[i,j]`` in row-major order, which may also be named one by one); an FMI 3 array input
+is set whole, so it is fed by one connection from an array of the same shape, never element by element, by
+a recorded channel or as a constant. Step sizes are positive; the base step is their greatest common divisor
 (computed on the decimal values, to 1e-9 s) and must be at least 1/10000 of the
 largest step; ``output_interval`` must be a multiple of it. Connections with
 ``delay = false`` must not form a cycle between instances (an algebraic loop; the
@@ -85,12 +93,14 @@ from __future__ import annotations
 import math
 import re
 import tomllib
+import zipfile
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field, replace
 from fractions import Fraction
 from pathlib import Path
 from typing import Any, NoReturn
 
+import fmpy
 from fmpy import read_model_description
 
 from orchestrator.toml_access import TomlAccess
@@ -130,6 +140,13 @@ class Variable:
     unit: str
     min: float | None = None
     max: float | None = None
+    # A whole array (type "real[]"; FMI 3: one variable, FMI 2: a group of scalars "name[i,j]"): its shape and
+    # the names of its elements, row-major. In FMI 3 each element is also a Variable of type "real" with the
+    # array's value reference, ``array`` its array's name and ``element`` its position.
+    shape: tuple[int, ...] = ()
+    elements: tuple[str, ...] = ()
+    array: str = ""
+    element: int = 0
 
 
 @dataclass(frozen=True)
@@ -223,11 +240,51 @@ def _variables(md: Any) -> dict[str, Variable]:
     out = {}
     for v in md.modelVariables:
         unit = v.unit or (v.declaredType.unit if v.declaredType is not None else None) or ""
-        kind = _SUPPORTED_TYPES.get(v.type, v.type) if not v.dimensions else f"{v.type}[]"
-        bound = lambda x: float(x) if x is not None and kind in ("real", "int") else None  # noqa: E731
+        kind = _SUPPORTED_TYPES.get(v.type, v.type) if not v.dimensions else f"{_SUPPORTED_TYPES.get(v.type, v.type)}[]"
+        bound = lambda x: float(x) if x is not None and kind in ("real", "int", "real[]") else None  # noqa: E731
         out[v.name] = Variable(v.name, v.valueReference, kind, v.causality, v.variability,
                                "bool" if kind == "bool" else unit, bound(v.min), bound(v.max))
+    return {**out, **_arrays(md, out)}
+
+
+_ELEMENT_RE = re.compile(r"^(?P<name>[^\[\]]+)\[(?P<index>\d+(?:,\d+)*)\]$")
+
+
+def _arrays(md: Any, variables: Mapping[str, Variable]) -> dict[str, Variable]:
+    """Arrays as the scenario addresses them: ``name`` the whole array (connected or recorded element by
+    element), ``name[i,j]`` (1-based, row-major) its elements. FMI 3: from each Float64 variable with fixed
+    <Dimension>s, its elements added; FMI 2: from the complete groups of scalars named ``name[i,j]``."""
+    out: dict[str, Variable] = {}
+    for v in md.modelVariables:
+        whole = variables[v.name]
+        if not v.dimensions or whole.type != "real[]" or any(d.start is None for d in v.dimensions):
+            continue
+        shape = tuple(int(d.start) for d in v.dimensions)
+        names = tuple(f"{v.name}[{','.join(str(i + 1) for i in index)}]" for index in _row_major(shape))
+        out[v.name] = replace(whole, shape=shape, elements=names)
+        for k, name in enumerate(names):
+            out[name] = replace(whole, name=name, type="real", array=v.name, element=k)
+    groups: dict[str, list[tuple[tuple[int, ...], Variable]]] = {}
+    for name, var in variables.items():
+        match = _ELEMENT_RE.match(name)
+        if match and var.type == "real" and match["name"] not in variables:
+            groups.setdefault(match["name"], []).append((tuple(int(i) for i in match["index"].split(",")), var))
+    for name, members in groups.items():
+        shape = tuple(max(index[d] for index, _ in members) for d in range(len(members[0][0])))
+        if any(len(index) != len(shape) for index, _ in members) or len(members) != math.prod(shape):
+            continue  # not a complete array
+        members.sort(key=lambda m: m[0])
+        first = members[0][1]
+        out[name] = replace(first, name=name, value_reference=-1, type="real[]", shape=shape,
+                            elements=tuple(var.name for _, var in members))
     return out
+
+
+def _row_major(shape: tuple[int, ...]) -> list[tuple[int, ...]]:
+    indices: list[tuple[int, ...]] = [()]
+    for n in shape:
+        indices = [index + (i,) for index in indices for i in range(n)]
+    return indices
 
 
 def _load_fmu(ctx: _Ctx, name: str, table: dict, fmu_dir: Path) -> tuple[dict, Path, Any]:
@@ -255,6 +312,14 @@ def _load_fmu(ctx: _Ctx, name: str, table: dict, fmu_dir: Path) -> tuple[dict, P
         ctx.fail(f"{key}.fmi", f"{path} is an FMI {md.fmiVersion} FMU, not FMI {fmi}")
     if md.coSimulation is None:
         ctx.fail(f"{key}.fmu", f"{path} does not support co-simulation")
+    binary = (f"binaries/{fmpy.platform_tuple if fmi == 3 else fmpy.platform}/"
+              f"{md.coSimulation.modelIdentifier}{fmpy.sharedLibraryExtension}")
+    with zipfile.ZipFile(path) as archive:
+        names = archive.namelist()
+    if binary not in names:  # else fmpy fails at instantiation with a bare Exception
+        folders = sorted({n.split("/")[1] for n in names if n.startswith("binaries/") and n.count("/") >= 2})
+        ctx.fail(f"{key}.fmu", f"{path} has no binary for this platform ({binary}); its binaries/ holds "
+                               f"{', '.join(folders) if folders else 'nothing'}")
     return table, path, md
 
 
@@ -274,8 +339,9 @@ def _parameters(ctx: _Ctx, inst: str, table: Any, variables: Mapping[str, Variab
         if var is None or var.causality != causality:
             what = "unknown variable" if var is None else f"{var.causality} variable"
             ctx.fail(k, f"{what} {name!r} in {model}; known {section}: {', '.join(known)}")
-        if var.type not in ("real", "bool", "int", "string"):
-            ctx.fail(k, f"{causality} {name!r} has unsupported type {var.type}")
+        if var.type not in ("real", "bool", "int", "string") or var.array:
+            what = f"an element of the FMI 3 array {var.array!r}" if var.array else f"of unsupported type {var.type}"
+            ctx.fail(k, f"{causality} {name!r} is {what}: arrays are set from connections only")
         if var.type == "string":  # text as given, or { path = "..." }: a file relative to the scenario
             if isinstance(raw, dict):
                 ctx.table(raw, k, ("path",))
@@ -396,8 +462,10 @@ def _recorded(ctx: _Ctx, table: Any) -> RecordedData:
 
 
 def _resolve(ctx: _Ctx, key: str, text: Any, instances: Mapping[str, FmuInstance],
-             causality: str | None, types: Sequence[str] = ("real", "bool")) -> tuple[Ref, Variable]:
-    """Look up "instance.variable"; ``causality`` None accepts any; ``types``: the accepted types."""
+             causality: str | None, whole_arrays: bool = False,
+             types: Sequence[str] = ("real", "bool")) -> tuple[Ref, Variable]:
+    """Look up "instance.variable"; ``causality`` None accepts any; ``whole_arrays``: an array may be named;
+    ``types``: the accepted scalar types."""
     if not isinstance(text, str) or "." not in text:
         ctx.fail(key, f"expected \"instance.variable\", got {text!r}")
     inst_name, var_name = text.split(".", 1)
@@ -414,14 +482,44 @@ def _resolve(ctx: _Ctx, key: str, text: Any, instances: Mapping[str, FmuInstance
     if causality is not None and var.causality != causality:
         ctx.fail(key, f"{text} is {_a(var.causality)}, not {_a(causality)}; {what} of {inst_name}: "
                       f"{', '.join(candidates)}")
+    if var.type == "real[]" and whole_arrays:
+        return Ref(inst_name, var_name), var
+    if var.type == "real[]":
+        ctx.fail(key, f"{text} is {_what(var)}: connect it to an array input of the same shape "
+                      f"([[connections]]), record it whole, or name one element, e.g. {var.elements[0]}")
     if var.type not in types:
         names = {"real": "Real/Float64", "bool": "Boolean", "int": "Integer/Int32"}
         ctx.fail(key, f"{text} has unsupported type {var.type} (only {' and '.join(names[x] for x in types)})")
     return Ref(inst_name, var_name), var
 
 
+def _shape(var: Variable) -> str:
+    return "x".join(str(n) for n in var.shape)
+
+
+def _resolve_all(ctx: _Ctx, key: str, text: Any, instances: Mapping[str, FmuInstance],
+                 causality: str | None, types: Sequence[str] = ("real", "bool")) -> list[tuple[Ref, Variable]]:
+    """Like _resolve, but a whole array stands for its elements, row-major."""
+    ref, var = _resolve(ctx, key, text, instances, causality, whole_arrays=True, types=types)
+    if var.type != "real[]":
+        return [(ref, var)]
+    variables = instances[ref.instance].variables
+    return [(Ref(ref.instance, name), variables[name]) for name in var.elements]
+
+
+def _settable_element(ctx: _Ctx, key: str, ref: Ref, var: Variable) -> None:
+    """FMI 3 sets an array whole: one of its elements cannot be fed on its own."""
+    if var.array:
+        ctx.fail(key, f"{ref} is an element of the FMI 3 array {ref.instance}.{var.array}, which is set whole: "
+                      f"connect the whole array (to = \"{ref.instance}.{var.array}\") from an array output")
+
+
 def _a(word: str) -> str:
     return f"an {word}" if word[0] in "aeiou" else f"a {word}"
+
+
+def _what(var: Variable) -> str:
+    return f"an array of {_shape(var)} values" if var.shape else "a scalar"
 
 
 def _array(ctx: _Ctx, doc: dict, name: str, allowed: Sequence[str]) -> list[tuple[str, dict]]:
@@ -540,6 +638,7 @@ def load_scenario(path: str | Path, fmu_dir: str | Path, parameter_sets: Sequenc
             known = ", ".join(recorded.channels) if recorded else "none (no [recorded] section)"
             ctx.fail(f"{key}.from", f"unknown recorded channel {channel!r}; channels: {known}")
         ref, var = _resolve(ctx, f"{key}.to", item.get("to"), instances, "input")
+        _settable_element(ctx, f"{key}.to", ref, var)
         interpolation = ctx.string(item, key, "interpolation", "linear")
         if interpolation not in ("linear", "hold"):
             ctx.fail(f"{key}.interpolation", f"expected \"linear\" or \"hold\", got {interpolation!r}")
@@ -558,26 +657,35 @@ def load_scenario(path: str | Path, fmu_dir: str | Path, parameter_sets: Sequenc
 
     conns = []
     for key, item in _array(ctx, doc, "connections", ("from", "to", "delay")):
-        src, svar = _resolve(ctx, f"{key}.from", item.get("from"), instances, "output")
-        dst, dvar = _resolve(ctx, f"{key}.to", item.get("to"), instances, "input")
+        sources = _resolve_all(ctx, f"{key}.from", item.get("from"), instances, "output")
+        targets = _resolve_all(ctx, f"{key}.to", item.get("to"), instances, "input")
+        if len(sources) > 1 or len(targets) > 1:  # an array to an array of the same shape, element by element
+            src_var = instances[sources[0][0].instance].variables[item["from"].split(".", 1)[1]]
+            dst_var = instances[targets[0][0].instance].variables[item["to"].split(".", 1)[1]]
+            if src_var.shape != dst_var.shape:
+                ctx.fail(f"{key}.to", f"shape mismatch: {item['from']} is {_what(src_var)}, {item['to']} "
+                                      f"is {_what(dst_var)}")
+        elif targets[0][1].array:
+            _settable_element(ctx, f"{key}.to", *targets[0])
         delay = item.get("delay", False)
         if not isinstance(delay, bool):
             ctx.fail(f"{key}.delay", f"expected true or false, got {delay!r}")
-        try:
-            factor = _factor(svar.unit, dvar.unit)
-        except UnitError as exc:
-            ctx.fail(f"{key}.to", f"unit mismatch: {src} ({svar.unit or 'no unit'}) -> "
-                                  f"{dst} ({dvar.unit or 'no unit'}): {exc}")
-        feed(key, dst)
-        conns.append((key, Connection(src, dst, delay, factor)))
+        for (src, svar), (dst, dvar) in zip(sources, targets):
+            try:
+                factor = _factor(svar.unit, dvar.unit)
+            except UnitError as exc:
+                ctx.fail(f"{key}.to", f"unit mismatch: {src} ({svar.unit or 'no unit'}) -> "
+                                      f"{dst} ({dvar.unit or 'no unit'}): {exc}")
+            feed(key, dst)
+            conns.append((key, Connection(src, dst, delay, factor)))
 
     out_table = ctx.table(doc.get("outputs", {}), "[outputs]", ("record",))
     if "record" in out_table:
         names = out_table["record"]
         if not isinstance(names, list):
             ctx.fail("[outputs].record", "expected an array of \"instance.variable\" strings")
-        outputs = [_resolve(ctx, f"[outputs].record[{i}]", s, instances, None, RECORDABLE_TYPES)[0]
-                   for i, s in enumerate(names)]
+        outputs = [ref for i, s in enumerate(names)
+                   for ref, _ in _resolve_all(ctx, f"[outputs].record[{i}]", s, instances, None, RECORDABLE_TYPES)]
     else:
         outputs = [Ref(i.name, v.name) for i in instances.values()
                    for v in i.variables.values() if v.causality == "output" and v.type in RECORDABLE_TYPES]

@@ -20,6 +20,8 @@ class TomlAccess:
         raise type(self).error(self.path, key, message)
 
     def table(self, value: Any, key: str, allowed: Sequence[str]) -> dict[str, Any]:
+        if value is None:  # absent (an empty or truncated file lacks every table)
+            self.fail(key, "missing required table")
         if not isinstance(value, dict):
             self.fail(key, f"expected a table, got {type(value).__name__} {value!r}")
         for name in value:

@@ -7,6 +7,8 @@ from pathlib import Path
 
 import pytest
 
+from orchestrator.calibrate.synthetic import TWO_FMU_CASE, edited
+
 REPO_ROOT = Path(__file__).resolve().parents[1]
 FMU_NAMES = ("SpindlePower", "MrrEstimator")
 
@@ -20,75 +22,9 @@ speed,vx,vy,process,power
 0,0,0,End,0.1
 """
 
-# "power" is listed before "mrr" on purpose: the execution order must still be mrr, power.
-CASE_TOML = """\
-[scenario]
-name = "case"
-output_interval = 0.1
-
-[fmus.power]
-fmu = "SpindlePower"
-fmi = 3
-step_size = 0.1
-[fmus.power.parameters]
-P_standby = 100.0
-P_idle = { value = 0.2, unit = "kW" }
-c1 = 0.5
-c2 = 1000.0
-c3 = 1.0
-
-[fmus.mrr]
-fmu = "MrrEstimator"
-fmi = 3
-step_size = 0.1
-[fmus.mrr.parameters]
-width_of_cut = { value = 5.0, unit = "mm" }
-depth_of_cut = { value = 2.0, unit = "mm" }
-
-[recorded]
-file = "data.csv"
-sample_period = 0.1
-[recorded.channels]
-speed = { column = "speed", unit = "rev/s" }
-spindle_on = { column = "speed", unit = "rev/s", above = 1.0 }
-vx = { column = "vx", unit = "mm/s" }
-vy = { column = "vy", unit = "mm/s" }
-cutting = { column = "process", match = "^Layer" }
-power = { column = "power", unit = "kW" }
-
-[[inputs]]
-from = "speed"
-to = "power.spindle_speed"
-interpolation = "hold"
-
-[[inputs]]
-from = "spindle_on"
-to = "power.spindle_on"
-
-[[inputs]]
-from = "vx"
-to = "mrr.feed_velocity_x"
-
-[[inputs]]
-from = "vy"
-to = "mrr.feed_velocity_y"
-
-[[inputs]]
-from = "cutting"
-to = "mrr.cutting"
-
-[[connections]]
-from = "mrr.mrr"
-to = "power.mrr"
-delay = false
-
-[outputs]
-record = ["power.P_total", "mrr.mrr", "power.spindle_on"]
-
-[[compare]]
-simulated = "power.P_total"
-recorded = "power"
-"""
+# The two-FMU case (SpindlePower + MrrEstimator): one text for these tests and the synthetic power
+# calibration case, which edits it (orchestrator/calibrate/synthetic.py).
+CASE_TOML = TWO_FMU_CASE
 
 
 @pytest.fixture(scope="session")
@@ -114,10 +50,7 @@ def make_case(tmp_path: Path) -> Callable[..., Path]:
     of the TOML (each must apply), ``csv`` replaces the data. Returns the TOML path."""
 
     def make(*edits: tuple[str, str], csv: str = CASE_CSV, name: str = "case.toml") -> Path:
-        text = CASE_TOML
-        for old, new in edits:
-            assert old in text, f"edit does not apply: {old!r}"
-            text = text.replace(old, new, 1)
+        text = edited(CASE_TOML, *edits)
         (tmp_path / "data.csv").write_text(csv)
         path = tmp_path / name
         path.write_text(text)
@@ -144,30 +77,39 @@ record = ["power.P_total", "power.spindle_on"]
 LONG_P_TOTAL = 300.0
 
 
+def start_run(scenario: Path, fmu_dir: Path, tmp_path: Path, *options: str):
+    """Start the CLI on ``scenario`` in a subprocess writing to tmp_path/runs; returns the process.
+    TMPDIR: a killed run cannot remove its extracted FMUs; keep them in pytest's tmp_path."""
+    import subprocess
+    import sys
+
+    return subprocess.Popen(
+        [sys.executable, "-m", "orchestrator", "run", str(scenario), "--fmu-dir", str(fmu_dir),
+         "--out", str(tmp_path / "runs"), "--no-progress", *options],
+        cwd=REPO_ROOT, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
+        env={**os.environ, "TMPDIR": str(tmp_path)})
+
+
+def wait_for_first_chunk(proc, run_dir: Path, timeout: float = 60.0) -> None:
+    import time
+
+    deadline = time.monotonic() + timeout
+    while not list((run_dir / "chunks").glob("chunk_*.parquet")):
+        assert proc.poll() is None, f"run ended early: {proc.communicate()}"
+        assert time.monotonic() < deadline, f"no chunk within {timeout} s"
+        time.sleep(0.02)
+
+
 @pytest.fixture
 def long_run(tmp_path: Path, fmu_dir: Path):
     """Start the CLI on a run of ~10 minutes in a subprocess; yields (process, run folder)
     once the first chunk is on disk. The process is killed at teardown if still alive."""
-    import subprocess
-    import sys
-    import time
-
     scenario = tmp_path / "long.toml"
     scenario.write_text(LONG_TOML)
-    out = tmp_path / "runs"
-    # TMPDIR: a killed run cannot remove its extracted FMUs; keep them in pytest's tmp_path
-    proc = subprocess.Popen(
-        [sys.executable, "-m", "orchestrator", "run", str(scenario), "--fmu-dir", str(fmu_dir),
-         "--out", str(out), "--no-progress"],
-        cwd=REPO_ROOT, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
-        env={**os.environ, "TMPDIR": str(tmp_path)})
-    run_dir = out / "long"
-    deadline = time.monotonic() + 60
+    proc = start_run(scenario, fmu_dir, tmp_path)
+    run_dir = tmp_path / "runs" / "long"
     try:
-        while not list((run_dir / "chunks").glob("chunk_*.parquet")):
-            assert proc.poll() is None, f"run ended early: {proc.communicate()}"
-            assert time.monotonic() < deadline, "no chunk within 60 s"
-            time.sleep(0.05)
+        wait_for_first_chunk(proc, run_dir)
         yield proc, run_dir
     finally:
         if proc.poll() is None:

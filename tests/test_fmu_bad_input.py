@@ -5,6 +5,10 @@ from __future__ import annotations
 
 import ctypes
 import math
+import shutil
+import time
+import zipfile
+from collections.abc import Callable
 from pathlib import Path
 
 import numpy as np
@@ -31,6 +35,7 @@ from fmu_helpers import (
     random_arguments,
     require_fmu,
     row,
+    scalar_inputs,
     split_fmu_name,
     status_of,
 )
@@ -82,7 +87,7 @@ def derived_case(identifier: str) -> dict:
     above the maximum and one below the minimum of the first few ranged variables."""
     model = MODELS[identifier]
     ranged = [v for v in model.variables if v.causality in ("parameter", "input") and v.type != "Boolean"
-              and v.min is not None and v.max is not None][:3]
+              and v.min is not None and v.max is not None and not v.shape][:3]
     out_of_range = []
     for v in ranged:
         span = v.max - v.min
@@ -91,7 +96,7 @@ def derived_case(identifier: str) -> dict:
             unit = f" {v.unit}" if v.unit else ""
             out_of_range.append((v.name, value, f"= {c_number(value)}{unit} is out of its allowed range "
                                                f"[{c_number(v.min)}, {c_number(v.max)}]{unit}"))
-    inputs = [v for v in model.variables if v.causality == "input"]
+    inputs = [v for v in model.variables if v.causality == "input" and not v.shape]
     return {
         "out_of_range": out_of_range,
         "real_input": next(v.name for v in inputs if v.type == "Float64"),
@@ -241,7 +246,8 @@ def test_range_limits_themselves_are_accepted(fmu: Path) -> None:
     with Slave(fmu) as slave:
         slave.instantiate()
         for bound in ("min", "max"):
-            point = {v.name: getattr(v, bound) for v in model.of("parameter") + model.of("input") if v.type != "Boolean"}
+            point = {v.name: getattr(v, bound) for v in model.of("parameter") + scalar_inputs(model)
+                     if v.type != "Boolean" and not v.shape}
             slave.set(point)
         slave.initialize()
         assert slave.step(1e-3) in (OK, WARNING)
@@ -425,7 +431,7 @@ def test_reset_restores_start_values(slave: Slave) -> None:
     slave.initialize()
     assert slave.get(["time"])[0] == 0.0
     names = [v.name for v in model.of("parameter") + model.of("input") if v.type == "Float64"]
-    assert_close(slave.get(names), [model.variable(n).start for n in names])
+    assert_close(slave.get(names), [model.variable(n).start for n in names for _ in range(model.variable(n).size)])
     assert_close(slave.get(output_names(model)), expected_outputs(model, {})[0])
 
 
@@ -636,3 +642,288 @@ def test_events_are_logged_only_with_debug_logging_on(fmu: Path) -> None:
         verbose.initialize()
         assert verbose.messages == []
         assert verbose.step(0.0) == ERROR and len(verbose.errors()) == 1
+
+
+# ---- the bad-input matrix (README "Bad input: what you get"): zero, negative and huge values, huge steps,
+# call order, missing resources ----
+
+
+def _ranged(model) -> list:
+    """Scalar parameters and inputs with a range (min and max in the model description)."""
+    return [v for v in model.of("parameter") + model.of("input")
+            if v.type != "Boolean" and not v.shape and v.min is not None and v.max is not None]
+
+
+def _range_message(slave: Slave, v, value: float) -> str:
+    unit = f" {v.unit}" if v.unit else ""
+    return (f"{set_name(slave, v.name)}: variable '{v.name}' = {c_number(value)}{unit} is out of its allowed range "
+            f"[{c_number(v.min)}, {c_number(v.max)}]{unit}")
+
+
+def test_zero_or_negative_where_positive_is_required_is_rejected(fmu: Path) -> None:
+    """Every variable whose minimum is above zero (periods, feeds, stiffnesses, diameters, counts, ...) rejects
+    0 and a negative value, naming the variable, the value and the range. MrrEstimator has none: a zero width
+    or depth of cut is a valid "no cut"."""
+    model = model_of(fmu)
+    positive = [v for v in _ranged(model) if v.min > 0]
+    assert positive or model.identifier == "MrrEstimator"
+    with Slave(fmu) as slave:
+        slave.instantiate()
+        for v in positive:
+            for value in (0.0, -1.0 if v.type == "Int32" else -v.min):
+                assert status_of(lambda: slave.set({v.name: value})) == ERROR, v.name
+                assert slave.last_error() == _range_message(slave, v, value)
+                slave.fmu.reset()
+        slave.initialize()  # nothing rejected was applied
+        assert slave.step(1e-3) in (OK, WARNING)
+
+
+def test_huge_values_are_rejected_with_their_range(fmu: Path) -> None:
+    """1e300 (Float64) or 2^31 - 1 (Int32) and their negatives, for every ranged parameter and input."""
+    model = model_of(fmu)
+    with Slave(fmu) as slave:
+        slave.instantiate()
+        for v in _ranged(model):
+            huge = 2.0**31 - 1 if v.type == "Int32" else 1e300
+            for value in (huge, -huge if v.type != "Int32" else -(2.0**31)):
+                assert status_of(lambda: slave.set({v.name: value})) == ERROR, v.name
+                assert slave.last_error() == _range_message(slave, v, value)
+                slave.fmu.reset()
+
+
+@pytest.mark.parametrize("values", ["start", "max"])
+def test_a_huge_step_returns_at_once_with_finite_outputs(fmu: Path, values: str) -> None:
+    """doStep over 1e9 s (start values, or every parameter and input at its maximum): it returns within a
+    second, with finite outputs, and the next step works."""
+    model = model_of(fmu)
+    point = {} if values == "start" else {v.name: v.max for v in _ranged(model)}
+    with Slave(fmu) as slave:
+        slave.instantiate()
+        slave.initialize(point)
+        start = time.perf_counter()
+        assert slave.step(1e9) in (OK, WARNING), slave.messages
+        assert time.perf_counter() - start < 1.0
+        assert np.all(np.isfinite(slave.get(output_names(model))))
+        assert slave.step(1e-3) in (OK, WARNING)
+        assert not slave.errors()
+
+
+@pytest.mark.parametrize("version", [3, 2])
+def test_interpolator_step_after_the_program_end_equals_small_steps(version: int) -> None:
+    """The Interpolator skips the ticks after its program's end: one 60 s step gives the outputs of 60,000
+    steps of 1 ms, and a 1e9 s step (1e12 periods) returns at once."""
+    path = require_fmu(fmu_dir() / ("Interpolator.fmu" if version == 3 else "Interpolator_fmi2.fmu"))
+    names = output_names(model_of(path))
+    rows = []
+    for steps in ([60.0], [1e-3] * 60_000):
+        with Slave(path) as slave:
+            slave.instantiate()
+            slave.initialize()
+            for h in steps:
+                assert slave.step(h) == OK
+            assert slave.get(["finished"])[0] == 1.0  # the default program ends before 60 s
+            rows.append(slave.get(names))
+            start = time.perf_counter()
+            assert slave.step(1e9) == OK
+            assert time.perf_counter() - start < 0.1
+            assert np.array_equal(slave.get(names), rows[-1])  # at rest at the program's end
+    assert np.array_equal(rows[0], rows[1])
+
+
+
+@pytest.mark.parametrize("version", [3, 2])
+def test_interpolator_step_in_a_feed_hold_equals_small_steps(version: int) -> None:
+    """Feed hold (feed_override = 0) in the middle of the program: once the tool stands still the Interpolator
+    skips the ticks, so a 60 s step gives what 60,000 steps of 1 ms give, a 1e9 s step returns at once, and
+    after the hold is released both continue identically."""
+    path = require_fmu(fmu_dir() / ("Interpolator.fmu" if version == 3 else "Interpolator_fmi2.fmu"))
+    names = output_names(model_of(path))
+    runs = []
+    for steps in ([60.0], [1e-3] * 60_000):
+        with Slave(path) as slave:
+            slave.instantiate()
+            slave.initialize()
+            assert slave.step(0.5) == OK
+            slave.set({"feed_override": 0.0})
+            for h in steps:
+                assert slave.step(h) == OK
+            held = slave.get(names)
+            assert slave.get(["feed", "finished"]).tolist() == [0.0, 0.0]  # stopped mid-program
+            start = time.perf_counter()
+            assert slave.step(1e9) == OK
+            assert time.perf_counter() - start < 0.1
+            assert np.array_equal(slave.get(names), held)
+            slave.set({"feed_override": 1.0})
+            for _ in range(2000):
+                assert slave.step(1e-3) == OK
+            runs.append((held, slave.get(names)))
+    assert np.array_equal(runs[0][0], runs[1][0]) and np.array_equal(runs[0][1], runs[1][1])
+    assert not np.array_equal(runs[0][0], runs[0][1])  # it moved again after the hold
+
+def test_wrong_call_order_is_an_illegal_call_sequence(slave: Slave) -> None:
+    p = slave.prefix
+    expected = "{}: illegal call sequence: not allowed in state {}"
+    assert status_of(lambda: slave.fmu.exitInitializationMode()) == ERROR
+    assert slave.last_error() == expected.format(f"{p}ExitInitializationMode", "Instantiated")
+    slave.fmu.reset()
+    assert status_of(lambda: slave.fmu.terminate()) == ERROR
+    assert slave.last_error() == expected.format(f"{p}Terminate", "Instantiated")
+    slave.fmu.reset()
+    slave.enter_initialization()
+    assert status_of(lambda: slave.enter_initialization()) == ERROR
+    first = f"{p}SetupExperiment" if slave.fmi_version == 2 else "fmi3EnterInitializationMode"
+    assert slave.last_error() == expected.format(first, "InitializationMode")
+    slave.fmu.reset()
+    slave.initialize()
+    if slave.fmi_version == 2:
+        assert status_of(lambda: slave.fmu.setupExperiment(startTime=0.0)) == ERROR
+        assert slave.last_error() == expected.format("fmi2SetupExperiment", "StepMode")
+        slave.fmu.reset()
+        slave.initialize()
+    assert slave.step(1e-3) == OK
+    slave.fmu.terminate()
+    assert slave.step(1e-3) == ERROR
+    assert slave.last_error() == expected.format(f"{p}DoStep", "Terminated")
+    slave.fmu.reset()
+    slave.initialize()
+    slave.fmu.terminate()
+    assert status_of(lambda: slave.fmu.terminate()) == ERROR
+    assert slave.last_error() == expected.format(f"{p}Terminate", "Terminated")
+    assert slave.fmu.reset() == OK  # and the instance is usable again
+    slave.initialize()
+    assert slave.step(1e-3) in (OK, WARNING)
+
+
+RESOURCE_FILES = {"Interpolator": "program.nc", "ForceNet": "weights.bin"}
+
+
+def test_a_missing_resources_folder_is_reported(fmu: Path, tmp_path: Path) -> None:
+    """The FMU unpacked without its resources/ folder (the importer still passes the location): the FMUs that
+    read a resource fail, naming the file they looked for; the others do not need one and run."""
+    identifier, version = split_fmu_name(fmu)
+    folder = tmp_path / "unpacked"
+    with zipfile.ZipFile(fmu) as archive:
+        archive.extractall(folder)
+    shutil.rmtree(folder / "resources", ignore_errors=True)
+    file = folder / "resources" / RESOURCE_FILES.get(identifier, "")
+    with Slave(fmu, unzipdir=str(folder)) as slave:
+        if identifier == "ForceNet":
+            with pytest.raises(Exception, match="Failed to instantiate"):
+                slave.instantiate()
+            function = "fmi3InstantiateCoSimulation" if version == 3 else "fmi2Instantiate"
+            assert slave.last_error() == (f"{function}: the force-net weights file cannot be read: cannot open "
+                                          f"'{file}': No such file or directory (the FMU's resources/ must hold "
+                                          "weights.bin, format in models/force_net.py)")
+            return
+        slave.instantiate()
+        slave.enter_initialization()
+        if identifier == "Interpolator":
+            assert status_of(lambda: slave.exit_initialization()) == ERROR
+            assert slave.last_error() == (f"exitInitializationMode: parameter 'program' is empty and cannot open "
+                                          f"part program '{file}': No such file or directory")
+            return
+        slave.exit_initialization()
+        assert slave.step(1e-3) in (OK, WARNING) and not slave.errors()
+
+
+def test_a_fixed_parameter_cannot_be_set_after_initialization(fmu: Path) -> None:
+    """Fixed parameters (sizes, counts, periods) are rejected after initialization, naming the variable; the
+    tunable ones of every FMU are accepted and take effect at the next step."""
+    model = model_of(fmu)
+    fixed = [v for v in _ranged(model) if v.causality == "parameter" and v.variability == "fixed"]
+    tunable = [v for v in _ranged(model) if v.causality == "parameter" and v.variability != "fixed"]
+    with Slave(fmu) as slave:
+        slave.instantiate()
+        slave.initialize()
+        for v in fixed:
+            assert status_of(lambda: slave.set({v.name: v.start})) == ERROR, v.name
+            assert slave.last_error() == (f"{set_name(slave, v.name)}: variable '{v.name}' (parameter) cannot be set "
+                                          "in state StepMode")
+            slave.fmu.reset()
+            slave.initialize()
+        for v in tunable:
+            slave.set({v.name: v.max})
+            assert slave.get([v.name])[0] == v.max
+        assert slave.step(1e-3) in (OK, WARNING) and len(slave.errors()) == len(fixed)
+
+
+# ---- array inputs (FMI 3: one variable with dimensions, FMI 2: one scalar per element) ----
+
+ARRAY_INPUTS = [(p, v.name) for p in FMUS for v in model_of(p).variables if v.shape and v.causality != "output"]
+
+
+def _array_setter(slave: Slave, name: str) -> tuple[str, Callable[[np.ndarray], None]]:
+    """(the FMI function's name, a call setting the whole array) in either version."""
+    if slave.fmi_version == 3:
+        return "fmi3SetFloat64", lambda values: slave.set_real([slave.vr[name]], list(values))
+    return "fmi2SetReal", lambda values: slave.set_real(slave.elements[name], list(values))
+
+
+def _element(v, flat: int) -> str:
+    return v.element_names()[flat]
+
+
+@pytest.mark.parametrize("fmu, name", ARRAY_INPUTS, ids=[f"{fmu_id(p)}-{n}" for p, n in ARRAY_INPUTS])
+@pytest.mark.parametrize("bad", [math.nan, math.inf, "above", "below"])
+def test_array_input_elements_are_checked_one_by_one(fmu: Path, name: str, bad) -> None:
+    """A NaN, Inf or out-of-range element is rejected with a message naming the element (1-based, as the FMI 2
+    variant names it), and the array keeps its values (FMI 3: no element of the rejected call is stored)."""
+    v = model_of(fmu).variable(name)
+    flat = v.size // 3 + 5  # some element inside, not the first
+    value = {"above": v.max + 1.0, "below": v.min - 0.5}.get(bad, bad)
+    with Slave(require_fmu(fmu)) as slave:
+        slave.instantiate()
+        slave.initialize()
+        function, set_all = _array_setter(slave, name)
+        good = np.linspace(v.min, v.max, v.size)
+        set_all(good)
+        values = good.copy()
+        values[flat] = value
+        assert status_of(lambda: set_all(values)) == ERROR
+        unit = f" {v.unit}" if v.unit else ""
+        if isinstance(bad, str):
+            expected = (f"{function}: variable '{_element(v, flat)}' = {c_number(value)}{unit} is out of its allowed "
+                        f"range [{c_number(v.min)}, {c_number(v.max)}]{unit}")
+        else:
+            expected = f"{function}: variable '{_element(v, flat)}' set to {value}: must be a finite number"
+        assert slave.last_error() == expected
+        if slave.fmi_version == 3:  # checked before any element is stored
+            assert np.array_equal(slave.get([name]), good)
+        else:  # one scalar per element: those before the bad one were set, the bad one not
+            assert np.array_equal(slave.get([name])[flat:], good[flat:])
+
+
+@pytest.mark.parametrize("fmu, name", ARRAY_INPUTS, ids=[f"{fmu_id(p)}-{n}" for p, n in ARRAY_INPUTS])
+def test_array_input_round_trips_and_is_part_of_fmu_states(fmu: Path, name: str) -> None:
+    v = model_of(fmu).variable(name)
+    rng = np.random.default_rng(9)
+    first, second = (rng.uniform(v.min, v.max, v.size) for _ in range(2))
+    with Slave(require_fmu(fmu), "first") as slave, Slave(fmu, "second") as other:
+        slave.instantiate()
+        slave.initialize()
+        assert np.array_equal(slave.get([name]), np.full(v.size, v.start))  # the start value in every element
+        _, set_all = _array_setter(slave, name)
+        set_all(first)
+        assert np.array_equal(slave.get([name]), first)
+        if slave.fmi_version == 3:  # one value reference, nValues counts the elements
+            assert status_of(lambda: slave.fmu.fmi3SetFloat64(
+                slave.fmu.component, (fmi3ValueReference * 1)(slave.vr[name]), 1,
+                (fmi3Float64 * (v.size - 1))(*first[1:]), v.size - 1)) == ERROR
+            assert slave.last_error() == (f"fmi3SetFloat64: nValues = {v.size - 1} but the 1 value references "
+                                          f"stand for {v.size} values (arrays count all their elements)")
+            slave.fmu.reset()
+            slave.initialize()
+            set_all(first)
+        state = slave.fmu.getFMUState()
+        set_all(second)
+        assert np.array_equal(slave.get([name]), second)
+        slave.set_state(state)
+        assert np.array_equal(slave.get([name]), first)
+        data = slave.fmu.serializeFMUState(state)
+        slave.fmu.freeFMUState(state)
+        other.instantiate()
+        restored = other.fmu.deserializeFMUState(data)
+        other.set_state(restored)
+        other.fmu.freeFMUState(restored)
+        assert np.array_equal(other.get([name]), first)
+        assert len(slave.errors()) == (1 if slave.fmi_version == 3 else 0) and not other.errors()

@@ -31,6 +31,7 @@ from fmu_helpers import (
     random_arguments,
     require_fmu,
     row,
+    scalar_inputs,
     simulate_points,
     split_fmu_name,
 )
@@ -94,7 +95,7 @@ def test_simulate_fmu_gives_the_model_outputs(fmu: Path) -> None:
     model = model_of(fmu)
     rng = np.random.default_rng(7)
     values = random_arguments(model, 8, rng)
-    inputs = model.of("input")
+    inputs = scalar_inputs(model)
     for i in range(2, 5):  # random (not corner) points
         point = row(values, i)
         parameters = {v.name: point[v.name] for v in numeric_parameters(model)}
@@ -185,7 +186,7 @@ def test_fmi2_fmu_runs_in_libcosim_like_in_fmpy(fmu2: Path) -> None:
     model = model_of(fmu2)
     values = random_arguments(model, 12, np.random.default_rng(11))
     parameters = {v.name: float(values[v.name][5]) for v in numeric_parameters(model)}
-    inputs = [{v.name: float(values[v.name][i]) for v in model.of("input")} for i in range(2, 12)]
+    inputs = [{v.name: float(values[v.name][i]) for v in scalar_inputs(model)} for i in range(2, 12)]
     step_size = 1e-3
 
     execution = CosimExecution.from_step_size(int(step_size * 1e9))

@@ -11,7 +11,7 @@ import numpy as np
 import pytest
 
 from fmu_helpers import (OK, WARNING, Slave, all_fmus, fmu_id, model_of, numeric_parameters, output_names,
-                         reference_trajectory, require_fmu)
+                         reference_trajectory, require_fmu, scalar_inputs)
 
 CYCLES = 2000
 WARM_UP = 200
@@ -59,7 +59,7 @@ def test_repeated_lifecycles_do_not_grow_memory(fmu: Path) -> None:
     model = model_of(fmu)
     outputs = output_names(model)
     point = {v.name: 1.0 if v.type == "Boolean" else (v.min + v.max) // 3 if v.type == "Int32" else (v.min + v.max) / 3
-             for v in numeric_parameters(model) + model.of("input")}
+             for v in numeric_parameters(model) + scalar_inputs(model)}
     expected = reference_trajectory(model, [point] * 6, 1e-3)[-1]  # the steps of one_cycle
     slave = Slave(fmu, "cycled")  # one extracted folder, the library loaded once
     try:

@@ -11,6 +11,7 @@ import math
 import re
 import shutil
 import struct
+import subprocess
 import tomllib
 import zipfile
 from pathlib import Path
@@ -73,6 +74,14 @@ def _patched(data: bytes, offset: int, value: int, fix_checksum: bool) -> bytes:
     return bytes(out)
 
 
+def _patched_double(data: bytes, offset: int, value: float) -> bytes:
+    """A float64 replaced and the checksum made valid again: only the value checks can catch it."""
+    out = bytearray(data)
+    out[offset:offset + 8] = struct.pack("<d", value)
+    out[-8:] = struct.pack("<Q", fn._fnv1a64(bytes(out[:-8])))
+    return bytes(out)
+
+
 LAYER1_ROWS = 56 + 8 + 8 * (16 * 7 + 16)  # offset of the row count of layer 1 (after the header and layer 0)
 BAD_FILES = {  # name -> (bytes from the committed file, expected message)
     "missing": (None, "cannot open"),
@@ -85,6 +94,9 @@ BAD_FILES = {  # name -> (bytes from the committed file, expected message)
                                                                   "32 x 16"),
     "corrupted": (lambda d: d[:500] + bytes([d[500] ^ 1]) + d[501:], "checksum mismatch"),
     "magic": (lambda d: b"FORCENEX" + d[8:], "not a force-net weights file"),
+    "nan weight": (lambda d: _patched_double(d, 56 + 8, math.nan), "layer 0 holds non-finite values"),
+    "inf bias": (lambda d: _patched_double(d, 56 + 8 + 8 * 16 * 7, math.inf), "layer 0 holds non-finite values"),
+    "zero scale": (lambda d: _patched_double(d, 32, 0.0), "scales h_ref, v_ref, load_ref must be positive and finite"),
 }
 
 
@@ -287,6 +299,142 @@ def test_geometry_image_shows_the_chip_in_the_window() -> None:
     assert np.allclose(image["v"], SLOT["spindle_speed"] * 0.0125)
 
 
+# ---- the C kernels ----
+
+C_FLAGS = ["-std=c99", "-O2", "-Wall", "-Wextra", "-Wpedantic", "-Werror", "-Wconversion", "-Wno-sign-conversion"]
+
+
+def _kernel_driver(tmp_path: Path, kernel: int) -> Path:
+    """tools/forcenet_run.c with the network's kernel forced (1: the baseline, 2: AVX2)."""
+    compiler = shutil.which("cc") or shutil.which("gcc")
+    if compiler is None:
+        pytest.skip("no C compiler")
+    folder = REPO / "fmus" / "forcenet"
+    out = tmp_path / f"forcenet_run_{kernel}"
+    subprocess.run([compiler, *C_FLAGS, f"-DFORCENET_KERNEL={kernel}", "-I", str(folder),
+                    str(folder / "tools" / "forcenet_run.c"), str(folder / "forcenet.c"), "-o", str(out), "-lm"],
+                   check=True)
+    return out
+
+
+def _loads(driver: Path, features: np.ndarray) -> np.ndarray:
+    text = f"{len(features)}\n" + "\n".join(" ".join(repr(float(x)) for x in f) for f in features) + "\n"
+    result = subprocess.run([str(driver), "loads", str(fn.WEIGHTS_FILE)], input=text, capture_output=True, text=True,
+                            check=True)
+    return np.array([[float(x) for x in line.split()] for line in result.stdout.splitlines()]).reshape(-1, 3)
+
+
+def test_the_avx2_and_baseline_kernels_give_bit_identical_loads(tmp_path: Path) -> None:
+    """The FMU picks the AVX2 kernel where the CPU has it, else the x86-64 baseline: same operations, same order,
+    the same bits (and the numpy reference's), for batches of every size (4-row blocks and their remainders)."""
+    if "avx2" not in Path("/proc/cpuinfo").read_text():
+        pytest.skip("this CPU has no AVX2")
+    rng = np.random.default_rng(3)
+    values, angle, _ = fn.repeat_angles(fn.sample_conditions(30, rng), 4, rng)
+    arrays = fn.element_arrays(values, angle)
+    features = arrays["features"][arrays["mask"]][:203]
+    drivers = [_kernel_driver(tmp_path, k) for k in (1, 2)]
+    baseline, avx2 = (_loads(d, features) for d in drivers)
+    assert np.array_equal(baseline, avx2)
+    assert np.array_equal(avx2, fn.network(fn.default_weights(), features))
+    for n in (1, 2, 3, 5, 7, 9):  # every remainder of the row blocks
+        assert np.array_equal(_loads(drivers[1], features[:n]), baseline[:n])
+
+
+# ---- the engagement map ----
+
+MAP_SIZE = fn.MAP_ROWS * fn.MAP_COLUMNS
+
+
+def slot_map() -> np.ndarray:
+    """What the Workpiece FMU gives for a full slot: every height in material over the front half (columns
+    0..11 = 0..180 deg), nothing behind."""
+    engagement = np.zeros((fn.MAP_ROWS, fn.MAP_COLUMNS))
+    engagement[:, : fn.MAP_COLUMNS // 2] = 1.0
+    return engagement.reshape(-1)
+
+
+def set_map(slave: Slave, engagement: np.ndarray) -> None:
+    if slave.fmi_version == 3:
+        slave.set_real([slave.vr["engagement"]], list(engagement))
+    else:
+        slave.set_real(slave.elements["engagement"], list(engagement))
+
+
+def run_with_maps(version: int, values: dict, maps: list[np.ndarray | None]) -> np.ndarray:
+    """One instance: initialize at ``values``, then per map (None: leave the map as it is) set it and step."""
+    with Slave(fmu_path(version)) as slave:
+        slave.instantiate()
+        slave.initialize(values)
+        rows = []
+        for engagement in maps:
+            if engagement is not None:
+                set_map(slave, engagement)
+            assert slave.step(STEP) == OK, slave.messages[-2:]
+            rows.append(slave.get(list(fn.OUTPUTS)))
+        return np.array(rows)
+
+
+@pytest.mark.parametrize("version", [3, 2])
+def test_a_slot_map_gives_exactly_the_forces_of_the_slot_window(version: int) -> None:
+    """Unconnected (the start value -1 everywhere), the window entry..exit decides; the Workpiece's map of a
+    slot holds the same elements, so the forces are bit-identical; a map without material gives none."""
+    without = run_with_maps(version, SLOT, [None] * 40)
+    assert np.count_nonzero(without[:, 0]) > 30
+    assert np.array_equal(run_with_maps(version, SLOT, [slot_map()] + [None] * 39), without)
+    assert np.array_equal(run_with_maps(version, SLOT, [np.full(MAP_SIZE, -1.0)] * 40), without)
+    empty = run_with_maps(version, SLOT, [np.zeros(MAP_SIZE)] + [None] * 39)
+    native = [fn.OUTPUTS.index(n) for n in fn.NATIVE_OUTPUTS]
+    assert not np.any(empty[:, native])
+    assert np.array_equal(empty[:, fn.OUTPUTS.index("spindle_angle")], without[:, fn.OUTPUTS.index("spindle_angle")])
+
+
+@pytest.mark.parametrize("version", [3, 2])
+def test_the_fmu_reads_the_map_as_the_reference_does(version: int) -> None:
+    """Random maps (given cells 0/1 or fractions, unknown cells -1) at random operating points: the FMU equals
+    the numpy reference to 1e-12, and the maps change the forces."""
+    rng = np.random.default_rng(17)
+    values = fn.random_arguments(12, rng)
+    points = [{k: float(c[i]) for k, c in values.items()} for i in range(12)]
+    points[7]["spindle_speed"] = points[6]["spindle_speed"]  # no stopped spindle here (a warning)
+    maps = [rng.choice([-1.0, 0.0, 1.0, 0.3, 0.7], MAP_SIZE, p=[0.2, 0.3, 0.3, 0.1, 0.1]) for _ in points]
+    with Slave(fmu_path(version)) as slave:
+        slave.instantiate()
+        slave.initialize(points[0])
+        actual = []
+        for point, engagement in zip(points, maps):
+            slave.set(point, include_fixed=False)
+            set_map(slave, engagement)
+            assert slave.step(1e-3) == OK, slave.messages[-2:]
+            actual.append(slave.get(list(fn.OUTPUTS)))
+    expected = fn.reference_trajectory([{**p, "engagement": m} for p, m in zip(points, maps)], 1e-3)
+    assert_close(np.array(actual), expected)
+    windows = fn.reference_trajectory(points, 1e-3)
+    assert np.count_nonzero(np.abs(expected[:, 0] - windows[:, 0]) > 1e-6 * np.abs(windows[:, 0]).max()) >= 6
+
+
+def test_how_the_map_is_sampled_onto_the_edge_elements() -> None:
+    """Map row i holds the elements k = 2i, 2i + 1 of every flute (the rows halve the 16 heights), column j the
+    feed-frame angles [15 j, 15 (j + 1)) deg."""
+    values = {**SLOT, "helix_angle": 0.0, "n_flutes": 4}
+    everything = fn.elements(values, 0.9)
+    dz = SLOT["axial_depth"] / fn.ELEMENTS_PER_FLUTE
+    for row in range(fn.MAP_ROWS):
+        engagement = np.zeros((fn.MAP_ROWS, fn.MAP_COLUMNS))
+        engagement[row] = 1.0
+        some = fn.elements({**values, "engagement": engagement}, 0.9)
+        heights = sorted(set(np.round(some.z / dz - 0.5).astype(int)))
+        assert heights == [2 * row, 2 * row + 1]
+        assert len(some.z) == len(everything.z) * 2 // fn.ELEMENTS_PER_FLUTE
+    theta = np.mod(np.arctan2(everything.features[:, 3], everything.features[:, 4]), 2 * math.pi)
+    for column in range(fn.MAP_COLUMNS):
+        engagement = np.zeros((fn.MAP_ROWS, fn.MAP_COLUMNS))
+        engagement[:, column] = 1.0
+        some = fn.elements({**values, "engagement": engagement}, 0.9)
+        inside = (theta >= math.radians(15 * column) - 1e-12) & (theta < math.radians(15 * (column + 1)) + 1e-12)
+        assert len(some.z) == np.count_nonzero(inside)
+
+
 # ---- scenarios ----
 
 REPO = Path(__file__).resolve().parents[1]
@@ -317,6 +465,62 @@ def test_forcenet_and_cuttingforce_give_the_same_slot_forces(tmp_path: Path) -> 
         r2 = 1 - np.sum((n - m) ** 2) / np.sum((m - m.mean()) ** 2)
         assert r2 > 0.99, (axis, r2)
         assert n.mean() == pytest.approx(m.mean(), rel=0.03), axis
+
+
+def test_the_forcenet_chatter_scenario_is_the_mechanistic_one_without_its_coefficients() -> None:
+    mech = tomllib.loads((REPO / "scenarios" / "chatter.toml").read_text())
+    net = tomllib.loads((REPO / "scenarios" / "chatter_forcenet.toml").read_text())
+    assert mech["fmus"]["force"].pop("fmu") == "CuttingForce" and net["fmus"]["force"].pop("fmu") == "ForceNet"
+    assert [mech["fmus"]["force"]["parameters"].pop(k) for k in ("Kte", "Kre", "Kae")] == [0.0, 0.0, 0.0]
+    for doc in (mech, net):
+        doc["scenario"].pop("name"), doc["scenario"].pop("description")
+    assert mech == net
+
+
+def _chatter_runs(tmp_path: Path, depth: float) -> dict:
+    """chatter_forcenet.toml and chatter.toml with CuttingForce at the literature coefficients (those the network
+    learnt, edge coefficients included), both at ``depth``."""
+    from orchestrator.master import run
+    from orchestrator.results import load_results
+    from orchestrator.scenario import load_scenario, with_values
+
+    mech = (REPO / "scenarios" / "chatter.toml").read_text()
+    for name in ("Kte", "Kre", "Kae"):
+        mech = mech.replace(f"{name} = 0.0", f"{name} = {AL7075_CARBIDE[name]!r}")
+    tmp_path.mkdir(parents=True, exist_ok=True)
+    (tmp_path / "chatter_literature.toml").write_text(mech)
+    frames = {}
+    for name, path in (("net", REPO / "scenarios" / "chatter_forcenet.toml"),
+                       ("mech", tmp_path / "chatter_literature.toml")):
+        scenario = with_values(load_scenario(path, fmu_dir()), {"force.axial_depth": depth}, name=name)
+        frames[name] = load_results(run(scenario, tmp_path / "runs", progress=False).run_dir)
+    return frames
+
+
+def _r2(actual: np.ndarray, expected: np.ndarray) -> float:
+    return float(1 - np.sum((actual - expected) ** 2) / np.sum((expected - expected.mean()) ** 2))
+
+
+def test_the_regenerative_chip_follows_the_mechanistic_model_in_the_chatter_loop(tmp_path: Path) -> None:
+    """ForceNet's displacement inputs make the chip regenerative (the history of CuttingForce): coupled with
+    ToolVibration below the stability limit (0.8 x 0.0398 mm at 6000 rpm) its forces and the tool's vibration
+    follow CuttingForce's (r^2 > 0.999); above it (1.25 x) both chatter, the vibration growing alike."""
+    from models.stability import Mode, stability_lobes
+
+    mode = (Mode(922.0, 0.011, 1.34e6),)
+    k = AL7075_CARBIDE
+    limit = float(stability_lobes(mode, mode, k["Ktc"], k["Krc"], 2, 0.0, math.pi).limit(np.array([6000.0]))[0])
+    assert limit == pytest.approx(3.985e-5, rel=1e-3)
+    stable = _chatter_runs(tmp_path / "stable", 0.8 * limit)
+    for column in ("force.Fx", "force.Fy", "vibration.tip_displacement_x", "vibration.tip_displacement_y"):
+        assert _r2(stable["net"][column].to_numpy(), stable["mech"][column].to_numpy()) > 0.999, column
+    chatter = _chatter_runs(tmp_path / "chatter", 1.25 * limit)
+    t = chatter["net"]["time"].to_numpy()
+    for column in ("vibration.tip_displacement_x", "vibration.tip_displacement_y"):
+        growth = {name: np.std(f[column].to_numpy()[t > 0.15]) / np.std(f[column].to_numpy()[(t > 0.05) & (t < 0.1)])
+                  for name, f in chatter.items()}
+        assert growth["mech"] > 2 and growth["net"] == pytest.approx(growth["mech"], rel=0.2), growth
+        assert _r2(chatter["net"][column].to_numpy(), chatter["mech"][column].to_numpy()) > 0.95, column
 
 
 @pytest.fixture(scope="module")

@@ -2,12 +2,16 @@
 from __future__ import annotations
 
 import json
+import random
 import signal
+import time
 
 import numpy as np
 import pandas as pd
+import pyarrow.parquet as pq
+import pytest
 
-from conftest import LONG_P_TOTAL
+from conftest import LONG_P_TOTAL, LONG_TOML, start_run, wait_for_first_chunk
 from orchestrator.results import RunWriter, load_results, read_run_info
 
 
@@ -56,3 +60,47 @@ def test_load_results_of_a_killed_run(long_run):
     np.testing.assert_allclose(frame["time"].to_numpy(), np.arange(n) * 0.01, rtol=0, atol=1e-9)
     np.testing.assert_array_equal(frame["power.P_total"].to_numpy(), np.full(n, LONG_P_TOTAL))
     assert frame["power.spindle_on"].all()
+
+
+KILLS_PER_PATH = 3
+
+
+@pytest.mark.parametrize("stepping", ["python", "fast"])
+def test_sigkill_at_random_moments_keeps_every_completed_chunk(stepping, tmp_path, fmu_dir):
+    """SIGKILL the CLI at seeded random moments after its first chunk (a row per 1 ms step, so chunks
+    of 10,000 rows follow each other quickly and a kill often lands inside a chunk write): every chunk
+    on disk just before the kill is still there, loads, and continues the time grid of the chunk
+    before it; nothing after it is half there."""
+    scenario = tmp_path / "long.toml"
+    scenario.write_text(LONG_TOML.replace("output_interval = 0.01", "output_interval = 0.001"))
+    rng = random.Random(f"sigkill-{stepping}")
+    for attempt in range(KILLS_PER_PATH):
+        out = tmp_path / f"kill{attempt}"
+        proc = start_run(scenario, fmu_dir, out, "--path", stepping)
+        run_dir = out / "runs" / "long"
+        try:
+            wait_for_first_chunk(proc, run_dir)
+            time.sleep(rng.uniform(0.0, 1.0))
+            before = sorted(p.name for p in (run_dir / "chunks").glob("chunk_*.parquet"))
+            proc.send_signal(signal.SIGKILL)
+            proc.wait(timeout=10)
+        finally:
+            if proc.poll() is None:
+                proc.kill()
+            proc.communicate()
+        info = read_run_info(run_dir)
+        assert info["status"] == "running" and info["stepping"]["path"] == stepping  # it never got to finish
+        chunks = sorted((run_dir / "chunks").glob("chunk_*.parquet"), key=lambda p: int(p.stem.split("_")[1]))
+        names = [p.name for p in chunks]
+        assert names[: len(before)] == before, f"attempt {attempt}: chunks lost by the kill"
+        assert names == [f"chunk_{i:06d}.parquet" for i in range(1, len(names) + 1)], names
+        start = 0
+        for path in chunks:  # each chunk complete and continuing the previous one
+            frame = pq.read_table(path).to_pandas()
+            n = len(frame)
+            assert n >= 1 and frame.columns.tolist() == ["time", "power.P_total", "power.spindle_on"]
+            np.testing.assert_allclose(frame["time"].to_numpy(), (start + np.arange(n)) * 0.001, rtol=0, atol=1e-9)
+            np.testing.assert_array_equal(frame["power.P_total"].to_numpy(), np.full(n, LONG_P_TOTAL))
+            assert frame["power.spindle_on"].all()
+            start += n
+        assert len(load_results(run_dir)) == start  # temporary files of an interrupted write are not read

@@ -297,20 +297,39 @@ static const char *format_number(char buffer[32], double value) {
     return buffer;
 }
 
+/* The name of element `element` of a variable, as the FMI 2 variant names it: name[i,j] with 1-based indices
+ * in row-major order (the variable's own name for a scalar). */
+static const char *element_name(const FmuVariable *variable, size_t element, char *buffer, size_t size) {
+    size_t index[FMU_MAX_RANK], rest = element, used;
+    unsigned int d;
+    if (variable->rank == 0) return variable->name;
+    for (d = variable->rank; d-- > 0;) {
+        index[d] = rest % variable->dims[d];
+        rest /= variable->dims[d];
+    }
+    used = (size_t)snprintf(buffer, size, "%s[", variable->name);
+    for (d = 0; d < variable->rank && used < size; d++)
+        used += (size_t)snprintf(buffer + used, size - used, "%zu%s", index[d] + 1, d + 1 < variable->rank ? "," : "]");
+    return buffer;
+}
+
+/* NaN, Inf and the range [min, max] of one value of `variable` (element `element` of an array). */
 static FmuStatus check_range(FmuInstance *instance, const char *function, const FmuVariable *variable,
-                             double value) {
+                             size_t element, double value) {
+    char name[256];
     if (isnan(value) || isinf(value)) {
         fmu_log(instance, FMU_ERROR, "logStatusError", "%s: variable '%s' set to %g: must be a finite number",
-                function, variable->name, value);
+                function, element_name(variable, element, name, sizeof name), value);
         return FMU_ERROR;
     }
     if (value < variable->min || value > variable->max) {
         char text[3][32];
         const char *space = variable->unit[0] != '\0' ? " " : ""; /* no stray blanks for unitless variables */
         fmu_log(instance, FMU_ERROR, "logStatusError",
-                "%s: variable '%s' = %s%s%s is out of its allowed range [%s, %s]%s%s", function, variable->name,
-                format_number(text[0], value), space, variable->unit, format_number(text[1], variable->min),
-                format_number(text[2], variable->max), space, variable->unit);
+                "%s: variable '%s' = %s%s%s is out of its allowed range [%s, %s]%s%s", function,
+                element_name(variable, element, name, sizeof name), format_number(text[0], value), space,
+                variable->unit, format_number(text[1], variable->min), format_number(text[2], variable->max), space,
+                variable->unit);
         return FMU_ERROR;
     }
     return FMU_OK;
@@ -319,8 +338,21 @@ static FmuStatus check_range(FmuInstance *instance, const char *function, const 
 FmuStatus fmu_set_float64(FmuInstance *instance, const char *function, unsigned int vr, double value) {
     const FmuVariable *variable = lookup(instance, function, vr, FMU_FLOAT64);
     if (!variable || check_settable(instance, function, variable) != FMU_OK) return FMU_ERROR;
-    if (check_range(instance, function, variable, value) != FMU_OK) return FMU_ERROR;
+    if (check_range(instance, function, variable, 0, value) != FMU_OK) return FMU_ERROR;
     memcpy((char *)&instance->v + variable->offset, &value, sizeof value);
+    instance->outputs_stale = true;
+    return FMU_OK;
+}
+
+/* An FMI 3 array input or parameter: every element is checked before any is stored, so a rejected call
+ * leaves the array as it was. */
+static FmuStatus set_float64_array(FmuInstance *instance, const char *function, const FmuVariable *variable,
+                                   const double values[]) {
+    size_t k;
+    if (check_settable(instance, function, variable) != FMU_OK) return FMU_ERROR;
+    for (k = 0; k < variable->count; k++)
+        if (check_range(instance, function, variable, k, values[k]) != FMU_OK) return FMU_ERROR;
+    memcpy((char *)&instance->v + variable->offset, values, variable->count * sizeof(double));
     instance->outputs_stale = true;
     return FMU_OK;
 }
@@ -336,7 +368,7 @@ FmuStatus fmu_get_int32(FmuInstance *instance, const char *function, unsigned in
 FmuStatus fmu_set_int32(FmuInstance *instance, const char *function, unsigned int vr, int32_t value) {
     const FmuVariable *variable = lookup(instance, function, vr, FMU_INT32);
     if (!variable || check_settable(instance, function, variable) != FMU_OK) return FMU_ERROR;
-    if (check_range(instance, function, variable, (double)value) != FMU_OK) return FMU_ERROR;
+    if (check_range(instance, function, variable, 0, (double)value) != FMU_OK) return FMU_ERROR;
     memcpy((char *)&instance->v + variable->offset, &value, sizeof value);
     instance->outputs_stale = true;
     return FMU_OK;
@@ -434,9 +466,11 @@ FmuStatus fmu_set_float64s(FmuInstance *instance, const char *function, const un
     if (n_vr == 0 && n_values == 0) return FMU_OK;
     if (count_values(instance, function, vr, n_vr, values, n_values) == 0) return FMU_ERROR;
     for (i = 0; i < n_vr; i++) {
-        /* arrays are outputs (models/definition.py): fmu_set_float64 rejects them as not settable */
-        if (fmu_set_float64(instance, function, vr[i], values[next]) != FMU_OK) return FMU_ERROR;
-        next += MODEL_VARIABLE_TABLE[vr[i]].count;
+        const FmuVariable *variable = &MODEL_VARIABLE_TABLE[vr[i]];
+        FmuStatus status = variable->count == 1 ? fmu_set_float64(instance, function, vr[i], values[next])
+                                                : set_float64_array(instance, function, variable, &values[next]);
+        if (status != FMU_OK) return FMU_ERROR;
+        next += variable->count;
     }
     return FMU_OK;
 }
@@ -471,18 +505,22 @@ FmuStatus fmu_exit_initialization(FmuInstance *instance, const char *function) {
     /* Start values may have come from anywhere (an importer that never called set): check all. */
     for (i = 0; i < MODEL_VARIABLE_COUNT; i++) {
         const FmuVariable *variable = &MODEL_VARIABLE_TABLE[i];
+        size_t k;
         if (!variable->name) continue;
-        double value;
-        if (variable->type == FMU_BOOLEAN || (variable->causality != FMU_PARAMETER && variable->causality != FMU_INPUT))
+        if (variable->type == FMU_BOOLEAN || variable->type == FMU_STRING ||
+            (variable->causality != FMU_PARAMETER && variable->causality != FMU_INPUT))
             continue;
-        if (variable->type == FMU_INT32) {
-            int32_t integer;
-            memcpy(&integer, (const char *)&instance->v + variable->offset, sizeof integer);
-            value = (double)integer;
-        } else {
-            memcpy(&value, (const char *)&instance->v + variable->offset, sizeof value);
+        for (k = 0; k < variable->count; k++) { /* every element of an FMI 3 array */
+            double value;
+            if (variable->type == FMU_INT32) {
+                int32_t integer;
+                memcpy(&integer, (const char *)&instance->v + variable->offset, sizeof integer);
+                value = (double)integer;
+            } else {
+                memcpy(&value, (const char *)&instance->v + variable->offset + k * sizeof(double), sizeof value);
+            }
+            if (check_range(instance, function, variable, k, value) != FMU_OK) return FMU_ERROR;
         }
-        if (check_range(instance, function, variable, value) != FMU_OK) return FMU_ERROR;
     }
     status = model_exit_initialization(instance);
     if (status > FMU_WARNING) return status;

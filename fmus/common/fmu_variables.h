@@ -9,6 +9,8 @@ typedef enum { FMU_FLOAT64, FMU_INT32, FMU_BOOLEAN, FMU_STRING } FmuType;
 typedef enum { FMU_INDEPENDENT, FMU_PARAMETER, FMU_INPUT, FMU_OUTPUT } FmuCausality;
 typedef enum { FMU_FIXED, FMU_TUNABLE, FMU_CONTINUOUS, FMU_DISCRETE } FmuVariability;
 
+#define FMU_MAX_RANK 4 /* dimensions of an FMI 3 array (models/codegen.py FMU_MAX_RANK) */
+
 typedef struct {
     unsigned int vr;            /* equals the row's index in the table */
     const char *name;
@@ -16,9 +18,11 @@ typedef struct {
     FmuCausality causality;
     FmuVariability variability;
     size_t offset;              /* of the (first) value in ModelVariables */
-    size_t count;               /* number of values: 1, or the elements of an FMI 3 array */
+    size_t count;               /* number of values: 1, or the elements of an FMI 3 array (Float64 only) */
     double min, max;            /* allowed range (Float64, Int32), checked on every set and at initialization */
     const char *unit;
+    unsigned int rank;          /* FMI 3 arrays: number of dimensions (0 for scalars and FMI 2 elements) */
+    unsigned int dims[FMU_MAX_RANK]; /* their sizes, row-major: the element names in messages are name[i,j] */
 } FmuVariable;
 
 #endif

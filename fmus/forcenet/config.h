@@ -3,11 +3,14 @@
  *
  * The instance heap (fmu_allocate_heap, copied into FMU states) holds the network's parameters, loaded from
  * resources/weights.bin when the instance is created (model_instantiate, the wrapper's optional hook, also
- * run on reset): per layer its weights transposed (in x out) and its biases, at the offsets of `net`. */
+ * run on reset): per layer its weights transposed (in x out) and its biases, at the offsets of `net`; after
+ * them, from the end of initialization, the displacement history of the regenerative chip
+ * (fmus/common/displacement_history.h, as CuttingForce keeps it). */
 #ifndef CONFIG_H
 #define CONFIG_H
 
 #include <stdbool.h>
+#include "displacement_history.h"
 #include "forcenet.h"
 #include "model_generated.h"
 
@@ -15,6 +18,7 @@
 
 typedef struct {
     ForceNetLayout net; /* sizes, scales and heap offsets of the loaded network */
+    DisplacementHistory history; /* the regenerative chip's history ring, in the heap after the network */
     bool loaded;        /* the heap holds a network (false only after a failed reset) */
     bool warned_stopped; /* warned (once) that the spindle is stopped while feeding into the cut */
 } ModelInternal;

@@ -1,4 +1,4 @@
-/* The force net without FMI (forcenet.h): weights file, resource location, network, tool evaluation.
+/* The force net without FMI (forcenet.h): weights file, network, tool evaluation.
  * Every floating-point operation follows models/force_net.py (network, elements, tool_outputs) in the same
  * order, so the FMU equals that reference to rounding (the tests require 1e-12). */
 #include "forcenet.h"
@@ -157,56 +157,6 @@ int forcenet_parse(const unsigned char *data, size_t size, ForceNetLayout *layou
     return 0;
 }
 
-/* ---- resource location ---- */
-
-static int hex_value(char c) {
-    if (c >= '0' && c <= '9') return c - '0';
-    if (c >= 'a' && c <= 'f') return c - 'a' + 10;
-    if (c >= 'A' && c <= 'F') return c - 'A' + 10;
-    return -1;
-}
-
-int forcenet_resource_file(const char *location, const char *name, char *path, size_t size, char *message,
-                           size_t message_size) {
-    const char *s = location;
-    size_t n = 0, name_length = strlen(name);
-    int uri = strncmp(s, "file:", 5) == 0;
-    if (uri) {
-        s += 5;
-        if (strncmp(s, "//", 2) == 0) { /* file://host/path: only an empty host or localhost is local */
-            s += 2;
-            if (strncmp(s, "localhost/", 10) == 0)
-                s += 9;
-            else if (*s != '/') {
-                say(message, message_size, "the resource location '%.200s' is not a local file URI", location);
-                return -1;
-            }
-        }
-    }
-    while (*s) {
-        char c = *s;
-        if (uri && c == '%') {
-            if (hex_value(s[1]) < 0 || hex_value(s[2]) < 0) {
-                say(message, message_size, "the resource location '%.200s' has a bad percent-escape", location);
-                return -1;
-            }
-            c = (char)(hex_value(s[1]) * 16 + hex_value(s[2]));
-            s += 3;
-        } else {
-            s++;
-        }
-        if (n + 1 >= size) break;
-        path[n++] = c;
-    }
-    if (*s || n + 1 + name_length + 1 > size) {
-        say(message, message_size, "the resource location '%.200s' is too long", location);
-        return -1;
-    }
-    if (n == 0 || path[n - 1] != '/') path[n++] = '/';
-    memcpy(path + n, name, name_length + 1);
-    return 0;
-}
-
 unsigned char *forcenet_read_file(const char *path, size_t *size, char *message, size_t message_size) {
     FILE *f = fopen(path, "rb");
     unsigned char *data;
@@ -245,10 +195,52 @@ unsigned char *forcenet_read_file(const char *path, size_t *size, char *message,
 
 /* ---- the network ---- */
 
-/* y[r][o] = b[o] + sum_i x[r][i] * w[i][o], accumulated over i in order (models.force_net._dense). Two rows
- * by 8 outputs keep their sums in registers and share the loads of the weights; the independent
- * multiply-adds vectorize even at -O2. The order of the operations of each sum is the same in every path. */
-static void dense(const double *restrict w, const double *restrict b, size_t n_in, size_t n_out,
+/* The network's matrix products: y[r][o] = b[o] + sum_i x[r][i] * w[i][o], each sum accumulated over i in
+ * order (models.force_net._dense). Two versions, picked per call by the CPU's features: an AVX2 kernel (GCC's
+ * generic vectors, compiled for AVX2 by a target attribute) and the x86-64 baseline (SSE2, what the compiler
+ * makes of plain C). No -march flag, so the FMU runs on any x86-64. Both do the same IEEE multiplications and
+ * additions in the same order (no FMA: the AVX2 target does not include it), so they give bit-identical
+ * results. (An AVX-512 kernel of the same form measured no faster: at about 1,300 cycles per element the
+ * AVX2 kernel is at the limit of two vector multiplications or additions per cycle.) */
+
+/* Outputs o_start.. of a block of rows (the 3 loads of the output layer): four rows at a time, so four
+ * independent sums are in flight instead of one long chain of dependent additions. */
+#if defined(__GNUC__)
+__attribute__((always_inline)) /* compiled into each kernel, for its target */
+#endif
+static inline void dense_tail(const double *restrict w, const double *restrict b, size_t n_in, size_t n_out,
+                              size_t o_start, const double *restrict x, size_t rows, double *restrict y) {
+    size_t r = 0, i, o;
+    for (; r + 4 <= rows; r += 4) {
+        const double *x0 = x + r * n_in, *x1 = x0 + n_in, *x2 = x1 + n_in, *x3 = x2 + n_in;
+        for (o = o_start; o < n_out; o++) {
+            double s0 = b[o], s1 = b[o], s2 = b[o], s3 = b[o];
+            for (i = 0; i < n_in; i++) {
+                const double wi = w[i * n_out + o];
+                s0 += x0[i] * wi;
+                s1 += x1[i] * wi;
+                s2 += x2[i] * wi;
+                s3 += x3[i] * wi;
+            }
+            y[r * n_out + o] = s0;
+            y[(r + 1) * n_out + o] = s1;
+            y[(r + 2) * n_out + o] = s2;
+            y[(r + 3) * n_out + o] = s3;
+        }
+    }
+    for (; r < rows; r++)
+        for (o = o_start; o < n_out; o++) {
+            double sum = b[o];
+            for (i = 0; i < n_in; i++) sum += x[r * n_in + i] * w[i * n_out + o];
+            y[r * n_out + o] = sum;
+        }
+}
+
+static inline size_t o_full(size_t n_out) { return n_out - n_out % 8; } /* outputs in groups of 8 */
+
+/* Baseline: two rows by 8 outputs keep their sums in registers and share the loads of the weights; the
+ * independent multiply-adds vectorize even at -O2. */
+static void dense_baseline(const double *restrict w, const double *restrict b, size_t n_in, size_t n_out,
                   const double *restrict x, size_t rows, double *restrict y) {
     size_t r = 0, i, o;
     for (; r + 2 <= rows; r += 2) {
@@ -274,17 +266,9 @@ static void dense(const double *restrict w, const double *restrict b, size_t n_i
             y1[o] = c0, y1[o + 1] = c1, y1[o + 2] = c2, y1[o + 3] = c3;
             y1[o + 4] = c4, y1[o + 5] = c5, y1[o + 6] = c6, y1[o + 7] = c7;
         }
-        for (; o < n_out; o++) {
-            double a0 = b[o], c0 = b[o];
-            for (i = 0; i < n_in; i++) {
-                a0 += x0[i] * w[i * n_out + o];
-                c0 += x1[i] * w[i * n_out + o];
-            }
-            y0[o] = a0;
-            y1[o] = c0;
-        }
     }
-    for (; r < rows; r++) {
+    dense_tail(w, b, n_in, n_out, o_full(n_out), x, r, y); /* the outputs beyond a multiple of 8 */
+    for (; r < rows; r++) { /* an odd last row */
         const double *xr = x + r * n_in;
         double *yr = y + r * n_out;
         for (o = 0; o < n_out; o++) {
@@ -295,80 +279,219 @@ static void dense(const double *restrict w, const double *restrict b, size_t n_i
     }
 }
 
+#if defined(__x86_64__) && defined(__GNUC__) && defined(__has_attribute)
+#if __has_attribute(target) && __has_builtin(__builtin_cpu_supports)
+#define FORCENET_WIDE_KERNELS 1
+#endif
+#endif
+
+#ifdef FORCENET_WIDE_KERNELS
+typedef double Vec4 __attribute__((vector_size(32))); /* one AVX2 register */
+/* macros, not functions: a vector passed by value would depend on the target's ABI */
+#define LOAD(vector, pointer) memcpy(&(vector), (pointer), sizeof(vector))
+#define STORE(pointer, vector) memcpy((pointer), &(vector), sizeof(vector))
+
+/* AVX2: blocks of 4 rows x 8 outputs (two vectors per row), 8 sums in registers. */
+__attribute__((target("avx2"))) static void dense_avx2(const double *restrict w, const double *restrict b,
+                                                        size_t n_in, size_t n_out, const double *restrict x,
+                                                        size_t rows, double *restrict y) {
+    size_t r, i, o, q;
+    for (r = 0; r < rows; r += 4) {
+        const size_t block = rows - r < 4 ? rows - r : 4;
+        const double *x0 = x + r * n_in;
+        double *y0 = y + r * n_out;
+        for (o = 0; o + 8 <= n_out; o += 8) {
+            Vec4 lo, hi;
+            LOAD(lo, b + o);
+            LOAD(hi, b + o + 4);
+            if (block == 4) {
+                const double *x1 = x0 + n_in, *x2 = x1 + n_in, *x3 = x2 + n_in;
+                Vec4 a0 = lo, a1 = lo, a2 = lo, a3 = lo, c0 = hi, c1 = hi, c2 = hi, c3 = hi;
+                for (i = 0; i < n_in; i++) {
+                    Vec4 wl, wh;
+                    LOAD(wl, w + i * n_out + o);
+                    LOAD(wh, w + i * n_out + o + 4);
+                    a0 += x0[i] * wl, c0 += x0[i] * wh;
+                    a1 += x1[i] * wl, c1 += x1[i] * wh;
+                    a2 += x2[i] * wl, c2 += x2[i] * wh;
+                    a3 += x3[i] * wl, c3 += x3[i] * wh;
+                }
+                STORE(y0 + o, a0), STORE(y0 + o + 4, c0);
+                STORE(y0 + n_out + o, a1), STORE(y0 + n_out + o + 4, c1);
+                STORE(y0 + 2 * n_out + o, a2), STORE(y0 + 2 * n_out + o + 4, c2);
+                STORE(y0 + 3 * n_out + o, a3), STORE(y0 + 3 * n_out + o + 4, c3);
+            } else {
+                for (q = 0; q < block; q++) {
+                    const double *xq = x0 + q * n_in;
+                    Vec4 a = lo, c = hi;
+                    for (i = 0; i < n_in; i++) {
+                        Vec4 wl, wh;
+                        LOAD(wl, w + i * n_out + o);
+                        LOAD(wh, w + i * n_out + o + 4);
+                        a += xq[i] * wl, c += xq[i] * wh;
+                    }
+                    STORE(y0 + q * n_out + o, a), STORE(y0 + q * n_out + o + 4, c);
+                }
+            }
+        }
+    }
+    dense_tail(w, b, n_in, n_out, o_full(n_out), x, rows, y); /* the outputs beyond a multiple of 8 */
+}
+
+#endif
+
+/* FORCENET_KERNEL (a build option for the benchmark): 0 picks by the CPU, 1 the baseline, 2 AVX2 */
+#ifndef FORCENET_KERNEL
+#define FORCENET_KERNEL 0
+#endif
+
+#ifdef FORCENET_WIDE_KERNELS
+#define DENSE(...) (wide ? dense_avx2(__VA_ARGS__) : dense_baseline(__VA_ARGS__))
+#else
+#define DENSE(...) dense_baseline(__VA_ARGS__)
+#endif
+
 static void relu(double *x, size_t n) {
     size_t i;
     for (i = 0; i < n; i++) x[i] = x[i] > 0.0 ? x[i] : 0.0;
 }
 
-void forcenet_network(const ForceNetLayout *layout, const double *params, const double *features, size_t n,
-                      double *loads) {
+/* The network on n elements with one kernel (wide: AVX2); inlined into one function per target, so that
+ * the whole network, activations included, runs in that target's instructions. */
+#if defined(__GNUC__)
+__attribute__((always_inline))
+#endif
+static inline void network(const ForceNetLayout *layout, const double *params, const double *features, size_t n,
+                           double *loads, int wide) {
     double a[CHUNK * FORCENET_MAX_WIDTH], t[CHUNK * FORCENET_MAX_WIDTH], u[CHUNK * FORCENET_MAX_WIDTH];
     const size_t K = layout->kernel, W = layout->width, last = layout->layers - 1;
     size_t start, i, block;
+    (void)wide;
     for (start = 0; start < n; start += CHUNK) {
         size_t rows = n - start < CHUNK ? n - start : CHUNK;
         double *out = loads + start * FORCENET_LOADS;
         /* kernel-function block: cube */
-        dense(params + layout->weight[0], params + layout->bias[0], FORCENET_FEATURES, K,
+        DENSE(params + layout->weight[0], params + layout->bias[0], FORCENET_FEATURES, K,
               features + start * FORCENET_FEATURES, rows, t);
         for (i = 0; i < rows * K; i++) t[i] = t[i] * t[i] * t[i];
         /* linear-transform block: ReLU */
-        dense(params + layout->weight[1], params + layout->bias[1], K, W, t, rows, a);
+        DENSE(params + layout->weight[1], params + layout->bias[1], K, W, t, rows, a);
         relu(a, rows * W);
         for (block = 0; block < layout->blocks; block++) {
             size_t l = 2 + 2 * block;
-            dense(params + layout->weight[l], params + layout->bias[l], W, W, a, rows, t);
+            DENSE(params + layout->weight[l], params + layout->bias[l], W, W, a, rows, t);
             relu(t, rows * W);
-            dense(params + layout->weight[l + 1], params + layout->bias[l + 1], W, W, t, rows, u);
+            DENSE(params + layout->weight[l + 1], params + layout->bias[l + 1], W, W, t, rows, u);
             for (i = 0; i < rows * W; i++) {
                 double sum = a[i] + u[i];
                 a[i] = sum > 0.0 ? sum : 0.0;
             }
         }
-        dense(params + layout->weight[last], params + layout->bias[last], W, FORCENET_LOADS, a, rows, out);
+        DENSE(params + layout->weight[last], params + layout->bias[last], W, FORCENET_LOADS, a, rows, out);
         for (i = 0; i < rows * FORCENET_LOADS; i++) out[i] = out[i] * layout->load_ref;
     }
+}
+
+static void network_baseline(const ForceNetLayout *layout, const double *params, const double *features, size_t n,
+                             double *loads) {
+    network(layout, params, features, n, loads, 0);
+}
+
+#ifdef FORCENET_WIDE_KERNELS
+__attribute__((target("avx2"))) static void network_avx2(const ForceNetLayout *layout, const double *params,
+                                                          const double *features, size_t n, double *loads) {
+    network(layout, params, features, n, loads, 1);
+}
+#endif
+
+void forcenet_network(const ForceNetLayout *layout, const double *params, const double *features, size_t n,
+                      double *loads) {
+#ifdef FORCENET_WIDE_KERNELS
+    if (FORCENET_KERNEL == 2 || (FORCENET_KERNEL == 0 && __builtin_cpu_supports("avx2"))) {
+        network_avx2(layout, params, features, n, loads);
+        return;
+    }
+#endif
+    network_baseline(layout, params, features, n, loads);
 }
 
 /* ---- the tool ---- */
 
 static double wrap(double angle) { return angle - TWO_PI * floor(angle / TWO_PI); }
 
+/* Whether edge element k (of every flute) at feed-frame angle theta is in material: the engagement map's
+ * cell holding it (row k * 8 / 16: the map's rows halve the elements' heights; column floor(theta / 15 deg))
+ * when that cell is given (>= 0: in material from 0.5 on), else the entry..exit window. */
+static int in_material(const double *map, int k, double theta, int in_window) {
+    if (map) {
+        const size_t row = (size_t)k * FORCENET_MAP_ROWS / FORCENET_ELEMENTS_PER_FLUTE;
+        size_t column = (size_t)(theta * (FORCENET_MAP_COLUMNS / TWO_PI));
+        double value;
+        if (column >= FORCENET_MAP_COLUMNS) column = FORCENET_MAP_COLUMNS - 1; /* theta rounded up to 2 pi */
+        value = map[row * FORCENET_MAP_COLUMNS + column];
+        if (value >= 0.0) return value >= 0.5;
+    }
+    return in_window;
+}
+
 size_t forcenet_elements(const ForceNetLayout *layout, const ForceNetCut *cut, double *features, double *sin_phi,
-                         double *cos_phi, double *z_out) {
+                         double *cos_phi, double *z_out, double *radius_out) {
     const int n = cut->n_flutes < FORCENET_MAX_FLUTES ? cut->n_flutes : FORCENET_MAX_FLUTES;
     const double omega = cut->spindle_speed, vx = cut->feed_velocity_x, vy = cut->feed_velocity_y;
     const double radius = cut->tool_diameter / 2.0, dz = cut->axial_depth / FORCENET_ELEMENTS_PER_FLUTE;
-    double period, feed_angle, lag_per_height, entry, width, pitch, v_feature, theta0_feature;
+    const double dx = cut->displacement_x, dy = cut->displacement_y, offset = cut->runout_offset;
+    double period, feed_angle, sin_feed, cos_feed, lag_per_height, entry, width, pitch, v_feature, theta0_feature;
+    double z[FORCENET_ELEMENTS_PER_FLUTE], psi[FORCENET_ELEMENTS_PER_FLUTE];
+    double sin_psi[FORCENET_ELEMENTS_PER_FLUTE], cos_psi[FORCENET_ELEMENTS_PER_FLUTE];
     size_t count = 0;
     int m, k;
     if (!(omega >= OMEGA_MIN && dz > 0.0) || n < 1) return 0;
     period = TWO_PI / ((double)n * omega);
     feed_angle = atan2(vy, vx);
+    sin_feed = sin(feed_angle);
+    cos_feed = cos(feed_angle);
     lag_per_height = tan(cut->helix_angle) / radius;
     entry = cut->entry_angle;
     width = wrap(cut->exit_angle - entry);
     pitch = TWO_PI / (double)n;
     v_feature = omega * radius / layout->v_ref;
     theta0_feature = cut->angle / PI - 1.0;
+    /* the helix lag of each height, the same for every flute: 2 H + 2 N + 3 libm calls per evaluation,
+     * the angles of the elements by the addition theorems */
+    for (k = 0; k < FORCENET_ELEMENTS_PER_FLUTE; k++) {
+        z[k] = ((double)k + 0.5) * dz;
+        psi[k] = z[k] * lag_per_height;
+        sin_psi[k] = sin(psi[k]);
+        cos_psi[k] = cos(psi[k]);
+    }
     for (m = 0; m < n; m++) {
+        const double flute = cut->angle + (double)m * pitch, sin_flute = sin(flute), cos_flute = cos(flute);
+        double runout = 0.0, flute_radius = radius; /* r_m - r_(m-1): the chip the runout adds (CuttingForce's) */
+        if (offset != 0.0) {
+            const double own = cos(cut->runout_angle - (double)m * pitch);
+            runout = offset * (own - cos(cut->runout_angle - (double)(m - 1) * pitch));
+            flute_radius = radius + offset * own;
+        }
         for (k = 0; k < FORCENET_ELEMENTS_PER_FLUTE; k++) {
-            double z = ((double)k + 0.5) * dz, psi = z * lag_per_height;
-            double phi = cut->angle + (double)m * pitch - psi, s = sin(phi), c = cos(phi);
-            double h = period * (vx * s + vy * c), theta;
+            const double phi = flute - psi[k];
+            const double s = sin_flute * cos_psi[k] - cos_flute * sin_psi[k]; /* sin(phi) */
+            const double c = cos_flute * cos_psi[k] + sin_flute * sin_psi[k]; /* cos(phi) */
+            const double h = period * (vx * s + vy * c) + dx * s + dy * c + runout;
             double *f = features + count * FORCENET_FEATURES;
-            if (!(wrap(phi + feed_angle - entry) < width && h > 0.0)) continue;
-            theta = wrap(phi + feed_angle);
+            if (!(h > 0.0 && in_material(cut->engagement, k, wrap(phi + feed_angle),
+                                         wrap(phi + feed_angle - entry) < width)))
+                continue;
             f[0] = h / layout->h_ref;
             f[1] = v_feature;
             f[2] = theta0_feature;
-            f[3] = sin(theta);
-            f[4] = cos(theta);
-            f[5] = sin(psi);
-            f[6] = cos(psi);
+            f[3] = s * cos_feed + c * sin_feed; /* sin(theta), theta = phi + feed angle */
+            f[4] = c * cos_feed - s * sin_feed; /* cos(theta) */
+            f[5] = sin_psi[k];
+            f[6] = cos_psi[k];
             sin_phi[count] = s;
             cos_phi[count] = c;
-            z_out[count] = z;
+            z_out[count] = z[k];
+            radius_out[count] = flute_radius;
             count++;
         }
     }
@@ -377,22 +500,22 @@ size_t forcenet_elements(const ForceNetLayout *layout, const ForceNetCut *cut, d
 
 void forcenet_tool(const ForceNetLayout *layout, const double *params, const ForceNetCut *cut, ForceNetTool *out) {
     double features[FORCENET_MAX_ELEMENTS * FORCENET_FEATURES], loads[FORCENET_MAX_ELEMENTS * FORCENET_LOADS];
-    double s[FORCENET_MAX_ELEMENTS], c[FORCENET_MAX_ELEMENTS], z[FORCENET_MAX_ELEMENTS];
-    const double radius = cut->tool_diameter / 2.0, dz = cut->axial_depth / FORCENET_ELEMENTS_PER_FLUTE;
+    double s[FORCENET_MAX_ELEMENTS], c[FORCENET_MAX_ELEMENTS], z[FORCENET_MAX_ELEMENTS], r[FORCENET_MAX_ELEMENTS];
+    const double dz = cut->axial_depth / FORCENET_ELEMENTS_PER_FLUTE;
     const double zp = cut->moment_height;
     double fx = 0.0, fy = 0.0, fz = 0.0, torque = 0.0, mx = 0.0, my = 0.0, mz = 0.0, max_chip = 0.0;
-    size_t n = forcenet_elements(layout, cut, features, s, c, z), i;
+    size_t n = forcenet_elements(layout, cut, features, s, c, z, r), i;
     memset(out, 0, sizeof *out);
     if (n == 0) return;
     forcenet_network(layout, params, features, n, loads);
     for (i = 0; i < n; i++) {
         double ft = loads[3 * i] * dz, fr = loads[3 * i + 1] * dz, fa = loads[3 * i + 2] * dz;
         double dfx = -ft * c[i] - fr * s[i], dfy = ft * s[i] - fr * c[i];
-        double px = radius * s[i], py = radius * c[i], pz = z[i] - zp;
+        double px = r[i] * s[i], py = r[i] * c[i], pz = z[i] - zp;
         fx += dfx;
         fy += dfy;
         fz += fa;
-        torque += ft * radius;
+        torque += ft * r[i];
         mx += py * fa - pz * dfy;
         my += pz * dfx - px * fa;
         mz += px * dfy - py * dfx;

@@ -1,4 +1,4 @@
-/* The force net without FMI: the weights file, the resource location, the network and the tool evaluation
+/* The force net without FMI: the weights file, the network and the tool evaluation
  * of models/force_net.py (same operations in the same order as its numpy reference). model.c wraps it into
  * the FMU; tools/forcenet_run.c drives it from the tests and the benchmark. No global state: the parameters
  * live in a caller's array (the FMU's instance heap) described by a ForceNetLayout (flat). */
@@ -16,6 +16,8 @@
 #define FORCENET_ELEMENTS_PER_FLUTE 16 /* H, models.force_net.ELEMENTS_PER_FLUTE */
 #define FORCENET_MAX_FLUTES 6
 #define FORCENET_MAX_ELEMENTS (FORCENET_MAX_FLUTES * FORCENET_ELEMENTS_PER_FLUTE)
+#define FORCENET_MAP_ROWS 8           /* the Workpiece's engagement map: heights (models.workpiece.N_Z) */
+#define FORCENET_MAP_COLUMNS 24       /* and angles, 15 deg each (models.workpiece.N_THETA) */
 #define FORCENET_MAX_FILE_BYTES (16u << 20)
 #define FORCENET_WEIGHTS_FILE "weights.bin"
 
@@ -37,12 +39,6 @@ typedef struct {
 int forcenet_parse(const unsigned char *data, size_t size, ForceNetLayout *layout, double *params, char *message,
                    size_t message_size);
 
-/* The file `name` in the FMU's resources: `location` as the importer passed it, a file URI in FMI 2
- * ("file:///dir/resources/", "file:/dir/resources", "file://localhost/dir/...", percent-encoded), a native path
- * in FMI 3 (anything not starting with "file:", taken as it is). Returns 0, or -1 with a message. */
-int forcenet_resource_file(const char *location, const char *name, char *path, size_t size, char *message,
-                           size_t message_size);
-
 /* Reads a whole file (at most FORCENET_MAX_FILE_BYTES); the caller frees it. NULL and a message on failure. */
 unsigned char *forcenet_read_file(const char *path, size_t *size, char *message, size_t message_size);
 
@@ -54,8 +50,14 @@ void forcenet_network(const ForceNetLayout *layout, const double *params, const 
 typedef struct {
     int n_flutes;
     double tool_diameter, helix_angle, moment_height;
+    double runout_offset, runout_angle; /* flute m's radius is R + offset * cos(angle - m * 2 pi / N) */
     double spindle_speed, feed_velocity_x, feed_velocity_y, axial_depth, entry_angle, exit_angle;
+    double displacement_x, displacement_y; /* the tool's displacement now minus one tooth period ago: the
+                                            * regenerative chip (0 and 0: the static chip) */
     double angle; /* spindle angle theta0 of flute 0 at the tip */
+    const double *engagement; /* NULL, or the engagement map (FORCENET_MAP_ROWS x FORCENET_MAP_COLUMNS, row-major,
+                               * feed frame): a cell >= 0 says whether its elements are in material (>= 0.5), a
+                               * negative cell leaves it to the window entry_angle..exit_angle */
 } ForceNetCut;
 
 typedef struct {
@@ -64,9 +66,9 @@ typedef struct {
     double max_chip;                              /* largest chip thickness in contact [m] */
 } ForceNetTool;
 
-/* The elements in contact (features n x 7, and for each sin/cos(phi) and z): returns n. */
+/* The elements in contact (features n x 7, and for each sin/cos(phi), z and its flute's radius): returns n. */
 size_t forcenet_elements(const ForceNetLayout *layout, const ForceNetCut *cut, double *features, double *sin_phi,
-                         double *cos_phi, double *z);
+                         double *cos_phi, double *z, double *radius);
 
 /* One full evaluation of the tool: elements, network, forces and moments. */
 void forcenet_tool(const ForceNetLayout *layout, const double *params, const ForceNetCut *cut, ForceNetTool *out);

@@ -7,7 +7,8 @@
  *   all is the built-in copy of the default file (default_weights.h) used. A retrained network is a new
  *   weights.bin in the FMU (models.force_net.install_weights): no recompilation.
  * - each doStep advances the spindle angle (generated), and the outputs are one evaluation of the tool at
- *   the angle reached (forcenet_tool: elements in contact, network, forces and moments). */
+ *   the angle reached (forcenet_tool: elements in contact, network, forces and moments). Material comes from
+ *   the engagement map input where its cells are given (>= 0), else from the entry/exit window. */
 #include <math.h>
 #include <stdlib.h>
 #include <string.h>
@@ -15,8 +16,13 @@
 #include "default_weights.h"
 #include "cutting_state.h"
 #include "fmu_instance.h"
+#include "resource_location.h"
 
-#define OMEGA_MIN 1.0 /* rad/s: below it the spindle counts as stopped (models/cutting_force.py) */
+/* the engagement input is the Workpiece's map (models/force_net.py: shape of "engagement") */
+typedef char map_size_matches_the_model[(SIZE_engagement == FORCENET_MAP_ROWS * FORCENET_MAP_COLUMNS) ? 1 : -1];
+
+#define OMEGA_MIN 1.0            /* rad/s: below it the spindle counts as stopped (models/cutting_force.py) */
+#define TWO_PI 6.283185307179586 /* 2.0 * math.pi */
 
 FmuStatus model_instantiate(FmuInstance *instance, const char *function) {
     ModelInternal *in = &instance->internal;
@@ -33,7 +39,7 @@ FmuStatus model_instantiate(FmuInstance *instance, const char *function) {
         source = "the built-in copy of resources/" FORCENET_WEIGHTS_FILE;
         fmu_log(instance, FMU_OK, "logEvents", "%s: no resource location was given: %s is used", function, source);
     } else {
-        if (forcenet_resource_file(instance->resource_path, FORCENET_WEIGHTS_FILE, path, sizeof path, message,
+        if (fmu_resource_file(instance->resource_path, FORCENET_WEIGHTS_FILE, path, sizeof path, message,
                                    sizeof message) != 0) {
             fmu_log(instance, FMU_ERROR, "logStatusError", "%s: %s", function, message);
             return FMU_ERROR;
@@ -63,18 +69,30 @@ FmuStatus model_instantiate(FmuInstance *instance, const char *function) {
     return FMU_OK;
 }
 
+static double tooth_period(const ModelVariables *v) {
+    return TWO_PI / ((double)v->n_flutes * fmax(v->spindle_speed, OMEGA_MIN));
+}
+
 FmuStatus model_exit_initialization(FmuInstance *instance) {
-    instance->internal.warned_stopped = false;
-    if (!instance->internal.loaded) {
+    ModelInternal *in = &instance->internal;
+    in->warned_stopped = false;
+    if (!in->loaded) {
         fmu_log(instance, FMU_ERROR, "logStatusError", "ExitInitializationMode: no force-net weights are loaded");
         return FMU_ERROR;
     }
-    return FMU_OK;
+    return history_start(instance, &in->history, in->net.count, instance->v.history_size, "ExitInitializationMode") == 0
+               ? FMU_OK
+               : FMU_ERROR;
 }
 
 FmuStatus model_do_step(FmuInstance *instance, double time, double step_size) {
     ModelVariables *v = &instance->v;
-    FmuStatus status = warn_feeding_a_stopped_spindle(instance, time, v->spindle_speed, OMEGA_MIN, v->feed_velocity_x,
+    FmuStatus status;
+    if (history_record(instance, &instance->internal.history, v->history_size, time, step_size, v->displacement_x,
+                       v->displacement_y, tooth_period(v), v->spindle_speed >= OMEGA_MIN && v->axial_depth > 0.0,
+                       v->n_flutes, v->spindle_speed) != 0)
+        return FMU_ERROR;
+    status = warn_feeding_a_stopped_spindle(instance, time, v->spindle_speed, OMEGA_MIN, v->feed_velocity_x,
                                             v->feed_velocity_y, v->axial_depth, v->entry_angle, v->exit_angle,
                                             &instance->internal.warned_stopped);
     model_update_states(v, step_size);
@@ -85,13 +103,20 @@ void model_update_outputs(FmuInstance *instance) {
     ModelVariables *v = &instance->v;
     ForceNetCut cut;
     ForceNetTool tool;
-    model_evaluate_equations(v);
     memset(&tool, 0, sizeof tool);
+    /* (before the first step the history is empty: the delayed displacement is the current one) */
+    history_delayed(instance, &instance->internal.history, instance->time, tooth_period(v), v->displacement_x,
+                    v->displacement_y, &v->states.delayed_displacement_x, &v->states.delayed_displacement_y);
+    model_evaluate_equations(v);
     if (instance->internal.loaded) {
         cut.n_flutes = (int)v->n_flutes;
         cut.tool_diameter = v->tool_diameter;
         cut.helix_angle = v->helix_angle;
         cut.moment_height = v->moment_height;
+        cut.runout_offset = v->runout_offset;
+        cut.runout_angle = v->runout_angle;
+        cut.displacement_x = v->displacement_x - v->states.delayed_displacement_x;
+        cut.displacement_y = v->displacement_y - v->states.delayed_displacement_y;
         cut.spindle_speed = v->spindle_speed;
         cut.feed_velocity_x = v->feed_velocity_x;
         cut.feed_velocity_y = v->feed_velocity_y;
@@ -99,6 +124,7 @@ void model_update_outputs(FmuInstance *instance) {
         cut.entry_angle = v->entry_angle;
         cut.exit_angle = v->exit_angle;
         cut.angle = v->states.angle;
+        cut.engagement = v->engagement;
         forcenet_tool(&instance->internal.net, instance->heap, &cut, &tool);
     }
     v->Fx = tool.Fx;

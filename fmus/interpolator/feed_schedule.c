@@ -38,46 +38,43 @@ double reach_up(double v0, double length, double a, double j) {
     return v0 + x;
 }
 
-double lowest_feasible(double v_high, double v_low, double length, double a, double j) {
-    double lo = v_low, hi = v_high;
+/* What a bisection tests: can the velocity profile through v be done within the segment length? */
+typedef struct {
+    double va, vb, length, a, j;
+} SCurveFit;
+
+static int peak_fits(const SCurveFit *f, double v) {
+    return s_curve_distance(f->va, v, f->a, f->j) + s_curve_distance(v, f->vb, f->a, f->j) <= f->length;
+}
+
+static int slowdown_fits(const SCurveFit *f, double v) { return s_curve_distance(v, f->vb, f->a, f->j) <= f->length; }
+
+/* Narrows [good, bad] (fits at good, not at bad, one change between) by BISECTIONS halvings; the end that fits. */
+static double bisect_fitting(int (*fits)(const SCurveFit *, double), const SCurveFit *f, double good, double bad) {
     int k;
-    if (s_curve_distance(v_low, v_high, a, j) <= length) return v_low;
     for (k = 0; k < BISECTIONS; k++) {
-        double mid = 0.5 * (lo + hi);
-        if (s_curve_distance(mid, v_high, a, j) <= length)
-            hi = mid;
+        double mid = 0.5 * (good + bad);
+        if (fits(f, mid))
+            good = mid;
         else
-            lo = mid;
+            bad = mid;
     }
-    return hi;
+    return good;
+}
+
+double lowest_feasible(double v_high, double v_low, double length, double a, double j) {
+    SCurveFit f;
+    f.va = v_high, f.vb = v_high, f.length = length, f.a = a, f.j = j;
+    if (slowdown_fits(&f, v_low)) return v_low;
+    return bisect_fitting(slowdown_fits, &f, v_high, v_low);
 }
 
 double segment_peak(double va, double vb, double length, double cap, double a, double j) {
-    double top = max2(va, vb), lo, hi, floor_v;
-    int k;
-    if (cap >= top) {
-        if (s_curve_distance(va, cap, a, j) + s_curve_distance(cap, vb, a, j) <= length) return cap;
-        lo = top, hi = cap;
-        for (k = 0; k < BISECTIONS; k++) {
-            double mid = 0.5 * (lo + hi);
-            if (s_curve_distance(va, mid, a, j) + s_curve_distance(mid, vb, a, j) <= length)
-                lo = mid;
-            else
-                hi = mid;
-        }
-        return lo;
-    }
-    floor_v = max2(cap, 0.0);
-    if (s_curve_distance(va, floor_v, a, j) + s_curve_distance(floor_v, vb, a, j) <= length) return floor_v;
-    lo = floor_v, hi = top;
-    for (k = 0; k < BISECTIONS; k++) {
-        double mid = 0.5 * (lo + hi);
-        if (s_curve_distance(va, mid, a, j) + s_curve_distance(mid, vb, a, j) <= length)
-            hi = mid;
-        else
-            lo = mid;
-    }
-    return hi;
+    SCurveFit f;
+    double top = max2(va, vb), floor_v = max2(cap, 0.0);
+    f.va = va, f.vb = vb, f.length = length, f.a = a, f.j = j;
+    if (cap >= top) return peak_fits(&f, cap) ? cap : bisect_fitting(peak_fits, &f, top, cap);
+    return peak_fits(&f, floor_v) ? floor_v : bisect_fitting(peak_fits, &f, top, floor_v);
 }
 
 double s_curve_position(double v0, double v1, double a, double j, double w) {

@@ -339,6 +339,20 @@ void interp_tick(double *heap, const InterpLayout *L, InterpState *st, const Int
     update_outputs(heap, L, st, settings);
 }
 
+int interp_holds_still(const double *heap, const InterpLayout *L, const InterpState *before,
+                       const InterpState *after) {
+    const double *pc;
+    InterpState same;
+    if (!after->hold || after->n_pieces == 0 || after->piece + 1 != after->n_pieces) return 0;
+    pc = heap + L->pieces + PIECE_DOUBLES * after->piece;
+    if (pc[2] != 0.0 || pc[3] != 0.0 || pc[4] != 0.0) return 0; /* s, v, a no longer depend on t */
+    /* bytewise, padding included: interp_start zeroes the state and the ticks write it field by field, so the
+     * padding is zero; were it not, the comparison would only fail and nothing be skipped */
+    memcpy(&same, before, sizeof same);
+    same.tick = after->tick;
+    return memcmp(&same, after, sizeof same) == 0;
+}
+
 int interp_check(const double *heap, size_t heap_size, const InterpLayout *L, const InterpState *st) {
     if (!heap || heap_size != L->heap_size || heap_size < 1 || heap[0] != INTERP_MAGIC) return -1;
     if (L->pieces + PIECE_DOUBLES * L->piece_capacity != L->heap_size) return -1;

@@ -76,5 +76,9 @@ int interp_set_override(double *heap, const InterpLayout *layout, InterpState *s
 void interp_tick(double *heap, const InterpLayout *layout, InterpState *state, const InterpSettings *settings);
 /* Consistency of a layout and state with a heap (an FMU state from outside): 0 if usable. */
 int interp_check(const double *heap, size_t heap_size, const InterpLayout *layout, const InterpState *state);
+/* 1 when the feed is held, the tool stands still on the last piece of the plan and the tick from `before` to
+ * `after` changed nothing but the tick count: every further tick would do the same. */
+int interp_holds_still(const double *heap, const InterpLayout *layout, const InterpState *before,
+                       const InterpState *after);
 
 #endif

@@ -11,6 +11,7 @@
 
 #include "default_program.h"
 #include "fmu_instance.h"
+#include "resource_location.h"
 
 #define MAX_PROGRAM_BYTES (64u << 20)
 #define PROGRAM_FILE_NAME "program.nc"
@@ -59,37 +60,6 @@ static void settings_of(const ModelVariables *v, InterpSettings *s) {
     s->gcode.start[0] = v->start_x, s->gcode.start[1] = v->start_y, s->gcode.start[2] = v->start_z;
     for (j = 0; j < 6; j++)
         for (i = 0; i < 3; i++) s->gcode.offsets[j][i] = *offsets[j][i];
-}
-
-static int hex_value(char c) {
-    if (c >= '0' && c <= '9') return c - '0';
-    if (c >= 'a' && c <= 'f') return c - 'a' + 10;
-    if (c >= 'A' && c <= 'F') return c - 'A' + 10;
-    return -1;
-}
-
-/* The resources folder as a file system path: FMI 3 passes a path, FMI 2 a file URI (percent-encoded). */
-static int resources_folder(const char *location, char *path, size_t size) {
-    size_t n = 0;
-    const char *s = location;
-    if (strncmp(s, "file://", 7) == 0) {
-        s += 7;
-        if (strncmp(s, "localhost/", 10) == 0) s += 9;
-    } else if (strncmp(s, "file:", 5) == 0) {
-        s += 5;
-    }
-    while (*s && n + 1 < size) {
-        if (s[0] == '%' && hex_value(s[1]) >= 0 && hex_value(s[2]) >= 0) {
-            path[n++] = (char)(hex_value(s[1]) * 16 + hex_value(s[2]));
-            s += 3;
-        } else {
-            path[n++] = *s++;
-        }
-    }
-    if (*s) return -1;
-    while (n > 1 && path[n - 1] == '/') n--;
-    path[n] = '\0';
-    return 0;
 }
 
 /* Reads a whole file (at most MAX_PROGRAM_BYTES); NULL and a message on failure. */
@@ -161,13 +131,11 @@ FmuStatus model_exit_initialization(FmuInstance *instance) {
         }
         text = owned;
     } else if (instance->resource_path[0] != '\0') {
-        char folder[FMU_STRING_CAPACITY];
-        if (resources_folder(instance->resource_path, folder, sizeof folder) != 0) {
-            fmu_log(instance, FMU_ERROR, "logStatusError", "%s: the resource location '%.200s' is too long", function,
-                    instance->resource_path);
+        if (fmu_resource_file(instance->resource_path, PROGRAM_FILE_NAME, path, sizeof path, error,
+                              sizeof error) != 0) {
+            fmu_log(instance, FMU_ERROR, "logStatusError", "%s: parameter 'program' is empty and %s", function, error);
             return FMU_ERROR;
         }
-        snprintf(path, sizeof path, "%s/%s", folder, PROGRAM_FILE_NAME);
         file = "resources/" PROGRAM_FILE_NAME;
         owned = read_file(path, &length, error, sizeof error);
         if (!owned) {
@@ -225,7 +193,19 @@ FmuStatus model_do_step(FmuInstance *instance, double time, double step_size) {
         return FMU_ERROR;
     }
     until = (int64_t)target;
-    while (w->state.tick < until) interp_tick(instance->heap, &w->layout, &w->state, &w->settings);
+    while (w->state.tick < until) {
+        const bool still = w->state.hold && w->state.v == 0.0 && w->state.a == 0.0;
+        InterpState before;
+        if (still) memcpy(&before, &w->state, sizeof before);
+        interp_tick(instance->heap, &w->layout, &w->state, &w->settings);
+        /* After the program's end every further tick changes only the tick count and the piece index, which
+         * the last tick sets as every tick would; in a feed hold at standstill nothing but the tick count
+         * changes. Skip to the last tick (a long step would otherwise spin through one tick per period: 112 s
+         * for a 1e9 s step at 0.1 s). */
+        if (w->state.tick + 1 < until &&
+            (w->state.finished || (still && interp_holds_still(instance->heap, &w->layout, &before, &w->state))))
+            w->state.tick = until - 1;
+    }
     return FMU_OK;
 }
 

@@ -50,21 +50,11 @@ class ProbeData:
     source: str = "probes"
 
     def __post_init__(self) -> None:
-        pts = np.asarray(self.points, dtype=np.float64)
+        pts = _checked_points(self.points, self.source, "probe points", "to interpolate a surface")
         th = np.asarray(self.thickness, dtype=np.float64)
-        if pts.ndim != 2 or pts.shape[1] != 3:
-            raise AlignmentError(f"{self.source}: points must be (k, 3), got {pts.shape}")
         if th.shape != (pts.shape[0],):
             raise AlignmentError(f"{self.source}: {th.shape} thickness values for "
                                  f"{pts.shape[0]} points")
-        if pts.shape[0] < MIN_PROBES:
-            raise AlignmentError(f"{self.source}: {pts.shape[0]} probe points; at least "
-                                 f"{MIN_PROBES} are needed to interpolate a surface")
-        bad = ~np.isfinite(pts)
-        if bad.any():
-            row, col = np.argwhere(bad)[0]
-            raise AlignmentError(f"{self.source}: row {row}: {'xyz'[col]} is not a finite number "
-                                 f"({float(pts[row, col])!r})")
         for row, value in enumerate(th):
             if not math.isfinite(value) or value <= 0:
                 raise AlignmentError(f"{self.source}: row {row}: thickness must be a finite "
@@ -96,19 +86,24 @@ class Compensation:
         return self.registration.mean_distance <= self.threshold
 
 
-def _check_cloud(cloud: np.ndarray, source: str) -> np.ndarray:
-    c = np.asarray(cloud, dtype=np.float64)
+def _checked_points(points: np.ndarray, source: str, what: str, purpose: str) -> np.ndarray:
+    """``points`` as a finite (k, 3) float array of at least MIN_PROBES rows, else an AlignmentError
+    naming ``source`` and the first bad row."""
+    c = np.asarray(points, dtype=np.float64)
     if c.ndim != 2 or c.shape[1] != 3:
-        raise AlignmentError(f"{source}: design cloud must be (n, 3), got {c.shape}")
+        raise AlignmentError(f"{source}: {what} must be (k, 3), got {c.shape}")
     if c.shape[0] < MIN_PROBES:
-        raise AlignmentError(f"{source}: {c.shape[0]} design points; at least {MIN_PROBES} "
-                             f"are needed for registration")
+        raise AlignmentError(f"{source}: {c.shape[0]} {what}; at least {MIN_PROBES} are needed {purpose}")
     bad = ~np.isfinite(c)
     if bad.any():
         row, col = np.argwhere(bad)[0]
         raise AlignmentError(f"{source}: row {row}: {'xyz'[col]} is not a finite number "
                              f"({float(c[row, col])!r})")
     return c
+
+
+def _check_cloud(cloud: np.ndarray, source: str) -> np.ndarray:
+    return _checked_points(cloud, source, "design points", "for registration")
 
 
 def _positive(name: str, value: float) -> float:

@@ -9,6 +9,7 @@ dropouts. The true simulated time of every recorded sample is returned with it.
 """
 from __future__ import annotations
 
+import os
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -43,6 +44,20 @@ def umich_row_times(position: np.ndarray, velocity: np.ndarray, period: float = 
     speed = np.where(speed < 1.0, rapid, speed)
     step = np.where(jump > speed * period + slack, jump / speed, period)
     return np.concatenate([[0.0], np.cumsum(step)])
+
+
+UMICH_DATA_ENV = "MILLING_TWIN_UMICH_DATA"
+
+
+def umich_data_dir(option: str | Path | None = None) -> Path:
+    """The folder of the full UMich recordings (experiment_NN.csv): ``option``, else $MILLING_TWIN_UMICH_DATA,
+    else ../shared/data/umich_cnc beside the repository; an AlignmentError says where it looked."""
+    repo = Path(__file__).resolve().parents[2]
+    folder = Path(option or os.environ.get(UMICH_DATA_ENV) or repo.parent / "shared" / "data" / "umich_cnc")
+    if not folder.is_dir():
+        raise AlignmentError(f"UMich recordings not found in {folder}: pass --data DIR (experiment_NN.csv files) "
+                             f"or set {UMICH_DATA_ENV}")
+    return folder
 
 
 def path_from_umich(csv_path: str | Path, rate: float = 100.0, smooth: float = 0.2,

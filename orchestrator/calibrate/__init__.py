@@ -1,6 +1,6 @@
 """Calibration that closes the loop: fit model parameters (the models/ casadi expressions, the same
-equations the FMUs are generated from) to aligned recorded data, report, and write a parameter set the
-scenarios apply by name.
+equations the FMUs are generated from, or, where those cannot give the outputs, the FMUs themselves with
+finite differences) to aligned recorded data, report, and write a parameter set the scenarios apply by name.
 
 ``python -m orchestrator calibrate SPEC`` (:mod:`orchestrator.calibrate.cli`); spec format in
 :mod:`orchestrator.calibrate.spec`; the generic kind in :mod:`orchestrator.calibrate.scenario_fit`,

@@ -2,9 +2,9 @@
 
 1. Every output's residuals are divided by a noise level sigma_o and multiplied by sqrt(weight_o):
    the spec's ``sigma`` when given, else (first stage) the RMS of the recorded values.
-2. IPOPT runs from each start (the initial values, then drawn ones); a start that fails is
-   reported with its cause and the next one runs. The best converged start (lowest objective)
-   wins; if none converged, the best that ran out of iterations is taken and said so.
+2. The solver (lsq: IPOPT, or Levenberg-Marquardt on the FMU path) runs from each start (the initial
+   values, then drawn ones); a start that fails is reported with its cause and the next one runs.
+   The best converged start (lowest objective) wins; if none converged, the best that ran out of iterations is taken and said so.
 3. With ``noise = "estimate"`` and more than one output, sigma_o becomes each output's residual
    RMS at the first-stage optimum and the fit is repeated from it (two-stage weighted least
    squares: the residuals of every output then have unit variance, as the statistics assume).
@@ -22,7 +22,7 @@ from tqdm import tqdm
 from orchestrator.calibrate.errors import CalibrationError
 from orchestrator.calibrate.lsq import LeastSquaresSolver, StartOutcome
 from orchestrator.calibrate.parameters import Parameter, draw_starts
-from orchestrator.calibrate.residuals import ResidualModel
+from orchestrator.calibrate.residuals import EXACT, ResidualModel
 from orchestrator.calibrate.spec import SolverSpec, StatisticsSpec
 from orchestrator.calibrate.statistics import FitStatistics, fit_statistics
 
@@ -41,6 +41,7 @@ class FitOutcome:
     weights: np.ndarray  # per-output user weights
     solve_time: float  # all starts and the second stage, s
     note: str = ""
+    derivatives: str = EXACT  # the residual model's path: exact derivatives or FMU finite differences
 
     def estimate(self, name: str) -> float:
         return float(self.theta[[q.name for q in self.parameters].index(name)])
@@ -111,4 +112,4 @@ def fit(model: ResidualModel, recorded: np.ndarray, *, weights: Sequence[float],
     stats = fit_statistics(jac, r, theta, model.parameters, statistics, n_residuals=model.n_samples,
                            extra_ssr=model.extra_ssr(p[-model.n_outputs:]))
     return FitOutcome(model.parameters, theta, outcomes, best, refit, stats, noise, user,
-                      time.perf_counter() - t0, note)
+                      time.perf_counter() - t0, note, model.derivatives)

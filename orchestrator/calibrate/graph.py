@@ -19,8 +19,13 @@ Models with states (one instance, e.g. ToolVibration) are dynamic: ``step(x_prev
 gives the states after one step ``x_k = update(theta, d_k, x_prev, h)`` and the outputs
 ``y_k = equations(theta, d_k, x_k)``: row k of the results holds the inputs held over the step that
 ended at t_k and the outputs after it. Only the states the fitted outputs depend on (directly or
-through other states' updates) are kept. States computed by a model's C code (native states)
-and native outputs cannot be expressed and are refused.
+through other states' updates) are kept.
+
+What the graph cannot express raises :class:`NotExpressible` (naming the spec key): outputs or
+states computed by a model's C code (native), an instance without a models/ definition, an
+instance with states upstream of the fitted outputs, several dynamic instances, a dynamic instance
+not recorded every step. Such fits run through the FMUs with finite differences instead
+(:mod:`orchestrator.calibrate.fmu_outputs`).
 """
 from __future__ import annotations
 
@@ -35,11 +40,19 @@ from models import MODELS
 from models.definition import ModelDefinition, State
 from orchestrator.scenario import Scenario
 
-__all__ = ["DataColumn", "DynamicPart", "ModelGraph", "NO_DATA_DERIVATIVE", "build_graph"]
+__all__ = ["DataColumn", "DynamicPart", "ModelGraph", "NO_DATA_DERIVATIVE", "NotExpressible", "build_graph"]
 
 # Data are not differentiated: without this, casadi's forward mode multiplies a zero seed by an
 # infinite partial (sqrt at 0 of |v| = 0, in MrrEstimator) and gets NaN for every parameter.
 NO_DATA_DERIVATIVE = {"is_diff_in": [True, False]}
+
+
+class NotExpressible(Exception):
+    """The models/ expressions cannot give the fitted outputs (``key``: the spec key concerned)."""
+
+    def __init__(self, key: str, message: str) -> None:
+        super().__init__(f"{key}: {message}")
+        self.key, self.message = key, message
 
 
 @dataclass(frozen=True)
@@ -92,7 +105,7 @@ def build_graph(scenario: Scenario, parameters: Sequence[str], outputs: Sequence
     def model(instance: str, key: str) -> ModelDefinition:
         m = model_of(scenario, instance)
         if m is None:
-            fail(key, f"instance {instance!r} runs {scenario.instance(instance).model_identifier}, which has no "
+            raise NotExpressible(key, f"instance {instance!r} runs {scenario.instance(instance).model_identifier}, which has no "
                       "models/ definition: its equations are not available to calibration")
         models[instance] = m
         return m
@@ -121,7 +134,7 @@ def build_graph(scenario: Scenario, parameters: Sequence[str], outputs: Sequence
             ref = f"{instance}.{name}"
             if isinstance(arg, State):
                 if states is None:
-                    fail(key, f"{instance} ({m.identifier}) has states: only the fitted outputs' own instance "
+                    raise NotExpressible(key, f"{instance} ({m.identifier}) has states: only the fitted outputs' own instance "
                               "may be dynamic, not an instance upstream of it")
                 values[name] = states[name]
             elif arg.causality == "parameter":
@@ -147,7 +160,7 @@ def build_graph(scenario: Scenario, parameters: Sequence[str], outputs: Sequence
         if instance not in cache:
             m = model(instance, key)
             if m.states:
-                fail(key, f"{instance} ({m.identifier}) has states: a dynamic model must be the instance "
+                raise NotExpressible(key, f"{instance} ({m.identifier}) has states: a dynamic model must be the instance "
                           "whose outputs are fitted, with its inputs from data")
             cache[instance] = m.equations(arguments(instance, key, None))
         return cache[instance]
@@ -157,7 +170,7 @@ def build_graph(scenario: Scenario, parameters: Sequence[str], outputs: Sequence
         inst, var = o.split(".", 1)
         m = model(inst, keys[o])
         if var in m.native_outputs:
-            fail(keys[o], f"{o} is computed by the FMU's C code (model.c), not by a models/ expression")
+            raise NotExpressible(keys[o], f"{o} is computed by the FMU's C code (model.c), not by a models/ expression")
         if m.variable(var).causality != "output":
             fail(keys[o], f"{o} is {m.variable(var).causality}, not an output")
     for name in parameters:
@@ -177,7 +190,7 @@ def build_graph(scenario: Scenario, parameters: Sequence[str], outputs: Sequence
                           tuple(models), models, tuple(inputs_used))
     if len(out_instances) > 1:
         o = next(o for o in outputs if o.startswith(dynamic_instances[0] + "."))
-        fail(keys[o], f"outputs of a dynamic model ({dynamic_instances[0]}) are fitted together with outputs of "
+        raise NotExpressible(keys[o], f"outputs of a dynamic model ({dynamic_instances[0]}) are fitted together with outputs of "
                       f"{', '.join(sorted(out_instances - {dynamic_instances[0]}))}: fit one dynamic instance at a time")
     graph = _dynamic(scenario, dynamic_instances[0], parameters, outputs, theta, arguments, data_symbols,
                      data_columns, models, fail, keys)
@@ -204,11 +217,11 @@ def _dynamic(scenario: Scenario, instance: str, parameters: Sequence[str], outpu
     m = models[instance]
     key = keys[next(o for o in outputs if o.startswith(instance + "."))]
     if m.native_states:
-        fail(key, f"{instance} ({m.identifier}) keeps states in its C code ({', '.join(m.native_states)}): "
+        raise NotExpressible(key, f"{instance} ({m.identifier}) keeps states in its C code ({', '.join(m.native_states)}): "
                   "not expressible for the generic fit")
     inst = scenario.instance(instance)
     if inst.ticks_per_step != scenario.ticks_per_output:
-        fail(key, f"{instance} is dynamic: the scenario must record every step of it ([scenario].output_interval = "
+        raise NotExpressible(key, f"{instance} is dynamic: the scenario must record every step of it ([scenario].output_interval = "
                   f"{inst.step_size!r} s, the instance's step_size; it is {scenario.output_interval!r} s)")
     states = {s.name: ca.SX.sym(s.name) for s in m.states}
     values = arguments(instance, key, states)

@@ -10,10 +10,23 @@ Hessian: ``"gauss-newton"`` passes IPOPT ``lam_f * J^T J`` (J = dr/dx) as the He
 Lagrangian (generalised Gauss-Newton: the curvature of r and of the shooting constraints is
 left out); ``"exact"`` lets casadi differentiate twice.
 
+Algorithm: IPOPT, or, for problems whose residuals are evaluated by simulation (``algorithm =
+"levenberg-marquardt"``: each Jacobian costs one simulation per parameter, see
+:mod:`orchestrator.calibrate.fmu_outputs`), a projected Levenberg-Marquardt method that needs one
+Jacobian per iteration and none for a rejected step: a linear problem converges in one or two
+iterations where the interior-point method takes 15 or more (its barrier parameter must go to zero).
+Bounds: a parameter at a bound whose gradient points outwards is held there for the step, the others
+take the damped Gauss-Newton step ``(A^T A + lambda diag(A^T A)) dx = -A^T r``, projected on the
+bounds; the step is accepted when the objective decreases (lambda / 10), else lambda * 10. Converged:
+relative decrease of the objective below ``tolerance``, or no decrease possible (lambda beyond 1e12)
+with a projected step below 1e-8 of the parameters' size (what remains is the rounding of the
+evaluations). Equality constraints (multiple shooting) need IPOPT.
+
 Robustness: before a start is handed to IPOPT the residuals and their Jacobian are evaluated at
-it; a non-finite value is reported with the residual and the parameter it concerns and the start
-is skipped. IPOPT failures (its return status) and exceptions are reported with their cause;
-either way the next start runs.
+it; a non-finite value is reported with the residual and the parameter it concerns (or, when the
+model is evaluated by simulation, the simulation's failure) and the start is skipped. IPOPT failures
+(its return status) and exceptions are reported with their cause, and with the first failed model
+evaluation of the run if any; either way the next start runs.
 """
 from __future__ import annotations
 
@@ -41,6 +54,12 @@ class LeastSquaresProblem:
     # labels for messages: residual index -> "power.P_total at t = 3.1 s", variable index -> name
     describe_residual: Callable[[int], str] = field(default=lambda i: f"residual {i}")
     describe_variable: Callable[[int], str] = field(default=lambda j: f"variable {j}")
+    # causes of failed model evaluations so far (the FMU path: a simulation that failed gives NaN outputs)
+    failures: Callable[[], list[str]] | None = None
+    # keep every evaluation inside the bounds (IPOPT relaxes them by 1e-8 by default): for models evaluated by
+    # the FMUs, which refuse a parameter outside its range
+    strict_bounds: bool = False
+    algorithm: str = "ipopt"  # or "levenberg-marquardt" (no constraints)
 
 
 @dataclass
@@ -69,10 +88,19 @@ class LeastSquaresSolver:
         x, p, r = problem.x, problem.p, problem.residual
         jac = ca.jacobian(r, x)
         self.check = ca.Function("lsq_check", [x, p], [r, jac])
+        self.residual = ca.Function("lsq_residual", [x, p], [r])
+        self.max_iterations, self.tolerance = max_iterations, tolerance
+        if problem.algorithm not in ("ipopt", "levenberg-marquardt"):
+            raise ValueError(f"unknown least-squares algorithm {problem.algorithm!r}")
+        if problem.algorithm == "levenberg-marquardt" and problem.constraints.numel():
+            raise ValueError("the Levenberg-Marquardt method takes no constraints (multiple shooting needs IPOPT)")
         nlp = {"x": x, "p": p, "f": 0.5 * ca.dot(r, r), "g": problem.constraints}
         options: dict = {"print_time": False, "error_on_fail": False,
                          "ipopt": {"print_level": 0, "sb": "yes", "max_iter": max_iterations, "tol": tolerance,
                                    "acceptable_tol": max(tolerance * 1e3, 1e-8), "acceptable_iter": 10}}
+        if problem.strict_bounds:
+            options["ipopt"]["bound_relax_factor"] = 0.0
+            options["ipopt"]["honor_original_bounds"] = "yes"
         if hessian == "gauss-newton":
             lam_f = ca.MX.sym("lam_f")
             lam_g = ca.MX.sym("lam_g", problem.constraints.numel())
@@ -123,12 +151,27 @@ class LeastSquaresSolver:
         lbx = self.problem.lbx if lbx is None else lbx
         ubx = self.problem.ubx if ubx is None else ubx
         x0 = np.clip(np.asarray(x0, dtype=float), lbx, ubx)
+        failed_before = len(self.problem.failures()) if self.problem.failures else 0
         try:
             cause = self._precheck(x0, p)
         except Exception as exc:  # noqa: BLE001 - any evaluation failure is reported, the run goes on
             cause = f"model evaluation failed: {type(exc).__name__}: {exc}"
+        new_failures = self._failures_since(failed_before)
+        if cause is not None and new_failures:
+            cause = f"model evaluation failed: {new_failures[0]}"
         if cause is not None:
             return StartOutcome(index, x0, "failed", cause, wall_time=time.perf_counter() - t0)
+        if self.problem.algorithm == "levenberg-marquardt":
+            try:
+                outcome = self._levenberg_marquardt(x0, p, index, lbx, ubx)
+            except Exception as exc:  # noqa: BLE001
+                outcome = StartOutcome(index, x0, "failed", f"solver failed: {type(exc).__name__}: {exc}")
+            new_failures = self._failures_since(failed_before)
+            if new_failures:
+                outcome.message += (f"; {len(new_failures)} model evaluation(s) failed during the iterations (the "
+                                    f"step was shortened), the first: {new_failures[0]}")
+            outcome.wall_time = time.perf_counter() - t0
+            return outcome
         try:
             sol = self.nlp(x0=x0, p=p, lbx=lbx, ubx=ubx, lbg=self.lbg, ubg=self.ubg)
             stats = self.nlp.stats()
@@ -136,18 +179,73 @@ class LeastSquaresSolver:
             return StartOutcome(index, x0, "failed", f"solver failed: {type(exc).__name__}: {exc}",
                                 wall_time=time.perf_counter() - t0)
         status = str(stats.get("return_status", "unknown"))
+        new_failures = self._failures_since(failed_before)
+        if new_failures:
+            status += (f"; {len(new_failures)} model evaluation(s) failed during the iterations (IPOPT backs off "
+                       f"from such trial points), the first: {new_failures[0]}")
         iterations = stats.get("iterations", {})
         trace = {k: [float(v) for v in iterations.get(k, [])] for k in ("obj", "inf_pr", "inf_du")}
         x = np.asarray(sol["x"], dtype=float).ravel()
         objective = float(sol["f"])
-        if status in SUCCESS and np.all(np.isfinite(x)):
+        code = status.split(";", 1)[0]
+        if code in SUCCESS and np.all(np.isfinite(x)) and np.isfinite(objective):
             state = "converged"
-        elif np.all(np.isfinite(x)) and np.isfinite(objective) and status == "Maximum_Iterations_Exceeded":
+        elif np.all(np.isfinite(x)) and np.isfinite(objective) and code == "Maximum_Iterations_Exceeded":
             state = "not converged"
         else:
             state = "failed"
         return StartOutcome(index, x0, state, status, x if np.all(np.isfinite(x)) else None, objective,
                             int(stats.get("iter_count", 0)), time.perf_counter() - t0, trace)
+
+    def _levenberg_marquardt(self, x: np.ndarray, p: np.ndarray, index: int, lbx: np.ndarray,
+                             ubx: np.ndarray) -> StartOutcome:
+        r, jac = self.residual_and_jacobian(x, p)
+        f = 0.5 * float(r @ r)
+        trace = {"obj": [f]}
+        lam = 1e-3
+        status, state = "Maximum_Iterations_Exceeded", "not converged"
+        iterations = 0
+        while iterations < self.max_iterations:
+            g = jac.T @ r
+            held = ((x <= lbx) & (g > 0)) | ((x >= ubx) & (g < 0)) | (lbx == ubx)
+            free = ~held
+            a = jac[:, free]
+            d = np.maximum(np.sum(a * a, axis=0), 1e-300)
+            # the damped normal equations as a least-squares problem (better conditioned than forming A^T A)
+            aug = np.vstack([a, np.diag(np.sqrt(lam * d))])
+            step = np.zeros_like(x)
+            step[free] = np.linalg.lstsq(aug, -np.concatenate([r, np.zeros(free.sum())]), rcond=None)[0]
+            x_new = np.clip(x + step, lbx, ubx)
+            moved = np.abs(x_new - x)
+            r_new = self.residual_values(x_new, p)
+            f_new = 0.5 * float(r_new @ r_new) if np.all(np.isfinite(r_new)) else np.inf
+            if f_new < f:
+                iterations += 1
+                decrease = f - f_new
+                x, f = x_new, f_new
+                trace["obj"].append(f)
+                lam = max(lam / 10, 1e-12)
+                if decrease <= self.tolerance * max(f, 1e-300) or not free.any():
+                    status, state = "Converged: relative decrease of the objective below the tolerance", "converged"
+                    break
+                r, jac = self.residual_and_jacobian(x, p)
+            else:
+                lam *= 10
+                if lam > 1e12:
+                    small = np.max(moved / np.maximum(np.abs(x), 1.0)) if moved.size else 0.0
+                    if small <= 1e-8:
+                        status, state = ("Converged: no further decrease (the objective is flat to the rounding of "
+                                          "the evaluations)", "converged")
+                    else:
+                        status, state = "Stopped: no decrease along the damped steps", "not converged"
+                    break
+        return StartOutcome(index, x, state, status, x, f, iterations, 0.0, trace)
+
+    def residual_values(self, x: np.ndarray, p: np.ndarray) -> np.ndarray:
+        return np.asarray(self.residual(x, p), dtype=float).ravel()
+
+    def _failures_since(self, count: int) -> list[str]:
+        return self.problem.failures()[count:] if self.problem.failures else []
 
     def residual_and_jacobian(self, x: np.ndarray, p: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         r, jac = self.check(x, p)

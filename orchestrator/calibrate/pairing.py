@@ -18,11 +18,10 @@ import numpy as np
 import pandas as pd
 
 from orchestrator.align import TimeMap, align_results
-from orchestrator.calibrate.graph import ModelGraph
 from orchestrator.calibrate.spec import AlignmentSpec
 from orchestrator.recorded import RecordedData
 
-__all__ = ["AlignmentSummary", "Pairs", "make_pairs", "map_times"]
+__all__ = ["AlignmentSummary", "Pairs", "at_rows", "make_pairs", "map_times"]
 
 LEARNING, VALIDATION = 0, 1
 
@@ -47,7 +46,7 @@ class Pairs:
 
     def with_fmu(self, results: pd.DataFrame, outputs: Sequence[str]) -> "Pairs":
         """The same pairs with the FMU outputs taken from another run on the same grid."""
-        return replace(self, fmu=_at_rows(results, outputs, self.row_time))
+        return replace(self, fmu=at_rows(results, outputs, self.row_time))
 
 
 @dataclass(frozen=True)
@@ -64,7 +63,7 @@ class AlignmentSummary:
     wall_time: float
 
 
-def _at_rows(results: pd.DataFrame, columns: Sequence[str], times: np.ndarray) -> np.ndarray:
+def at_rows(results: pd.DataFrame, columns: Sequence[str], times: np.ndarray) -> np.ndarray:
     t = results["time"].to_numpy(dtype=float)
     out = np.empty((times.size, len(columns)))
     nearest = np.clip(np.searchsorted(t, times), 1, t.size - 1)
@@ -87,10 +86,12 @@ def map_times(recorded: RecordedData, results: pd.DataFrame, alignment: Alignmen
     return time_map.simulated_time + alignment.output_delay, time_map.confidence, time_map
 
 
-def make_pairs(recorded: RecordedData, results: pd.DataFrame, graph: ModelGraph, channels: Sequence[str],
-               factors: Sequence[float], alignment: AlignmentSpec, learning: Sequence[tuple[float, float]],
-               validation: Sequence[tuple[float, float]]) -> tuple[Pairs, AlignmentSummary, TimeMap | None]:
-    """Pairs for the graph's outputs against ``channels`` (recorded value * factor = output unit)."""
+def make_pairs(recorded: RecordedData, results: pd.DataFrame, data_columns: Sequence[str], outputs: Sequence[str],
+               channels: Sequence[str], factors: Sequence[float], alignment: AlignmentSpec,
+               learning: Sequence[tuple[float, float]], validation: Sequence[tuple[float, float]]
+               ) -> tuple[Pairs, AlignmentSummary, TimeMap | None]:
+    """Pairs for ``outputs`` ("instance.variable") against ``channels`` (recorded value * factor = output
+    unit), with the model's ``data_columns`` (the inputs the models/ graph reads; none on the FMU path)."""
     t0 = time.perf_counter()
     row_time, confidence, time_map = map_times(recorded, results, alignment)
     t = results["time"].to_numpy(dtype=float)
@@ -98,14 +99,14 @@ def make_pairs(recorded: RecordedData, results: pd.DataFrame, graph: ModelGraph,
     rt = np.clip(row_time[inside], t[0], t[-1])
     rec_t = recorded.time[inside]
     rec = np.column_stack([recorded.channels[c][inside].astype(float) * f for c, f in zip(channels, factors)])
-    data = _at_rows(results, [c.ref for c in graph.data], rt) if graph.data else np.zeros((rt.size, 0))
+    data = at_rows(results, list(data_columns), rt) if data_columns else np.zeros((rt.size, 0))
     rows = np.clip(np.searchsorted(t, rt), 1, t.size - 1)
     rows -= (rt - t[rows - 1]) < (t[rows] - rt)
     segment = np.full(rt.size, -1)
     for code, windows in ((LEARNING, learning), (VALIDATION, validation)):
         for a, b in windows:
             segment[(rec_t >= a) & (rec_t <= b)] = code
-    pairs = Pairs(rec_t, rt, confidence[inside], rec, data, rows, _at_rows(results, graph.outputs, rt), segment)
+    pairs = Pairs(rec_t, rt, confidence[inside], rec, data, rows, at_rows(results, list(outputs), rt), segment)
     shift = np.abs(rt - alignment.output_delay - rec_t) if alignment.method != "none" else np.zeros(rt.size)
     summary = AlignmentSummary(
         alignment.method, int(recorded.time.size), int(rt.size), int((segment == LEARNING).sum()),

@@ -63,21 +63,22 @@ def resolve_parameter(spec: ParameterSpec, unit: str, default: float, fmu_min: f
             factor = unit_factor(spec.unit, unit)
         except UnitError as exc:
             fail(f"{spec.key}.unit", f"unit {spec.unit!r} does not fit {spec.name} (unit {unit or '1'!r}): {exc}")
+    u = f" {unit}" if unit else ""  # a dimensionless parameter has no unit to print
     lo_fmu = -math.inf if fmu_min is None else fmu_min
     hi_fmu = math.inf if fmu_max is None else fmu_max
     lower = lo_fmu if spec.min is None else spec.min * factor
     upper = hi_fmu if spec.max is None else spec.max * factor
     if lower < lo_fmu or upper > hi_fmu:
         which = "min" if lower < lo_fmu else "max"
-        fail(f"{spec.key}.{which}", f"bounds [{lower!r}, {upper!r}] {unit} leave the FMU's range "
-                                    f"[{lo_fmu!r}, {hi_fmu!r}] {unit} of {spec.name}")
+        fail(f"{spec.key}.{which}", f"bounds [{lower!r}, {upper!r}]{u} leave the FMU's range "
+                                    f"[{lo_fmu!r}, {hi_fmu!r}]{u} of {spec.name}")
     if lower >= upper:
-        fail(f"{spec.key}.max", f"bounds reversed or empty: [{lower!r}, {upper!r}] {unit}")
+        fail(f"{spec.key}.max", f"bounds reversed or empty: [{lower!r}, {upper!r}]{u}")
     initial = default if spec.initial is None else spec.initial * factor
     if not lower <= initial <= upper:
         key = f"{spec.key}.initial" if spec.initial is not None else f"{spec.key}.min"
-        fail(key, f"initial value {initial!r} {unit} (from {'the spec' if spec.initial is not None else default_source})"
-                  f" lies outside the bounds [{lower!r}, {upper!r}] {unit}")
+        fail(key, f"initial value {initial!r}{u} (from {'the spec' if spec.initial is not None else default_source})"
+                  f" lies outside the bounds [{lower!r}, {upper!r}]{u}")
     scale = spec.scale * factor if spec.scale is not None else (abs(initial) if initial != 0 else 1.0)
     if spec.start_range is not None:
         start = (max(spec.start_range[0] * factor, lower), min(spec.start_range[1] * factor, upper))

@@ -19,7 +19,6 @@ from tqdm import tqdm
 from orchestrator.calibrate.fit import FitOutcome, fit
 from orchestrator.calibrate.lsq import LeastSquaresSolver
 from orchestrator.calibrate.pairing import LEARNING
-from orchestrator.calibrate.residuals import build_residuals
 from orchestrator.calibrate.scenario_fit import Prepared, pairs_for, prepare
 from orchestrator.calibrate.spec import CalibrationSpec
 from orchestrator.calibrate.synthetic import truth_outputs, with_channels
@@ -58,8 +57,7 @@ class RecoveryStudy:
         self.recorded = rec
         pairs, _, _ = pairs_for(self.prepared, self._recording(np.zeros_like(self.clean)))
         self.learning = pairs.select(LEARNING)
-        self.model = build_residuals(self.prepared.graph, self.learning, self.prepared.parameters, self.prepared.results,
-                                     spec.solver.shooting, spec.solver.shooting_interval)
+        self.model = self.prepared.residual_model(self.learning)
         self.solver = LeastSquaresSolver(self.model.problem, max_iterations=spec.solver.max_iterations,
                                          tolerance=spec.solver.tolerance, hessian=spec.solver.hessian)
 

@@ -179,7 +179,7 @@ th{background:#eee} .note{font-size:0.85em;color:#555} img{max-width:100%;border
 def summary_lines(result: CalibrationResult) -> list[str]:
     lines = [f"calibration {result.spec.name} ({result.spec.kind}): {len(result.fit.parameters)} parameters, "
              f"{sum(o.converged for o in result.fit.starts)}/{len(result.fit.starts)} starts converged, "
-             f"fit {result.fit.solve_time:.3f} s"]
+             f"fit {result.fit.solve_time:.3f} s", f"  derivatives: {result.fit.derivatives}"]
     for q, st in zip(result.fit.parameters, result.fit.statistics.parameters):
         d = q.display
         lines.append(f"  {q.name} = {d(st.estimate):.6g} {q.display_unit} (initial {d(q.initial):.4g}; 95 % CI "
@@ -246,7 +246,7 @@ def write_report(result: CalibrationResult) -> tuple[Path, Path]:
     html_path.write_text("".join(parts), encoding="utf-8")
     md_path.write_text("\n".join(md) + "\n", encoding="utf-8")
     doc = {
-        "spec": str(spec.path), "spec_sha256": spec.sha256, "kind": spec.kind,
+        "spec": str(spec.path), "spec_sha256": spec.sha256, "kind": spec.kind, "derivatives": result.fit.derivatives,
         "parameter_set": str(result.parameter_set),
         "parameters": [{"name": q.name, "unit": q.unit, "initial": q.initial, "lower": q.lower, "upper": q.upper,
                         "estimate": st.estimate, "standard_error": st.standard_error, "ci95": [st.ci_low, st.ci_high],

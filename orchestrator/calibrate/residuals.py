@@ -33,7 +33,9 @@ from orchestrator.calibrate.lsq import LeastSquaresProblem
 from orchestrator.calibrate.pairing import Pairs
 from orchestrator.calibrate.parameters import Parameter
 
-__all__ = ["ResidualModel", "build_residuals", "from_outputs"]
+__all__ = ["EXACT", "ResidualModel", "build_residuals", "from_outputs"]
+
+EXACT = "exact derivatives of the models/ equations (casadi)"
 
 
 @dataclass
@@ -47,6 +49,8 @@ class ResidualModel:
     node_start: ca.Function | None  # theta (SI) -> scaled node states (multiple shooting)
     counts: np.ndarray | None = None  # samples per pair (None: 1 each)
     within: np.ndarray | None = None  # per output: sum of squares of the samples about their bin mean
+    derivatives: str = EXACT  # how the outputs and their Jacobian are computed (said in the report)
+    keep_alive: object = None  # Python objects the casadi Functions call (callbacks): casadi holds no reference
 
     @property
     def n_samples(self) -> int:

@@ -3,15 +3,19 @@
 Stages (each timed for the report):
 
 1. **check**: the spec's names against the scenario and its FMUs (fail fast, naming the spec key);
-   the casadi graph of the fitted outputs from models/ (:mod:`orchestrator.calibrate.graph`); each
-   FMU's instantiation token must equal its models/ definition's (the FMU was generated from these
-   very equations; otherwise: rebuild).
+   the derivative path (``[solver].derivatives``): **exact**, the casadi graph of the fitted outputs
+   from models/ (:mod:`orchestrator.calibrate.graph`), each FMU's instantiation token equal to its
+   models/ definition's (the FMU was generated from these very equations; otherwise: rebuild); or
+   **FMU finite differences** (:mod:`orchestrator.calibrate.fmu_outputs`) where the graph cannot
+   express the outputs ("auto") or on request: every evaluation re-simulates the scenario.
 2. **simulate**: the scenario with the initial values through the orchestrator (FMUs), recording
    the fitted outputs, the inputs the graph reads as data, and the alignment channels.
 3. **align**: recorded samples -> simulated rows (:mod:`orchestrator.calibrate.pairing`), split into
-   learning and validation segments; the graph evaluated at the initial values must reproduce the
-   FMU's outputs at the learning pairs (reported, and an error beyond 1e-8 relative).
-4. **fit**: multi-start IPOPT on the learning pairs (:mod:`orchestrator.calibrate.fit`), statistics.
+   learning and validation segments; the graph (or the FMU re-simulation) evaluated at the initial
+   values must reproduce the FMU's outputs at the learning pairs (reported, and an error beyond 1e-8
+   relative).
+4. **fit**: multi-start on the learning pairs (:mod:`orchestrator.calibrate.fit`; IPOPT on the exact path,
+   projected Levenberg-Marquardt on the FMU path), statistics.
    With an alignment method, the fit is repeated once on identity pairs to show what the alignment
    changed.
 5. **write**: the parameter set (TOML the scenarios apply by name, and an .ssv copy).
@@ -36,11 +40,12 @@ from models.definition import ModelDefinition
 from models.units import UnitError
 from orchestrator.calibrate.errors import CalibrationError
 from orchestrator.calibrate.fit import FitOutcome, fit
-from orchestrator.calibrate.graph import ModelGraph, build_graph
+from orchestrator.calibrate.fmu_outputs import FmuOutputs, fmu_residuals
+from orchestrator.calibrate.graph import ModelGraph, NotExpressible, build_graph
 from orchestrator.calibrate.pairing import LEARNING, VALIDATION, Pairs, make_pairs
 from orchestrator.calibrate.parameters import Parameter, resolve_parameter, unit_factor
 from orchestrator.calibrate.paramset import write_parameter_set, write_ssv
-from orchestrator.calibrate.residuals import build_residuals
+from orchestrator.calibrate.residuals import ResidualModel, build_residuals
 from orchestrator.calibrate.result import CalibrationResult, Series, Table, error_row
 from orchestrator.calibrate.spec import AlignmentSpec, CalibrationSpec, SolverSpec
 from orchestrator.master import SimulationError, run
@@ -72,10 +77,25 @@ class Prepared:
     scenario: Scenario  # initial values applied, extra outputs recorded
     parameters: tuple[Parameter, ...]
     outputs: tuple[ResolvedOutput, ...]
-    graph: ModelGraph
+    graph: ModelGraph | None  # None: the FMU finite-difference path
     results: pd.DataFrame
     run_dir: Path
     timings: dict[str, float]
+    fd_reason: str = ""  # why the FMU path was taken
+
+    @property
+    def data_columns(self) -> list[str]:
+        return [c.ref for c in self.graph.data] if self.graph is not None else []
+
+    def residual_model(self, pairs: Pairs, solver: SolverSpec | None = None) -> ResidualModel:
+        """The residuals on ``pairs`` (one segment) through the path chosen at the check."""
+        solver = solver or self.spec.solver
+        if self.graph is not None:
+            return build_residuals(self.graph, pairs, self.parameters, self.results, solver.shooting,
+                                   solver.shooting_interval)
+        fmu = FmuOutputs(self.scenario, self.parameters, [o.ref for o in self.outputs], pairs.row_time,
+                         self.run_dir.parent / "evaluations", method=solver.fd_method, step=solver.fd_step)
+        return fmu_residuals(fmu, pairs)
 
 
 def _model(spec: CalibrationSpec, scenario: Scenario, instance: str, key: str) -> ModelDefinition:
@@ -172,13 +192,26 @@ def _check_segments(spec: CalibrationSpec, scenario: Scenario) -> None:
                                             f"{rec.path.name} ({a:g} .. {b:g} s)")
 
 
-def check_tokens(scenario: Scenario, instances: list[str]) -> list[dict]:
-    """Each instance's FMU against its models/ definition: the instantiation tokens must agree."""
+def check_tokens(scenario: Scenario, instances: list[str], require: bool = True) -> list[dict]:
+    """Each instance's FMU against its models/ definition: the instantiation tokens must agree
+    (``require``; else the rows say whether they do)."""
     rows = []
     for name in instances:
         inst = scenario.instance(name)
-        model = MODELS[inst.model_identifier]
+        model = MODELS.get(inst.model_identifier)
+        if model is None and not require:
+            rows.append({"instance": name, "model": inst.model_identifier, "fmu": str(inst.path),
+                         "fmu_sha256": sha256_of(inst.path), "fmi_version": inst.fmi_version,
+                         "instantiation_token": inst.instantiation_token, "models_definition": "none"})
+            continue
         token = model.instantiation_token()
+        if not require:
+            source = Path(inspect.getsourcefile(model.equations) or "")
+            rows.append({"instance": name, "model": model.identifier, "fmu": str(inst.path),
+                         "fmu_sha256": sha256_of(inst.path), "fmi_version": inst.fmi_version,
+                         "instantiation_token": inst.instantiation_token,
+                         "models_source": str(source), "models_token_matches": token == inst.instantiation_token})
+            continue
         if token != inst.instantiation_token:
             raise CalibrationError(
                 f"{inst.path}: the FMU's instantiation token {inst.instantiation_token} differs from "
@@ -226,28 +259,66 @@ def prepare(spec: CalibrationSpec, fmu_dir: Path, out_dir: Path, progress: bool 
     outputs = resolve_outputs(spec, scenario)
     _check_alignment(spec, scenario)
     _check_segments(spec, scenario)
-    keys = {p.name: p.key for p in spec.parameters} | {o.simulated: f"{o.key}.simulated" for o in spec.outputs}
-    graph = build_graph(scenario, [q.name for q in parameters], [o.ref for o in outputs], spec.fail, keys,
-                        spec.input_floors)
-    for ref in spec.input_floors:
-        if ref not in graph.inputs:
-            spec.fail(f'[inputs."{ref}"]', f"{ref} is not an input of the fitted outputs' equations "
-                                          f"({', '.join(graph.inputs) or 'none'})")
+    graph, reason = _derivative_path(spec, scenario, parameters, outputs)
+    if graph is not None:
+        for ref in spec.input_floors:
+            if ref not in graph.inputs:
+                spec.fail(f'[inputs."{ref}"]', f"{ref} is not an input of the fitted outputs' equations "
+                                              f"({', '.join(graph.inputs) or 'none'})")
     timings["check"] = time.perf_counter() - t0
     t0 = time.perf_counter()
     initial = with_values(scenario, {q.name: q.initial for q in parameters}, name=f"{scenario.name}_initial")
-    initial = _recording_outputs(initial, [c.ref for c in graph.data] + list(spec.alignment.simulated)
-                                 + [o.ref for o in outputs])
+    data = [c.ref for c in graph.data] if graph is not None else []
+    initial = _recording_outputs(initial, data + list(spec.alignment.simulated) + [o.ref for o in outputs])
     results, run_dir = _run(initial, out_dir / "runs", progress)
     timings["simulate (initial parameters)"] = time.perf_counter() - t0
-    return Prepared(spec, initial, parameters, outputs, graph, results, run_dir, timings)
+    return Prepared(spec, initial, parameters, outputs, graph, results, run_dir, timings, reason)
+
+
+def _derivative_path(spec: CalibrationSpec, scenario: Scenario, parameters: tuple[Parameter, ...],
+                     outputs: tuple[ResolvedOutput, ...]) -> tuple[ModelGraph | None, str]:
+    """(the models/ graph, "") for exact derivatives, or (None, why) for FMU finite differences."""
+    keys = {p.name: p.key for p in spec.parameters} | {o.simulated: f"{o.key}.simulated" for o in spec.outputs}
+    names, refs = [q.name for q in parameters], [o.ref for o in outputs]
+    if spec.solver.derivatives != "finite-differences":
+        try:
+            return build_graph(scenario, names, refs, spec.fail, keys, spec.input_floors), ""
+        except NotExpressible as exc:
+            if spec.solver.derivatives == "exact":
+                spec.fail(exc.key, f"{exc.message}; [solver].derivatives = \"exact\" needs the models/ expressions "
+                                   "(\"auto\" or \"finite-differences\" fit through the FMUs instead)")
+            reason = f"the models/ expressions cannot give the fitted outputs ({exc.key}: {exc.message})"
+    else:
+        reason = "[solver].derivatives = \"finite-differences\""
+    out_instances = {r.split(".", 1)[0] for r in refs}
+    for q, key in zip(names, (p.key for p in spec.parameters)):
+        inst = q.split(".", 1)[0]
+        if inst not in out_instances and not any(_feeds(scenario, i, inst) for i in out_instances):
+            spec.fail(key, f"no fitted output depends on {q}: the outputs come from {', '.join(sorted(out_instances))}, "
+                           f"and {inst} does not feed them through connections")
+    return None, reason
+
+
+def _feeds(scenario: Scenario, target: str, source: str) -> bool:
+    """Is ``source`` upstream of ``target`` along connections (delayed or not)?"""
+    frontier, seen = [target], {target}
+    while frontier:
+        node = frontier.pop()
+        for c in scenario.connections:
+            if c.target.instance == node and c.source.instance not in seen:
+                if c.source.instance == source:
+                    return True
+                seen.add(c.source.instance)
+                frontier.append(c.source.instance)
+    return False
 
 
 def pairs_for(prepared: Prepared, recorded=None, alignment: AlignmentSpec | None = None):
     """Stage 3: pairs of ``recorded`` (default the scenario's recording) with the initial run."""
     spec = prepared.spec
     recorded = recorded if recorded is not None else prepared.scenario.recorded
-    pairs, summary, time_map = make_pairs(recorded, prepared.results, prepared.graph,
+    pairs, summary, time_map = make_pairs(recorded, prepared.results, prepared.data_columns,
+                                          [o.ref for o in prepared.outputs],
                                           [o.channel for o in prepared.outputs], [o.factor for o in prepared.outputs],
                                           alignment or spec.alignment, spec.learning, spec.validation)
     t = prepared.results["time"].to_numpy()
@@ -266,6 +337,16 @@ def consistency(prepared: Prepared, model, learning: Pairs) -> float:
     """max |models/ - FMU| / max |FMU| at the initial values, on the results rows the learning pairs use
     (rows, not the pairs' interpolated times: between rows an output is not the model of interpolated inputs)."""
     theta0 = np.array([q.initial for q in prepared.parameters])
+    if prepared.graph is None:  # the FMU re-run at the initial values against the initial run, at the pairs
+        predicted, fmu = model.predict(theta0), learning.fmu
+        scale = max(float(np.max(np.abs(fmu))), 1e-300)
+        deviation = float(np.max(np.abs(predicted - fmu))) / scale
+        if not deviation <= CONSISTENCY_TOLERANCE:
+            raise CalibrationError(
+                f"re-simulating the scenario at the initial values does not reproduce the initial run: relative "
+                f"deviation {deviation:.3g} at the learning pairs; the FMUs are not deterministic, or a run failed "
+                f"({'; '.join(f.message for f in model.keep_alive.fmu.failures[:1]) or 'no failure recorded'})")
+        return deviation
     rows = np.unique(learning.rows) if prepared.graph.dynamic is None else learning.rows
     fmu = prepared.results[[o.ref for o in prepared.outputs]].to_numpy(dtype=float)[rows]
     if prepared.graph.dynamic is None:
@@ -287,8 +368,7 @@ def consistency(prepared: Prepared, model, learning: Pairs) -> float:
 
 def _fit(prepared: Prepared, learning: Pairs, solver: SolverSpec, progress: bool):
     spec = prepared.spec
-    model = build_residuals(prepared.graph, learning, prepared.parameters, prepared.results, solver.shooting,
-                            solver.shooting_interval)
+    model = prepared.residual_model(learning, solver)
     outcome = fit(model, learning.recorded, weights=[o.weight for o in prepared.outputs],
                   sigma=[o.sigma if spec.solver.noise == "sigma" else None for o in prepared.outputs],
                   solver=solver, statistics=spec.statistics, progress=progress)
@@ -317,7 +397,10 @@ def calibrate_scenario(spec: CalibrationSpec, fmu_dir: Path, out_dir: Path, prog
     prepared = prepare(spec, fmu_dir, out_dir, progress)
     timings = prepared.timings
     t0 = time.perf_counter()
-    tokens = check_tokens(prepared.scenario, list(prepared.graph.instances))
+    if prepared.graph is not None:
+        tokens = check_tokens(prepared.scenario, list(prepared.graph.instances))
+    else:  # the FMUs are the model: their identities, and whether models/ still describes them
+        tokens = check_tokens(prepared.scenario, list(prepared.scenario.execution_order), require=False)
     timings["check"] += time.perf_counter() - t0
     t0 = time.perf_counter()
     pairs, summary, _ = pairs_for(prepared)
@@ -328,14 +411,23 @@ def calibrate_scenario(spec: CalibrationSpec, fmu_dir: Path, out_dir: Path, prog
     deviation = consistency(prepared, model, learning)
     timings["fit (build, starts, statistics)"] = time.perf_counter() - t0
     tables: list[Table] = []
-    notes = [f"models/ vs FMU at the initial values on the rows of the learning pairs: max relative deviation "
-             f"{deviation:.3g}."]
+    notes = [f"Derivatives: {outcome.derivatives}."]
+    if prepared.graph is None:
+        fmu = model.keep_alive.fmu
+        notes += [f"Fitted through the FMUs because {prepared.fd_reason}.",
+                  f"FMU evaluations: {fmu.simulations} simulations ({fmu.simulation_time:.3g} s) for the starts and "
+                  f"the statistics, {len(fmu.failures)} failed; re-run at the initial values vs the initial run at "
+                  f"the learning pairs: max relative deviation {deviation:.3g}."]
+        if spec.input_floors:
+            notes.append("The [inputs] floors apply to the models/ expressions only: not used on this path.")
+    else:
+        notes.append(f"models/ vs FMU at the initial values on the rows of the learning pairs: max relative "
+                     f"deviation {deviation:.3g}.")
     if spec.alignment.method != "none":
         t0 = time.perf_counter()
         plain, _, _ = pairs_for(prepared, alignment=AlignmentSpec("none"))
         single = replace(spec.solver, starts=1)
-        model_id = build_residuals(prepared.graph, plain.select(LEARNING), prepared.parameters, prepared.results,
-                                   spec.solver.shooting, spec.solver.shooting_interval)
+        model_id = prepared.residual_model(plain.select(LEARNING))
         other = fit(model_id, plain.select(LEARNING).recorded, weights=[o.weight for o in prepared.outputs],
                     sigma=[None] * len(prepared.outputs), solver=single, statistics=spec.statistics,
                     starts=outcome.theta[None, :])

@@ -27,7 +27,7 @@ recorded data)::
     start_range = [0.1, 1.0]          # optional: where multi-start draws its starts (default below)
 
     [[outputs]]                       # a model output against a recorded channel
-    simulated = "power.P_total"       # "instance.variable", an output computed by the models/ equations
+    simulated = "power.P_total"       # "instance.variable", a Float64 output of the instance
     recorded = "spindle_power"        # a channel of the scenario's [recorded] data
     weight = 1.0                      # optional, > 0
     unit = "kW"                       # optional display unit of the report
@@ -52,12 +52,19 @@ recorded data)::
     starts = 4                        # multi-start: the initial values, then starts - 1 drawn ones
     seed = 0
     max_iterations = 200
-    tolerance = 1e-10                 # IPOPT tol
+    tolerance = 1e-10                 # IPOPT tol; on the FMU path (Levenberg-Marquardt): relative decrease of the
+                                      # objective at which the iterations stop
     hessian = "gauss-newton"          # or "exact"
     shooting = "multiple"             # models with states: "multiple" or "single"
     shooting_interval = 100           # steps per shooting interval
     noise = "estimate"                # per-output noise level: "estimate" (two-stage: refit with each
                                       # output weighted by 1/its residual RMS) or "sigma" (given sigmas)
+    derivatives = "auto"              # "exact": casadi derivatives of the models/ equations (an error where
+                                      # they cannot express the outputs); "finite-differences": the FMUs
+                                      # re-simulated for every evaluation, Jacobian by finite differences
+                                      # (orchestrator/calibrate/fmu_outputs.py); "auto": exact where possible
+    fd_method = "forward"             # finite differences: "forward" (p runs per Jacobian) or "central" (2p)
+    fd_step = 1.5e-8                  # relative step (default sqrt(eps) forward, eps^(1/3) central)
 
     [statistics]                      # all optional: flag thresholds
     condition = 100.0                 # near-singular direction: condition index above this
@@ -102,6 +109,7 @@ __all__ = ["AlignmentSpec", "CalibrationSpec", "OutputSpec", "ParameterSpec", "S
 
 KINDS = ("scenario", "slot_forces")
 ALIGNMENT_METHODS = ("none", "multiscale", "dtw", "patent")
+DERIVATIVES = ("auto", "exact", "finite-differences")
 _NAME_RE = re.compile(r"^[A-Za-z0-9_.-]+$")
 
 
@@ -156,6 +164,9 @@ class SolverSpec:
     shooting: str = "multiple"
     shooting_interval: int = 100
     noise: str = "estimate"
+    derivatives: str = "auto"
+    fd_method: str = "forward"
+    fd_step: float | None = None  # None: the method's default
 
 
 @dataclass(frozen=True)
@@ -287,14 +298,20 @@ def _alignment(ctx: _Ctx, raw: Any) -> AlignmentSpec:
 def _solver(ctx: _Ctx, raw: Any) -> SolverSpec:
     key = "[solver]"
     table = ctx.table(raw, key, ("starts", "seed", "max_iterations", "tolerance", "hessian", "shooting",
-                                 "shooting_interval", "noise"))
+                                 "shooting_interval", "noise", "derivatives", "fd_method", "fd_step"))
+    step = ctx.number(table, key, "fd_step", None, positive=True)
+    if step is not None and step >= 0.1:
+        ctx.fail(f"{key}.fd_step", f"{step!r}: a relative step, far below 1 (default 1.5e-8 forward, 6.1e-6 central)")
     return SolverSpec(starts=ctx.integer(table, key, "starts", 4, 1), seed=ctx.integer(table, key, "seed", 0, 0),
                       max_iterations=ctx.integer(table, key, "max_iterations", 200, 1),
                       tolerance=ctx.number(table, key, "tolerance", 1e-10, positive=True),
                       hessian=ctx.string(table, key, "hessian", "gauss-newton", ("gauss-newton", "exact")),
                       shooting=ctx.string(table, key, "shooting", "multiple", ("multiple", "single")),
                       shooting_interval=ctx.integer(table, key, "shooting_interval", 100, 1),
-                      noise=ctx.string(table, key, "noise", "estimate", ("estimate", "sigma")))
+                      noise=ctx.string(table, key, "noise", "estimate", ("estimate", "sigma")),
+                      derivatives=ctx.string(table, key, "derivatives", "auto", DERIVATIVES),
+                      fd_method=ctx.string(table, key, "fd_method", "forward", ("forward", "central")),
+                      fd_step=step)
 
 
 def _statistics(ctx: _Ctx, raw: Any) -> StatisticsSpec:

@@ -6,6 +6,11 @@ recovery tests and benchmarks, and the bundled hammer-impulse recording.
 * :func:`with_channels`: a copy of a recording with some channels replaced (noisy truth).
 * :func:`write_power_case`: a small SpindlePower + MrrEstimator scenario on generated inputs that vary
   speed and material removal rate enough to identify all five power parameters, with its spec.
+* ``python -m orchestrator.calibrate.synthetic slot [FILE]`` regenerates
+  ``scenarios/calibration/data/slot_milling_synthetic.csv``: the forces on the tool (Fx, Fy, Fz, N, 10 kHz)
+  that the CuttingForce FMU gives in the slot of ``scenarios/slot_milling.toml`` (900 mm/min) with the
+  coefficients :data:`SLOT_TRUTH`, plus Gaussian noise of :data:`SLOT_NOISE` N (seed 11): the data of the
+  generic spec ``slot_forces_synthetic.toml``, which fits the coefficients through the FMU.
 * ``python -m orchestrator.calibrate.synthetic impulse [FILE]`` regenerates
   ``scenarios/calibration/data/impulse_hammer.csv``: a half-sine hammer impulse on the tool tip in x
   and the tip acceleration the ToolVibration FMU gives for a 850 Hz, 2 % damping, 1.0e6 N/m mode
@@ -28,8 +33,9 @@ from orchestrator.recorded import RecordedData
 from orchestrator.results import load_results
 from orchestrator.scenario import Scenario, load_scenario, with_values
 
-__all__ = ["IMPULSE_TRUTH", "POWER_TRUTH", "impulse_force", "truth_outputs", "with_channels",
-           "write_impulse_recording", "write_power_case"]
+__all__ = ["IMPULSE_TRUTH", "POWER_TRUTH", "SLOT_TRUTH", "TWO_FMU_CASE", "edited", "impulse_force",
+           "load_scenario_without_data", "truth_outputs", "with_channels",
+           "write_impulse_recording", "write_power_case", "write_slot_recording"]
 
 REPO = Path(__file__).resolve().parents[2]
 IMPULSE_FILE = REPO / "scenarios" / "calibration" / "data" / "impulse_hammer.csv"
@@ -83,53 +89,110 @@ def write_impulse_recording(path: Path = IMPULSE_FILE, fmu_dir: Path = REPO / "b
     return path
 
 
+SLOT_FILE = REPO / "scenarios" / "calibration" / "data" / "slot_milling_synthetic.csv"
+SLOT_SCENARIO = REPO / "scenarios" / "calibration" / "slot_milling_synthetic.toml"
+SLOT_TRUTH = {"force.Ktc": 900e6, "force.Krc": 300e6, "force.Kac": 150e6,  # N/m2
+              "force.Kte": 20e3, "force.Kre": 30e3, "force.Kae": 5e3}  # N/m
+SLOT_NOISE = 5.0  # N
+SLOT_SEED = 11
+SLOT_CHANNELS = {"fx": "force.Fx", "fy": "force.Fy", "fz": "force.Fz"}
+
+
+def _write_columns(path: Path, t: np.ndarray, columns: Mapping[str, np.ndarray]) -> None:
+    lines = [",".join(["time", *columns])] + [
+        ",".join([f"{a:.6f}", *(f"{v[i]:.9g}" for v in columns.values())]) for i, a in enumerate(t)]
+    path.parent.mkdir(parents=True, exist_ok=True)
+    path.write_text("\n".join(lines) + "\n", encoding="utf-8")
+
+
+def write_slot_recording(path: Path = SLOT_FILE, fmu_dir: Path = REPO / "build" / "fmus", noise: float = SLOT_NOISE,
+                         seed: int | None = SLOT_SEED, scenario_file: Path = SLOT_SCENARIO) -> Path:
+    """Make the synthetic slot-milling force recording of ``scenario_file`` (see the module text); ``seed``
+    None: noise-free."""
+    text = scenario_file.read_text(encoding="utf-8")
+    with tempfile.TemporaryDirectory() as tmp:
+        draft_scenario = Path(tmp) / scenario_file.name
+        draft_scenario.write_text(text, encoding="utf-8")
+        scenario = load_scenario_without_data(draft_scenario, fmu_dir, Path(tmp))
+        t = np.round(np.arange(round((scenario.stop_time - scenario.start_time) / scenario.output_interval) + 1)
+                     * scenario.output_interval + scenario.start_time, 10)
+        clean = truth_outputs(scenario, SLOT_TRUTH, list(SLOT_CHANNELS.values()), t, Path(tmp) / "runs")
+    rng = np.random.default_rng(seed)
+    noisy = clean + (rng.normal(0.0, noise, clean.shape) if seed is not None else 0.0)
+    _write_columns(path, t, {c.capitalize(): noisy[:, k] for k, c in enumerate(SLOT_CHANNELS)})
+    return path
+
+
+def load_scenario_without_data(scenario_file: Path, fmu_dir: Path, folder: Path) -> Scenario:
+    """Load a scenario whose [recorded] file does not exist yet: a zero recording on the scenario's output grid is
+    written where it points (in ``folder``, a copy of the scenario file lying there)."""
+    import tomllib
+    doc = tomllib.loads(scenario_file.read_text(encoding="utf-8"))
+    sc, rec = doc["scenario"], doc["recorded"]
+    t = np.arange(round((sc["stop_time"] - sc.get("start_time", 0.0)) / sc["output_interval"]) + 1) \
+        * sc["output_interval"] + sc.get("start_time", 0.0)
+    columns = {ch["column"]: np.zeros_like(t) for ch in rec["channels"].values()}
+    _write_columns(folder / rec["file"], t, columns)
+    return load_scenario(scenario_file, fmu_dir)
+
+
 POWER_TRUTH = {"power.P_standby": 350.0, "power.P_idle": 120.0, "power.c1": 0.8, "power.c2": 1500.0, "power.c3": 0.85}
 
-POWER_SCENARIO = """\
+# SpindlePower + MrrEstimator on a recording of speed, feeds, process and power: the tests' two-FMU case
+# (tests/conftest.py, CASE_TOML; "power" is listed before "mrr" on purpose: the execution order must still be
+# mrr, power) and, edited, the synthetic power calibration case (POWER_SCENARIO).
+TWO_FMU_CASE = """\
 [scenario]
-name = "power_case"
+name = "case"
 output_interval = 0.1
+
+[fmus.power]
+fmu = "SpindlePower"
+fmi = 3
+step_size = 0.1
+[fmus.power.parameters]
+P_standby = 100.0
+P_idle = { value = 0.2, unit = "kW" }
+c1 = 0.5
+c2 = 1000.0
+c3 = 1.0
 
 [fmus.mrr]
 fmu = "MrrEstimator"
+fmi = 3
 step_size = 0.1
 [fmus.mrr.parameters]
 width_of_cut = { value = 5.0, unit = "mm" }
 depth_of_cut = { value = 2.0, unit = "mm" }
 
-[fmus.power]
-fmu = "SpindlePower"
-step_size = 0.1
-[fmus.power.parameters]
-P_standby = 200.0
-P_idle = 300.0
-c1 = 0.3
-c2 = 1000.0
-c3 = 1.0
-
 [recorded]
-file = "power_case.csv"
+file = "data.csv"
 sample_period = 0.1
 [recorded.channels]
 speed = { column = "speed", unit = "rev/s" }
 spindle_on = { column = "speed", unit = "rev/s", above = 1.0 }
 vx = { column = "vx", unit = "mm/s" }
 vy = { column = "vy", unit = "mm/s" }
-cutting = { column = "process", match = "^cut" }
+cutting = { column = "process", match = "^Layer" }
 power = { column = "power", unit = "kW" }
 
 [[inputs]]
 from = "speed"
 to = "power.spindle_speed"
+interpolation = "hold"
+
 [[inputs]]
 from = "spindle_on"
 to = "power.spindle_on"
+
 [[inputs]]
 from = "vx"
 to = "mrr.feed_velocity_x"
+
 [[inputs]]
 from = "vy"
 to = "mrr.feed_velocity_y"
+
 [[inputs]]
 from = "cutting"
 to = "mrr.cutting"
@@ -137,10 +200,33 @@ to = "mrr.cutting"
 [[connections]]
 from = "mrr.mrr"
 to = "power.mrr"
+delay = false
 
 [outputs]
-record = ["power.P_total"]
+record = ["power.P_total", "mrr.mrr", "power.spindle_on"]
+
+[[compare]]
+simulated = "power.P_total"
+recorded = "power"
 """
+
+
+def edited(text: str, *edits: tuple[str, str]) -> str:
+    """``text`` with (old, new) replacements, each of which must apply."""
+    for old, new in edits:
+        if old not in text:
+            raise ValueError(f"edit does not apply: {old!r}")
+        text = text.replace(old, new, 1)
+    return text
+
+
+POWER_SCENARIO = edited(
+    TWO_FMU_CASE, ('name = "case"', 'name = "power_case"'),
+    ('P_standby = 100.0\nP_idle = { value = 0.2, unit = "kW" }\nc1 = 0.5', 'P_standby = 200.0\nP_idle = 300.0\nc1 = 0.3'),
+    ('file = "data.csv"', 'file = "power_case.csv"'), ('match = "^Layer"', 'match = "^cut"'),
+    ('interpolation = "hold"\n', ""),
+    ('record = ["power.P_total", "mrr.mrr", "power.spindle_on"]\n\n[[compare]]\nsimulated = "power.P_total"\n'
+     'recorded = "power"\n', 'record = ["power.P_total"]\n'))
 
 POWER_SPEC = """\
 [calibration]
@@ -211,11 +297,14 @@ def write_power_case(folder: Path, rows: int = 400, fmu_dir: Path | None = None,
 
 def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(prog="python -m orchestrator.calibrate.synthetic", description=__doc__.splitlines()[0])
-    parser.add_argument("what", choices=("impulse",))
-    parser.add_argument("file", nargs="?", type=Path, default=IMPULSE_FILE)
+    parser.add_argument("what", choices=("impulse", "slot"))
+    parser.add_argument("file", nargs="?", type=Path, default=None)
     parser.add_argument("--fmu-dir", type=Path, default=REPO / "build" / "fmus")
     args = parser.parse_args(argv)
-    print(write_impulse_recording(args.file, args.fmu_dir))
+    if args.what == "slot":
+        print(write_slot_recording(args.file or SLOT_FILE, args.fmu_dir))
+    else:
+        print(write_impulse_recording(args.file or IMPULSE_FILE, args.fmu_dir))
     return 0
 
 

@@ -26,18 +26,10 @@ from pathlib import Path
 import numpy as np
 
 from orchestrator.align import Trajectory, align
-from orchestrator.align.synthetic import Warp, concatenate_paths, make_recording, path_from_umich
+from orchestrator.align.synthetic import Warp, concatenate_paths, make_recording, path_from_umich, umich_data_dir
 
 REPO = Path(__file__).resolve().parents[2]
 N = 720_000
-
-
-def data_dir(given: str | None) -> Path:
-    for d in ([Path(given)] if given else []) + [Path("/work/shared/data/umich_cnc"),
-                                                 REPO.parent / "shared" / "data" / "umich_cnc"]:
-        if d.is_dir():
-            return d
-    raise SystemExit("UMich data not found; pass --data DIR (experiment_NN.csv files)")
 
 
 def make_case(folder: Path) -> tuple[Trajectory, Trajectory, np.ndarray]:
@@ -75,7 +67,7 @@ def main() -> None:
     if args.child:
         child(args.child)
         return
-    rec, sim, truth = make_case(data_dir(args.data))
+    rec, sim, truth = make_case(umich_data_dir(args.data))
     print(f"case: {len(rec)} recorded samples ({rec.duration / 3600:.2f} h at 100 Hz), "
           f"{len(sim)} simulated samples")
     with tempfile.TemporaryDirectory() as tmp:

@@ -26,19 +26,11 @@ from tqdm import tqdm
 
 from orchestrator.align import align
 from orchestrator.align.plots import plot_temporal
-from orchestrator.align.synthetic import make_recording, path_from_umich, random_warp
+from orchestrator.align.synthetic import make_recording, path_from_umich, random_warp, umich_data_dir
 
 REPO = Path(__file__).resolve().parents[2]
 KINDS = ("affine", "piecewise", "pause", "all")
 METHODS = ("multiscale", "dtw", "patent")
-
-
-def data_dir(given: str | None) -> Path:
-    for d in ([Path(given)] if given else []) + [Path("/work/shared/data/umich_cnc"),
-                                                 REPO.parent / "shared" / "data" / "umich_cnc"]:
-        if d.is_dir():
-            return d
-    raise SystemExit("UMich data not found; pass --data DIR (experiment_NN.csv files)")
 
 
 def main() -> None:
@@ -48,7 +40,7 @@ def main() -> None:
     parser.add_argument("--figure", type=Path, default=REPO / "scenarios" / "figures" /
                         "align_temporal.png")
     args = parser.parse_args()
-    folder = data_dir(args.data)
+    folder = umich_data_dir(args.data)
     errors = {(k, m): [] for k in KINDS for m in METHODS}
     moving = {(k, m): [] for k in KINDS for m in METHODS}
     wall = {(k, m): 0.0 for k in KINDS for m in METHODS}

@@ -71,6 +71,7 @@ int main(int argc, char **argv) {
     } else if (strcmp(argv[1], "tool") == 0 && argc == 14) {
         ForceNetCut cut;
         ForceNetTool out;
+        memset(&cut, 0, sizeof cut); /* no runout, no vibration, no map */
         cut.n_flutes = atoi(argv[3]);
         cut.tool_diameter = atof(argv[4]);
         cut.helix_angle = atof(argv[5]);

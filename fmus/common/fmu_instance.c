@@ -448,14 +448,21 @@ FmuStatus fmu_reject_type(FmuInstance *instance, const char *function, const cha
     return FMU_ERROR;
 }
 
-FmuStatus fmu_enter_initialization(FmuInstance *instance, const char *function, double start_time,
-                                   bool stop_time_defined, double stop_time) {
+FmuStatus fmu_check_experiment(FmuInstance *instance, const char *function, double start_time,
+                               bool stop_time_defined, double stop_time) {
     if (!isfinite(start_time) || (stop_time_defined && (!isfinite(stop_time) || stop_time < start_time))) {
         fmu_log(instance, FMU_ERROR, "logStatusError",
                 "%s: bad experiment: startTime = %g, stopTime = %g (must be finite, stopTime >= startTime)",
                 function, start_time, stop_time);
         return FMU_ERROR;
     }
+    return FMU_OK;
+}
+
+FmuStatus fmu_enter_initialization(FmuInstance *instance, const char *function, double start_time,
+                                   bool stop_time_defined, double stop_time) {
+    if (fmu_check_experiment(instance, function, start_time, stop_time_defined, stop_time) != FMU_OK)
+        return FMU_ERROR;
     instance->start_time = start_time;
     instance->time = start_time;
     instance->stop_time_defined = stop_time_defined;
@@ -509,6 +516,13 @@ FmuStatus fmu_do_step(FmuInstance *instance, const char *function, double curren
                 format_number(text[0], current_time), format_number(text[1], instance->time));
         return FMU_ERROR;
     }
+    if (!isfinite(current_time + step_size) || current_time + step_size <= current_time) {
+        /* the end of the step would be Inf, or the same number as its start: the time could not advance */
+        fmu_log(instance, FMU_ERROR, "logStatusError",
+                "%s: a step of %s s from t = %s s does not reach a larger finite time", function,
+                format_number(text[0], step_size), format_number(text[1], current_time));
+        return FMU_ERROR;
+    }
     if (instance->stop_time_defined && current_time + step_size > instance->stop_time + tolerance) {
         fmu_log(instance, FMU_ERROR, "logStatusError", "%s: step to t = %s s goes past stopTime = %s s",
                 function, format_number(text[0], current_time + step_size),
@@ -533,11 +547,13 @@ FmuStatus fmu_terminate(FmuInstance *instance, const char *function) {
 
 #define SNAPSHOT_MAGIC 0x464d5553u /* "FMUS" */
 
-/* A snapshot is one block: this header, then heap_size doubles. Serialization is the block. */
+/* A snapshot is one block: this header, then heap_size doubles. Serialization is the block, with a checksum
+ * of it so that damaged bytes are rejected instead of restoring a corrupt instance (in memory it is 0). */
 struct FmuSnapshot {
     uint32_t magic;
     uint32_t reserved;
     uint64_t bytes;                 /* size of the whole block */
+    uint64_t checksum;              /* serialized: FNV-1a 64 of the block with this field 0 */
     char token[64];
     FmuState state;
     double time, start_time, stop_time;
@@ -549,6 +565,15 @@ struct FmuSnapshot {
 };
 
 static size_t snapshot_bytes(size_t heap_size) { return sizeof(FmuSnapshot) + heap_size * sizeof(double); }
+
+/* FNV-1a 64 of a serialized snapshot, its checksum field counted as 0. */
+static uint64_t snapshot_checksum(const unsigned char *bytes, size_t size) {
+    const size_t skip = offsetof(FmuSnapshot, checksum);
+    uint64_t h = 0xcbf29ce484222325u;
+    size_t i;
+    for (i = 0; i < size; i++) h = (h ^ (i - skip < sizeof h ? 0u : bytes[i])) * 0x100000001b3u;
+    return h;
+}
 
 FmuStatus fmu_get_state(FmuInstance *instance, const char *function, void **snapshot) {
     FmuSnapshot *s;
@@ -650,6 +675,10 @@ FmuStatus fmu_serialize_state(FmuInstance *instance, const char *function, const
         return FMU_ERROR;
     }
     memcpy(bytes, s, (size_t)s->bytes);
+    {
+        uint64_t checksum = snapshot_checksum(bytes, (size_t)s->bytes);
+        memcpy(bytes + offsetof(FmuSnapshot, checksum), &checksum, sizeof checksum);
+    }
     return FMU_OK;
 }
 
@@ -670,9 +699,20 @@ FmuStatus fmu_deserialize_state(FmuInstance *instance, const char *function, con
                 function, size, (size_t)header.bytes);
         return FMU_ERROR;
     }
+    if (header.checksum != snapshot_checksum(bytes, size) || !(header.state & STATES_ANY) ||
+        (header.state & (header.state - 1)) != 0) {
+        fmu_log(instance, FMU_ERROR, "logStatusError",
+                "%s: serialized FMUstate is damaged (its checksum or instance state does not match its bytes)",
+                function);
+        return FMU_ERROR;
+    }
     s = malloc(size);
-    if (!s) return FMU_ERROR;
+    if (!s) {
+        fmu_log(instance, FMU_ERROR, "logStatusError", "%s: out of memory for a state of %zu bytes", function, size);
+        return FMU_ERROR;
+    }
     memcpy(s, bytes, size);
+    s->checksum = 0;
     if (*snapshot) free(*snapshot);
     *snapshot = s;
     return FMU_OK;

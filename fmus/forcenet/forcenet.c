@@ -186,7 +186,7 @@ int forcenet_resource_file(const char *location, const char *name, char *path, s
     while (*s) {
         char c = *s;
         if (uri && c == '%') {
-            if (hex_value(s[1]) < 0 || hex_value(s[2]) < 0) {
+            if (hex_value(s[1]) < 0 || hex_value(s[2]) < 0 || (s[1] == '0' && s[2] == '0')) { /* %00 cuts the path */
                 say(message, message_size, "the resource location '%.200s' has a bad percent-escape", location);
                 return -1;
             }

@@ -68,7 +68,8 @@ static int hex_value(char c) {
     return -1;
 }
 
-/* The resources folder as a file system path: FMI 3 passes a path, FMI 2 a file URI (percent-encoded). */
+/* The resources folder as a file system path: FMI 3 passes a path, FMI 2 a file URI (percent-encoded).
+ * -1: too long; -2: a %00 escape, which would cut the path short (another file would be read). */
 static int resources_folder(const char *location, char *path, size_t size) {
     size_t n = 0;
     const char *s = location;
@@ -80,6 +81,7 @@ static int resources_folder(const char *location, char *path, size_t size) {
     }
     while (*s && n + 1 < size) {
         if (s[0] == '%' && hex_value(s[1]) >= 0 && hex_value(s[2]) >= 0) {
+            if (s[1] == '0' && s[2] == '0') return -2;
             path[n++] = (char)(hex_value(s[1]) * 16 + hex_value(s[2]));
             s += 3;
         } else {
@@ -162,9 +164,10 @@ FmuStatus model_exit_initialization(FmuInstance *instance) {
         text = owned;
     } else if (instance->resource_path[0] != '\0') {
         char folder[FMU_STRING_CAPACITY];
-        if (resources_folder(instance->resource_path, folder, sizeof folder) != 0) {
-            fmu_log(instance, FMU_ERROR, "logStatusError", "%s: the resource location '%.200s' is too long", function,
-                    instance->resource_path);
+        int bad = resources_folder(instance->resource_path, folder, sizeof folder);
+        if (bad != 0) {
+            fmu_log(instance, FMU_ERROR, "logStatusError", "%s: the resource location '%.200s' %s", function,
+                    instance->resource_path, bad == -2 ? "holds a %00 escape" : "is too long");
             return FMU_ERROR;
         }
         snprintf(path, sizeof path, "%s/%s", folder, PROGRAM_FILE_NAME);

@@ -448,6 +448,22 @@ FmuStatus fmu_reject_type(FmuInstance *instance, const char *function, const cha
     return FMU_ERROR;
 }
 
+/* The first Float64 output that is NaN or infinite (its value in *value), NULL when all are finite: an FMU
+ * never reports success with non-finite results (a step too long for the model's numerics, an overflow). */
+static const FmuVariable *non_finite_output(const FmuInstance *instance, double *value) {
+    unsigned int i;
+    size_t k;
+    for (i = 0; i < MODEL_VARIABLE_COUNT; i++) {
+        const FmuVariable *variable = &MODEL_VARIABLE_TABLE[i];
+        if (!variable->name || variable->type != FMU_FLOAT64 || variable->causality != FMU_OUTPUT) continue;
+        for (k = 0; k < variable->count; k++) {
+            memcpy(value, (const char *)&instance->v + variable->offset + k * sizeof *value, sizeof *value);
+            if (!isfinite(*value)) return variable;
+        }
+    }
+    return NULL;
+}
+
 FmuStatus fmu_check_experiment(FmuInstance *instance, const char *function, double start_time,
                                bool stop_time_defined, double stop_time) {
     if (!isfinite(start_time) || (stop_time_defined && (!isfinite(stop_time) || stop_time < start_time))) {
@@ -475,6 +491,8 @@ FmuStatus fmu_enter_initialization(FmuInstance *instance, const char *function, 
 FmuStatus fmu_exit_initialization(FmuInstance *instance, const char *function) {
     size_t i;
     FmuStatus status;
+    const FmuVariable *bad;
+    double output;
     /* Start values may have come from anywhere (an importer that never called set): check all. */
     for (i = 0; i < MODEL_VARIABLE_COUNT; i++) {
         const FmuVariable *variable = &MODEL_VARIABLE_TABLE[i];
@@ -495,6 +513,11 @@ FmuStatus fmu_exit_initialization(FmuInstance *instance, const char *function) {
     if (status > FMU_WARNING) return status;
     model_update_outputs(instance);
     instance->outputs_stale = false;
+    if ((bad = non_finite_output(instance, &output)) != NULL) {
+        fmu_log(instance, FMU_ERROR, "logStatusError", "%s: output '%s' is %g at t = %g s: the model cannot compute "
+                "it from these parameters and inputs", function, bad->name, output, instance->time);
+        return FMU_ERROR;
+    }
     instance->state = STATE_STEP_MODE;
     fmu_log(instance, FMU_OK, "logEvents", "%s: initialized at t = %g s", function, instance->time);
     return status;
@@ -502,6 +525,8 @@ FmuStatus fmu_exit_initialization(FmuInstance *instance, const char *function) {
 
 FmuStatus fmu_do_step(FmuInstance *instance, const char *function, double current_time, double step_size) {
     FmuStatus status;
+    const FmuVariable *bad;
+    double previous_time, value;
     char text[2][32];
     /* never so loose that a whole (small) step could go unnoticed */
     double tolerance = fmin(TIME_TOLERANCE * fmax(1.0, fabs(instance->time)), 0.25 * fabs(step_size));
@@ -531,9 +556,18 @@ FmuStatus fmu_do_step(FmuInstance *instance, const char *function, double curren
     }
     status = model_do_step(instance, current_time, step_size);
     if (status > FMU_WARNING) return status;
+    previous_time = instance->time;
     instance->time = current_time + step_size;
     model_update_outputs(instance);
     instance->outputs_stale = false;
+    if ((bad = non_finite_output(instance, &value)) != NULL) {
+        instance->time = previous_time; /* the last successful time stays the start of the failed step */
+        fmu_log(instance, FMU_ERROR, "logStatusError",
+                "%s: the step of %s s from t = %s s made output '%s' %g: the model cannot take it (a shorter step "
+                "or other inputs may)", function, format_number(text[0], step_size),
+                format_number(text[1], current_time), bad->name, value);
+        return FMU_ERROR;
+    }
     return status;
 }
 

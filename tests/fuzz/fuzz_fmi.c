@@ -190,12 +190,14 @@ static void logger(fmi2ComponentEnvironment env, fmi2String name, fmi2Status sta
     va_start(args, message);
     vsnprintf(text, sizeof text, message, args);
     va_end(args);
+    if (h->trace) fprintf(stderr, "    log %d %s: %s\n", status, category, text);
     if (status >= fmi2Error) h->errors_logged++;
 }
 #else
 static void logger(fmi3InstanceEnvironment env, fmi3Status status, fmi3String category, fmi3String message) {
     Harness *h = env;
     REQUIRE(category && message && strlen(message) < 100000, "logger called with a NULL string");
+    if (h->trace) fprintf(stderr, "    log %d %s: %s\n", status, category, message);
     if (status >= fmi3Error) h->errors_logged++;
 }
 #endif
@@ -778,7 +780,7 @@ static void op_serialize(Harness *h) {
         REQUIRE(!allowed, "SerializedFMUStateSize failed");
         return;
     }
-    REQUIRE(size > 0 && size < (64u << 20), "serialized state of %zu bytes", size);
+    REQUIRE(size > 0 && size < (1u << 30), "serialized state of %zu bytes", size); /* Workpiece: up to 160 MB */
     bytes = malloc(size);
     REQUIRE(bytes != NULL, "out of memory");
     begin(h);

@@ -208,7 +208,7 @@ static void begin(Harness *h) { h->errors_logged = 0; }
 
 /* `allowed`: the state machine allows the call now; `valid`: its arguments are valid (the FMU must not
  * reject it for them). Returns true when the call succeeded (OK or Warning). */
-static bool outcome(Harness *h, const char *call, int status, bool allowed, bool valid, bool must_succeed) {
+static bool outcome(Harness *h, const char *call, int status, bool allowed, bool valid) {
     if (h->trace)
         fprintf(stderr, "%-34s -> %d  (state %s, t = %.17g, allowed %d, valid %d)\n", call, status,
                 STATE_NAMES[h->state], h->time, allowed, valid);
@@ -221,7 +221,6 @@ static bool outcome(Harness *h, const char *call, int status, bool allowed, bool
     }
     REQUIRE(allowed, "%s accepted (status %d) in state %s", call, status, STATE_NAMES[h->state]);
     REQUIRE(valid, "%s accepted invalid arguments (status %d)", call, status);
-    (void)must_succeed;
     return true;
 }
 
@@ -468,7 +467,7 @@ static void op_enter_init(Harness *h) {
         begin(h);
         status = fmi2SetupExperiment(h->c, fmi2False, 0.0, start, stop_defined, stop);
         valid = isfinite(start) && (!stop_defined || (isfinite(stop) && stop >= start));
-        if (outcome(h, "fmi2SetupExperiment", status, allowed, valid, false)) {
+        if (outcome(h, "fmi2SetupExperiment", status, allowed, valid)) {
             h->setup_start = start, h->setup_stop = stop, h->setup_stop_defined = stop_defined;
             h->time = start; /* the instance's time is the start time from now on */
         }
@@ -483,7 +482,7 @@ static void op_enter_init(Harness *h) {
     status = fmi3EnterInitializationMode(h->c, false, 0.0, start, stop_defined, stop);
 #endif
     valid = isfinite(start) && (!stop_defined || (isfinite(stop) && stop >= start));
-    if (outcome(h, "EnterInitializationMode", status, allowed, valid, false)) {
+    if (outcome(h, "EnterInitializationMode", status, allowed, valid)) {
         h->state = S_INIT;
         h->time = start;
         h->stop_defined = stop_defined;
@@ -496,7 +495,7 @@ static void op_enter_init(Harness *h) {
 static void op_exit_init(Harness *h) {
     bool allowed = h->state == S_INIT;
     begin(h);
-    if (outcome(h, "ExitInitializationMode", exit_init(h), allowed, true, false)) {
+    if (outcome(h, "ExitInitializationMode", exit_init(h), allowed, true)) {
         h->state = S_STEP;
         check_finite(h, "ExitInitializationMode");
     }
@@ -522,7 +521,7 @@ static void op_set_real(Harness *h) {
 #endif
     begin(h);
     if (outcome(h, "SetFloat64", set_real(h, null_arrays ? NULL : vr, n, null_arrays ? NULL : x, n_values), allowed,
-                valid, false)) {
+                valid)) {
         for (i = 0; i < n; i++) h->shadow.known[vr[i]] = true, h->shadow.value[vr[i]] = x[i]; /* valid: vr < 256 */
     } else {
         REQUIRE(!(allowed && valid), "SetFloat64 rejected valid values");
@@ -545,7 +544,7 @@ static void op_get_real(Harness *h) {
         n_values += v && v->type == FMU_FLOAT64 && v->count <= 8 ? v->count : 1;
     }
     begin(h);
-    if (!outcome(h, "GetFloat64", get_real(h, vr, n, x, n_values), allowed, valid, false)) {
+    if (!outcome(h, "GetFloat64", get_real(h, vr, n, x, n_values), allowed, valid)) {
         REQUIRE(!(allowed && valid), "GetFloat64 failed on valid value references");
         return;
     }
@@ -587,7 +586,7 @@ static void op_int_bool(Harness *h, bool integer, bool set) {
     else
         status = set ? set_bool(h, vr, n, xb, raw) : get_bool(h, vr, n, xb);
     if (!outcome(h, integer ? (set ? "SetInt32" : "GetInt32") : (set ? "SetBoolean" : "GetBoolean"), status, allowed,
-                 valid, false))
+                 valid))
         REQUIRE(!(allowed && valid), "a valid %s %s failed", integer ? "Int32" : "Boolean", set ? "set" : "get");
 }
 
@@ -638,7 +637,7 @@ static void op_string(Harness *h, bool set) {
     }
     begin(h);
     if (!outcome(h, set ? "SetString" : "GetString", set ? set_string(h, vr, n, x) : get_string(h, vr, n, x), allowed,
-                 valid, false)) {
+                 valid)) {
         REQUIRE(!(allowed && valid), "a valid string %s failed", set ? "set" : "get");
     } else if (!set) {
         for (i = 0; i < n; i++) REQUIRE(x[i] && strlen(x[i]) < FMU_STRING_CAPACITY, "GetString gave a bad string");
@@ -670,7 +669,7 @@ static bool step_once(Harness *h, double t, double dt) {
     int status;
     begin(h);
     status = do_step(h, t, dt);
-    if (!outcome(h, "DoStep", status, allowed, valid, false)) return false;
+    if (!outcome(h, "DoStep", status, allowed, valid)) return false;
     h->time = t + dt;
     return true;
 }
@@ -710,7 +709,7 @@ static void op_get_state(Harness *h) {
     Slot *s = &h->slots[u8(h) % SLOTS];
     bool allowed = IN(h->state, ANY);
     begin(h);
-    if (!outcome(h, "GetFMUState", get_state(h, &s->state), allowed, true, false)) {
+    if (!outcome(h, "GetFMUState", get_state(h, &s->state), allowed, true)) {
         REQUIRE(!allowed, "GetFMUState failed");
         return;
     }
@@ -747,7 +746,7 @@ static void op_set_state(Harness *h) {
     Slot *s = &h->slots[u8(h) % SLOTS];
     bool allowed = IN(h->state, ANY) && s->state != NULL;
     begin(h);
-    if (outcome(h, "SetFMUState", set_state(h, s->state), allowed, true, false))
+    if (outcome(h, "SetFMUState", set_state(h, s->state), allowed, true))
         restored(h, s, "SetFMUState");
     else
         REQUIRE(!allowed, "SetFMUState of a state of this instance failed");
@@ -757,7 +756,7 @@ static void op_free_state(Harness *h) {
     Slot *s = &h->slots[u8(h) % SLOTS];
     if (h->state == S_NONE) return;
     begin(h);
-    if (outcome(h, "FreeFMUState", free_state(h, &s->state), true, true, false)) {
+    if (outcome(h, "FreeFMUState", free_state(h, &s->state), true, true)) {
         REQUIRE(s->state == NULL, "FreeFMUState left the pointer set");
         s->have_values = false;
     }
@@ -776,7 +775,7 @@ static void op_serialize(Harness *h) {
     int status;
     begin(h);
     status = state_size(h, from->state, &size);
-    if (!outcome(h, "SerializedFMUStateSize", status, allowed, true, false)) {
+    if (!outcome(h, "SerializedFMUStateSize", status, allowed, true)) {
         REQUIRE(!allowed, "SerializedFMUStateSize failed");
         return;
     }
@@ -785,7 +784,7 @@ static void op_serialize(Harness *h) {
     REQUIRE(bytes != NULL, "out of memory");
     begin(h);
     if (damage == 1) { /* a buffer one byte too small */
-        outcome(h, "SerializeFMUState (small buffer)", serialize(h, from->state, bytes, size - 1), true, false, false);
+        outcome(h, "SerializeFMUState (small buffer)", serialize(h, from->state, bytes, size - 1), true, false);
         free(bytes);
         return;
     }
@@ -799,8 +798,7 @@ static void op_serialize(Harness *h) {
     begin(h);
     status = deserialize(h, bytes, size, &fresh);
     free(bytes);
-    if (!outcome(h, intact ? "DeserializeFMUState" : "DeserializeFMUState (damaged bytes)", status, true, intact,
-                 false)) {
+    if (!outcome(h, intact ? "DeserializeFMUState" : "DeserializeFMUState (damaged bytes)", status, true, intact)) {
         REQUIRE(!intact, "DeserializeFMUState rejected an intact state");
         REQUIRE(fresh == NULL, "a rejected DeserializeFMUState returned a state");
         return;
@@ -824,7 +822,7 @@ static void op_reset(Harness *h) {
     int status;
     begin(h);
     status = reset(h);
-    if (outcome(h, "Reset", status, allowed, true, false)) {
+    if (outcome(h, "Reset", status, allowed, true)) {
         h->state = S_INSTANTIATED;
         h->time = 0.0;
         h->stop_defined = false;
@@ -840,7 +838,7 @@ static void op_reset(Harness *h) {
 static void op_terminate(Harness *h) {
     bool allowed = h->state == S_STEP;
     begin(h);
-    if (outcome(h, "Terminate", terminate(h), allowed, true, false)) h->state = S_TERMINATED;
+    if (outcome(h, "Terminate", terminate(h), allowed, true)) h->state = S_TERMINATED;
 }
 
 static void op_debug_logging(Harness *h) {
@@ -853,13 +851,13 @@ static void op_debug_logging(Harness *h) {
         if (!categories[i]) valid = false;
     }
     begin(h);
-    outcome(h, "SetDebugLogging", debug_logging(h, on, n, categories), IN(h->state, ANY), valid, false);
+    outcome(h, "SetDebugLogging", debug_logging(h, on, n, categories), IN(h->state, ANY), valid);
 }
 
 static void op_unsupported(Harness *h) {
     uint8_t which = u8(h);
     begin(h);
-    outcome(h, "an unsupported function", unsupported(h, which), IN(h->state, ANY), false, false);
+    outcome(h, "an unsupported function", unsupported(h, which), IN(h->state, ANY), false);
 }
 
 #if FMI_VERSION == 2
@@ -867,7 +865,7 @@ static void op_status(Harness *h) {
     fmi2Real t = NAN;
     bool allowed = IN(h->state, GETS);
     begin(h);
-    if (outcome(h, "fmi2GetRealStatus", fmi2GetRealStatus(h->c, fmi2LastSuccessfulTime, &t), allowed, true, false))
+    if (outcome(h, "fmi2GetRealStatus", fmi2GetRealStatus(h->c, fmi2LastSuccessfulTime, &t), allowed, true))
         REQUIRE(t == h->time, "fmi2LastSuccessfulTime %.17g, expected %.17g", t, h->time);
     else
         REQUIRE(!allowed, "fmi2GetRealStatus failed");

@@ -60,6 +60,8 @@ fmi2Status fmi2SetupExperiment(fmi2Component c, fmi2Boolean toleranceDefined, fm
     BEGIN("fmi2SetupExperiment", STATE_INSTANTIATED);
     (void)toleranceDefined;
     (void)tolerance;
+    if (fmu_check_experiment(INSTANCE, function, startTime, stopTimeDefined != fmi2False, stopTime) != FMU_OK)
+        RETURN(FMU_ERROR);
     INSTANCE->start_time = startTime;
     INSTANCE->time = startTime;
     INSTANCE->stop_time_defined = stopTimeDefined != fmi2False;

@@ -482,14 +482,37 @@ FmuStatus fmu_reject_type(FmuInstance *instance, const char *function, const cha
     return FMU_ERROR;
 }
 
-FmuStatus fmu_enter_initialization(FmuInstance *instance, const char *function, double start_time,
-                                   bool stop_time_defined, double stop_time) {
+/* The first Float64 output that is NaN or infinite (its value in *value), NULL when all are finite: an FMU
+ * never reports success with non-finite results (a step too long for the model's numerics, an overflow). */
+static const FmuVariable *non_finite_output(const FmuInstance *instance, double *value) {
+    unsigned int i;
+    size_t k;
+    for (i = 0; i < MODEL_VARIABLE_COUNT; i++) {
+        const FmuVariable *variable = &MODEL_VARIABLE_TABLE[i];
+        if (!variable->name || variable->type != FMU_FLOAT64 || variable->causality != FMU_OUTPUT) continue;
+        for (k = 0; k < variable->count; k++) {
+            memcpy(value, (const char *)&instance->v + variable->offset + k * sizeof *value, sizeof *value);
+            if (!isfinite(*value)) return variable;
+        }
+    }
+    return NULL;
+}
+
+FmuStatus fmu_check_experiment(FmuInstance *instance, const char *function, double start_time,
+                               bool stop_time_defined, double stop_time) {
     if (!isfinite(start_time) || (stop_time_defined && (!isfinite(stop_time) || stop_time < start_time))) {
         fmu_log(instance, FMU_ERROR, "logStatusError",
                 "%s: bad experiment: startTime = %g, stopTime = %g (must be finite, stopTime >= startTime)",
                 function, start_time, stop_time);
         return FMU_ERROR;
     }
+    return FMU_OK;
+}
+
+FmuStatus fmu_enter_initialization(FmuInstance *instance, const char *function, double start_time,
+                                   bool stop_time_defined, double stop_time) {
+    if (fmu_check_experiment(instance, function, start_time, stop_time_defined, stop_time) != FMU_OK)
+        return FMU_ERROR;
     instance->start_time = start_time;
     instance->time = start_time;
     instance->stop_time_defined = stop_time_defined;
@@ -502,6 +525,8 @@ FmuStatus fmu_enter_initialization(FmuInstance *instance, const char *function, 
 FmuStatus fmu_exit_initialization(FmuInstance *instance, const char *function) {
     size_t i;
     FmuStatus status;
+    const FmuVariable *bad;
+    double output;
     /* Start values may have come from anywhere (an importer that never called set): check all. */
     for (i = 0; i < MODEL_VARIABLE_COUNT; i++) {
         const FmuVariable *variable = &MODEL_VARIABLE_TABLE[i];
@@ -526,6 +551,11 @@ FmuStatus fmu_exit_initialization(FmuInstance *instance, const char *function) {
     if (status > FMU_WARNING) return status;
     model_update_outputs(instance);
     instance->outputs_stale = false;
+    if ((bad = non_finite_output(instance, &output)) != NULL) {
+        fmu_log(instance, FMU_ERROR, "logStatusError", "%s: output '%s' is %g at t = %g s: the model cannot compute "
+                "it from these parameters and inputs", function, bad->name, output, instance->time);
+        return FMU_ERROR;
+    }
     instance->state = STATE_STEP_MODE;
     fmu_log(instance, FMU_OK, "logEvents", "%s: initialized at t = %g s", function, instance->time);
     return status;
@@ -533,6 +563,8 @@ FmuStatus fmu_exit_initialization(FmuInstance *instance, const char *function) {
 
 FmuStatus fmu_do_step(FmuInstance *instance, const char *function, double current_time, double step_size) {
     FmuStatus status;
+    const FmuVariable *bad;
+    double previous_time, value;
     char text[2][32];
     /* never so loose that a whole (small) step could go unnoticed */
     double tolerance = fmin(TIME_TOLERANCE * fmax(1.0, fabs(instance->time)), 0.25 * fabs(step_size));
@@ -547,6 +579,13 @@ FmuStatus fmu_do_step(FmuInstance *instance, const char *function, double curren
                 format_number(text[0], current_time), format_number(text[1], instance->time));
         return FMU_ERROR;
     }
+    if (!isfinite(current_time + step_size) || current_time + step_size <= current_time) {
+        /* the end of the step would be Inf, or the same number as its start: the time could not advance */
+        fmu_log(instance, FMU_ERROR, "logStatusError",
+                "%s: a step of %s s from t = %s s does not reach a larger finite time", function,
+                format_number(text[0], step_size), format_number(text[1], current_time));
+        return FMU_ERROR;
+    }
     if (instance->stop_time_defined && current_time + step_size > instance->stop_time + tolerance) {
         fmu_log(instance, FMU_ERROR, "logStatusError", "%s: step to t = %s s goes past stopTime = %s s",
                 function, format_number(text[0], current_time + step_size),
@@ -555,9 +594,18 @@ FmuStatus fmu_do_step(FmuInstance *instance, const char *function, double curren
     }
     status = model_do_step(instance, current_time, step_size);
     if (status > FMU_WARNING) return status;
+    previous_time = instance->time;
     instance->time = current_time + step_size;
     model_update_outputs(instance);
     instance->outputs_stale = false;
+    if ((bad = non_finite_output(instance, &value)) != NULL) {
+        instance->time = previous_time; /* the last successful time stays the start of the failed step */
+        fmu_log(instance, FMU_ERROR, "logStatusError",
+                "%s: the step of %s s from t = %s s made output '%s' %g: the model cannot take it (a shorter step "
+                "or other inputs may)", function, format_number(text[0], step_size),
+                format_number(text[1], current_time), bad->name, value);
+        return FMU_ERROR;
+    }
     return status;
 }
 
@@ -571,11 +619,13 @@ FmuStatus fmu_terminate(FmuInstance *instance, const char *function) {
 
 #define SNAPSHOT_MAGIC 0x464d5553u /* "FMUS" */
 
-/* A snapshot is one block: this header, then heap_size doubles. Serialization is the block. */
+/* A snapshot is one block: this header, then heap_size doubles. Serialization is the block, with a checksum
+ * of it so that damaged bytes are rejected instead of restoring a corrupt instance (in memory it is 0). */
 struct FmuSnapshot {
     uint32_t magic;
     uint32_t reserved;
     uint64_t bytes;                 /* size of the whole block */
+    uint64_t checksum;              /* serialized: FNV-1a 64 of the block with this field 0 */
     char token[64];
     FmuState state;
     double time, start_time, stop_time;
@@ -587,6 +637,15 @@ struct FmuSnapshot {
 };
 
 static size_t snapshot_bytes(size_t heap_size) { return sizeof(FmuSnapshot) + heap_size * sizeof(double); }
+
+/* FNV-1a 64 of a serialized snapshot, its checksum field counted as 0. */
+static uint64_t snapshot_checksum(const unsigned char *bytes, size_t size) {
+    const size_t skip = offsetof(FmuSnapshot, checksum);
+    uint64_t h = 0xcbf29ce484222325u;
+    size_t i;
+    for (i = 0; i < size; i++) h = (h ^ (i - skip < sizeof h ? 0u : bytes[i])) * 0x100000001b3u;
+    return h;
+}
 
 FmuStatus fmu_get_state(FmuInstance *instance, const char *function, void **snapshot) {
     FmuSnapshot *s;
@@ -688,6 +747,10 @@ FmuStatus fmu_serialize_state(FmuInstance *instance, const char *function, const
         return FMU_ERROR;
     }
     memcpy(bytes, s, (size_t)s->bytes);
+    {
+        uint64_t checksum = snapshot_checksum(bytes, (size_t)s->bytes);
+        memcpy(bytes + offsetof(FmuSnapshot, checksum), &checksum, sizeof checksum);
+    }
     return FMU_OK;
 }
 
@@ -708,9 +771,20 @@ FmuStatus fmu_deserialize_state(FmuInstance *instance, const char *function, con
                 function, size, (size_t)header.bytes);
         return FMU_ERROR;
     }
+    if (header.checksum != snapshot_checksum(bytes, size) || !(header.state & STATES_ANY) ||
+        (header.state & (header.state - 1)) != 0) {
+        fmu_log(instance, FMU_ERROR, "logStatusError",
+                "%s: serialized FMUstate is damaged (its checksum or instance state does not match its bytes)",
+                function);
+        return FMU_ERROR;
+    }
     s = malloc(size);
-    if (!s) return FMU_ERROR;
+    if (!s) {
+        fmu_log(instance, FMU_ERROR, "logStatusError", "%s: out of memory for a state of %zu bytes", function, size);
+        return FMU_ERROR;
+    }
     memcpy(s, bytes, size);
+    s->checksum = 0;
     if (*snapshot) free(*snapshot);
     *snapshot = s;
     return FMU_OK;

@@ -96,7 +96,10 @@ FmuStatus fmu_set_float64s(FmuInstance *instance, const char *function, const un
                            const double values[], size_t n_values);
 FmuStatus fmu_reject_type(FmuInstance *instance, const char *function, const char *type_name, size_t n_vr);
 
-/* Mode changes. */
+/* Mode changes. An experiment needs a finite startTime and, when defined, a finite stopTime >= startTime
+ * (fmu_check_experiment logs and returns Error otherwise; fmu_enter_initialization checks it too). */
+FmuStatus fmu_check_experiment(FmuInstance *instance, const char *function, double start_time,
+                               bool stop_time_defined, double stop_time);
 FmuStatus fmu_enter_initialization(FmuInstance *instance, const char *function, double start_time,
                                    bool stop_time_defined, double stop_time);
 FmuStatus fmu_exit_initialization(FmuInstance *instance, const char *function);

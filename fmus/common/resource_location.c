@@ -36,7 +36,7 @@ int fmu_resource_file(const char *location, const char *name, char *path, size_t
     while (*s) {
         char c = *s;
         if (uri && c == '%') {
-            if (hex_value(s[1]) < 0 || hex_value(s[2]) < 0)
+            if (hex_value(s[1]) < 0 || hex_value(s[2]) < 0 || (s[1] == '0' && s[2] == '0')) /* %00 cuts the path */
                 return fail(message, message_size, location, "has a bad percent-escape");
             c = (char)(hex_value(s[1]) * 16 + hex_value(s[2]));
             s += 3;

@@ -54,6 +54,7 @@ BAD = {  # location -> the reason
     "file://server/share/resources": "is not a local file URI",
     "file:///a/b%zz/resources": "has a bad percent-escape",
     "file:///a/b%2": "has a bad percent-escape",
+    "file:///a%00/b/resources": "has a bad percent-escape",  # a NUL would cut the path: /a/weights.bin
 }
 
 

@@ -64,6 +64,7 @@ static const char *const STATE_NAMES[] = {"none", "Instantiated", "Initializatio
 
 #define SLOTS 3
 #define MAX_VR 6
+#define MAX_ELEMENTS 256 /* elements of the largest array variable set at once (ForceNet's 8 x 24 map: 192) */
 #define STATUS_OK 0
 #define STATUS_WARNING 1
 #define STATUS_DISCARD 2
@@ -503,17 +504,22 @@ static void op_exit_init(Harness *h) {
 
 static void op_set_real(Harness *h) {
     unsigned vr[MAX_VR];
-    double x[MAX_VR];
-    size_t n = u8(h) % (MAX_VR + 1), i, n_values = 0;
+    double x[MAX_VR * MAX_ELEMENTS]; /* room for every element of MAX_VR arrays: nValues never overstates it */
+    size_t n = u8(h) % (MAX_VR + 1), i, k, n_values = 0;
     bool valid = true, allowed = IN(h->state, SETS), null_arrays = false;
     uint8_t mode = u8(h);
     for (i = 0; i < n; i++) {
         const FmuVariable *v;
+        size_t count;
         vr[i] = pick_vr(h);
         v = variable(vr[i]);
-        x[i] = pick_value(h, v ? v->min : -1.0, v ? v->max : 1.0);
-        if (!v || v->type != FMU_FLOAT64 || v->count != 1 || !settable(h, v) || !in_range(v, x[i])) valid = false;
-        n_values += v && v->type == FMU_FLOAT64 ? v->count : 1;
+        count = v && v->type == FMU_FLOAT64 && v->count <= MAX_ELEMENTS ? v->count : 1;
+        if (!v || v->type != FMU_FLOAT64 || v->count > MAX_ELEMENTS || !settable(h, v)) valid = false;
+        for (k = 0; k < count; k++) { /* an FMI 3 array: all of its elements, each one checked by the FMU */
+            x[n_values + k] = pick_value(h, v ? v->min : -1.0, v ? v->max : 1.0);
+            if (v && !in_range(v, x[n_values + k])) valid = false;
+        }
+        n_values += count;
     }
     if (mode == 1 && n > 0) null_arrays = true, valid = false;
 #if FMI_VERSION == 3
@@ -522,7 +528,13 @@ static void op_set_real(Harness *h) {
     begin(h);
     if (outcome(h, "SetFloat64", set_real(h, null_arrays ? NULL : vr, n, null_arrays ? NULL : x, n_values), allowed,
                 valid)) {
-        for (i = 0; i < n; i++) h->shadow.known[vr[i]] = true, h->shadow.value[vr[i]] = x[i]; /* valid: vr < 256 */
+        size_t next = 0;
+        for (i = 0; i < n; i++) { /* scalars are compared when read back (valid: vr < 256) */
+            const FmuVariable *v = variable(vr[i]);
+            h->shadow.known[vr[i]] = v->count == 1;
+            h->shadow.value[vr[i]] = x[next];
+            next += v->count;
+        }
     } else {
         REQUIRE(!(allowed && valid), "SetFloat64 rejected valid values");
         /* a rejected call may have set the values before the bad one (FMI leaves them undefined) */

@@ -9,10 +9,11 @@ unit factors) and the recorded columns. ``stp_run`` then performs a chunk of tic
 returning to Python, with the semantics of the Python loop in ``orchestrator/master.py``, call for
 call, so the two paths give bit-identical results:
 
-* Recorded inputs are sampled in Python per chunk with the same calls as the Python path
-  (``RecordedData.at`` times the unit factor, at ``start + k * base``), only at the ticks where
-  their instance is due (the sampling is elementwise, so the values are the same), and passed to C
-  as arrays.
+* Recorded inputs are sampled in C at each due step's time ``start + k * base``, with numpy's
+  arithmetic (``fmus/stepper/recorded_sample.h``: ``np.interp`` or the held sample, clipped to the
+  recording, then times the unit factor), so they equal the Python path's ``RecordedData.at``
+  values; a time outside the recording ends the chunk and raises ``RecordedDataError`` here, as
+  ``RecordedData.at`` raises it on the Python path.
 * Connections compute ``source * factor`` (one IEEE multiplication, as Python does); booleans are
   converted as ctypes converts them (FMI 2: ``int``, FMI 3: ``bool``).
 * Rows (time, then the recorded variables as float64) go into a numpy buffer; the master appends
@@ -49,15 +50,15 @@ __all__ = ["LIBRARY_ENV", "LIBRARY_NAME", "Choice", "FastPathUnavailable", "Step
 
 LIBRARY_ENV = "MILLING_TWIN_STEPPER"
 LIBRARY_NAME = "libmilling_stepper.so"
-ABI_VERSION = 2
+ABI_VERSION = 3
 CHUNK_SECONDS = 0.1  # wall time a chunk should take: the Ctrl-C latency and progress-bar period
 FIRST_CHUNK_TICKS = 256
-MAX_CHUNK_TICKS = 1 << 18  # bounds the recorded-input arrays of a chunk
+MAX_CHUNK_TICKS = 1 << 18  # bounds a chunk where ticks cost next to nothing (and rows are rare)
 MAX_CHUNK_ROWS = 1 << 14  # bounds the row buffer
 
 _REPO_BUILD = Path(__file__).resolve().parents[1] / "build" / "stepper" / LIBRARY_NAME
 REAL, BOOL_FMI2, BOOL_FMI3 = 0, 1, 2
-DONE, STOPPED, TERMINATED, FAILED = 0, 1, 2, 3
+DONE, STOPPED, TERMINATED, FAILED, OUT_OF_RECORDING = 0, 1, 2, 3, 4
 # stp_outcome.function -> the FMI function's name without its fmi2/fmi3 prefix
 _FUNCTIONS = {2: ["", "SetReal", "SetBoolean", "DoStep", "GetReal", "GetBoolean", "GetInteger"],
               3: ["", "SetFloat64", "SetBoolean", "DoStep", "GetFloat64", "GetBoolean", "GetInt32"]}
@@ -68,6 +69,10 @@ STOP_CALLBACK = ctypes.CFUNCTYPE(ctypes.c_int, ctypes.c_double)
 
 class _Link(ctypes.Structure):
     _fields_ = [("source", _vp), ("factor", _f64), ("source_kind", _i32), ("position", _i32)]
+
+
+class _Recorded(ctypes.Structure):
+    _fields_ = [("values", _vp), ("factor", _f64), ("hint", _i64), ("linear", _i32), ("reserved", _i32)]
 
 
 class _Column(ctypes.Structure):
@@ -95,7 +100,8 @@ class _Instance(ctypes.Structure):
 class _Plan(ctypes.Structure):
     _fields_ = [("start", _f64), ("base", _f64), ("n_ticks", _i64), ("ticks_per_output", _i64),
                 ("n_instances", _i64), ("n_columns", _i64), ("instances", ctypes.POINTER(_Instance)),
-                ("columns", ctypes.POINTER(_Column)), ("should_stop", STOP_CALLBACK)]
+                ("columns", ctypes.POINTER(_Column)), ("should_stop", STOP_CALLBACK),
+                ("recorded_time", _vp), ("recorded_samples", _i64), ("recorded_tolerance", _f64)]
 
 
 class _Outcome(ctypes.Structure):
@@ -145,7 +151,7 @@ def load_library(path: Path) -> ctypes.CDLL:
     lib.stp_run.argtypes = [ctypes.POINTER(_Plan), _i64, _i64, _vp, ctypes.POINTER(_Outcome)]
     if lib.stp_abi_version() != ABI_VERSION:
         raise OSError(f"{path}: ABI version {lib.stp_abi_version()}, expected {ABI_VERSION}: rebuild it")
-    for which, struct in enumerate((_Link, _Column, _Instance, _Plan, _Outcome)):
+    for which, struct in enumerate((_Link, _Column, _Instance, _Plan, _Outcome, _Recorded)):
         if lib.stp_struct_size(which) != ctypes.sizeof(struct):
             raise OSError(f"{path}: {struct.__name__.lstrip('_')} has {lib.stp_struct_size(which)} bytes, "
                           f"expected {ctypes.sizeof(struct)}: rebuild it")
@@ -235,8 +241,8 @@ class Stepper:
     ``fmu``, ``fmi3``, ``m``, ``name``, the ctypes buffers ``real_in/bool_in/real_out/bool_out/
     real_prev/bool_prev/int_out``, value references ``vr_real_in/vr_bool_in/vr_real_out/vr_bool_out/
     vr_int_out``,
-    ``n_rec_real/n_rec_bool``, ``conn_real/conn_bool`` (connections, in input order),
-    ``out_index``, ``feeds_connections`` and ``sample(scenario, times)``.
+    ``rec_real/rec_bool`` (recorded inputs, in input order), ``n_rec_real/n_rec_bool``,
+    ``conn_real/conn_bool`` (connections, in input order), ``out_index`` and ``feeds_connections``.
     """
 
     def __init__(self, library: ctypes.CDLL, slaves: Sequence[Any], scenario: Scenario, n_ticks: int,
@@ -247,8 +253,21 @@ class Stepper:
         by_name = {s.name: s for s in self.slaves}
         delayed = {c.source.instance for c in scenario.connections if c.delay}
         self._keep: list[Any] = []  # everything C points to
-        self._chunk: dict[str, tuple[Any, Any]] = {}  # this chunk's recorded-input arrays
         self._instances = (_Instance * len(self.slaves))()
+        rec = scenario.recorded
+        channels: dict[str, np.ndarray] = {}  # each channel once, as float64 (booleans 0.0 / 1.0)
+
+        def recorded(inputs: Sequence[Any]) -> int:
+            table = (_Recorded * max(1, len(inputs)))()
+            for item, i in zip(table, inputs):
+                if i.channel not in channels:
+                    channels[i.channel] = np.ascontiguousarray(rec.channels[i.channel], dtype=np.float64)
+                item.values = channels[i.channel].ctypes.data
+                item.factor = i.factor
+                item.linear = int(i.interpolation == "linear" and rec.channels[i.channel].dtype != np.bool_)
+            self._keep.append(table)
+            return ctypes.addressof(table)
+
         for inst, s in zip(self._instances, self.slaves):
             fmu, prefix = s.fmu, "fmi3" if s.fmi3 else "fmi2"
             names = (("SetFloat64", "SetBoolean", "GetFloat64", "GetBoolean", "DoStep", "GetInt32") if s.fmi3 else
@@ -267,6 +286,7 @@ class Stepper:
                 setattr(inst, field, _address(getattr(s, field)))
             inst.n_real_in, inst.n_bool_in = len(s.real_in), len(s.bool_in)
             inst.n_rec_real, inst.n_rec_bool = s.n_rec_real, s.n_rec_bool
+            inst.rec_real, inst.rec_bool = recorded(s.rec_real), recorded(s.rec_bool)
             inst.n_real_out, inst.n_bool_out, inst.n_int_out = len(s.real_out), len(s.bool_out), len(s.int_out)
             inst.get_after_step = int(s.feeds_connections)
             inst.snapshot = int(s.name in delayed)
@@ -296,6 +316,11 @@ class Stepper:
                            instances=self._instances, columns=self._columns)
         if self._callback is not None:  # else NULL: C never calls back
             self._plan.should_stop = self._callback
+        if rec is not None:
+            time = np.ascontiguousarray(rec.time, dtype=np.float64)
+            self._keep += [time, channels]
+            self._plan.recorded_time, self._plan.recorded_samples = time.ctypes.data, len(time)
+            self._plan.recorded_tolerance = 1e-9 * (rec.t_end - rec.t_start)  # as RecordedData.at
         self._outcome = _Outcome()
         self.stop_requested: Callable[[], bool] = lambda: False  # also checked by the callback
 
@@ -311,28 +336,22 @@ class Stepper:
         return min(MAX_CHUNK_TICKS, MAX_CHUNK_ROWS * self.tpo)
 
     def run_chunk(self, first: int, last: int) -> Outcome:
-        """Ticks [first, last): recorded inputs sampled here, then stepped in C."""
-        scenario, base, start = self._scenario, self._scenario.base_step, self._scenario.start_time
-        for inst, s in zip(self._instances, self.slaves):
-            if not (s.n_rec_real or s.n_rec_bool):
-                continue
-            m = s.m
-            ks = np.arange(-(-first // m) * m, last, m)
-            real, boolean = s.sample(scenario, start + ks * base)
-            if real is not None:
-                real = np.ascontiguousarray(real, dtype=np.float64)
-                inst.rec_real = real.ctypes.data
-            if boolean is not None:
-                boolean = np.ascontiguousarray(boolean != 0 if s.fmi3 else boolean,
-                                               dtype=np.bool_ if s.fmi3 else np.int32)
-                inst.rec_bool = boolean.ctypes.data
-            self._chunk[s.name] = (real, boolean)  # alive until the next chunk
+        """Ticks [first, last) in C."""
         out = self._outcome
         self._lib.stp_run(ctypes.byref(self._plan), first, last, self._rows.ctypes.data, ctypes.byref(out))
         name, function = "", ""
-        if out.code in (TERMINATED, FAILED):
+        if out.code in (TERMINATED, FAILED, OUT_OF_RECORDING):
             s = self.slaves[out.instance]
             name = s.name
             if out.code == FAILED:
                 function = ("fmi3" if s.fmi3 else "fmi2") + _FUNCTIONS[3 if s.fmi3 else 2][out.function]
         return Outcome(out.code, out.tick, self._rows[: out.rows], name, function, out.status, out.time)
+
+    def raise_out_of_recording(self, outcome: Outcome) -> None:
+        """Raise the RecordedDataError the Python path raises for ``outcome`` (code OUT_OF_RECORDING): that of
+        ``RecordedData.at`` for the instance's first recorded input at the time C found outside the recording."""
+        s = next(s for s in self.slaves if s.name == outcome.instance)
+        first = (list(s.rec_real) + list(s.rec_bool))[0]
+        self._scenario.recorded.at(first.channel, np.array([outcome.time]), first.interpolation)
+        raise RuntimeError(f"the stepper found t = {outcome.time!r} s outside the recording of instance "
+                           f"{outcome.instance!r}, but RecordedData.at accepts it")  # the two checks disagree

@@ -64,14 +64,15 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
-from fmpy.fmi1 import FMICallException
-from fmpy.fmi2 import (FMU2Slave, defaultCallbacks, fmi2Boolean, fmi2CallbackFunctions,
-                       fmi2CallbackLoggerTYPE, fmi2Integer, fmi2Real, fmi2ValueReference)
-from fmpy.fmi3 import FMU3Slave, fmi3Boolean, fmi3Float64, fmi3Int32, fmi3ValueReference
+from fmpy.fmi1 import FMICallException, printLogMessage
+from fmpy.fmi2 import (defaultCallbacks, fmi2Boolean, fmi2CallbackFunctions, fmi2CallbackLoggerTYPE, fmi2Integer,
+                       fmi2Real, fmi2ValueReference)
+from fmpy.fmi3 import fmi3Boolean, fmi3Float64, fmi3Int32, fmi3ValueReference
 from fmpy.logging import addLoggerProxy
 from tqdm import tqdm
 
 from orchestrator import fastpath, fmu_cache
+from orchestrator.fmu_loading import FMU2Slave, FMU3Slave
 from orchestrator.results import RunWriter, sha256_of
 from orchestrator.scenario import FmuInstance, Scenario
 
@@ -80,6 +81,18 @@ __all__ = ["RunResult", "SimulationError", "run"]
 BLOCK_TICKS = 4096  # recorded inputs are sampled for this many ticks at a time
 _log = logging.getLogger(__name__)
 _STATUS = ["OK", "Warning", "Discard", "Error", "Fatal", "Pending"]
+# fmpy's own FMI 2 logger, the target of its native logger proxy until a run points the proxy at the run's
+# callback; made once (ctypes keeps a callback alive only as long as this object)
+_FMPY_FMI2_LOGGER = fmi2CallbackLoggerTYPE(printLogMessage)
+
+
+def _restore_fmpy_fmi2_logger() -> None:
+    """Point fmpy's logger proxy back at fmpy's own logger. The proxy has one process-wide target, the
+    logger installed last: left at a finished run's callback, which is freed with the run, it would crash
+    the next FMI 2 FMU on fmpy's default callbacks that logs a message."""
+    callbacks = fmi2CallbackFunctions()
+    callbacks.logger = _FMPY_FMI2_LOGGER
+    addLoggerProxy(ctypes.byref(callbacks))
 
 
 class SimulationError(RuntimeError):
@@ -250,23 +263,15 @@ class _Slave:
         ctypes.memmove(self.real_prev, self.real_out, ctypes.sizeof(self.real_out))
         ctypes.memmove(self.bool_prev, self.bool_out, ctypes.sizeof(self.bool_out))
 
-    def sample(self, scenario: Scenario, times: np.ndarray) -> tuple[np.ndarray | None, np.ndarray | None]:
-        """This instance's recorded inputs at ``times``: (reals, booleans), one row per time."""
-        rec = scenario.recorded
-        real = boolean = None
-        if self.rec_real:
-            real = np.column_stack([rec.at(i.channel, times, i.interpolation) * i.factor for i in self.rec_real])
-        if self.rec_bool:
-            boolean = np.column_stack([rec.at(i.channel, times, "hold") for i in self.rec_bool])
-        return real, boolean
-
     def load_block(self, scenario: Scenario, times: np.ndarray) -> None:
-        """Sample this instance's recorded inputs at ``times`` (one row per tick)."""
-        real, boolean = self.sample(scenario, times)
-        if real is not None:
-            self.rec_real_rows = real.tolist()
-        if boolean is not None:
-            self.rec_bool_rows = boolean.tolist()
+        """Sample this instance's recorded inputs at ``times`` (one row per tick). The fast path samples them in
+        C with the same arithmetic (orchestrator.fastpath)."""
+        rec = scenario.recorded
+        if self.rec_real:
+            self.rec_real_rows = np.column_stack([rec.at(i.channel, times, i.interpolation) * i.factor
+                                                  for i in self.rec_real]).tolist()
+        if self.rec_bool:
+            self.rec_bool_rows = np.column_stack([rec.at(i.channel, times, "hold") for i in self.rec_bool]).tolist()
 
     def free(self) -> None:
         try:
@@ -541,6 +546,9 @@ class _Run:
                 if out.code == fastpath.FAILED:
                     self.current, self.t = out.instance, out.time
                     raise FMICallException(function=out.function, status=out.status)
+                if out.code == fastpath.OUT_OF_RECORDING:
+                    self.current, self.t = out.instance, out.time
+                    stepper.raise_out_of_recording(out)
                 if out.code == fastpath.TERMINATED:
                     self.status = f"terminated: instance {out.instance!r} asked to terminate at t = {out.time!r} s"
                     stop.set = True
@@ -561,6 +569,8 @@ class _Run:
                 s.free()
             except Exception:  # a failed FMU may refuse to terminate; free the others anyway
                 pass
+        if self.fmi2_loggers:
+            _restore_fmpy_fmi2_logger()
         for d in self.unzip_dirs.values():
             if d.temporary:
                 shutil.rmtree(d.folder, ignore_errors=True)

@@ -334,7 +334,7 @@ class FakeFmu:
     def __init__(self, fmi3: bool, do_step_status=lambda t: 0, get_status=lambda t: 0, terminate_at=None):
         import ctypes as c
 
-        self.time, self.calls = 0.0, []
+        self.time, self.calls, self.inputs = 0.0, [], []  # inputs: (reals, booleans) of each step
         b = c.c_bool if fmi3 else c.c_int
         vr, n = c.POINTER(c.c_uint32), c.c_size_t
 
@@ -355,6 +355,14 @@ class FakeFmu:
         def ok(*args):
             return 0
 
+        def set_real(comp, vrs, nvr, values, *extra):
+            self.inputs.append(([values[i] for i in range(nvr)], []))
+            return 0
+
+        def set_boolean(comp, vrs, nvr, values, *extra):
+            self.inputs[-1][1].extend(values[i] for i in range(nvr))
+            return 0
+
         extra = (n,) if fmi3 else ()
         setter_r = c.CFUNCTYPE(c.c_int, c.c_void_p, vr, n, c.POINTER(c.c_double), *extra)
         setter_b = c.CFUNCTYPE(c.c_int, c.c_void_p, vr, n, c.POINTER(b), *extra)
@@ -364,9 +372,9 @@ class FakeFmu:
         p = "fmi3" if fmi3 else "fmi2"
         names = ("SetFloat64", "GetFloat64") if fmi3 else ("SetReal", "GetReal")
         self.dll = type("Dll", (), {})()
-        setattr(self.dll, p + names[0], setter_r(ok))
+        setattr(self.dll, p + names[0], setter_r(set_real))
         setattr(self.dll, p + names[1], setter_r(get))
-        setattr(self.dll, p + "SetBoolean", setter_b(ok))
+        setattr(self.dll, p + "SetBoolean", setter_b(set_boolean))
         setattr(self.dll, p + "GetBoolean", setter_b(ok))
         setattr(self.dll, p + "DoStep", step(do_step))
         setter_i = c.CFUNCTYPE(c.c_int, c.c_void_p, vr, n, c.POINTER(c.c_int32), *extra)
@@ -382,7 +390,8 @@ class FakeFmu:
             fmu=self, fmi3=fmi3, m=1, name="fake", real_in=(c.c_double * 0)(), bool_in=(b * 0)(),
             real_out=(c.c_double * 1)(), real_prev=(c.c_double * 1)(), bool_out=(b * 0)(), bool_prev=(b * 0)(),
             vr_real_in=(c.c_uint32 * 0)(), vr_bool_in=(c.c_uint32 * 0)(), vr_real_out=(c.c_uint32 * 1)(7),
-            vr_bool_out=(c.c_uint32 * 0)(), vr_int_out=(c.c_uint32 * 0)(), int_out=(c.c_int32 * 0)(), n_rec_real=0, n_rec_bool=0, conn_real=[], conn_bool=[],
+            vr_bool_out=(c.c_uint32 * 0)(), vr_int_out=(c.c_uint32 * 0)(), int_out=(c.c_int32 * 0)(), rec_real=[], rec_bool=[], n_rec_real=0,
+            n_rec_bool=0, conn_real=[], conn_bool=[],
             out_index={"t": ("real", 0)}, feeds_connections=False)
 
 
@@ -390,7 +399,7 @@ def fake_stepper(library, fake: FakeFmu, fmi3: bool, n_ticks: int = 10):
     from types import SimpleNamespace
 
     slave = fake.slave(fmi3)
-    scenario = SimpleNamespace(connections=(), ticks_per_output=1, start_time=0.0, base_step=0.1)
+    scenario = SimpleNamespace(connections=(), ticks_per_output=1, start_time=0.0, base_step=0.1, recorded=None)
     return fastpath.Stepper(library, [slave], scenario, n_ticks, [(slave.real_out, 0)])
 
 
@@ -422,3 +431,52 @@ def test_chunks_continue_where_the_last_one_ended(library):
     assert len(first) == 3 and len(second) == 7
     np.testing.assert_array_equal(np.vstack([first, second])[:, 0], np.arange(1, 11) * 0.1)
     assert [t for call, t in fake.calls if call == "doStep"] == [k * 0.1 for k in range(10)]
+
+
+def recorded_stepper(library, fmi3: bool, last_samples: tuple[float, float] = (0.81, 0.95)):
+    """A fake instance fed by two real channels (linear, hold) and a boolean one, on irregular samples,
+    stepped at 0.1 s for ten ticks."""
+    import ctypes as c
+    from types import SimpleNamespace
+
+    from orchestrator.recorded import RecordedData
+
+    time = np.array([0.0, 0.05, 0.2, 0.37, 0.5, *last_samples])  # 0.2 and 0.5 fall on the grid
+    rng = np.random.default_rng(7)
+    rec = RecordedData(path="rec.csv", time=time,
+                       channels={"a": rng.normal(size=7) * 1e3, "b": rng.normal(size=7), "on": time > 0.3},
+                       units={"a": "W", "b": "m", "on": "bool"})
+    inputs = [SimpleNamespace(channel="a", interpolation="linear", factor=1e-3),
+              SimpleNamespace(channel="b", interpolation="hold", factor=0.1),
+              SimpleNamespace(channel="on", interpolation="linear", factor=1.0)]
+    fake = FakeFmu(fmi3)
+    slave = fake.slave(fmi3)
+    b = c.c_bool if fmi3 else c.c_int
+    slave.rec_real, slave.rec_bool, slave.n_rec_real, slave.n_rec_bool = inputs[:2], inputs[2:], 2, 1
+    slave.real_in, slave.vr_real_in = (c.c_double * 2)(), (c.c_uint32 * 2)(1, 2)
+    slave.bool_in, slave.vr_bool_in = (b * 1)(), (c.c_uint32 * 1)(3)
+    scenario = SimpleNamespace(connections=(), ticks_per_output=1, start_time=0.0, base_step=0.1, recorded=rec)
+    return fake, rec, inputs, fastpath.Stepper(library, [slave], scenario, 10, [(slave.real_out, 0)])
+
+
+@pytest.mark.parametrize("fmi3", [False, True])
+def test_recorded_inputs_are_sampled_in_c_as_recorded_data_at_samples_them(library, fmi3):
+    fake, rec, inputs, stepper = recorded_stepper(library, fmi3)
+    assert stepper.run_chunk(0, 10).code == fastpath.DONE
+    times = 0.0 + np.arange(10) * 0.1  # the master's grid
+    expected = np.column_stack([rec.at(i.channel, times, i.interpolation) * i.factor for i in inputs[:2]])
+    got = np.array([reals for reals, _ in fake.inputs])
+    np.testing.assert_array_equal(got.view(np.uint64), expected.view(np.uint64))  # bit for bit
+    assert [bools[0] != 0 for _, bools in fake.inputs] == list(rec.at("on", times, "hold"))
+
+
+def test_a_time_outside_the_recording_raises_what_the_python_path_raises(library):
+    from orchestrator.recorded import RecordedDataError
+
+    fake, rec, inputs, stepper = recorded_stepper(library, False, last_samples=(0.52, 0.55))
+    out = stepper.run_chunk(0, 10)
+    assert (out.code, out.tick, out.instance, out.time) == (fastpath.OUT_OF_RECORDING, 6, "fake", 0.6000000000000001)
+    assert len(fake.inputs) == 6 and len(out.rows) == 6  # the ticks before it stepped and recorded
+    with pytest.raises(RecordedDataError, match=r"channel 'a': time 0.6000000000000001 s is outside the recorded "
+                                                r"range \[0.0, 0.55\] s"):
+        stepper.raise_out_of_recording(out)

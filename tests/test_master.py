@@ -133,3 +133,43 @@ def test_fmi2_messages_reach_the_instance_that_logged_them(make_case, fmu_dir, t
         run(scenario, tmp_path / "runs", progress=False)
     assert info.value.instance == "mrr"
     assert "fmi2SetReal: variable 'feed_velocity_x' = 20 m/s is out of its allowed range" in str(info.value)
+
+
+def test_after_a_run_fmpys_default_logger_works_again(make_case, fmu_dir, tmp_path):
+    # fmpy's native logger proxy has one process-wide target; the master points it at its own
+    # per-run callback, which is gone after the run. An FMI 2 FMU on fmpy's default callbacks that
+    # logs afterwards (fmpy.simulate_fmu in the same notebook, say) called freed memory and crashed
+    # the process: run it in a child process, so a regression fails here instead of killing pytest.
+    import subprocess
+    import sys
+    import textwrap
+
+    case = make_case(*[("fmi = 3", "fmi = 2")] * 2)
+    script = textwrap.dedent(f"""
+        import gc
+        from fmpy import read_model_description
+        from fmpy.fmi2 import FMU2Slave
+        from fmpy.fmi1 import FMICallException
+        from orchestrator import fmu_cache
+        from orchestrator.master import run
+        from orchestrator.results import sha256_of
+        from orchestrator.scenario import load_scenario
+
+        run(load_scenario({str(case)!r}, {str(fmu_dir)!r}), {str(tmp_path / "runs")!r}, progress=False)
+        gc.collect()
+        path = {str(fmu_dir / "SpindlePower_fmi2.fmu")!r}
+        folder = fmu_cache.unpack(path, sha256_of(path)).folder
+        md = read_model_description(folder)
+        fmu = FMU2Slave(guid=md.guid, unzipDirectory=folder, modelIdentifier=md.coSimulation.modelIdentifier)
+        fmu.instantiate()  # fmpy's default callbacks: its proxy, then its printLogMessage
+        vr = {{v.name: v.valueReference for v in md.modelVariables}}
+        try:
+            fmu.setReal([vr["spindle_speed"]], [float("nan")])  # the FMU logs an error
+        except FMICallException:
+            print("raised")
+        fmu.freeInstance()
+    """)
+    proc = subprocess.run([sys.executable, "-c", script], capture_output=True, text=True, timeout=120,
+                          cwd=tmp_path, env={**os.environ, "PYTHONPATH": str(fmu_dir.parents[1])})
+    assert proc.returncode == 0, proc.stderr[-2000:]
+    assert "raised" in proc.stdout and "spindle_speed" in proc.stdout  # fmpy printed the FMU's message

@@ -8,6 +8,8 @@
 
 #include <string.h>
 
+#include "recorded_sample.h"
+
 int stp_abi_version(void) {
     return STP_ABI_VERSION;
 }
@@ -19,6 +21,7 @@ size_t stp_struct_size(int which) {
     case 2: return sizeof(stp_instance);
     case 3: return sizeof(stp_plan);
     case 4: return sizeof(stp_outcome);
+    case 5: return sizeof(stp_recorded);
     default: return 0;
     }
 }
@@ -45,16 +48,31 @@ static void write_bool(stp_instance *s, int64_t position, int value) {
     }
 }
 
-/* Inputs of one step: recorded row, then links (master.py's _feed). */
-static void feed(stp_instance *s, int64_t row) {
+/* As RecordedData.at: a time beyond the recording's ends by more than its tolerance (or NaN) is an error. */
+static int outside_recording(const stp_plan *plan, double t) {
+    const double first = plan->recorded_time[0], last = plan->recorded_time[plan->recorded_samples - 1];
+    return !(t >= first - plan->recorded_tolerance && t <= last + plan->recorded_tolerance);
+}
+
+/* Inputs of one step at time t: recorded samples, then links (master.py's _feed). Returns 1, with the
+ * outcome filled in, when a recorded input is due outside the recording. */
+static int feed(const stp_plan *plan, stp_instance *s, double t, stp_outcome *o) {
     int64_t i;
-    if (s->n_rec_real > 0) {
-        memcpy(s->real_in, s->rec_real + row * s->n_rec_real, (size_t)s->n_rec_real * sizeof(double));
+    if ((s->n_rec_real > 0 || s->n_rec_bool > 0) && outside_recording(plan, t)) {
+        o->code = STP_OUT_OF_RECORDING;
+        o->function = 0;
+        o->time = t;
+        return 1;
     }
-    if (s->n_rec_bool > 0) {
-        const size_t size = bool_size(s);
-        memcpy(s->bool_in, (const char *)s->rec_bool + (size_t)row * (size_t)s->n_rec_bool * size,
-               (size_t)s->n_rec_bool * size);
+    for (i = 0; i < s->n_rec_real; ++i) {
+        stp_recorded *r = &s->rec_real[i];
+        s->real_in[i] = recorded_sample(plan->recorded_time, r->values, 1, plan->recorded_samples, r->linear, t,
+                                        &r->hint) * r->factor;
+    }
+    for (i = 0; i < s->n_rec_bool; ++i) {
+        stp_recorded *r = &s->rec_bool[i];
+        write_bool(s, i, recorded_sample(plan->recorded_time, r->values, 1, plan->recorded_samples, 0, t,
+                                         &r->hint) != 0.0);
     }
     for (i = 0; i < s->n_real_links; ++i) {
         const stp_link *l = &s->real_links[i];
@@ -64,6 +82,7 @@ static void feed(stp_instance *s, int64_t row) {
         const stp_link *l = &s->bool_links[i];
         write_bool(s, l->position, read_bool(l->source, l->source_kind));
     }
+    return 0;
 }
 
 /* FMI status > Warning: fmpy raises FMICallException, so the Python path fails there too. */
@@ -176,9 +195,8 @@ void stp_run(stp_plan *plan, int64_t first_tick, int64_t last_tick, double *rows
             if (k % m != 0) {
                 continue;
             }
-            feed(s, k / m - (first_tick + m - 1) / m);
             next = k + m < n_ticks ? k + m : n_ticks;
-            if (set_inputs(s, o) ||
+            if (feed(plan, s, t, o) || set_inputs(s, o) ||
                 do_step(s, t, (plan->start + (double)next * plan->base) - t, &terminate, o) ||
                 (s->get_after_step && get_outputs(s, o))) {
                 o->instance = (int32_t)i;

@@ -3,8 +3,9 @@
  * Python sets everything up with fmpy (extract, instantiate, parameters, initialization), then
  * describes the co-simulation in the structures below: for each instance its FMI function
  * pointers (taken from fmpy's loaded library) and component, its input and output buffers (the
- * very ctypes arrays the Python path uses), its recorded-input samples for the current chunk and
- * its links (connections); and the recorded columns. stp_run() then performs ticks
+ * very ctypes arrays the Python path uses), its recorded inputs (channel, interpolation, unit factor;
+ * sampled here as orchestrator.recorded does with numpy, see recorded_sample.h) and its links
+ * (connections); and the recorded columns. stp_run() then performs ticks
  * [first_tick, last_tick) of the fixed grid exactly as orchestrator/master.py's Python loop does
  * (same FMI calls in the same order, same arithmetic), writing one row per output interval.
  *
@@ -20,7 +21,7 @@
 #include "fmi2FunctionTypes.h"
 #include "fmi3FunctionTypes.h"
 
-#define STP_ABI_VERSION 2
+#define STP_ABI_VERSION 3
 
 #if defined(__GNUC__)
 #define STP_EXPORT __attribute__((visibility("default")))
@@ -36,7 +37,8 @@ enum {
     STP_DONE = 0,       /* reached last_tick */
     STP_STOPPED = 1,    /* should_stop returned nonzero after an output row: stopped after that tick */
     STP_TERMINATED = 2, /* an FMI 3 instance set terminateSimulation: stopped after that tick */
-    STP_FAILED = 3      /* an FMI call returned Discard, Error or Fatal */
+    STP_FAILED = 3,     /* an FMI call returned Discard, Error or Fatal */
+    STP_OUT_OF_RECORDING = 4 /* a recorded input was due at a time outside the recording (with its tolerance) */
 };
 
 /* stp_outcome.function */
@@ -52,6 +54,15 @@ typedef struct {
     int32_t source_kind; /* STP_REAL, STP_BOOL_FMI2, STP_BOOL_FMI3 */
     int32_t position;   /* index into the target's real_in or bool_in */
 } stp_link;
+
+/* One recorded input of an instance: a channel of the plan's recording. */
+typedef struct {
+    const double *values; /* the channel, one value per recorded time (a boolean channel as 0.0 / 1.0) */
+    double factor;        /* reals: input = value * factor (the unit factor; booleans: unused) */
+    int64_t hint;         /* search position between calls (recorded_sample.h); start at 0 */
+    int32_t linear;       /* 1: linear interpolation, 0: hold (boolean channels always hold) */
+    int32_t reserved;
+} stp_recorded;
 
 /* One recorded column (after "time"). */
 typedef struct {
@@ -81,10 +92,10 @@ typedef struct {
     const uint32_t *vr_bool_in;
     double *real_in;
     void *bool_in;
-    /* Recorded samples for this chunk, one row per due step: row r holds the values at the r-th
-     * tick k in [first_tick, last_tick) with k % ticks_per_step == 0 (bool: the input's type). */
-    const double *rec_real;
-    const void *rec_bool;
+    /* The recorded inputs, sampled at each step's time: the first n_rec_real of real_in, the first
+     * n_rec_bool of bool_in (true where the sample is nonzero). */
+    stp_recorded *rec_real;
+    stp_recorded *rec_bool;
     const stp_link *real_links;
     const stp_link *bool_links;
 
@@ -128,6 +139,11 @@ typedef struct {
     stp_instance *instances;
     const stp_column *columns;
     stp_should_stop should_stop; /* NULL, or asked after each row: nonzero stops after that tick */
+    /* The recording the recorded inputs sample (NULL and 0 without any): strictly increasing times, and
+     * how far beyond its ends a time may lie (orchestrator.recorded.RecordedData.at: 1e-9 of the duration). */
+    const double *recorded_time;
+    int64_t recorded_samples;
+    double recorded_tolerance;
 } stp_plan;
 
 typedef struct {
@@ -135,15 +151,16 @@ typedef struct {
     int64_t rows;       /* rows written */
     int32_t code;       /* STP_DONE ... STP_FAILED */
     int32_t instance;   /* index of the failing or terminating instance, else -1 */
-    int32_t function;   /* STP_FN_* of the failing call */
+    int32_t function;   /* STP_FN_* of the failing call; STP_OUT_OF_RECORDING: index of the recorded input */
     int32_t status;     /* its FMI status */
-    double time;        /* master time of the failing call / start of the terminating step */
+    double time;        /* master time of the failing call / start of the terminating step / sampled time */
 } stp_outcome;
 
 /* STP_ABI_VERSION of the library. */
 STP_EXPORT int stp_abi_version(void);
 
-/* sizeof of stp_link (0), stp_column (1), stp_instance (2), stp_plan (3), stp_outcome (4); 0 otherwise. */
+/* sizeof of stp_link (0), stp_column (1), stp_instance (2), stp_plan (3), stp_outcome (4), stp_recorded (5);
+ * 0 otherwise. */
 STP_EXPORT size_t stp_struct_size(int which);
 
 /* Ticks [first_tick, last_tick) (last_tick <= plan->n_ticks). rows: room for one row of

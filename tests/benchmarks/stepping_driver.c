@@ -8,7 +8,9 @@
  * orchestrator/master.py (Gauss-Seidel in execution order, multi-rate, recorded inputs sampled
  * as numpy's interp / searchsorted do, connections with and without delay, unit factors), reads
  * the recorded outputs once per output interval into memory and writes them at the end as raw
- * float64 rows (time first) to the output file, then fsyncs it. It is written independently of
+ * float64 rows (time first) to the output file, with the guarantee the orchestrator gives its final
+ * run.json: through a temporary file and a rename (complete or absent), fsynced with its folder
+ * (durable). It is written independently of
  * the orchestrator's stepping library (fmus/stepper/) so that it measures what a hand-written C
  * master costs, and does the same FMI calls the orchestrator does, so both do the same work; the
  * benchmark checks that their results are bit-identical.
@@ -26,12 +28,13 @@
  *     output FILE
  * Prints "wall_s=... loop_s=... rows=..." (CLOCK_MONOTONIC): wall_s from the start of main() to
  * the end (configuration read, FMU binaries dlopened, instantiated, initialized, stepped, the rows
- * written to FILE and fsynced, instances freed, libraries closed); loop_s the stepping alone.
+ * written to FILE atomically and durably, instances freed, libraries closed); loop_s the stepping alone.
  * No global state; exits 1 with a message on any FMI error.
  */
 #define _POSIX_C_SOURCE 200809L
 
 #include <dlfcn.h>
+#include <fcntl.h>
 #include <stdarg.h>
 #include <stdbool.h>
 #include <stdint.h>
@@ -43,6 +46,7 @@
 
 #include "fmi2FunctionTypes.h"
 #include "fmi3FunctionTypes.h"
+#include "recorded_sample.h"
 
 #define MAX_FIELDS 16
 
@@ -121,7 +125,6 @@ typedef struct {
     Inst *inst;
     Column cols[256];
     double *table; /* n_samples x (1 + n_channels) */
-    long *guess;   /* per channel and input: search position */
     char output[4096];
 } Sim;
 
@@ -269,38 +272,15 @@ static int out_slot(Inst *s, int kind, unsigned int vr) {
     return (*n)++;
 }
 
-/* numpy: np.interp(clip(t), time, values) for linear, values[searchsorted(time, t, "right") - 1] for hold */
-static double sample(const Sim *sim, int channel, int linear, double t, long *guess) {
-    const long n = sim->n_samples, w = 1 + sim->n_channels;
-    const double *tab = sim->table;
-    double t0 = tab[0], t1 = tab[(n - 1) * w];
-    long j = *guess;
-    if (t < t0) {
-        t = t0;
-    }
-    if (t > t1) {
-        t = t1;
-    }
-    /* j: the last sample with time <= t */
-    if (j < 0 || j >= n || tab[j * w] > t) {
-        j = 0;
-    }
-    while (j + 1 < n && tab[(j + 1) * w] <= t) {
-        ++j;
-    }
-    *guess = j;
-    if (!linear || j == n - 1 || tab[j * w] == t) {
-        return tab[j * w + 1 + channel];
-    }
-    {
-        const double x0 = tab[j * w], x1 = tab[(j + 1) * w];
-        const double y0 = tab[j * w + 1 + channel], y1 = tab[(j + 1) * w + 1 + channel];
-        const double slope = (y1 - y0) / (x1 - x0);
-        return slope * (t - x0) + y0;
-    }
+/* Channel `channel` at t, as orchestrator.recorded samples it (numpy's interp / searchsorted): the
+ * arithmetic numpy dictates is shared with the stepper (recorded_sample.h); the benchmark checks it
+ * against the Python path, which calls numpy itself. */
+static double sample(const Sim *sim, int channel, int linear, double t, int64_t *guess) {
+    const int64_t w = 1 + sim->n_channels;
+    return recorded_sample(sim->table, sim->table + 1 + channel, w, sim->n_samples, linear, t, guess);
 }
 
-static void feed(Sim *sim, Inst *s, double t, long *guess) {
+static void feed(Sim *sim, Inst *s, double t, int64_t *guess) {
     int i;
     for (i = 0; i < s->n_rrec; ++i) {
         s->rin[i] = sample(sim, s->rrec[i].channel, s->rrec[i].linear, t, &guess[i]) * s->rrec[i].factor;
@@ -474,14 +454,32 @@ static void read_config(Sim *sim, const char *path) {
     fclose(fh);
 }
 
+/* As orchestrator/results.py writes the final run.json: a temporary file, fsync, rename, fsync of the folder. */
+static void write_durably(const char *path, const double *rows, size_t row_size, size_t n_rows) {
+    char tmp[4200], folder[4096];
+    const char *slash = strrchr(path, '/');
+    FILE *out;
+    int fd;
+    snprintf(tmp, sizeof tmp, "%s.tmp", path);
+    snprintf(folder, sizeof folder, "%.*s", slash == NULL ? 1 : (int)(slash - path), slash == NULL ? "." : path);
+    out = fopen(tmp, "wb");
+    if (out == NULL || fwrite(rows, row_size, n_rows, out) != n_rows || fflush(out) != 0 || fsync(fileno(out)) != 0 ||
+        fclose(out) != 0 || rename(tmp, path) != 0) {
+        die("cannot write %s", path);
+    }
+    fd = open(folder, O_RDONLY);
+    if (fd < 0 || fsync(fd) != 0 || close(fd) != 0) {
+        die("cannot fsync the folder %s", folder);
+    }
+}
+
 int main(int argc, char **argv) {
     const double t_begin = now();
-    double t_loop, loop_s, *rows, *row;
+    double t_loop, loop_s, *rows;
     Sim sim;
-    long guess[64][64];
+    int64_t guess[64][64];
     long long k, n_rows_max, n_rows = 0;
     int i;
-    FILE *out;
 
     if (argc != 2) {
         fprintf(stderr, "usage: %s CONFIG\n", argv[0]);
@@ -565,12 +563,7 @@ int main(int argc, char **argv) {
     }
     loop_s = now() - t_loop;
 
-    out = fopen(sim.output, "wb");
-    row = rows;
-    if (out == NULL || fwrite(row, sizeof(double) * (size_t)(1 + sim.n_cols), (size_t)n_rows, out) != (size_t)n_rows ||
-        fflush(out) != 0 || fsync(fileno(out)) != 0 || fclose(out) != 0) {
-        die("cannot write %s", sim.output);
-    }
+    write_durably(sim.output, rows, sizeof(double) * (size_t)(1 + sim.n_cols), (size_t)n_rows);
     for (i = 0; i < sim.n_inst; ++i) {
         Inst *s = &sim.inst[i];
         if (s->fmi == 2) {

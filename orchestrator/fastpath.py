@@ -50,7 +50,7 @@ __all__ = ["LIBRARY_ENV", "LIBRARY_NAME", "Choice", "FastPathUnavailable", "Step
 
 LIBRARY_ENV = "MILLING_TWIN_STEPPER"
 LIBRARY_NAME = "libmilling_stepper.so"
-ABI_VERSION = 3
+ABI_VERSION = 4
 CHUNK_SECONDS = 0.1  # wall time a chunk should take: the Ctrl-C latency and progress-bar period
 FIRST_CHUNK_TICKS = 256
 MAX_CHUNK_TICKS = 1 << 18  # bounds a chunk where ticks cost next to nothing (and rows are rare)
@@ -94,7 +94,8 @@ class _Instance(ctypes.Structure):
                 ("fmi_version", _i32), ("ticks_per_step", _i32), ("get_after_step", _i32),
                 ("snapshot", _i32), ("get_at_rows", _i32), ("reserved", _i32),
                 ("fmi2_get_integer", _vp), ("fmi3_get_int32", _vp), ("vr_int_out", _vp), ("int_out", _vp),
-                ("n_int_out", _i64)]
+                ("n_int_out", _i64), ("n_vr_real_in", _i64), ("n_vr_bool_in", _i64), ("n_vr_real_out", _i64),
+                ("n_vr_bool_out", _i64), ("n_vr_int_out", _i64)]
 
 
 class _Plan(ctypes.Structure):
@@ -169,23 +170,10 @@ def unsupported(scenario: Scenario) -> str:
         kind = scenario.variable(ref).type
         if kind not in kinds:
             return f"{ref} has type {kind}"
-    array = _fmi3_array(scenario, refs)
-    if array:
-        return array
     rec = scenario.recorded
     for i in scenario.inputs:
         if scenario.variable(i.target).type == "bool" and rec.channels[i.channel].dtype != np.bool_:
             return f"boolean input {i.target} is fed by the non-boolean channel {i.channel!r}"
-    return ""
-
-
-def _fmi3_array(scenario: Scenario, refs: Sequence[Any]) -> str:
-    """The compiled loop passes one value per value reference: an FMI 3 array (one reference, many values) is
-    for the Python path. (FMI 2 arrays are scalars and run on the fast path.)"""
-    for ref in refs:
-        array = scenario.variable(ref).array
-        if array:
-            return f"{ref.instance}.{array} is an FMI 3 array"
     return ""
 
 
@@ -288,6 +276,8 @@ class Stepper:
             inst.n_rec_real, inst.n_rec_bool = s.n_rec_real, s.n_rec_bool
             inst.rec_real, inst.rec_bool = recorded(s.rec_real), recorded(s.rec_bool)
             inst.n_real_out, inst.n_bool_out, inst.n_int_out = len(s.real_out), len(s.bool_out), len(s.int_out)
+            for field in ("real_in", "bool_in", "real_out", "bool_out", "int_out"):  # fewer for FMI 3 arrays
+                setattr(inst, f"n_vr_{field}", len(getattr(s, f"vr_{field}")))
             inst.get_after_step = int(s.feeds_connections)
             inst.snapshot = int(s.name in delayed)
             inst.get_at_rows = int(bool(s.out_index))

@@ -7,6 +7,7 @@ from __future__ import annotations
 
 import dataclasses
 import os
+import re
 import shutil
 import signal
 import threading
@@ -292,6 +293,28 @@ def test_cli_fast_path_unavailable_is_a_clean_error(make_case, fmu_dir, tmp_path
 
 
 # ---- the benchmark's C driver does the same work ----
+
+
+# every co-simulation scenario the repository ships (found by their [fmus.*] tables, so a new one is included)
+SCENARIO_FILES = sorted(p for p in (REPO_ROOT / "scenarios").rglob("*.toml")
+                        if re.search(r"^\[fmus\.", p.read_text(), flags=re.M))
+
+
+@pytest.mark.parametrize("path", SCENARIO_FILES, ids=lambda p: p.relative_to(REPO_ROOT / "scenarios").as_posix())
+def test_every_scenario_is_bit_identical_on_both_paths(fmu_dir, tmp_path, path):
+    scenario = load_scenario(path, fmu_dir)
+    assert fastpath.unsupported(scenario) == ""  # none falls back to the Python path
+    rows = {}
+    for stepping in ("fast", "python"):
+        result = run(scenario, tmp_path / stepping, progress=False, stepping=stepping)
+        assert result.status == "completed" and result.stepping == stepping
+        rows[stepping] = load_results(result.run_dir).to_numpy(dtype=np.float64)
+    assert rows["fast"].shape == rows["python"].shape and len(rows["fast"]) > 1
+    assert np.array_equal(rows["fast"].view(np.uint64), rows["python"].view(np.uint64))
+
+
+def test_the_scenario_list_is_complete():
+    assert len(SCENARIO_FILES) >= 10 and any(p.name == "slot_entry_forcenet.toml" for p in SCENARIO_FILES)
 
 
 @pytest.mark.parametrize("case", ["chatter+workpiece", "umich_motion"])

@@ -99,12 +99,12 @@ static int failed(int status, stp_outcome *o, int function) {
 static int set_inputs(stp_instance *s, stp_outcome *o) {
     if (s->fmi_version == 3) {
         if (s->n_real_in > 0 &&
-            failed((int)s->fmi3_set_float64(s->component, s->vr_real_in, (size_t)s->n_real_in, s->real_in,
+            failed((int)s->fmi3_set_float64(s->component, s->vr_real_in, (size_t)s->n_vr_real_in, s->real_in,
                                              (size_t)s->n_real_in), o, STP_FN_SET_REAL)) {
             return 1;
         }
         return s->n_bool_in > 0 &&
-               failed((int)s->fmi3_set_boolean(s->component, s->vr_bool_in, (size_t)s->n_bool_in,
+               failed((int)s->fmi3_set_boolean(s->component, s->vr_bool_in, (size_t)s->n_vr_bool_in,
                                                (const fmi3Boolean *)s->bool_in, (size_t)s->n_bool_in),
                       o, STP_FN_SET_BOOLEAN);
     }
@@ -122,18 +122,18 @@ static int set_inputs(stp_instance *s, stp_outcome *o) {
 static int get_outputs(stp_instance *s, stp_outcome *o) {
     if (s->fmi_version == 3) {
         if (s->n_real_out > 0 &&
-            failed((int)s->fmi3_get_float64(s->component, s->vr_real_out, (size_t)s->n_real_out, s->real_out,
+            failed((int)s->fmi3_get_float64(s->component, s->vr_real_out, (size_t)s->n_vr_real_out, s->real_out,
                                              (size_t)s->n_real_out), o, STP_FN_GET_REAL)) {
             return 1;
         }
         if (s->n_bool_out > 0 &&
-            failed((int)s->fmi3_get_boolean(s->component, s->vr_bool_out, (size_t)s->n_bool_out,
+            failed((int)s->fmi3_get_boolean(s->component, s->vr_bool_out, (size_t)s->n_vr_bool_out,
                                             (fmi3Boolean *)s->bool_out, (size_t)s->n_bool_out), o,
                    STP_FN_GET_BOOLEAN)) {
             return 1;
         }
         return s->n_int_out > 0 &&
-               failed((int)s->fmi3_get_int32(s->component, s->vr_int_out, (size_t)s->n_int_out, s->int_out,
+               failed((int)s->fmi3_get_int32(s->component, s->vr_int_out, (size_t)s->n_vr_int_out, s->int_out,
                                              (size_t)s->n_int_out), o, STP_FN_GET_INTEGER);
     }
     if (s->n_real_out > 0 &&

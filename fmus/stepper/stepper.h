@@ -21,7 +21,7 @@
 #include "fmi2FunctionTypes.h"
 #include "fmi3FunctionTypes.h"
 
-#define STP_ABI_VERSION 3
+#define STP_ABI_VERSION 4
 
 #if defined(__GNUC__)
 #define STP_EXPORT __attribute__((visibility("default")))
@@ -125,6 +125,10 @@ typedef struct {
     const uint32_t *vr_int_out;
     int32_t *int_out;
     int64_t n_int_out;
+
+    /* Value references of each buffer: as many as its values, but one for a whole FMI 3 array (its values
+     * follow each other in the buffer, in order); FMI 2 arrays are scalars. */
+    int64_t n_vr_real_in, n_vr_bool_in, n_vr_real_out, n_vr_bool_out, n_vr_int_out;
 } stp_instance;
 
 typedef int (*stp_should_stop)(double time);

@@ -9,6 +9,7 @@ import fmpy.fmi3
 import pytest
 from fmpy import read_model_description
 
+from fmu_helpers import fmi2_callbacks, fmi3_logger
 from orchestrator import fmu_cache, fmu_loading
 from orchestrator.results import sha256_of
 
@@ -54,8 +55,15 @@ def test_an_instance_steps_and_reports_errors_as_with_fmpy(fmu_dir, name, fmpy_c
     for cls in (fmpy_cls, our_cls):
         fmu, md = _load(cls, fmu_dir, name)
         vr = {v.name: v.valueReference for v in md.modelVariables}
-        fmu.instantiate()
         fmi3 = cls.__name__ == "FMU3Slave"
+        messages: list = []
+        # not fmpy's default FMI 2 callbacks: their native proxy calls whatever logger was installed last in the
+        # process (fmpy.simulate_fmu leaves its own, freed, there: tests/test_fmu_compliance.py runs it)
+        callbacks = None if fmi3 else fmi2_callbacks(messages)
+        if fmi3:
+            fmu.instantiate(logMessage=fmi3_logger(messages))
+        else:
+            fmu.instantiate(callbacks=callbacks)
         set_real, get_real = (fmu.setFloat64, fmu.getFloat64) if fmi3 else (fmu.setReal, fmu.getReal)
         set_real([vr["spindle_speed"]], [100.0])
         if fmi3:
@@ -68,6 +76,7 @@ def test_an_instance_steps_and_reports_errors_as_with_fmpy(fmu_dir, name, fmpy_c
         results.append(get_real([vr["P_total"]]))
         with pytest.raises(fmpy.fmi1.FMICallException):  # NaN input: an FMI error, raised as fmpy raises it
             set_real([vr["spindle_speed"]], [float("nan")])
+        assert any("spindle_speed" in m.message for m in messages), messages
         fmu.freeInstance()  # the Error state allows no Terminate; fmpy's freeInstance also unloads the library
     assert results[0] == results[1]
 

@@ -143,6 +143,46 @@ def test_fmu_equals_the_numpy_reference_bit_for_bit(fmu: Path, name: str) -> Non
     assert np.max(expected[:, [OUTPUTS.index(n) for n in MAP_NAMES]]) == 1.0
 
 
+def test_slow_feed_equals_the_reference_also_after_restoring_a_state(fmu: Path) -> None:
+    """A feed of 1/2500 of a cell per step (600 mm/min at 10 us steps on the 0.25 mm grid) into the block
+    across its -x face, the axis on a cell boundary, then at rest, then diagonally: from step to step
+    the FMU reuses what its probes of the stock found and keeps the disc under the tool as cleared
+    (fmus/workpiece/model.c), which must change nothing: equal to the reference to the last bit, also
+    when stepped again from a serialized FMU state taken midway."""
+    y, z = 30 * MM, TOP - 0.03 * MM
+    feed = 0.25 * MM / 2500
+    points = polyline([(-4.9 * MM, y, z), (-4.8 * MM, y, z)], feed)
+    points += [points[-1]] * 20
+    points += polyline([points[-1], (-4.7 * MM, y + 0.05 * MM, z)], feed)[1:]
+    expected, _ = run_reference({}, points)
+    entry = expected[:, OUTPUTS.index("entry_angle")]
+    assert np.count_nonzero(expected[:, OUTPUTS.index("mrr")]) > 0 and len(np.unique(entry)) > 10
+    half = len(points) // 2
+    with Slave(fmu) as slave:
+        slave.instantiate()
+        x0, y0, z0 = points[0]
+        slave.initialize({"tool_x": x0, "tool_y": y0, "tool_z": z0, "spindle_speed": SPINDLE})
+        runs = [[]]
+        for k, (x, y, z) in enumerate(points):
+            if k == half:
+                state = slave.fmu.getFMUState()
+                data = slave.fmu.serializeFMUState(state)
+                slave.fmu.freeFMUState(state)
+            slave.set({"tool_x": x, "tool_y": y, "tool_z": z})
+            assert slave.step(H) == OK, slave.messages[-3:]
+            runs[0].append(slave.get(FMU_OUTPUTS))
+        slave.set_state(slave.fmu.deserializeFMUState(data))
+        runs.append([])
+        for x, y, z in points[half:]:
+            slave.set({"tool_x": x, "tool_y": y, "tool_z": z})
+            assert slave.step(H) == OK, slave.messages[-3:]
+            runs[1].append(slave.get(FMU_OUTPUTS))
+    for actual, wanted in ((np.array(runs[0]), expected), (np.array(runs[1]), expected[half:])):
+        differ = np.argwhere(actual != wanted)
+        assert not differ.size, (f"{len(differ)} values differ, first at step {differ[0][0]} output "
+                                 f"{OUTPUTS[differ[0][1]]}")
+
+
 def test_ball_path_cuts_in_several_sub_segments_and_through_the_bottom() -> None:
     """The steep ramp of the ball path descends more than a quarter cell per step (so each of those
     steps is cut in several sub-segments), and the bull-nose path empties cells down to the bottom."""

@@ -88,6 +88,23 @@ static void set_start_values(FmuInstance *instance) {
     instance->outputs_stale = true;
 }
 
+/* Where the Float64 outputs lie in ModelVariables, if they fill one run of doubles with nothing else in it. */
+static void find_output_run(FmuInstance *instance) {
+    size_t i, first = SIZE_MAX, end = 0, count = 0;
+    for (i = 0; i < MODEL_VARIABLE_COUNT; i++) {
+        const FmuVariable *variable = &MODEL_VARIABLE_TABLE[i];
+        if (!variable->name || variable->type != FMU_FLOAT64 || variable->causality != FMU_OUTPUT) continue;
+        if (variable->offset < first) first = variable->offset;
+        if (variable->offset + variable->count * sizeof(double) > end)
+            end = variable->offset + variable->count * sizeof(double);
+        count += variable->count;
+    }
+    if (count > 0 && end - first == count * sizeof(double)) {
+        instance->output_run_offset = first;
+        instance->output_run_count = count;
+    }
+}
+
 FmuInstance *fmu_create(const char *function, const char *name, const char *token, const char *resource_path,
                         FmuLogSink sink, FmuCallback logger, void *environment, bool logging_on) {
     FmuInstance *instance;
@@ -119,6 +136,7 @@ FmuInstance *fmu_create(const char *function, const char *name, const char *toke
     instance->logging_on = logging_on;
     instance->log_events = true;
     instance->state = STATE_INSTANTIATED;
+    find_output_run(instance);
     set_start_values(instance);
 #ifdef MODEL_HAS_INSTANTIATE
     if (model_instantiate(instance, function) > FMU_WARNING) {
@@ -487,6 +505,17 @@ FmuStatus fmu_reject_type(FmuInstance *instance, const char *function, const cha
 static const FmuVariable *non_finite_output(const FmuInstance *instance, double *value) {
     unsigned int i;
     size_t k;
+    if (instance->output_run_count > 0) { /* one pass without branches; the table is searched only on a hit */
+        const uint64_t exponent = 0x7ff0000000000000u, exponent_one = 0x0010000000000000u;
+        const char *run = (const char *)&instance->v + instance->output_run_offset;
+        uint64_t any = 0;
+        for (k = 0; k < instance->output_run_count; k++) {
+            uint64_t bits;
+            memcpy(&bits, run + k * sizeof bits, sizeof bits);
+            any |= (bits & exponent) + exponent_one; /* carries into the sign bit for Inf and NaN only */
+        }
+        if (!(any >> 63)) return NULL;
+    }
     for (i = 0; i < MODEL_VARIABLE_COUNT; i++) {
         const FmuVariable *variable = &MODEL_VARIABLE_TABLE[i];
         if (!variable->name || variable->type != FMU_FLOAT64 || variable->causality != FMU_OUTPUT) continue;

@@ -53,6 +53,9 @@ struct FmuInstance {
     double *heap;                   /* model data sized at initialization (fmu_allocate_heap) */
     size_t heap_size;               /* number of doubles in heap */
     char message[1024];             /* scratch for formatting log messages; per instance, no globals */
+    /* the Float64 outputs, when they are one run of doubles in v (from the variable table, at creation;
+     * count 0 when they are not): the check for non-finite outputs after every step reads just those */
+    size_t output_run_offset, output_run_count;
 };
 
 /* Lifetime. */

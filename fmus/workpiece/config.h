@@ -16,6 +16,17 @@
 #define WORKPIECE_N_Z 8       /* rows of the engagement map: models.workpiece.N_Z */
 #define WORKPIECE_N_THETA 24  /* columns of the engagement map: models.workpiece.N_THETA */
 
+#define WORKPIECE_N_BISECTIONS 10 /* refinement of entry and exit between two angle samples */
+
+/* Where a set of probes of the stock was made (the tool at x, y) and how far the probes then lay from
+ * the edges of their cells, in cells, towards -x, +x, -y, +y: the set gives the same heights while the
+ * tool moves less (model.c: rooms_hold()). */
+typedef struct {
+    bool valid;
+    double x, y;
+    double x_minus, x_plus, y_minus, y_plus;
+} ProbeRooms;
+
 typedef struct {
     /* the grid and the tool, fixed at initialization */
     size_t nx, ny;
@@ -31,6 +42,25 @@ typedef struct {
     double feed_x, feed_y;  /* unit vector of the last horizontal move (+x before the first) */
     bool warned_spindle_stopped;
     bool warned_shank;
+    /* Every cell whose centre lies within radius - 2 delta/16 of (cleared_x, cleared_y) is at or below
+     * cleared_level (model.c: remove_segment(); heights only decrease, so it stays true) */
+    bool cleared_valid;
+    double cleared_x, cleared_y, cleared_level;
+    /* Reuse between steps (model.c: engagement()), exact: all part of FMU states. The key: z and the feed of
+     * the last engagement, and no cell lowered since. */
+    double probed_z, probed_feed_x, probed_feed_y;
+    ProbeRooms scan_rooms;  /* probes of the angle scan, whose result follows */
+    size_t scan_first, scan_last;
+    double scan_axial;
+    bool scan_engaged;
+    ProbeRooms bisection_rooms; /* probes of the bisections from these samples, whose result follows */
+    size_t bisected_first, bisected_last;
+    double bisected_entry, bisected_leave;
+    ProbeRooms map_rooms;   /* probes of the map; outputs valid for the refined angles and depth below */
+    double outputs_entry, outputs_leave, outputs_axial;
+    /* the angles of the last bisections (entry, exit) and their cos and sin */
+    double bisection_phi[2][WORKPIECE_N_BISECTIONS], bisection_cos[2][WORKPIECE_N_BISECTIONS],
+        bisection_sin[2][WORKPIECE_N_BISECTIONS];
 } ModelInternal;
 
 #endif

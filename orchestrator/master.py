@@ -395,9 +395,10 @@ class _Writer(RunWriter):
             self.chunks, self.rows_written = self._sink.chunks, self._sink.rows_written
 
     def finish(self, status: str, **extra: Any) -> None:
+        # the chunk in flight first; the rest is written here, as the caller waits for it anyway (a short run
+        # then never starts the worker thread)
         if self._pool is not None:
             try:
-                self.flush()
                 self.wait()
             finally:
                 self._pool.shutdown()

@@ -55,15 +55,17 @@ test: build $(VENV)/.installed-train fuzz-tools
 # their fits run casadi's IPOPT, whose plugin casadi loads with RTLD_DEEPBIND, which the ASan runtime refuses
 # outright (google/sanitizers#611); the FMU simulations they drive go through the same master and stepper
 # paths as the scenario, master, fast-path and CLI tests that do run here.
-# Two tests measure what ASan changes by design and are deselected: the RSS growth over repeated lifecycles (ASan
-# keeps freed memory in quarantine) and the parser's time against program size (timings of an uninstrumented
-# tool under the preloaded runtime).
+# Three tests measure what ASan changes by design and are deselected: the RSS growth over repeated lifecycles (ASan
+# keeps freed memory in quarantine), the parser's time against program size (timings of an uninstrumented
+# tool under the preloaded runtime) and fmu_loading's time against fmpy's (loading an instrumented library
+# dominates both).
 ASAN_BUILD := build-asan
 SANITIZE_IGNORE := test_forcenet_train.py test_fuzz.py test_fmu_sanitizers.py test_stability.py test_units.py \
                    test_calibrate_fit.py test_calibrate_slot.py test_calibrate_spec.py test_calibrate_report.py \
                    test_calibrate_fmu_path.py
 SANITIZE_DESELECT := test_fmu_lifecycle.py::test_repeated_lifecycles_do_not_grow_memory \
-                     test_interpolator_programs.py::test_parsing_is_linear_in_the_program_size
+                     test_interpolator_programs.py::test_parsing_is_linear_in_the_program_size \
+                     test_fmu_loading.py::test_loading_is_cheaper_than_fmpys
 test-sanitize: setup
 	cmake -S . -B $(ASAN_BUILD) -DFMU_SANITIZE=ON -DPython3_EXECUTABLE=$(VENV_PYTHON) -DCMAKE_BUILD_TYPE=RelWithDebInfo
 	cmake --build $(ASAN_BUILD) -j $(JOBS) --target fmu_binaries

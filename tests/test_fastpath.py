@@ -413,8 +413,8 @@ class FakeFmu:
             fmu=self, fmi3=fmi3, m=1, name="fake", real_in=(c.c_double * 0)(), bool_in=(b * 0)(),
             real_out=(c.c_double * 1)(), real_prev=(c.c_double * 1)(), bool_out=(b * 0)(), bool_prev=(b * 0)(),
             vr_real_in=(c.c_uint32 * 0)(), vr_bool_in=(c.c_uint32 * 0)(), vr_real_out=(c.c_uint32 * 1)(7),
-            vr_bool_out=(c.c_uint32 * 0)(), vr_int_out=(c.c_uint32 * 0)(), int_out=(c.c_int32 * 0)(), rec_real=[], rec_bool=[], n_rec_real=0,
-            n_rec_bool=0, conn_real=[], conn_bool=[],
+            vr_bool_out=(c.c_uint32 * 0)(), vr_int_out=(c.c_uint32 * 0)(), int_out=(c.c_int32 * 0)(),
+            rec_real=[], rec_bool=[], n_rec_real=0, n_rec_bool=0, conn_real=[], conn_bool=[],
             out_index={"t": ("real", 0)}, feeds_connections=False)
 
 

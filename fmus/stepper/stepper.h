@@ -155,7 +155,7 @@ typedef struct {
     int64_t rows;       /* rows written */
     int32_t code;       /* STP_DONE ... STP_FAILED */
     int32_t instance;   /* index of the failing or terminating instance, else -1 */
-    int32_t function;   /* STP_FN_* of the failing call; STP_OUT_OF_RECORDING: index of the recorded input */
+    int32_t function;   /* STP_FN_* of the failing call; STP_OUT_OF_RECORDING: 0 (all inputs sample one recording) */
     int32_t status;     /* its FMI status */
     double time;        /* master time of the failing call / start of the terminating step / sampled time */
 } stp_outcome;

@@ -12,14 +12,15 @@ with its own setup and its own result writing; what each includes:
    of the FMU binaries, instantiation, start values, initialization, stepping, writing all rows
    (time and the recorded outputs, raw float64) to its result file with the guarantee the
    orchestrator gives its final run.json (temporary file, fsync, rename, fsync of the folder),
-   freeing the instances and closing the libraries. It excludes the process start (about 1 ms) and unzipping
-   the FMUs, which this script does once beforehand.
+   freeing the instances and closing the libraries. It excludes the process start (about 1 ms)
+   and unzipping the FMUs, which this script does once beforehand.
 2. fast: ``orchestrator.master.run(stepping="fast")``, the compiled stepping loop; the wall time
    around run(): hashing the files for run.json, finding the unpacked FMUs (orchestrator.fmu_cache:
    unzipped by the first run of each FMU, reused by the next ones, as the C driver reuses its
    folders), loading them with fmpy (orchestrator.fmu_loading), setup, stepping (recorded inputs
-   sampled in C), the Parquet chunks and run.json (the final one fsynced with its folder). Not included: importing the orchestrator (a command-line run adds about 0.15 s of
-   imports, and pyarrow, about 0.35 s, when the first chunk is written).
+   sampled in C), the Parquet chunks and run.json (the final one fsynced with its folder). Not
+   included: importing the orchestrator (a command-line run adds about 0.15 s of imports, and
+   pyarrow, about 0.35 s, when the first chunk is written).
 3. python: ``run(stepping="python")``, the reference Python loop, the same way.
 4. fmpy loop: a Python loop on fmpy's FMU2Slave (FMU3Slave with --fmi 3) convenience calls
    (setReal/doStep/getReal), recorded inputs precomputed with numpy, results saved with numpy and

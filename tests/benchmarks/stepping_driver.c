@@ -10,10 +10,10 @@
  * the recorded outputs once per output interval into memory and writes them at the end as raw
  * float64 rows (time first) to the output file, with the guarantee the orchestrator gives its final
  * run.json: through a temporary file and a rename (complete or absent), fsynced with its folder
- * (durable). It is written independently of
- * the orchestrator's stepping library (fmus/stepper/) so that it measures what a hand-written C
- * master costs, and does the same FMI calls the orchestrator does, so both do the same work; the
- * benchmark checks that their results are bit-identical.
+ * (durable). It is written independently of the orchestrator's stepping library (fmus/stepper/),
+ * but for the sampling arithmetic numpy dictates (recorded_sample.h), so that it measures what a
+ * hand-written C master costs, and does the same FMI calls the orchestrator does, so both do the
+ * same work; the benchmark checks that their results are bit-identical.
  *
  * CONFIG: one directive per line, fields separated by spaces (instances are numbered from 0 in
  * the order of their "instance" lines, which is the execution order):

@@ -30,9 +30,9 @@ build: setup
 # simulate -> align -> calibrate -> re-simulate -> report on the bundled UMich run, then the calibrated
 # scenario (which applies the written parameter set by name) through the plain run command.
 demo: build
-	$(VENV_PYTHON) -m orchestrator run scenarios/umich_power.toml --fmu-dir $(BUILD)/fmus --out runs --no-progress
-	$(VENV_PYTHON) -m orchestrator calibrate scenarios/calibration/umich_power.toml --fmu-dir $(BUILD)/fmus --out runs --no-progress
-	$(VENV_PYTHON) -m orchestrator run scenarios/calibration/umich_power_calibrated.toml --fmu-dir $(BUILD)/fmus --out runs --no-progress
+	$(VENV_PYTHON) -m milling_twin.orchestrator run scenarios/umich_power.toml --fmu-dir $(BUILD)/fmus --out runs --no-progress
+	$(VENV_PYTHON) -m milling_twin.orchestrator calibrate scenarios/calibration/umich_power.toml --fmu-dir $(BUILD)/fmus --out runs --no-progress
+	$(VENV_PYTHON) -m milling_twin.orchestrator run scenarios/calibration/umich_power_calibrated.toml --fmu-dir $(BUILD)/fmus --out runs --no-progress
 
 # clang for the short libFuzzer runs of tests/test_fuzz.py: installed when missing and we are root
 # (CI); otherwise that run is skipped with its reason and the corpus replay in ctest still runs.

@@ -9,21 +9,21 @@ import importlib
 from typing import TYPE_CHECKING, Any
 
 if TYPE_CHECKING:
-    from models.cutting_force import CUTTING_FORCE
-    from models.definition import ModelDefinition, Variable
-    from models.force_net import FORCE_NET
-    from models.interpolator import INTERPOLATOR
-    from models.mrr_estimator import MRR_ESTIMATOR
-    from models.power import POWER
-    from models.vibration import VIBRATION
-    from models.workpiece import WORKPIECE
+    from milling_twin.models.cutting_force import CUTTING_FORCE
+    from milling_twin.models.definition import ModelDefinition, Variable
+    from milling_twin.models.force_net import FORCE_NET
+    from milling_twin.models.interpolator import INTERPOLATOR
+    from milling_twin.models.mrr_estimator import MRR_ESTIMATOR
+    from milling_twin.models.power import POWER
+    from milling_twin.models.vibration import VIBRATION
+    from milling_twin.models.workpiece import WORKPIECE
 
     MODELS: dict[str, ModelDefinition]
 
 # definition -> its module, in the order of MODELS
-_DEFINITIONS = {"POWER": "models.power", "MRR_ESTIMATOR": "models.mrr_estimator", "VIBRATION": "models.vibration",
-                "CUTTING_FORCE": "models.cutting_force", "WORKPIECE": "models.workpiece",
-                "INTERPOLATOR": "models.interpolator", "FORCE_NET": "models.force_net"}
+_DEFINITIONS = {"POWER": "milling_twin.models.power", "MRR_ESTIMATOR": "milling_twin.models.mrr_estimator", "VIBRATION": "milling_twin.models.vibration",
+                "CUTTING_FORCE": "milling_twin.models.cutting_force", "WORKPIECE": "milling_twin.models.workpiece",
+                "INTERPOLATOR": "milling_twin.models.interpolator", "FORCE_NET": "milling_twin.models.force_net"}
 
 __all__ = ["MODELS", "ModelDefinition", "Variable", *_DEFINITIONS]
 
@@ -34,7 +34,7 @@ def __getattr__(name: str) -> Any:
     elif name == "MODELS":
         value = {m.identifier: m for m in (__getattr__(n) for n in _DEFINITIONS)}
     elif name in ("ModelDefinition", "Variable"):
-        value = getattr(importlib.import_module("models.definition"), name)
+        value = getattr(importlib.import_module("milling_twin.models.definition"), name)
     else:
         raise AttributeError(f"module 'models' has no attribute {name!r}")
     globals()[name] = value

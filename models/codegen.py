@@ -1,6 +1,6 @@
 """Generate an FMU's C equations, variable table and both model descriptions from its definition.
 
-Run by the CMake build (``python -m models.codegen SpindlePower build/generated/SpindlePower``).
+Run by the CMake build (``python -m milling_twin.models.codegen SpindlePower build/generated/SpindlePower``).
 Writes into the output folder:
 
 - ``model_generated.h`` / ``model_generated.c``: value references, the ``ModelVariables`` struct,
@@ -19,11 +19,11 @@ from xml.sax.saxutils import quoteattr
 
 import casadi as ca
 
-from models import MODELS
-from models.definition import STRING_CAPACITY, ModelDefinition, Variable
+from milling_twin.models import MODELS
+from milling_twin.models.definition import STRING_CAPACITY, ModelDefinition, Variable
 
 FMU_MAX_RANK = 4  # fmus/common/fmu_variables.h: dimensions of an FMI 3 array the variable table describes
-from models.units import BASE_DIMENSIONS, parse_unit, si_unit_of
+from milling_twin.models.units import BASE_DIMENSIONS, parse_unit, si_unit_of
 
 GENERATION_TOOL = "milling-twin models.codegen"
 

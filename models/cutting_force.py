@@ -46,7 +46,7 @@ from typing import Mapping, Sequence
 import casadi as ca
 import numpy as np
 
-from models.definition import ModelDefinition, State, Variable
+from milling_twin.models.definition import ModelDefinition, State, Variable
 
 AXIAL_SLICES = 16
 MAX_FLUTES = 6

@@ -2,7 +2,7 @@
 
 A model definition is the single source of truth for a model: calibration evaluates the
 equations symbolically (casadi) or numerically (numpy arrays through casadi), and
-``models.codegen`` turns the very same expressions into the C code and the model
+``milling_twin.models.codegen`` turns the very same expressions into the C code and the model
 descriptions of the FMU. Nothing about a model's equations is written twice.
 """
 from __future__ import annotations

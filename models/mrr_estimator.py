@@ -11,7 +11,7 @@ from typing import Mapping
 
 import casadi as ca
 
-from models.definition import ModelDefinition, Variable
+from milling_twin.models.definition import ModelDefinition, Variable
 
 
 def equations(v: Mapping[str, ca.SX]) -> dict[str, ca.SX]:

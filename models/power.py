@@ -14,7 +14,7 @@ from typing import Mapping
 
 import casadi as ca
 
-from models.definition import ModelDefinition, Variable
+from milling_twin.models.definition import ModelDefinition, Variable
 
 MRR_REFERENCE = 1e-6  # m^3/s, = 1 cm^3/s
 

@@ -19,7 +19,7 @@ from typing import Mapping
 
 import casadi as ca
 
-from models.definition import ModelDefinition, State, Variable
+from milling_twin.models.definition import ModelDefinition, State, Variable
 
 MAX_MODES = 4
 DIRECTIONS = ("x", "y")

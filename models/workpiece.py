@@ -73,7 +73,7 @@ from typing import Mapping, Sequence
 
 import numpy as np
 
-from models.definition import ModelDefinition, Variable
+from milling_twin.models.definition import ModelDefinition, Variable
 
 N_Z = 8                 # rows of the engagement map (slices of the engaged height)
 N_THETA = 24            # columns of the engagement map (15 degree sectors of the full circle)

@@ -1,4 +1,4 @@
 """Co-simulation orchestrator of the milling digital twin: scenarios, master, results, report.
 
-Run ``python -m orchestrator run <scenario.toml>``; see ``orchestrator.cli``.
+Run ``python -m milling_twin.orchestrator run <scenario.toml>``; see ``milling_twin.orchestrator.cli``.
 """

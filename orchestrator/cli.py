@@ -1,5 +1,5 @@
-"""Command line: ``python -m orchestrator run SCENARIO [--fmu-dir DIR] [--out DIR] [--no-progress] [--path P]``
-and ``python -m orchestrator calibrate SPEC ...`` (:mod:`orchestrator.calibrate.cli`).
+"""Command line: ``python -m milling_twin.orchestrator run SCENARIO [--fmu-dir DIR] [--out DIR] [--no-progress] [--path P]``
+and ``python -m milling_twin.orchestrator calibrate SPEC ...`` (:mod:`milling_twin.orchestrator.calibrate.cli`).
 
 Exit codes: 0 completed, 1 simulation failed, 2 invalid scenario or recorded data,
 130 interrupted (Ctrl-C).
@@ -12,21 +12,21 @@ import sys
 from pathlib import Path
 from typing import TYPE_CHECKING
 
-from orchestrator.calibrate import cli as calibrate_cli
-from orchestrator.fastpath import FastPathUnavailable
-from orchestrator.master import RunResult, SimulationError, run
-from orchestrator.recorded import RecordedDataError
-from orchestrator.scenario import ScenarioError, load_scenario
-from models.units import UnitError, conversion_factor
+from milling_twin.orchestrator.calibrate import cli as calibrate_cli
+from milling_twin.orchestrator.fastpath import FastPathUnavailable
+from milling_twin.orchestrator.master import RunResult, SimulationError, run
+from milling_twin.orchestrator.recorded import RecordedDataError
+from milling_twin.orchestrator.scenario import ScenarioError, load_scenario
+from milling_twin.models.units import UnitError, conversion_factor
 
 if TYPE_CHECKING:  # the report (pandas, matplotlib) is imported only for scenarios with comparisons
-    from orchestrator.report import Report
+    from milling_twin.orchestrator.report import Report
 
 FMU_DIR_ENV = "MILLING_TWIN_FMU_DIR"
 
 
 def _parser() -> argparse.ArgumentParser:
-    parser = argparse.ArgumentParser(prog="python -m orchestrator",
+    parser = argparse.ArgumentParser(prog="python -m milling_twin.orchestrator",
                                      description="Co-simulate the milling digital twin's FMUs.")
     sub = parser.add_subparsers(dest="command", required=True)
     p = sub.add_parser("run", help="run a scenario file",
@@ -86,7 +86,7 @@ def main(argv: list[str] | None = None) -> int:
         return 1
     report = None
     if scenario.compare and result.rows:
-        from orchestrator.report import write_report
+        from milling_twin.orchestrator.report import write_report
 
         report = write_report(scenario, result.run_dir)
     print(_summary(result, report))

@@ -1,7 +1,7 @@
 """The compiled stepping path: the master's inner loop in C (``fmus/stepper/``), driven through ctypes.
 
 fmpy still does what it does well: extracting, loading and instantiating the FMUs, setting
-parameters and initializing (``orchestrator.master`` does all of that once, for both paths). After
+parameters and initializing (``milling_twin.orchestrator.master`` does all of that once, for both paths). After
 setup, :class:`Stepper` hands the C library (``libmilling_stepper.so``) each instance's FMI function
 pointers (taken from the library fmpy loaded) and component, the ctypes input and output buffers
 the Python path itself uses, the connection table (as addresses of the source elements, with their
@@ -43,7 +43,7 @@ from typing import Any
 
 import numpy as np
 
-from orchestrator.scenario import Scenario
+from milling_twin.orchestrator.scenario import Scenario
 
 __all__ = ["LIBRARY_ENV", "LIBRARY_NAME", "Choice", "FastPathUnavailable", "Stepper", "choose",
            "find_library", "load_library", "unsupported"]

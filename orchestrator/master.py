@@ -38,7 +38,7 @@ Semantics of :func:`run` (``base`` = the scenario's base step, ``t_k = start + k
 
 Two implementations of this loop give bit-identical results (same FMI calls in the same order,
 same arithmetic): the Python loop below, the reference, and the compiled fast path
-(:mod:`orchestrator.fastpath`, the C library in ``fmus/stepper/``), which runs chunks of ticks
+(:mod:`milling_twin.orchestrator.fastpath`, the C library in ``fmus/stepper/``), which runs chunks of ticks
 without returning to Python. ``run(stepping="auto")`` takes the fast path when its library is found
 and the scenario is supported, else the Python path; the choice and its reason are in
 :class:`RunResult` and ``run.json``. On the fast path Ctrl-C ends the run after the current chunk
@@ -71,10 +71,10 @@ from fmpy.fmi3 import fmi3Boolean, fmi3Float64, fmi3Int32, fmi3ValueReference
 from fmpy.logging import addLoggerProxy
 from tqdm import tqdm
 
-from orchestrator import fastpath, fmu_cache
-from orchestrator.fmu_loading import FMU2Slave, FMU3Slave
-from orchestrator.results import RunWriter, sha256_of
-from orchestrator.scenario import FmuInstance, Scenario
+from milling_twin.orchestrator import fastpath, fmu_cache
+from milling_twin.orchestrator.fmu_loading import FMU2Slave, FMU3Slave
+from milling_twin.orchestrator.results import RunWriter, sha256_of
+from milling_twin.orchestrator.scenario import FmuInstance, Scenario
 
 __all__ = ["RunResult", "SimulationError", "run"]
 
@@ -584,7 +584,7 @@ def run(scenario: Scenario, out_dir: str | Path, *, progress: bool = True,
 
     ``should_stop(t)`` is asked after each output row; True ends the run like Ctrl-C.
     ``stepping``: "auto" (the fast path when available, else Python), "fast" (raises
-    :class:`orchestrator.fastpath.FastPathUnavailable`, before writing anything, when it cannot
+    :class:`milling_twin.orchestrator.fastpath.FastPathUnavailable`, before writing anything, when it cannot
     run) or "python".
     Raises :class:`SimulationError` when an FMI call fails (results so far are kept).
     """

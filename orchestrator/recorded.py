@@ -3,7 +3,7 @@
 A recording is a CSV file with a header line and one row per sample.  The caller
 says which columns to use through :class:`ChannelSpec` objects; each becomes a
 channel of :class:`RecordedData`, converted to SI units (see
-:mod:`models.units`) or to booleans.
+:mod:`milling_twin.models.units`) or to booleans.
 
 Nothing is dropped, filled or guessed: every problem is a
 :class:`RecordedDataError` whose message names the file and, where it applies, the
@@ -36,7 +36,7 @@ from pathlib import Path
 
 import numpy as np
 
-from models.units import UnitError, convert, parse_unit, si_unit_of
+from milling_twin.models.units import UnitError, convert, parse_unit, si_unit_of
 
 __all__ = [
     "ChannelSpec",
@@ -62,7 +62,7 @@ class ChannelSpec:
 
     ``name``: channel name in :class:`RecordedData`; ``column``: header name in the
     file; ``unit``: unit of the values in the file (a unit known to
-    :mod:`models.units`, or ``"bool"``).  At most one of ``above`` (numeric
+    :mod:`milling_twin.models.units`, or ``"bool"``).  At most one of ``above`` (numeric
     threshold in ``unit``) and ``match`` (regular expression) may be set; either
     makes the channel boolean.  The spec is checked by :func:`load_recorded`, so
     that the error can name the file.

@@ -23,9 +23,9 @@ import numpy as np
 import pandas as pd
 from matplotlib.figure import Figure  # no pyplot: no global figure state, Agg by default
 
-from orchestrator.results import load_results
-from orchestrator.scenario import Compare, Scenario
-from models.units import UnitError, conversion_factor
+from milling_twin.orchestrator.results import load_results
+from milling_twin.orchestrator.scenario import Compare, Scenario
+from milling_twin.models.units import UnitError, conversion_factor
 
 __all__ = ["Comparison", "Report", "default_display_unit", "write_report"]
 

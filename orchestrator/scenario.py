@@ -103,9 +103,9 @@ from typing import Any, NoReturn
 import fmpy
 from fmpy import read_model_description
 
-from orchestrator.toml_access import TomlAccess
-from orchestrator.recorded import ChannelSpec, RecordedData, RecordedDataError, load_recorded
-from models.units import UnitError, conversion_factor
+from milling_twin.orchestrator.toml_access import TomlAccess
+from milling_twin.orchestrator.recorded import ChannelSpec, RecordedData, RecordedDataError, load_recorded
+from milling_twin.models.units import UnitError, conversion_factor
 
 __all__ = [
     "Compare", "Connection", "FmuInstance", "Ref", "RecordedInput", "Scenario",

@@ -7,7 +7,7 @@ from pathlib import Path
 
 import pytest
 
-from orchestrator.calibrate.synthetic import TWO_FMU_CASE, edited
+from cases.calibration_synthetic import TWO_FMU_CASE, edited
 
 REPO_ROOT = Path(__file__).resolve().parents[1]
 FMU_NAMES = ("SpindlePower", "MrrEstimator")
@@ -23,7 +23,7 @@ speed,vx,vy,process,power
 """
 
 # The two-FMU case (SpindlePower + MrrEstimator): one text for these tests and the synthetic power
-# calibration case, which edits it (orchestrator/calibrate/synthetic.py).
+# calibration case, which edits it (tests/cases/calibration_synthetic.py).
 CASE_TOML = TWO_FMU_CASE
 
 
@@ -84,7 +84,7 @@ def start_run(scenario: Path, fmu_dir: Path, tmp_path: Path, *options: str):
     import sys
 
     return subprocess.Popen(
-        [sys.executable, "-m", "orchestrator", "run", str(scenario), "--fmu-dir", str(fmu_dir),
+        [sys.executable, "-m", "milling_twin", "run", str(scenario), "--fmu-dir", str(fmu_dir),
          "--out", str(tmp_path / "runs"), "--no-progress", *options],
         cwd=REPO_ROOT, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
         env={**os.environ, "TMPDIR": str(tmp_path)})

@@ -63,7 +63,7 @@ def split_fmu_name(path: Path | str) -> tuple[str, int]:
 
 def expected_fmus(folder: Path | None = None) -> list[Path]:
     """The FMUs the build must produce: every model in models.MODELS, FMI 3.0 and FMI 2.0."""
-    from models import MODELS
+    from milling_twin.models import MODELS
 
     folder = fmu_dir() if folder is None else folder
     return [folder / fmu_file_name(identifier, version) for identifier in MODELS for version in (3, 2)]
@@ -354,7 +354,7 @@ class Slave:
 
 
 def model_of(path: Path | str):
-    from models import MODELS
+    from milling_twin.models import MODELS
 
     identifier, _ = split_fmu_name(path)
     return MODELS[identifier]
@@ -402,8 +402,8 @@ def points_of(values: dict[str, np.ndarray]) -> list[dict[str, float]]:
 # ``initial_outputs(values)`` (outputs before any step, points x outputs, like expected_outputs).
 # A module may also provide ``random_arguments(count, rng)`` when not every point of the box of ranges is
 # valid for its model (a tool larger than the stock, a path that jumps): random_arguments uses it.
-NATIVE_REFERENCES = {"CuttingForce": "models.cutting_force", "Workpiece": "models.workpiece",
-                     "Interpolator": "models.interpolator", "ForceNet": "models.force_net"}
+NATIVE_REFERENCES = {"CuttingForce": "milling_twin.models.cutting_force", "Workpiece": "milling_twin.models.workpiece",
+                     "Interpolator": "milling_twin.models.interpolator", "ForceNet": "milling_twin.models.force_net"}
 
 
 def native_reference(model):

@@ -7,13 +7,13 @@ import pandas as pd
 import pytest
 from scipy.spatial.transform import Rotation
 
-from orchestrator.align import AlignmentError, ProbeData, compensate_wall, work_offset_gcode
-from orchestrator.align.__main__ import main as align_cli
-from orchestrator.align.icp import icp
-from orchestrator.align.parts import make_ring, make_wall
-from orchestrator.align.shepard import shepard
-from orchestrator.align.spatial import load_probe_csv
-from orchestrator.align.surface import fit_circle
+from milling_twin.orchestrator.align import AlignmentError, ProbeData, compensate_wall, work_offset_gcode
+from milling_twin.orchestrator.align.__main__ import main as align_cli
+from milling_twin.orchestrator.align.icp import icp
+from cases.align_parts import make_ring, make_wall
+from milling_twin.orchestrator.align.shepard import shepard
+from milling_twin.orchestrator.align.spatial import load_probe_csv
+from milling_twin.orchestrator.align.surface import fit_circle
 
 
 @pytest.mark.parametrize("inner_shift, seed", [((0.5, 0.0), 0), ((0.5, 0.0), 1),

@@ -8,18 +8,18 @@ import numpy as np
 import pandas as pd
 import pytest
 
-from orchestrator.align import METHODS, AlignmentError, TimeMap, Trajectory, align, align_results
-from orchestrator.align.__main__ import main as align_cli
-from orchestrator.align.dtw_baseline import DtwOptions
-from orchestrator.align.patent import PatentOptions
-from orchestrator.align.synthetic import (Warp, make_recording, path_from_umich,
+from milling_twin.orchestrator.align import METHODS, AlignmentError, TimeMap, Trajectory, align, align_results
+from milling_twin.orchestrator.align.__main__ import main as align_cli
+from milling_twin.orchestrator.align.dtw_baseline import DtwOptions
+from milling_twin.orchestrator.align.patent import PatentOptions
+from cases.align_synthetic import (Warp, make_recording, path_from_umich,
                                           quantize_significant)
-from orchestrator.align.timemap import path_residual
-from orchestrator.align.trajectory import delay_corrected
-from orchestrator.master import run
-from orchestrator.recorded import RecordedData
-from orchestrator.results import load_results
-from orchestrator.scenario import load_scenario
+from milling_twin.orchestrator.align.timemap import path_residual
+from milling_twin.orchestrator.align.trajectory import delay_corrected
+from milling_twin.orchestrator.master import run
+from milling_twin.orchestrator.recorded import RecordedData
+from milling_twin.orchestrator.results import load_results
+from milling_twin.orchestrator.scenario import load_scenario
 
 PI = math.pi
 

@@ -15,12 +15,12 @@ import pytest
 
 from conftest import CASE_CSV, REPO_ROOT
 from fmu_helpers import ERROR, Slave, fmu_dir, fmu_file_name, require_fmu, status_of
-from models import MODELS
-from orchestrator.calibrate import CalibrationSpecError, load_spec
-from orchestrator.calibrate.scenario_fit import prepare
-from orchestrator.calibrate.synthetic import write_power_case
-from orchestrator.cli import main
-from orchestrator.scenario import ScenarioError, load_scenario
+from milling_twin.models import MODELS
+from milling_twin.orchestrator.calibrate import CalibrationSpecError, load_spec
+from milling_twin.orchestrator.calibrate.scenario_fit import prepare
+from cases.calibration_synthetic import write_power_case
+from milling_twin.orchestrator.cli import main
+from milling_twin.orchestrator.scenario import ScenarioError, load_scenario
 
 README = REPO_ROOT / "README.md"
 SECTION = "### Bad input: what you get"

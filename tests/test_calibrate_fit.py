@@ -8,14 +8,14 @@ import numpy as np
 import pytest
 
 from fmu_helpers import require_fmu
-from orchestrator.calibrate import CalibrationError, load_spec
-from orchestrator.calibrate.fit import fit
-from orchestrator.calibrate.lsq import LeastSquaresSolver
-from orchestrator.calibrate.parameters import Parameter
-from orchestrator.calibrate.recovery import RecoveryStudy
-from orchestrator.calibrate.spec import SolverSpec, StatisticsSpec
-from orchestrator.calibrate.statistics import fit_statistics
-from orchestrator.calibrate.synthetic import IMPULSE_TRUTH, POWER_TRUTH, write_power_case
+from milling_twin.orchestrator.calibrate import CalibrationError, load_spec
+from milling_twin.orchestrator.calibrate.fit import fit
+from milling_twin.orchestrator.calibrate.lsq import LeastSquaresSolver
+from milling_twin.orchestrator.calibrate.parameters import Parameter
+from cases.calibration_recovery import RecoveryStudy
+from milling_twin.orchestrator.calibrate.spec import SolverSpec, StatisticsSpec
+from milling_twin.orchestrator.calibrate.statistics import fit_statistics
+from cases.calibration_synthetic import IMPULSE_TRUTH, POWER_TRUTH, write_power_case
 
 REPO = Path(__file__).resolve().parents[1]
 
@@ -140,7 +140,7 @@ def test_bound_hits_are_flagged(power_study: RecoveryStudy) -> None:
     study = power_study
     idle = [q.name for q in params].index("power.P_idle")
     capped = [replace(q, upper=100.0) if i == idle else q for i, q in enumerate(params)]
-    from orchestrator.calibrate.residuals import build_residuals
+    from milling_twin.orchestrator.calibrate.residuals import build_residuals
     model = build_residuals(study.prepared.graph, study.learning, capped, study.prepared.results)
     recorded = study.model.predict(study.truth)  # noise-free truth at the learning pairs
     start = np.array([q.initial for q in capped])

@@ -10,13 +10,13 @@ import numpy as np
 import pytest
 
 from fmu_helpers import require_fmu
-from orchestrator.calibrate import CalibrationSpecError, calibrate, load_spec
-from orchestrator.calibrate import fmu_outputs
-from orchestrator.calibrate.fit import fit
-from orchestrator.calibrate.recovery import RecoveryStudy
-from orchestrator.calibrate.scenario_fit import prepare
-from orchestrator.calibrate.synthetic import POWER_TRUTH, SLOT_TRUTH, write_power_case
-from orchestrator.master import SimulationError
+from milling_twin.orchestrator.calibrate import CalibrationSpecError, calibrate, load_spec
+from milling_twin.orchestrator.calibrate import fmu_outputs
+from milling_twin.orchestrator.calibrate.fit import fit
+from cases.calibration_recovery import RecoveryStudy
+from milling_twin.orchestrator.calibrate.scenario_fit import prepare
+from cases.calibration_synthetic import POWER_TRUTH, SLOT_TRUTH, write_power_case
+from milling_twin.orchestrator.master import SimulationError
 
 REPO = Path(__file__).resolve().parents[1]
 SLOT_SPEC = REPO / "scenarios" / "calibration" / "slot_forces_synthetic.toml"
@@ -166,7 +166,7 @@ def test_closed_force_vibration_loop_through_the_fmus(tmp_path: Path, fmu_dir: P
     """scenarios/chatter.toml (CuttingForce and ToolVibration, the displacement fed back with a delay): a
     cutting coefficient and a modal stiffness by name from the force and the tip displacement, which only the
     co-simulation of both FMUs gives; noise-free data from the FMUs with known values come back."""
-    from orchestrator.calibrate.synthetic import edited, load_scenario_without_data
+    from cases.calibration_synthetic import edited, load_scenario_without_data
 
     require_fmu(fmu_dir / "CuttingForce.fmu")
     require_fmu(fmu_dir / "ToolVibration.fmu")

@@ -6,7 +6,7 @@ from pathlib import Path
 
 import pytest
 
-from orchestrator.scenario import ScenarioError, load_scenario, with_values
+from milling_twin.orchestrator.scenario import ScenarioError, load_scenario, with_values
 
 REPO = Path(__file__).resolve().parents[1]
 

@@ -10,8 +10,8 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from orchestrator.calibrate import calibrate
-from orchestrator.calibrate.synthetic import POWER_TRUTH, write_power_case
+from milling_twin.orchestrator.calibrate import calibrate
+from cases.calibration_synthetic import POWER_TRUTH, write_power_case
 
 REPO = Path(__file__).resolve().parents[1]
 
@@ -57,7 +57,7 @@ def test_the_truth_lies_in_the_intervals_and_validation_error_drops(calibrated) 
 
 def test_the_parameter_set_round_trips(calibrated, fmu_dir: Path) -> None:
     """The written set, applied by name, gives the FMUs exactly the estimates (repr round trip)."""
-    from orchestrator.scenario import load_scenario
+    from milling_twin.orchestrator.scenario import load_scenario
     case = calibrated.spec.scenario
     scenario = load_scenario(case, fmu_dir, parameter_sets=[calibrated.parameter_set])
     applied = scenario.instance("power").parameters
@@ -71,13 +71,13 @@ def test_the_parameter_set_round_trips(calibrated, fmu_dir: Path) -> None:
 
 def test_the_command_line(tmp_path: Path, fmu_dir: Path) -> None:
     spec = write_power_case(tmp_path / "case", fmu_dir=fmu_dir, noise=5.0, seed=2)
-    done = subprocess.run([sys.executable, "-m", "orchestrator", "calibrate", str(spec), "--fmu-dir", str(fmu_dir),
+    done = subprocess.run([sys.executable, "-m", "milling_twin", "calibrate", str(spec), "--fmu-dir", str(fmu_dir),
                            "--out", str(tmp_path / "out"), "--no-progress"], cwd=REPO, capture_output=True, text=True)
     assert done.returncode == 0, done.stderr
     assert "power.P_total on validation" in done.stdout and "report:" in done.stdout
     assert (tmp_path / "out" / "calibration" / "power_case" / "report.html").is_file()
     spec.write_text(spec.read_text().replace('[parameters."power.c3"]', '[parameters."power.c9"]'))
-    bad = subprocess.run([sys.executable, "-m", "orchestrator", "calibrate", str(spec), "--fmu-dir", str(fmu_dir),
+    bad = subprocess.run([sys.executable, "-m", "milling_twin", "calibrate", str(spec), "--fmu-dir", str(fmu_dir),
                           "--out", str(tmp_path / "out"), "--no-progress"], cwd=REPO, capture_output=True, text=True)
     assert bad.returncode == 2 and '[parameters."power.c9"]: unknown parameter' in bad.stderr
 

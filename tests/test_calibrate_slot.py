@@ -10,11 +10,11 @@ import numpy as np
 import pytest
 
 from fmu_helpers import require_fmu
-from models.cutting_force import CUTTING_FORCE
-from orchestrator.calibrate import calibrate, load_spec
-from orchestrator.calibrate import slot_forces as sf
-from orchestrator.calibrate.fit import fit
-from orchestrator.scenario import load_scenario
+from milling_twin.models.cutting_force import CUTTING_FORCE
+from milling_twin.orchestrator.calibrate import calibrate, load_spec
+from milling_twin.orchestrator.calibrate import slot_forces as sf
+from milling_twin.orchestrator.calibrate.fit import fit
+from milling_twin.orchestrator.scenario import load_scenario
 from test_slot_milling_validation import write_dynoware
 
 REPO = Path(__file__).resolve().parents[1]

@@ -5,9 +5,9 @@ from pathlib import Path
 
 import pytest
 
-from orchestrator.calibrate import CalibrationSpecError, calibrate, load_spec
-from orchestrator.calibrate.scenario_fit import pairs_for, prepare
-from orchestrator.calibrate.synthetic import write_power_case
+from milling_twin.orchestrator.calibrate import CalibrationSpecError, calibrate, load_spec
+from milling_twin.orchestrator.calibrate.scenario_fit import pairs_for, prepare
+from cases.calibration_synthetic import write_power_case
 
 REPO = Path(__file__).resolve().parents[1]
 

@@ -1,5 +1,5 @@
 """The chatter validation's pieces: analytic limit from the scenario, and chatter read from the
-co-simulation alone (the full sweep is `python -m orchestrator.validation.chatter`)."""
+co-simulation alone (the full sweep is `python -m milling_twin.orchestrator.validation.chatter`)."""
 from __future__ import annotations
 
 import json
@@ -9,9 +9,9 @@ import numpy as np
 import pytest
 
 from fmu_helpers import fmu_dir, repo_root
-from models.stability import Mode, stability_lobes
-from orchestrator.scenario import load_scenario
-from orchestrator.validation import chatter
+from milling_twin.models.stability import Mode, stability_lobes
+from milling_twin.orchestrator.scenario import load_scenario
+from milling_twin.orchestrator.validation import chatter
 
 SCENARIO = repo_root() / "scenarios" / "chatter.toml"
 

@@ -11,8 +11,8 @@ import numpy as np
 import pytest
 
 from conftest import REPO_ROOT
-from orchestrator.cli import main
-from orchestrator.results import load_results, read_run_info
+from milling_twin.orchestrator.cli import main
+from milling_twin.orchestrator.results import load_results, read_run_info
 
 PI = math.pi
 
@@ -59,7 +59,7 @@ def test_run_prints_summary_and_writes_report(make_case, fmu_dir, tmp_path, caps
 ])
 def test_invalid_scenario_is_one_clean_line(make_case, fmu_dir, tmp_path, edit, key):
     path = make_case(edit)
-    proc = subprocess.run([sys.executable, "-m", "orchestrator", "run", str(path), "--fmu-dir", str(fmu_dir),
+    proc = subprocess.run([sys.executable, "-m", "milling_twin", "run", str(path), "--fmu-dir", str(fmu_dir),
                            "--out", str(tmp_path / "runs")], cwd=REPO_ROOT, capture_output=True, text=True)
     assert proc.returncode == 2
     assert proc.stdout == ""

@@ -11,7 +11,7 @@ import numpy as np
 import pytest
 
 from fmu_helpers import ERROR, OK, WARNING, Slave, assert_close, fmu_dir, fmu_id, require_fmu
-from models.cutting_force import (
+from milling_twin.models.cutting_force import (
     AL7075_CARBIDE,
     CUTTING_FORCE,
     OMEGA_MIN,
@@ -21,7 +21,7 @@ from models.cutting_force import (
     mean_slot_forces,
     reference_trajectory,
 )
-from models.stability import Mode, stability_lobes
+from milling_twin.models.stability import Mode, stability_lobes
 
 REPO = Path(__file__).resolve().parents[1]
 FMUS = [fmu_dir() / "CuttingForce.fmu", fmu_dir() / "CuttingForce_fmi2.fmu"]
@@ -43,7 +43,7 @@ def test_constants_of_model_c_equal_the_model() -> None:
 
 
 def test_coefficient_units() -> None:
-    from models.units import convert
+    from milling_twin.models.units import convert
 
     assert convert(767.01, "N/mm2", "N/m2") == pytest.approx(767.01e6, rel=1e-15)
     assert convert(1.0, "MPa", "N/mm2") == 1.0
@@ -311,9 +311,9 @@ def stability_limit(rpm: float, n_flutes: int, f: float, zeta: float, k: float, 
 def run_loop(tmp_path: Path, fmi: int, depth: float, h: float, stop: float, vibration: bool = True):
     """Slotting at 6000 rpm, 0.1 mm per tooth, through the orchestrator: the force FMU alone or in a
     loop with ToolVibration (force -> vibration, displacement -> force one step delayed)."""
-    from orchestrator.master import run
-    from orchestrator.results import load_results
-    from orchestrator.scenario import load_scenario
+    from milling_twin.orchestrator.master import run
+    from milling_twin.orchestrator.results import load_results
+    from milling_twin.orchestrator.scenario import load_scenario
 
     name = f"loop{int(vibration)}_fmi{fmi}_{depth:.3g}_{h:g}".replace(".", "p").replace("-", "m")
     path = tmp_path / f"{name}.toml"

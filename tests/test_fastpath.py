@@ -17,11 +17,11 @@ import numpy as np
 import pytest
 
 from conftest import LONG_TOML, REPO_ROOT
-from orchestrator import fastpath, master
-from orchestrator.cli import main
-from orchestrator.master import SimulationError, run
-from orchestrator.results import load_results, read_run_info
-from orchestrator.scenario import load_scenario, with_values
+from milling_twin.orchestrator import fastpath, master
+from milling_twin.orchestrator.cli import main
+from milling_twin.orchestrator.master import SimulationError, run
+from milling_twin.orchestrator.results import load_results, read_run_info
+from milling_twin.orchestrator.scenario import load_scenario, with_values
 
 PATHS = ("python", "fast")
 
@@ -462,7 +462,7 @@ def recorded_stepper(library, fmi3: bool, last_samples: tuple[float, float] = (0
     import ctypes as c
     from types import SimpleNamespace
 
-    from orchestrator.recorded import RecordedData
+    from milling_twin.orchestrator.recorded import RecordedData
 
     time = np.array([0.0, 0.05, 0.2, 0.37, 0.5, *last_samples])  # 0.2 and 0.5 fall on the grid
     rng = np.random.default_rng(7)
@@ -494,7 +494,7 @@ def test_recorded_inputs_are_sampled_in_c_as_recorded_data_at_samples_them(libra
 
 
 def test_a_time_outside_the_recording_raises_what_the_python_path_raises(library):
-    from orchestrator.recorded import RecordedDataError
+    from milling_twin.orchestrator.recorded import RecordedDataError
 
     fake, rec, inputs, stepper = recorded_stepper(library, False, last_samples=(0.52, 0.55))
     out = stepper.run_chunk(0, 10)

@@ -15,7 +15,7 @@ import numpy as np
 import pytest
 from fmpy.fmi1 import FMICallException
 
-from models import MODELS
+from milling_twin.models import MODELS
 from fmpy.fmi3 import fmi3Float64, fmi3ValueReference
 
 from fmu_helpers import (

@@ -10,10 +10,10 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from orchestrator import fmu_cache
-from orchestrator.master import run
-from orchestrator.results import load_results, read_run_info, sha256_of
-from orchestrator.scenario import load_scenario
+from milling_twin.orchestrator import fmu_cache
+from milling_twin.orchestrator.master import run
+from milling_twin.orchestrator.results import load_results, read_run_info, sha256_of
+from milling_twin.orchestrator.scenario import load_scenario
 
 
 @pytest.fixture

@@ -1,4 +1,4 @@
-"""orchestrator.fmu_loading: fmpy's slaves with the FMI function table introspected once per class bind
+"""milling_twin.orchestrator.fmu_loading: fmpy's slaves with the FMI function table introspected once per class bind
 exactly the functions fmpy binds, with the same ctypes signatures, and run an FMU the same way."""
 from __future__ import annotations
 
@@ -10,8 +10,8 @@ import pytest
 from fmpy import read_model_description
 
 from fmu_helpers import fmi2_callbacks, fmi3_logger
-from orchestrator import fmu_cache, fmu_loading
-from orchestrator.results import sha256_of
+from milling_twin.orchestrator import fmu_cache, fmu_loading
+from milling_twin.orchestrator.results import sha256_of
 
 CASES = [("SpindlePower_fmi2.fmu", fmpy.fmi2.FMU2Slave, fmu_loading.FMU2Slave),
          ("SpindlePower.fmu", fmpy.fmi3.FMU3Slave, fmu_loading.FMU3Slave),

@@ -47,7 +47,7 @@ def run(command: list[str], **kwargs) -> subprocess.CompletedProcess:
 @pytest.fixture(scope="module")
 def sanitized_fmus() -> list[Path]:
     """Configure (or reuse) build-asan with FMU_SANITIZE=ON and build only the FMU targets."""
-    from models import MODELS
+    from milling_twin.models import MODELS
 
     run(["cmake", "-S", str(repo_root()), "-B", str(BUILD_DIR), "-DFMU_SANITIZE=ON",
          f"-DPython3_EXECUTABLE={sys.executable}"])

@@ -23,8 +23,9 @@ from fmpy.fmi2 import fmi2CoSimulation, fmi2False
 from fmpy.fmi3 import fmi3False, fmi3InstanceEnvironment, fmi3IntermediateUpdateCallback, fmi3LogMessageCallback
 
 from fmu_helpers import OK, Slave, assert_close, fmi2_callbacks, fmi3_logger, fmu_dir, require_fmu
-from models import force_net as fn
-from models.cutting_force import AL7075_CARBIDE, CUTTING_FORCE
+from milling_twin import datasets
+from milling_twin.models import force_net as fn
+from milling_twin.models.cutting_force import AL7075_CARBIDE, CUTTING_FORCE
 
 SLOT = {"n_flutes": 2, "tool_diameter": 0.025, "helix_angle": math.radians(30), "moment_height": 0.0,
         "spindle_speed": 6000 * 2 * math.pi / 60, "feed_velocity_x": 0.015, "feed_velocity_y": 0.0,
@@ -63,7 +64,7 @@ def test_the_committed_weights_and_their_builtin_copy_agree() -> None:
     assert (weights.kernel, weights.width, weights.blocks) == tuple(fn.DEFAULT_SIZES.values())
     assert fn.encode_weights(weights) == data  # the format round-trips exactly
     assert fn.DEFAULT_WEIGHTS_HEADER.read_text() == fn.weights_header(data), \
-        "fmus/forcenet/default_weights.h is stale: python -m models.force_net_train header"
+        "fmus/forcenet/default_weights.h is stale: python -m milling_twin.training.force_net header"
 
 
 def _patched(data: bytes, offset: int, value: int, fix_checksum: bool) -> bytes:
@@ -450,9 +451,9 @@ def test_the_forcenet_scenario_is_the_mechanistic_one_with_one_line_swapped() ->
 
 
 def test_forcenet_and_cuttingforce_give_the_same_slot_forces(tmp_path: Path) -> None:
-    from orchestrator.master import run
-    from orchestrator.results import load_results
-    from orchestrator.scenario import load_scenario
+    from milling_twin.orchestrator.master import run
+    from milling_twin.orchestrator.results import load_results
+    from milling_twin.orchestrator.scenario import load_scenario
 
     results = {}
     for name in ("slot_milling", "slot_milling_forcenet"):
@@ -480,9 +481,9 @@ def test_the_forcenet_chatter_scenario_is_the_mechanistic_one_without_its_coeffi
 def _chatter_runs(tmp_path: Path, depth: float) -> dict:
     """chatter_forcenet.toml and chatter.toml with CuttingForce at the literature coefficients (those the network
     learnt, edge coefficients included), both at ``depth``."""
-    from orchestrator.master import run
-    from orchestrator.results import load_results
-    from orchestrator.scenario import load_scenario, with_values
+    from milling_twin.orchestrator.master import run
+    from milling_twin.orchestrator.results import load_results
+    from milling_twin.orchestrator.scenario import load_scenario, with_values
 
     mech = (REPO / "scenarios" / "chatter.toml").read_text()
     for name in ("Kte", "Kre", "Kae"):
@@ -505,7 +506,7 @@ def test_the_regenerative_chip_follows_the_mechanistic_model_in_the_chatter_loop
     """ForceNet's displacement inputs make the chip regenerative (the history of CuttingForce): coupled with
     ToolVibration below the stability limit (0.8 x 0.0398 mm at 6000 rpm) its forces and the tool's vibration
     follow CuttingForce's (r^2 > 0.999); above it (1.25 x) both chatter, the vibration growing alike."""
-    from models.stability import Mode, stability_lobes
+    from milling_twin.models.stability import Mode, stability_lobes
 
     mode = (Mode(922.0, 0.011, 1.34e6),)
     k = AL7075_CARBIDE
@@ -542,7 +543,7 @@ def literature_recordings(tmp_path_factory) -> Path:
 
 
 def test_slot_milling_validation_runs_the_force_net(literature_recordings: Path, tmp_path: Path) -> None:
-    from orchestrator.validation import slot_milling as sm
+    from milling_twin.orchestrator.validation import slot_milling as sm
 
     fmu_path(3)
     doc = sm.validate(literature_recordings, REPO / "scenarios" / "slot_milling_forcenet.toml", fmu_dir(), tmp_path)
@@ -559,7 +560,7 @@ def test_slot_milling_validation_runs_the_force_net(literature_recordings: Path,
 
 
 def test_finetuned_validation_needs_the_weights(literature_recordings: Path, tmp_path: Path) -> None:
-    from orchestrator.validation import slot_milling as sm
+    from milling_twin.orchestrator.validation import slot_milling as sm
 
     fmu_path(3)
     assert sm.main(["--data", str(literature_recordings), "--scenario",
@@ -575,10 +576,10 @@ REAL_DATA = Path(__import__("os").environ.get("MILLING_TWIN_SLOT_DATA")
                     "them there (see orchestrator/validation/slot_milling.py) or set MILLING_TWIN_SLOT_DATA")
 def test_real_recordings_with_the_force_net(tmp_path: Path) -> None:
     """The committed network on the five Kistler recordings: the mechanistic prior's figures (README)."""
-    from orchestrator.validation import slot_milling as sm
+    from milling_twin.orchestrator.validation import slot_milling as sm
 
     fmu_path(3)
-    doc = sm.validate(sm.data_dir(REAL_DATA), REPO / "scenarios" / "slot_milling_forcenet.toml", fmu_dir(), tmp_path)
+    doc = sm.validate(datasets.data_dir(REAL_DATA), REPO / "scenarios" / "slot_milling_forcenet.toml", fmu_dir(), tmp_path)
     for case in doc["cases"]:
         prior = case["prior"]
         for axis in ("Fx", "Fy", "Fz"):

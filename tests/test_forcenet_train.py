@@ -1,4 +1,4 @@
-"""The force net's torch side (models/force_net_train.py, the ``train`` extra): a short training run,
+"""The force net's torch side (milling_twin/training/force_net.py, the ``train`` extra): a short training run,
 reproducibility, the export (BatchNorm folded) and the FMU's C inference against torch, fine-tuning on
 recordings (synthetic everywhere; the measured slot-milling forces when present)."""
 from __future__ import annotations
@@ -16,9 +16,10 @@ import pytest
 torch = pytest.importorskip("torch", reason="torch is the optional 'train' extra: pip install -e '.[test,train]'")
 
 from fmu_helpers import OK, Slave, fmu_dir, require_fmu  # noqa: E402
-from models import force_net as fn  # noqa: E402
-from models import force_net_train as fnt  # noqa: E402
-from models.cutting_force import CUTTING_FORCE  # noqa: E402
+from milling_twin import datasets
+from milling_twin.models import force_net as fn  # noqa: E402
+from milling_twin.training import force_net as fnt  # noqa: E402
+from milling_twin.models.cutting_force import CUTTING_FORCE  # noqa: E402
 
 REPO = Path(__file__).resolve().parents[1]
 FORCENET = REPO / "fmus" / "forcenet"
@@ -167,9 +168,9 @@ def other_material(tmp_path_factory) -> Path:
 
 
 def test_finetuning_learns_another_material_for_a_left_out_feed(other_material: Path) -> None:
-    from orchestrator.validation import slot_milling as sm
+    from milling_twin.orchestrator.validation import slot_milling as sm
 
-    recordings = sm.read_recordings(other_material)
+    recordings = datasets.read_recordings(other_material)
     tool = fnt.slot_tool()
     left_out = recordings[2]  # 900 mm/min
     tuned = fnt.finetune_on(fn.default_weights(), [r for r in recordings if r is not left_out], tool, rounds=1,
@@ -182,7 +183,7 @@ def test_finetuning_learns_another_material_for_a_left_out_feed(other_material: 
 
 
 def test_finetune_command_writes_weights_the_validation_runs(other_material: Path, tmp_path: Path) -> None:
-    from orchestrator.validation import slot_milling as sm
+    from milling_twin.orchestrator.validation import slot_milling as sm
 
     require_fmu(fmu_dir() / "ForceNet.fmu")
     out = tmp_path / "ft"
@@ -207,10 +208,10 @@ REAL_DATA = Path(os.environ.get("MILLING_TWIN_SLOT_DATA") or REPO.parent / "shar
                     "them there (see orchestrator/validation/slot_milling.py) or set MILLING_TWIN_SLOT_DATA")
 def test_finetuning_on_the_measured_feeds_predicts_a_left_out_one() -> None:
     """The network fine-tuned on the recordings at 300, 600, 1200 and 1500 mm/min predicts the mean forces
-    at 900 mm/min (README: every left-out feed, python -m models.force_net_train finetune)."""
-    from orchestrator.validation import slot_milling as sm
+    at 900 mm/min (README: every left-out feed, python -m milling_twin.training.force_net finetune)."""
+    from milling_twin.orchestrator.validation import slot_milling as sm
 
-    recordings = sm.read_recordings(sm.data_dir(REAL_DATA))
+    recordings = datasets.read_recordings(datasets.data_dir(REAL_DATA))
     tool = fnt.slot_tool()
     left_out = next(r for r in recordings if r.feed == 900)
     tuned = fnt.finetune_on(fn.default_weights(), [r for r in recordings if r is not left_out], tool)

@@ -22,7 +22,7 @@ SHORT_RUN_SECONDS = 4  # per target: 16 targets, about a minute of fuzzing in al
 
 
 def targets() -> list[str]:
-    from models import MODELS
+    from milling_twin.models import MODELS
 
     return ["gcode", "forcenet"] + [f"fmi_{name}_fmi{version}" for name in MODELS for version in (2, 3)]
 

@@ -11,7 +11,7 @@ import numpy as np
 import pytest
 
 from fmu_helpers import OK, Slave, assert_close, fmu_dir, fmu_file_name, repo_root, require_fmu
-from models import interpolator as ip
+from milling_twin.models import interpolator as ip
 
 REPO = repo_root()
 DRIVER = REPO / "build" / "tools" / "interp_run"

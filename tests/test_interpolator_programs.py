@@ -10,7 +10,7 @@ import numpy as np
 import pytest
 
 from fmu_helpers import ERROR, Slave, fmu_dir, fmu_file_name, repo_root, require_fmu, status_of
-from models import interpolator as ip
+from milling_twin.models import interpolator as ip
 
 DRIVER = repo_root() / "build" / "tools" / "interp_run"
 

@@ -13,9 +13,9 @@ import pytest
 from scipy.spatial import cKDTree
 
 from fmu_helpers import OK, Slave, fmu_dir, fmu_file_name, repo_root, require_fmu
-from models import interpolator as ip
-from models.units import convert
-from orchestrator.gcode import reconstruct as rc
+from milling_twin.models import interpolator as ip
+from milling_twin.models.units import convert
+from milling_twin.orchestrator.gcode import reconstruct as rc
 
 REPO = repo_root()
 RECORDING = REPO / "scenarios" / "data" / "umich_experiment_01.csv"
@@ -122,9 +122,9 @@ def test_the_scenario_names_the_program_and_the_recording() -> None:
 def test_the_scenario_runs_in_the_orchestrator(tmp_path: Path) -> None:
     """The program is a String parameter given as { path = ... } relative to the scenario; both stepping
     paths run it to the end of the program, at rest on its last point."""
-    from orchestrator.master import run
-    from orchestrator.results import load_results
-    from orchestrator.scenario import load_scenario
+    from milling_twin.orchestrator.master import run
+    from milling_twin.orchestrator.results import load_results
+    from milling_twin.orchestrator.scenario import load_scenario
 
     scenario = load_scenario(SCENARIO, fmu_dir())
     assert scenario.instance("interp").parameters["program"] == str(PROGRAM.resolve())

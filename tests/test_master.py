@@ -15,9 +15,9 @@ import signal
 import numpy as np
 import pytest
 
-from orchestrator.master import SimulationError, run
-from orchestrator.results import load_results, read_run_info
-from orchestrator.scenario import load_scenario
+from milling_twin.orchestrator.master import SimulationError, run
+from milling_twin.orchestrator.results import load_results, read_run_info
+from milling_twin.orchestrator.scenario import load_scenario
 
 PI = math.pi
 
@@ -150,10 +150,10 @@ def test_after_a_run_fmpys_default_logger_works_again(make_case, fmu_dir, tmp_pa
         from fmpy import read_model_description
         from fmpy.fmi2 import FMU2Slave
         from fmpy.fmi1 import FMICallException
-        from orchestrator import fmu_cache
-        from orchestrator.master import run
-        from orchestrator.results import sha256_of
-        from orchestrator.scenario import load_scenario
+        from milling_twin.orchestrator import fmu_cache
+        from milling_twin.orchestrator.master import run
+        from milling_twin.orchestrator.results import sha256_of
+        from milling_twin.orchestrator.scenario import load_scenario
 
         run(load_scenario({str(case)!r}, {str(fmu_dir)!r}), {str(tmp_path / "runs")!r}, progress=False)
         gc.collect()

@@ -11,10 +11,10 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from orchestrator import fastpath
-from orchestrator.master import run
-from orchestrator.results import load_results
-from orchestrator.scenario import ScenarioError, load_scenario
+from milling_twin.orchestrator import fastpath
+from milling_twin.orchestrator.master import run
+from milling_twin.orchestrator.results import load_results
+from milling_twin.orchestrator.scenario import ScenarioError, load_scenario
 
 REPO = Path(__file__).resolve().parents[1]
 SCENARIO = REPO / "scenarios" / "slot_entry_forcenet.toml"

@@ -7,7 +7,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from orchestrator.recorded import ChannelSpec, RecordedData, RecordedDataError, load_recorded
+from milling_twin.orchestrator.recorded import ChannelSpec, RecordedData, RecordedDataError, load_recorded
 
 REPO = Path(__file__).resolve().parents[1]
 UMICH_01 = REPO / "scenarios" / "data" / "umich_experiment_01.csv"

@@ -12,7 +12,7 @@ import pyarrow.parquet as pq
 import pytest
 
 from conftest import LONG_P_TOTAL, LONG_TOML, start_run, wait_for_first_chunk
-from orchestrator.results import RunWriter, load_results, read_run_info
+from milling_twin.orchestrator.results import RunWriter, load_results, read_run_info
 
 
 def test_writer_chunks_and_run_info(tmp_path):

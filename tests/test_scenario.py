@@ -8,7 +8,7 @@ from pathlib import Path
 
 import pytest
 
-from orchestrator.scenario import Ref, ScenarioError, load_scenario
+from milling_twin.orchestrator.scenario import Ref, ScenarioError, load_scenario
 
 
 def error_of(path: Path, fmu_dir: Path) -> str:
@@ -309,8 +309,8 @@ def test_integer_parameters(tmp_path, fmu_dir):
 
 
 def test_constant_inputs_and_integer_parameters_reach_the_fmu(tmp_path, fmu_dir):
-    from orchestrator.master import run
-    from orchestrator.results import load_results
+    from milling_twin.orchestrator.master import run
+    from milling_twin.orchestrator.results import load_results
 
     path = tmp_path / "integers.toml"
     path.write_text(INTEGER_TOML)
@@ -323,7 +323,7 @@ def test_constant_inputs_and_integer_parameters_reach_the_fmu(tmp_path, fmu_dir)
 
 
 def test_with_values_changes_parameters_and_constant_inputs(make_case, fmu_dir):
-    from orchestrator.scenario import with_values
+    from milling_twin.orchestrator.scenario import with_values
 
     sc = load_scenario(make_case(CONSTANT_INPUTS, ('[[inputs]]\nfrom = "vy"\nto = "mrr.feed_velocity_y"\n', ""),
                                  ('[[inputs]]\nfrom = "cutting"\nto = "mrr.cutting"\n', "")), fmu_dir)
@@ -337,7 +337,7 @@ def test_with_values_changes_parameters_and_constant_inputs(make_case, fmu_dir):
 
 
 def test_with_values_rejects_what_the_file_would_reject(make_case, fmu_dir):
-    from orchestrator.scenario import with_values
+    from milling_twin.orchestrator.scenario import with_values
 
     sc = load_scenario(make_case(), fmu_dir)
     cases = [

@@ -10,8 +10,9 @@ import numpy as np
 import pytest
 
 from fmu_helpers import fmu_dir, require_fmu
-from models.cutting_force import CUTTING_FORCE
-from orchestrator.validation import slot_milling as sm
+from milling_twin import datasets
+from milling_twin.models.cutting_force import CUTTING_FORCE
+from milling_twin.orchestrator.validation import slot_milling as sm
 
 FEEDS = (300, 600, 900, 1200, 1500)  # mm/min, as the recordings
 TOOL = {"Ktc": 950e6, "Krc": 250e6, "Kac": 150e6, "Kte": 16e3, "Kre": 19e3, "Kae": 18e3}  # N/m2, N/m
@@ -44,7 +45,7 @@ def synthetic(tmp_path_factory) -> Path:
 
 
 def test_reads_a_dynoware_export(synthetic: Path) -> None:
-    recording = sm.read_recording(synthetic / "6-n6000f900ap3ae25.csv")
+    recording = datasets.read_recording(synthetic / "6-n6000f900ap3ae25.csv")
     assert (recording.rpm, recording.feed, recording.axial_depth, recording.radial_depth) == (6000, 900, 3, 25)
     assert recording.sample_rate == 10000 and recording.forces.shape == (5000, 3)
     assert recording.time[0] == 3.0
@@ -72,35 +73,35 @@ def test_recovers_the_synthetic_tool(synthetic: Path, tmp_path: Path) -> None:
 
 
 def test_missing_data_says_where_to_put_it(tmp_path: Path, monkeypatch, capsys) -> None:
-    monkeypatch.delenv(sm.DATA_ENV, raising=False)
+    monkeypatch.delenv(datasets.DATA_ENV, raising=False)
     missing = tmp_path / "nowhere"
     assert sm.main(["--data", str(missing), "--out", str(tmp_path / "out")]) == 2
     message = capsys.readouterr().err
-    for part in (f"no slot-milling recordings in {missing} (from --data)", str(sm.DEFAULT_DATA), "--data DIR",
-                 f"{sm.DATA_ENV}=DIR", "leekunhwee/ForceCalculation", "never copy them into the repository"):
+    for part in (f"no slot-milling recordings in {missing} (from --data)", str(datasets.DEFAULT_DATA), "--data DIR",
+                 f"{datasets.DATA_ENV}=DIR", "leekunhwee/ForceCalculation", "never copy them into the repository"):
         assert part in message, message
     assert not (tmp_path / "out").exists()
 
 
 def test_the_environment_variable_names_the_folder(synthetic: Path, tmp_path: Path, monkeypatch) -> None:
-    monkeypatch.setenv(sm.DATA_ENV, str(synthetic))
-    assert sm.data_dir() == synthetic
-    with pytest.raises(sm.DataMissing, match="from --data"):  # an option wins over the variable
-        sm.data_dir(tmp_path)
-    monkeypatch.setenv(sm.DATA_ENV, str(tmp_path))
-    with pytest.raises(sm.DataMissing, match=f"from \\${sm.DATA_ENV}"):
-        sm.data_dir()
+    monkeypatch.setenv(datasets.DATA_ENV, str(synthetic))
+    assert datasets.data_dir() == synthetic
+    with pytest.raises(datasets.DataMissing, match="from --data"):  # an option wins over the variable
+        datasets.data_dir(tmp_path)
+    monkeypatch.setenv(datasets.DATA_ENV, str(tmp_path))
+    with pytest.raises(datasets.DataMissing, match=f"from \\${datasets.DATA_ENV}"):
+        datasets.data_dir()
 
 
-REAL_DATA = Path(__import__("os").environ.get(sm.DATA_ENV) or sm.DEFAULT_DATA)
+REAL_DATA = Path(__import__("os").environ.get(datasets.DATA_ENV) or datasets.DEFAULT_DATA)
 
 
 @pytest.mark.skipif(not REAL_DATA.is_dir(), reason=f"the measured slot-milling recordings are not in {REAL_DATA}: "
-                    f"put them there (see orchestrator/validation/slot_milling.py) or set {sm.DATA_ENV}")
+                    f"put them there (see orchestrator/validation/slot_milling.py) or set {datasets.DATA_ENV}")
 def test_real_recordings(tmp_path: Path) -> None:
     """The five Kistler recordings: what the model achieves today, as a floor (numbers in the README)."""
     require_fmu(fmu_dir() / "CuttingForce.fmu")
-    doc = sm.validate(sm.data_dir(REAL_DATA), sm.DEFAULT_SCENARIO, fmu_dir(), tmp_path)
+    doc = sm.validate(datasets.data_dir(REAL_DATA), sm.DEFAULT_SCENARIO, fmu_dir(), tmp_path)
     assert [c["feed_mm_per_min"] for c in doc["cases"]] == list(FEEDS)
     for case in doc["cases"]:
         prior, fit = case["prior"], case["identified"]

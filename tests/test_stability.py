@@ -6,7 +6,7 @@ import math
 import numpy as np
 import pytest
 
-from models.stability import Mode, directional_factors, frf, stability_lobes
+from milling_twin.models.stability import Mode, directional_factors, frf, stability_lobes
 
 KTC, KRC = 796e6, 168.8e6  # N/m^2 (Altintas' Al7075 example, Kr = 0.212)
 MODE = Mode(922.0, 0.011, 1.34e6)

@@ -8,7 +8,7 @@ import math
 import numpy as np
 import pytest
 
-from models.units import (
+from milling_twin.models.units import (
     UNITS,
     Unit,
     UnitError,

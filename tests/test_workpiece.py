@@ -14,7 +14,7 @@ import numpy as np
 import pytest
 
 from fmu_helpers import ERROR, OK, WARNING, Slave, fmu_dir, fmu_id, require_fmu, status_of
-from models.workpiece import (MAP_NAMES, N_THETA, N_Z, OUTPUTS, WORKPIECE, WorkpieceError, ZMap, map_name,
+from milling_twin.models.workpiece import (MAP_NAMES, N_THETA, N_Z, OUTPUTS, WORKPIECE, WorkpieceError, ZMap, map_name,
                               validate)
 
 FMUS = [fmu_dir() / "Workpiece.fmu", fmu_dir() / "Workpiece_fmi2.fmu"]

@@ -8,14 +8,14 @@ Spatial (wall-thickness compensation by work-offset shift): :func:`compensate_wa
 the design target surface to the measured part and computes the work offset, with the G-code
 to apply it.
 
-Command line: ``python -m orchestrator.align temporal|spatial ...``.
+Command line: ``python -m milling_twin.orchestrator.align temporal|spatial ...``.
 """
-from orchestrator.align.errors import AlignmentError
-from orchestrator.align.spatial import (Compensation, ProbeData, compensate_wall,
+from milling_twin.orchestrator.align.errors import AlignmentError
+from milling_twin.orchestrator.align.spatial import (Compensation, ProbeData, compensate_wall,
                                         work_offset_gcode)
-from orchestrator.align.temporal import METHODS, align, align_results
-from orchestrator.align.timemap import PathResidual, TimeMap, path_residual
-from orchestrator.align.trajectory import Trajectory
+from milling_twin.orchestrator.align.temporal import METHODS, align, align_results
+from milling_twin.orchestrator.align.timemap import PathResidual, TimeMap, path_residual
+from milling_twin.orchestrator.align.trajectory import Trajectory
 
 __all__ = ["METHODS", "AlignmentError", "Compensation", "PathResidual", "ProbeData", "TimeMap",
            "Trajectory", "align", "align_results", "compensate_wall", "path_residual",

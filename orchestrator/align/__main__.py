@@ -1,7 +1,7 @@
-"""Command line: ``python -m orchestrator.align temporal|spatial ...`` (``--help`` on each).
+"""Command line: ``python -m milling_twin.orchestrator.align temporal|spatial ...`` (``--help`` on each).
 
 temporal: align a recording (CSV, through orchestrator.recorded) with a simulated run (a run
-folder of ``python -m orchestrator run`` or a CSV), write the time map as CSV (recorded_time,
+folder of ``python -m milling_twin.orchestrator run`` or a CSV), write the time map as CSV (recorded_time,
 simulated_time, confidence), optionally a figure. Positions are converted to SI on loading.
 
 spatial: wall-thickness compensation from probe and design CSV files (columns x, y, z
@@ -20,14 +20,14 @@ from pathlib import Path
 
 import numpy as np
 
-from orchestrator.align.errors import AlignmentError
-from orchestrator.align.multiscale import MultiscaleOptions
-from orchestrator.align.spatial import (compensate_wall, load_cloud_csv, load_probe_csv,
+from milling_twin.orchestrator.align.errors import AlignmentError
+from milling_twin.orchestrator.align.multiscale import MultiscaleOptions
+from milling_twin.orchestrator.align.spatial import (compensate_wall, load_cloud_csv, load_probe_csv,
                                         work_offset_gcode)
-from orchestrator.align.temporal import METHODS, align
-from orchestrator.align.trajectory import Trajectory
-from orchestrator.recorded import ChannelSpec, RecordedDataError, load_recorded
-from orchestrator.results import load_results
+from milling_twin.orchestrator.align.temporal import METHODS, align
+from milling_twin.orchestrator.align.trajectory import Trajectory
+from milling_twin.orchestrator.recorded import ChannelSpec, RecordedDataError, load_recorded
+from milling_twin.orchestrator.results import load_results
 
 
 def _columns(text: str) -> list[str]:
@@ -38,7 +38,7 @@ def _columns(text: str) -> list[str]:
 
 
 def _parser() -> argparse.ArgumentParser:
-    parser = argparse.ArgumentParser(prog="python -m orchestrator.align", description=__doc__,
+    parser = argparse.ArgumentParser(prog="python -m milling_twin.orchestrator.align", description=__doc__,
                                      formatter_class=argparse.RawDescriptionHelpFormatter)
     sub = parser.add_subparsers(dest="command", required=True)
     t = sub.add_parser("temporal", help="map recorded samples to simulated time")
@@ -100,7 +100,7 @@ def _temporal(args: argparse.Namespace) -> int:
           f"{tm.simulated_time[0]:.3f} .. {tm.simulated_time[-1]:.3f} s; median confidence "
           f"{np.median(tm.confidence):.2f}; wrote {args.out}")
     if args.plot:
-        from orchestrator.align.plots import plot_temporal
+        from milling_twin.orchestrator.align.plots import plot_temporal
 
         print(f"plot: {plot_temporal(recorded, simulated, tm, args.plot, unit='m')}")
     return 0
@@ -133,7 +133,7 @@ def _spatial(args: argparse.Namespace) -> int:
     if args.out:
         args.out.write_text(json.dumps(result, indent=2))
     if args.plot:
-        from orchestrator.align.plots import plot_spatial
+        from milling_twin.orchestrator.align.plots import plot_spatial
 
         print(f"plot: {plot_spatial(comp, args.plot)}")
     return 0 if comp.accepted else 3

@@ -5,7 +5,7 @@ samples are taken as they are, and ``dtaidistance.dtw_ndim.warping_path`` (squar
 point cost, symmetric steps) pairs them; a recorded sample's simulated time is the mean time of
 the grid points it is paired with. Without ``window`` the full N x M cost matrix is kept (memory
 8*N*M bytes); ``window`` is dtaidistance's diagonal band. Confidence as in
-:func:`orchestrator.align.refine.confidence` (residual and motion), without refinement.
+:func:`milling_twin.orchestrator.align.refine.confidence` (residual and motion), without refinement.
 """
 from __future__ import annotations
 
@@ -15,11 +15,11 @@ from dataclasses import asdict, dataclass
 import numpy as np
 from dtaidistance import dtw_ndim
 
-from orchestrator.align.errors import AlignmentError
-from orchestrator.align.refine import confidence
-from orchestrator.align.sampling import mean_match
-from orchestrator.align.timemap import TimeMap
-from orchestrator.align.trajectory import Trajectory
+from milling_twin.orchestrator.align.errors import AlignmentError
+from milling_twin.orchestrator.align.refine import confidence
+from milling_twin.orchestrator.align.sampling import mean_match
+from milling_twin.orchestrator.align.timemap import TimeMap
+from milling_twin.orchestrator.align.trajectory import Trajectory
 
 __all__ = ["DtwOptions", "align_dtw"]
 

@@ -19,7 +19,7 @@ from scipy.linalg import lstsq
 from scipy.spatial import cKDTree
 from scipy.spatial.transform import Rotation
 
-from orchestrator.align.errors import AlignmentError
+from milling_twin.orchestrator.align.errors import AlignmentError
 
 __all__ = ["IcpResult", "icp"]
 

@@ -1,6 +1,6 @@
 """The multiscale method: global rate from FFT cross-correlation over a scale pyramid, open-end
 DTW on a coarse grid, banded DTW from coarse to fine around the previous level's map (all DTW in
-dtaidistance's C code), then sub-sample refinement (:mod:`orchestrator.align.refine`).
+dtaidistance's C code), then sub-sample refinement (:mod:`milling_twin.orchestrator.align.refine`).
 
 1. **Global rate** ``a`` (simulated seconds per recorded second) and offset: the recorded
    positions on a coarse uniform grid are cross-correlated (FFT, all three axes, normalised)
@@ -23,7 +23,7 @@ dtaidistance's C code), then sub-sample refinement (:mod:`orchestrator.align.ref
    The last level weighs each axis by its local noise (storage step), the others by its median.
    Cost O(N * band).
 4. **Refinement** to a fraction of a sample, held positions (pauses), stationary stretches,
-   monotonicity and confidence: :func:`orchestrator.align.refine.refine`.
+   monotonicity and confidence: :func:`milling_twin.orchestrator.align.refine.refine`.
 """
 from __future__ import annotations
 
@@ -36,11 +36,11 @@ from dtaidistance import dtw_ndim
 from scipy.signal import correlate
 from tqdm import tqdm
 
-from orchestrator.align.errors import AlignmentError
-from orchestrator.align.refine import RefineOptions, refine
-from orchestrator.align.sampling import decimate, local_noise, mean_match, sample, uniform_grid
-from orchestrator.align.timemap import TimeMap
-from orchestrator.align.trajectory import Trajectory
+from milling_twin.orchestrator.align.errors import AlignmentError
+from milling_twin.orchestrator.align.refine import RefineOptions, refine
+from milling_twin.orchestrator.align.sampling import decimate, local_noise, mean_match, sample, uniform_grid
+from milling_twin.orchestrator.align.timemap import TimeMap
+from milling_twin.orchestrator.align.trajectory import Trajectory
 
 __all__ = ["MultiscaleOptions", "align_multiscale", "global_affine"]
 

@@ -44,10 +44,10 @@ from dataclasses import asdict, dataclass
 import numpy as np
 from scipy.signal import correlate
 
-from orchestrator.align.errors import AlignmentError
-from orchestrator.align.sampling import axis_noise
-from orchestrator.align.timemap import TimeMap
-from orchestrator.align.trajectory import Trajectory
+from milling_twin.orchestrator.align.errors import AlignmentError
+from milling_twin.orchestrator.align.sampling import axis_noise
+from milling_twin.orchestrator.align.timemap import TimeMap
+from milling_twin.orchestrator.align.trajectory import Trajectory
 
 __all__ = ["PatentOptions", "align_patent", "slope_classes"]
 

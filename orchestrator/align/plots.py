@@ -9,9 +9,9 @@ matplotlib.use("Agg")
 import matplotlib.pyplot as plt  # noqa: E402
 import numpy as np  # noqa: E402
 
-from orchestrator.align.spatial import Compensation  # noqa: E402
-from orchestrator.align.timemap import TimeMap  # noqa: E402
-from orchestrator.align.trajectory import Trajectory  # noqa: E402
+from milling_twin.orchestrator.align.spatial import Compensation  # noqa: E402
+from milling_twin.orchestrator.align.timemap import TimeMap  # noqa: E402
+from milling_twin.orchestrator.align.trajectory import Trajectory  # noqa: E402
 
 __all__ = ["plot_spatial", "plot_temporal"]
 

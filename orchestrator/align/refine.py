@@ -9,7 +9,7 @@ simulated path ``s(tau)``:
    points within +-``reach`` recorded sample periods, the cost of sample i is
    ``sum_a ((p_a - Q_a(s_a(tau_i + d))) / sigma_a)^2`` (capped at ``3 * robust^2``), where
    ``Q_a`` rounds to the axis' storage step at that sample
-   (:func:`orchestrator.align.sampling.storage_step`: the UMich data keeps 3 significant
+   (:func:`milling_twin.orchestrator.align.sampling.storage_step`: the UMich data keeps 3 significant
    digits, i.e. 1 mm steps above 100 mm and 0.1 mm below) and ``sigma_a`` is the local noise
    (step / sqrt(12), at least the white noise). Compared this way, a stored staircase matches
    the simulated ramp exactly when the timing is right, so the instants at which a stored
@@ -43,9 +43,9 @@ import numpy as np
 from scipy.ndimage import uniform_filter1d
 from scipy.optimize import isotonic_regression
 
-from orchestrator.align.errors import AlignmentError
-from orchestrator.align.sampling import local_noise, storage_step
-from orchestrator.align.trajectory import Trajectory
+from milling_twin.orchestrator.align.errors import AlignmentError
+from milling_twin.orchestrator.align.sampling import local_noise, storage_step
+from milling_twin.orchestrator.align.trajectory import Trajectory
 
 __all__ = ["RefineOptions", "confidence", "fill_stationary", "refine"]
 

@@ -7,7 +7,7 @@ from itertools import chain
 import numpy as np
 from scipy.ndimage import uniform_filter1d
 
-from orchestrator.align.trajectory import Trajectory
+from milling_twin.orchestrator.align.trajectory import Trajectory
 
 __all__ = ["axis_noise", "decimate", "local_noise", "lowpass", "mean_match", "sample",
            "storage_step", "uniform_grid"]

@@ -6,7 +6,7 @@ from __future__ import annotations
 import numpy as np
 from scipy.spatial import cKDTree
 
-from orchestrator.align.errors import AlignmentError
+from milling_twin.orchestrator.align.errors import AlignmentError
 
 __all__ = ["shepard"]
 

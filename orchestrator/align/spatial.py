@@ -29,9 +29,9 @@ from pathlib import Path
 import numpy as np
 import pandas as pd
 
-from orchestrator.align.errors import AlignmentError
-from orchestrator.align.icp import IcpResult, icp
-from orchestrator.align.surface import GridSurface, interpolate_surface, offset_surface
+from milling_twin.orchestrator.align.errors import AlignmentError
+from milling_twin.orchestrator.align.icp import IcpResult, icp
+from milling_twin.orchestrator.align.surface import GridSurface, interpolate_surface, offset_surface
 
 __all__ = ["Compensation", "ProbeData", "compensate_wall", "load_cloud_csv", "load_probe_csv",
            "work_offset_gcode"]

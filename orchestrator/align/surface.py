@@ -16,8 +16,8 @@ from dataclasses import dataclass
 import numpy as np
 from scipy.linalg import lstsq
 
-from orchestrator.align.errors import AlignmentError
-from orchestrator.align.shepard import shepard
+from milling_twin.orchestrator.align.errors import AlignmentError
+from milling_twin.orchestrator.align.shepard import shepard
 
 __all__ = ["GridSurface", "fit_circle", "interpolate_surface", "offset_surface"]
 

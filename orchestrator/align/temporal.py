@@ -1,13 +1,13 @@
 """One entry point for temporal alignment: choose a method by name; all return a TimeMap.
 
-* ``"multiscale"`` (default, :mod:`orchestrator.align.multiscale`): the best method here.
-* ``"patent"`` (:mod:`orchestrator.align.patent`): the process-simulation patent's method.
-* ``"dtw"`` (:mod:`orchestrator.align.dtw_baseline`): plain dtaidistance DTW (baseline).
+* ``"multiscale"`` (default, :mod:`milling_twin.orchestrator.align.multiscale`): the best method here.
+* ``"patent"`` (:mod:`milling_twin.orchestrator.align.patent`): the process-simulation patent's method.
+* ``"dtw"`` (:mod:`milling_twin.orchestrator.align.dtw_baseline`): plain dtaidistance DTW (baseline).
 
 :func:`align_results` takes what the project produces: a recording (:class:`RecordedData`
 with x, y, z position channels) and a co-simulation results table (``load_results``: a
 ``time`` column and the interpolator's x, y, z columns), with the output-delay convention of
-:mod:`orchestrator.align.trajectory`.
+:mod:`milling_twin.orchestrator.align.trajectory`.
 """
 from __future__ import annotations
 
@@ -16,13 +16,13 @@ from typing import Any
 
 import pandas as pd
 
-from orchestrator.align.dtw_baseline import DtwOptions, align_dtw
-from orchestrator.align.errors import AlignmentError
-from orchestrator.align.multiscale import MultiscaleOptions, align_multiscale
-from orchestrator.align.patent import PatentOptions, align_patent
-from orchestrator.align.timemap import TimeMap
-from orchestrator.align.trajectory import Trajectory
-from orchestrator.recorded import RecordedData
+from milling_twin.orchestrator.align.dtw_baseline import DtwOptions, align_dtw
+from milling_twin.orchestrator.align.errors import AlignmentError
+from milling_twin.orchestrator.align.multiscale import MultiscaleOptions, align_multiscale
+from milling_twin.orchestrator.align.patent import PatentOptions, align_patent
+from milling_twin.orchestrator.align.timemap import TimeMap
+from milling_twin.orchestrator.align.trajectory import Trajectory
+from milling_twin.orchestrator.recorded import RecordedData
 
 __all__ = ["METHODS", "align", "align_results"]
 

@@ -4,7 +4,7 @@
 clock) at which the machine was where recorded sample ``i`` (at ``recorded_time[i]``) shows it.
 The map is non-decreasing: it is flat where the machine paused and the simulation did not; it
 jumps (steep) where the simulation dwelt and the machine did not. ``confidence[i]`` in [0, 1]
-says how well sample ``i`` is determined (see :mod:`orchestrator.align.refine` for the measure of
+says how well sample ``i`` is determined (see :mod:`milling_twin.orchestrator.align.refine` for the measure of
 the multiscale method; each method documents its own).
 """
 from __future__ import annotations
@@ -15,8 +15,8 @@ from typing import Any
 import numpy as np
 import pandas as pd
 
-from orchestrator.align.errors import AlignmentError
-from orchestrator.align.trajectory import Trajectory
+from milling_twin.orchestrator.align.errors import AlignmentError
+from milling_twin.orchestrator.align.trajectory import Trajectory
 
 __all__ = ["PathResidual", "TimeMap", "path_residual"]
 

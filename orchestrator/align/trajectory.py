@@ -4,7 +4,7 @@ A :class:`Trajectory` is ``time`` (s, strictly increasing) and ``position`` (n x
 any one length unit, the same for the recorded and the simulated side; the loaders below keep
 the project's SI metres).
 
-Output-delay convention of co-simulation results (:func:`orchestrator.results.load_results`):
+Output-delay convention of co-simulation results (:func:`milling_twin.orchestrator.results.load_results`):
 the row at ``time = t`` holds the outputs *as left by the doStep that ended at t*, i.e. the step
 ``doStep(t - h, h)``; the first row (``t = start``) holds the values after initialization.
 
@@ -28,8 +28,8 @@ from dataclasses import dataclass
 import numpy as np
 import pandas as pd
 
-from orchestrator.align.errors import AlignmentError
-from orchestrator.recorded import RecordedData
+from milling_twin.orchestrator.align.errors import AlignmentError
+from milling_twin.orchestrator.recorded import RecordedData
 
 __all__ = ["Trajectory", "delay_corrected"]
 
@@ -141,7 +141,7 @@ class Trajectory:
     @classmethod
     def from_results(cls, results: pd.DataFrame, columns: Sequence[str],
                      output_delay: float = 0.0, name: str = "results") -> Trajectory:
-        """Positions from a results table (:func:`orchestrator.results.load_results`): column
+        """Positions from a results table (:func:`milling_twin.orchestrator.results.load_results`): column
         ``time`` and the three position ``columns``. See the module text for ``output_delay``."""
         if len(columns) != 3:
             raise AlignmentError(f"{name}: give 3 position columns (x, y, z), got {list(columns)}")

@@ -2,9 +2,9 @@
 equations the FMUs are generated from, or, where those cannot give the outputs, the FMUs themselves with
 finite differences) to aligned recorded data, report, and write a parameter set the scenarios apply by name.
 
-``python -m orchestrator calibrate SPEC`` (:mod:`orchestrator.calibrate.cli`); spec format in
-:mod:`orchestrator.calibrate.spec`; the generic kind in :mod:`orchestrator.calibrate.scenario_fit`,
-the slot-milling forces in :mod:`orchestrator.calibrate.slot_forces`. Importing the package is light
+``python -m milling_twin.orchestrator calibrate SPEC`` (:mod:`milling_twin.orchestrator.calibrate.cli`); spec format in
+:mod:`milling_twin.orchestrator.calibrate.spec`; the generic kind in :mod:`milling_twin.orchestrator.calibrate.scenario_fit`,
+the slot-milling forces in :mod:`milling_twin.orchestrator.calibrate.slot_forces`. Importing the package is light
 (no casadi, no matplotlib) so that the orchestrator's command line starts fast.
 """
 from __future__ import annotations
@@ -12,17 +12,17 @@ from __future__ import annotations
 from pathlib import Path
 from typing import TYPE_CHECKING
 
-from orchestrator.calibrate.errors import CalibrationError, CalibrationSpecError
-from orchestrator.calibrate.spec import CalibrationSpec, load_spec
+from milling_twin.orchestrator.calibrate.errors import CalibrationError, CalibrationSpecError
+from milling_twin.orchestrator.calibrate.spec import CalibrationSpec, load_spec
 
 if TYPE_CHECKING:
-    from orchestrator.calibrate.result import CalibrationResult
+    from milling_twin.orchestrator.calibrate.result import CalibrationResult
 
 __all__ = ["CalibrationError", "CalibrationSpec", "CalibrationSpecError", "calibrate", "load_spec"]
 
 
 def calibrate(spec_path: str | Path, fmu_dir: str | Path, out: str | Path = "runs", *,
               data: str | Path | None = None, progress: bool = True) -> "CalibrationResult":
-    """See :func:`orchestrator.calibrate.run.calibrate`."""
-    from orchestrator.calibrate.run import calibrate as run_calibration
+    """See :func:`milling_twin.orchestrator.calibrate.run.calibrate`."""
+    from milling_twin.orchestrator.calibrate.run import calibrate as run_calibration
     return run_calibration(spec_path, fmu_dir, out, data=data, progress=progress)

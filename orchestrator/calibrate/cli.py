@@ -1,4 +1,4 @@
-"""``python -m orchestrator calibrate SPEC [--fmu-dir DIR] [--out DIR] [--data DIR] [--no-progress]``.
+"""``python -m milling_twin.orchestrator calibrate SPEC [--fmu-dir DIR] [--out DIR] [--data DIR] [--no-progress]``.
 
 Exit codes: 0 calibrated, 1 the calibration failed (every start failed, a simulation failed, FMU and
 models/ disagree), 2 invalid spec, scenario or data.
@@ -10,10 +10,10 @@ import os
 import sys
 from pathlib import Path
 
-from models.units import UnitError
-from orchestrator.calibrate.errors import CalibrationError, CalibrationSpecError
-from orchestrator.recorded import RecordedDataError
-from orchestrator.scenario import ScenarioError
+from milling_twin.models.units import UnitError
+from milling_twin.orchestrator.calibrate.errors import CalibrationError, CalibrationSpecError
+from milling_twin.orchestrator.recorded import RecordedDataError
+from milling_twin.orchestrator.scenario import ScenarioError
 
 __all__ = ["add_parser", "main"]
 
@@ -36,9 +36,9 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
 
 
 def main(args: argparse.Namespace) -> int:
-    from orchestrator.calibrate.report import summary_lines
-    from orchestrator.calibrate.run import calibrate
-    from orchestrator.validation.slot_milling import DataMissing
+    from milling_twin.orchestrator.calibrate.report import summary_lines
+    from milling_twin.orchestrator.calibrate.run import calibrate
+    from milling_twin.datasets import DataMissing
 
     try:
         result = calibrate(args.spec, args.fmu_dir, args.out, data=args.data, progress=not args.no_progress)

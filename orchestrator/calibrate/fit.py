@@ -8,7 +8,7 @@
 3. With ``noise = "estimate"`` and more than one output, sigma_o becomes each output's residual
    RMS at the first-stage optimum and the fit is repeated from it (two-stage weighted least
    squares: the residuals of every output then have unit variance, as the statistics assume).
-4. Standard errors, intervals, correlations and flags: :mod:`orchestrator.calibrate.statistics`.
+4. Standard errors, intervals, correlations and flags: :mod:`milling_twin.orchestrator.calibrate.statistics`.
 """
 from __future__ import annotations
 
@@ -19,12 +19,12 @@ from dataclasses import dataclass
 import numpy as np
 from tqdm import tqdm
 
-from orchestrator.calibrate.errors import CalibrationError
-from orchestrator.calibrate.lsq import LeastSquaresSolver, StartOutcome
-from orchestrator.calibrate.parameters import Parameter, draw_starts
-from orchestrator.calibrate.residuals import EXACT, ResidualModel
-from orchestrator.calibrate.spec import SolverSpec, StatisticsSpec
-from orchestrator.calibrate.statistics import FitStatistics, fit_statistics
+from milling_twin.orchestrator.calibrate.errors import CalibrationError
+from milling_twin.orchestrator.calibrate.lsq import LeastSquaresSolver, StartOutcome
+from milling_twin.orchestrator.calibrate.parameters import Parameter, draw_starts
+from milling_twin.orchestrator.calibrate.residuals import EXACT, ResidualModel
+from milling_twin.orchestrator.calibrate.spec import SolverSpec, StatisticsSpec
+from milling_twin.orchestrator.calibrate.statistics import FitStatistics, fit_statistics
 
 __all__ = ["FitOutcome", "fit", "initial_sigma"]
 

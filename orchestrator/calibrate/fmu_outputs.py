@@ -4,7 +4,7 @@ code: Workpiece, CuttingForce with its displacement history, ForceNet; instances
 dynamic models not recorded every step), and on request for any model.
 
 :class:`FmuOutputs` maps the fitted parameters (SI) to the fitted outputs at the pairs' row times by
-re-simulating the scenario through the orchestrator (``orchestrator.master.run``, the compiled fast
+re-simulating the scenario through the orchestrator (``milling_twin.orchestrator.master.run``, the compiled fast
 path where available) with the trial values applied by name, recording only the fitted outputs and
 stopping at the last row the pairs need. The outputs are read at the pairs exactly as the pairs of
 the initial run were (linear between rows), so at the initial values the evaluation reproduces the
@@ -26,7 +26,7 @@ sees: fit such parameters with care (the slot_forces kind searches the spindle p
 
 The evaluations are cached by parameter values (IPOPT asks for the outputs, the gradient and the
 Gauss-Newton Hessian at the same point), and wrapped as casadi Callbacks (:func:`fmu_residuals`) so
-that the solver module (:mod:`orchestrator.calibrate.lsq`: its projected Levenberg-Marquardt method,
+that the solver module (:mod:`milling_twin.orchestrator.calibrate.lsq`: its projected Levenberg-Marquardt method,
 one Jacobian per iteration), multi-start and statistics of the exact path serve this one. A failed simulation gives non-finite outputs and its cause is kept
 (:attr:`FmuOutputs.failures`): the solver reports it for the start (and IPOPT backs off from a
 failing trial point).
@@ -42,12 +42,12 @@ from pathlib import Path
 import casadi as ca
 import numpy as np
 
-from orchestrator.calibrate.pairing import Pairs, at_rows
-from orchestrator.calibrate.parameters import Parameter
-from orchestrator.calibrate.residuals import ResidualModel, from_outputs
-from orchestrator.master import run
-from orchestrator.results import load_results
-from orchestrator.scenario import Ref, Scenario, with_values
+from milling_twin.orchestrator.calibrate.pairing import Pairs, at_rows
+from milling_twin.orchestrator.calibrate.parameters import Parameter
+from milling_twin.orchestrator.calibrate.residuals import ResidualModel, from_outputs
+from milling_twin.orchestrator.master import run
+from milling_twin.orchestrator.results import load_results
+from milling_twin.orchestrator.scenario import Ref, Scenario, with_values
 
 __all__ = ["FD_METHODS", "FmuOutputs", "default_step", "fmu_residuals"]
 
@@ -228,7 +228,7 @@ class _Outputs(ca.Callback):
 
 
 def fmu_residuals(fmu: FmuOutputs, pairs: Pairs) -> ResidualModel:
-    """The residual model of :mod:`orchestrator.calibrate.residuals` on ``pairs`` with the outputs from ``fmu``."""
+    """The residual model of :mod:`milling_twin.orchestrator.calibrate.residuals` on ``pairs`` with the outputs from ``fmu``."""
     n, n_out = fmu.shape
     if len(pairs) != n:
         raise ValueError(f"{len(pairs)} pairs, the evaluator was made for {n}")

@@ -25,7 +25,7 @@ What the graph cannot express raises :class:`NotExpressible` (naming the spec ke
 states computed by a model's C code (native), an instance without a models/ definition, an
 instance with states upstream of the fitted outputs, several dynamic instances, a dynamic instance
 not recorded every step. Such fits run through the FMUs with finite differences instead
-(:mod:`orchestrator.calibrate.fmu_outputs`).
+(:mod:`milling_twin.orchestrator.calibrate.fmu_outputs`).
 """
 from __future__ import annotations
 
@@ -36,9 +36,9 @@ from typing import NoReturn
 import casadi as ca
 import numpy as np
 
-from models import MODELS
-from models.definition import ModelDefinition, State
-from orchestrator.scenario import Scenario
+from milling_twin.models import MODELS
+from milling_twin.models.definition import ModelDefinition, State
+from milling_twin.orchestrator.scenario import Scenario
 
 __all__ = ["DataColumn", "DynamicPart", "ModelGraph", "NO_DATA_DERIVATIVE", "NotExpressible", "build_graph"]
 

@@ -12,7 +12,7 @@ left out); ``"exact"`` lets casadi differentiate twice.
 
 Algorithm: IPOPT, or, for problems whose residuals are evaluated by simulation (``algorithm =
 "levenberg-marquardt"``: each Jacobian costs one simulation per parameter, see
-:mod:`orchestrator.calibrate.fmu_outputs`), a projected Levenberg-Marquardt method that needs one
+:mod:`milling_twin.orchestrator.calibrate.fmu_outputs`), a projected Levenberg-Marquardt method that needs one
 Jacobian per iteration and none for a rejected step: a linear problem converges in one or two
 iterations where the interior-point method takes 15 or more (its barrier parameter must go to zero).
 Bounds: a parameter at a bound whose gradient points outwards is held there for the step, the others

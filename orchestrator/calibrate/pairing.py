@@ -1,7 +1,7 @@
 """Recorded samples paired with the co-simulation rows of the same machining moment.
 
 Each recorded sample i (time t_i) is mapped to a simulated time s_i: the identity (method
-"none") or a :class:`~orchestrator.align.TimeMap` from :func:`orchestrator.align.align_results`
+"none") or a :class:`~orchestrator.align.TimeMap` from :func:`milling_twin.orchestrator.align.align_results`
 on the channels the spec names. The results row time is ``s_i + output_delay`` (the alignment
 works on delay-corrected simulated time, see orchestrator.align.trajectory). At that time the
 model's data columns are taken from the rows (real values linear between rows, booleans from
@@ -17,9 +17,9 @@ from dataclasses import dataclass, replace
 import numpy as np
 import pandas as pd
 
-from orchestrator.align import TimeMap, align_results
-from orchestrator.calibrate.spec import AlignmentSpec
-from orchestrator.recorded import RecordedData
+from milling_twin.orchestrator.align import TimeMap, align_results
+from milling_twin.orchestrator.calibrate.spec import AlignmentSpec
+from milling_twin.orchestrator.recorded import RecordedData
 
 __all__ = ["AlignmentSummary", "Pairs", "at_rows", "make_pairs", "map_times"]
 

@@ -8,8 +8,8 @@ from typing import NoReturn
 
 import numpy as np
 
-from models.units import UnitError, conversion_factor
-from orchestrator.calibrate.spec import ParameterSpec
+from milling_twin.models.units import UnitError, conversion_factor
+from milling_twin.orchestrator.calibrate.spec import ParameterSpec
 
 __all__ = ["Parameter", "draw_starts", "resolve_parameter", "unit_factor"]
 

@@ -13,8 +13,8 @@ from collections.abc import Mapping, Sequence
 from pathlib import Path
 from xml.sax.saxutils import quoteattr
 
-from orchestrator.calibrate.parameters import Parameter
-from orchestrator.calibrate.statistics import ParameterStatistics
+from milling_twin.orchestrator.calibrate.parameters import Parameter
+from milling_twin.orchestrator.calibrate.statistics import ParameterStatistics
 
 __all__ = ["write_parameter_set", "write_ssv"]
 

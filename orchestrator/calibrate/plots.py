@@ -7,8 +7,8 @@ from collections.abc import Sequence
 import numpy as np
 from matplotlib.figure import Figure as MplFigure
 
-from orchestrator.calibrate.lsq import StartOutcome
-from orchestrator.calibrate.result import Series
+from milling_twin.orchestrator.calibrate.lsq import StartOutcome
+from milling_twin.orchestrator.calibrate.result import Series
 
 __all__ = ["correlation_png", "fit_png", "residual_png", "trace_png"]
 

@@ -20,8 +20,8 @@ from typing import Any
 
 import numpy as np
 
-from orchestrator.calibrate.plots import correlation_png, fit_png, residual_png, trace_png
-from orchestrator.calibrate.result import CalibrationResult, Figure, Table
+from milling_twin.orchestrator.calibrate.plots import correlation_png, fit_png, residual_png, trace_png
+from milling_twin.orchestrator.calibrate.result import CalibrationResult, Figure, Table
 
 __all__ = ["write_report", "summary_lines"]
 

@@ -28,10 +28,10 @@ import casadi as ca
 import numpy as np
 import pandas as pd
 
-from orchestrator.calibrate.graph import ModelGraph
-from orchestrator.calibrate.lsq import LeastSquaresProblem
-from orchestrator.calibrate.pairing import Pairs
-from orchestrator.calibrate.parameters import Parameter
+from milling_twin.orchestrator.calibrate.graph import ModelGraph
+from milling_twin.orchestrator.calibrate.lsq import LeastSquaresProblem
+from milling_twin.orchestrator.calibrate.pairing import Pairs
+from milling_twin.orchestrator.calibrate.parameters import Parameter
 
 __all__ = ["EXACT", "ResidualModel", "build_residuals", "from_outputs"]
 

@@ -8,9 +8,9 @@ from typing import Any
 
 import numpy as np
 
-from orchestrator.calibrate.fit import FitOutcome
-from orchestrator.calibrate.pairing import AlignmentSummary
-from orchestrator.calibrate.spec import CalibrationSpec
+from milling_twin.orchestrator.calibrate.fit import FitOutcome
+from milling_twin.orchestrator.calibrate.pairing import AlignmentSummary
+from milling_twin.orchestrator.calibrate.spec import CalibrationSpec
 
 __all__ = ["CalibrationResult", "ErrorRow", "Figure", "Series", "Table", "error_row"]
 

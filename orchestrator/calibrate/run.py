@@ -4,9 +4,9 @@ from __future__ import annotations
 import time
 from pathlib import Path
 
-from orchestrator.calibrate.report import write_report
-from orchestrator.calibrate.result import CalibrationResult
-from orchestrator.calibrate.spec import load_spec
+from milling_twin.orchestrator.calibrate.report import write_report
+from milling_twin.orchestrator.calibrate.result import CalibrationResult
+from milling_twin.orchestrator.calibrate.spec import load_spec
 
 __all__ = ["calibrate"]
 
@@ -19,10 +19,10 @@ def calibrate(spec_path: str | Path, fmu_dir: str | Path, out: str | Path = "run
     out_dir = Path(out) / "calibration" / spec.name
     out_dir.mkdir(parents=True, exist_ok=True)
     if spec.kind == "slot_forces":
-        from orchestrator.calibrate.slot_forces import calibrate_slot_forces
+        from milling_twin.orchestrator.calibrate.slot_forces import calibrate_slot_forces
         result = calibrate_slot_forces(spec, Path(fmu_dir), out_dir, data, progress)
     else:
-        from orchestrator.calibrate.scenario_fit import calibrate_scenario
+        from milling_twin.orchestrator.calibrate.scenario_fit import calibrate_scenario
         result = calibrate_scenario(spec, Path(fmu_dir), out_dir, progress)
     t0 = time.perf_counter()
     write_report(result)

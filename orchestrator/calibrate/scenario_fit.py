@@ -4,17 +4,17 @@ Stages (each timed for the report):
 
 1. **check**: the spec's names against the scenario and its FMUs (fail fast, naming the spec key);
    the derivative path (``[solver].derivatives``): **exact**, the casadi graph of the fitted outputs
-   from models/ (:mod:`orchestrator.calibrate.graph`), each FMU's instantiation token equal to its
+   from models/ (:mod:`milling_twin.orchestrator.calibrate.graph`), each FMU's instantiation token equal to its
    models/ definition's (the FMU was generated from these very equations; otherwise: rebuild); or
-   **FMU finite differences** (:mod:`orchestrator.calibrate.fmu_outputs`) where the graph cannot
+   **FMU finite differences** (:mod:`milling_twin.orchestrator.calibrate.fmu_outputs`) where the graph cannot
    express the outputs ("auto") or on request: every evaluation re-simulates the scenario.
 2. **simulate**: the scenario with the initial values through the orchestrator (FMUs), recording
    the fitted outputs, the inputs the graph reads as data, and the alignment channels.
-3. **align**: recorded samples -> simulated rows (:mod:`orchestrator.calibrate.pairing`), split into
+3. **align**: recorded samples -> simulated rows (:mod:`milling_twin.orchestrator.calibrate.pairing`), split into
    learning and validation segments; the graph (or the FMU re-simulation) evaluated at the initial
    values must reproduce the FMU's outputs at the learning pairs (reported, and an error beyond 1e-8
    relative).
-4. **fit**: multi-start on the learning pairs (:mod:`orchestrator.calibrate.fit`; IPOPT on the exact path,
+4. **fit**: multi-start on the learning pairs (:mod:`milling_twin.orchestrator.calibrate.fit`; IPOPT on the exact path,
    projected Levenberg-Marquardt on the FMU path), statistics.
    With an alignment method, the fit is repeated once on identity pairs to show what the alignment
    changed.
@@ -35,22 +35,22 @@ import casadi as ca
 import numpy as np
 import pandas as pd
 
-from models import MODELS
-from models.definition import ModelDefinition
-from models.units import UnitError
-from orchestrator.calibrate.errors import CalibrationError
-from orchestrator.calibrate.fit import FitOutcome, fit
-from orchestrator.calibrate.fmu_outputs import FmuOutputs, fmu_residuals
-from orchestrator.calibrate.graph import ModelGraph, NotExpressible, build_graph
-from orchestrator.calibrate.pairing import LEARNING, VALIDATION, Pairs, make_pairs
-from orchestrator.calibrate.parameters import Parameter, resolve_parameter, unit_factor
-from orchestrator.calibrate.paramset import write_parameter_set, write_ssv
-from orchestrator.calibrate.residuals import ResidualModel, build_residuals
-from orchestrator.calibrate.result import CalibrationResult, Series, Table, error_row
-from orchestrator.calibrate.spec import AlignmentSpec, CalibrationSpec, SolverSpec
-from orchestrator.master import SimulationError, run
-from orchestrator.results import load_results, sha256_of, software_versions
-from orchestrator.scenario import Ref, Scenario, load_scenario, with_values
+from milling_twin.models import MODELS
+from milling_twin.models.definition import ModelDefinition
+from milling_twin.models.units import UnitError
+from milling_twin.orchestrator.calibrate.errors import CalibrationError
+from milling_twin.orchestrator.calibrate.fit import FitOutcome, fit
+from milling_twin.orchestrator.calibrate.fmu_outputs import FmuOutputs, fmu_residuals
+from milling_twin.orchestrator.calibrate.graph import ModelGraph, NotExpressible, build_graph
+from milling_twin.orchestrator.calibrate.pairing import LEARNING, VALIDATION, Pairs, make_pairs
+from milling_twin.orchestrator.calibrate.parameters import Parameter, resolve_parameter, unit_factor
+from milling_twin.orchestrator.calibrate.paramset import write_parameter_set, write_ssv
+from milling_twin.orchestrator.calibrate.residuals import ResidualModel, build_residuals
+from milling_twin.orchestrator.calibrate.result import CalibrationResult, Series, Table, error_row
+from milling_twin.orchestrator.calibrate.spec import AlignmentSpec, CalibrationSpec, SolverSpec
+from milling_twin.orchestrator.master import SimulationError, run
+from milling_twin.orchestrator.results import load_results, sha256_of, software_versions
+from milling_twin.orchestrator.scenario import Ref, Scenario, load_scenario, with_values
 
 __all__ = ["Prepared", "calibrate_scenario", "check_tokens", "identities", "prepare", "resolve_outputs"]
 
@@ -451,7 +451,7 @@ def calibrate_scenario(spec: CalibrationSpec, fmu_dir: Path, out_dir: Path, prog
               "learning": str(list(spec.learning))}
     set_path = write_parameter_set(spec.parameter_set, prepared.parameters, outcome.theta, outcome.statistics.parameters,
                                    spec.description or spec.name, source,
-                                   f"python -m orchestrator calibrate {os.path.relpath(spec.path)}")
+                                   f"python -m milling_twin.orchestrator calibrate {os.path.relpath(spec.path)}")
     ssv = write_ssv(out_dir / f"{spec.parameter_set.stem}.ssv", spec.name, prepared.parameters, outcome.theta)
     timings["write parameter set"] = time.perf_counter() - t0
     t0 = time.perf_counter()

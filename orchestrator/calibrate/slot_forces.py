@@ -1,15 +1,15 @@
 """Kind "slot_forces": the cutting-force coefficients from the slot-milling recordings.
 
-The recordings are read, folded and compared exactly as ``orchestrator.validation.slot_milling``
+The recordings are read, folded and compared exactly as ``milling_twin.orchestrator.validation.slot_milling``
 does (its functions are reused: ``read_recordings``, ``recorded_waveform``, ``simulate``,
 ``compare``). Two fits on the learning feeds, both casadi + IPOPT on the models/ expressions:
 
 1. **Linear regression** (Altintas): the per-revolution mean forces against the feed per tooth,
-   through ``models.cutting_force.mean_slot_forces`` (linear in the six coefficients, so one
+   through ``milling_twin.models.cutting_force.mean_slot_forces`` (linear in the six coefficients, so one
    Gauss-Newton step; the statistics are those of ordinary least squares per axis, each axis
    weighted by its residual level).
 2. **Waveform fit**: nonlinear least squares of the force time series on the CuttingForce
-   equations (``models.cutting_force.equations``: 16 slices, helix, runout) with the coefficients,
+   equations (``milling_twin.models.cutting_force.equations``: 16 slices, helix, runout) with the coefficients,
    optionally the runout (offset and angle of the tool axis), and one spindle phase per recording
    (nuisance: the recordings' spindle angle is unknown). With 2 flutes the runout enters the chip only
    as offset*cos(angle) (the two flutes' radius difference), so only the offset is fitted (angle 0; a
@@ -43,22 +43,23 @@ import casadi as ca
 import numpy as np
 from matplotlib.figure import Figure as MplFigure
 
-from models.cutting_force import CUTTING_FORCE, equations, mean_slot_forces
-from orchestrator.calibrate.errors import CalibrationError
-from orchestrator.calibrate.fit import FitOutcome, fit
-from orchestrator.calibrate.graph import NO_DATA_DERIVATIVE
-from orchestrator.calibrate.lsq import LeastSquaresSolver, StartOutcome
-from orchestrator.calibrate.parameters import Parameter, resolve_parameter
-from orchestrator.calibrate.paramset import write_parameter_set, write_ssv
-from orchestrator.calibrate.plots import _png
-from orchestrator.calibrate.residuals import ResidualModel, from_outputs
-from orchestrator.calibrate.result import CalibrationResult, Figure, Series, Table, error_row
-from orchestrator.calibrate.scenario_fit import check_tokens, identities
-from orchestrator.calibrate.spec import CalibrationSpec, ParameterSpec
-from orchestrator.master import SimulationError
-from orchestrator.results import sha256_of
-from orchestrator.scenario import Scenario, load_scenario
-from orchestrator.validation import slot_milling as sm
+from milling_twin import datasets
+from milling_twin.models.cutting_force import CUTTING_FORCE, equations, mean_slot_forces
+from milling_twin.orchestrator.calibrate.errors import CalibrationError
+from milling_twin.orchestrator.calibrate.fit import FitOutcome, fit
+from milling_twin.orchestrator.calibrate.graph import NO_DATA_DERIVATIVE
+from milling_twin.orchestrator.calibrate.lsq import LeastSquaresSolver, StartOutcome
+from milling_twin.orchestrator.calibrate.parameters import Parameter, resolve_parameter
+from milling_twin.orchestrator.calibrate.paramset import write_parameter_set, write_ssv
+from milling_twin.orchestrator.calibrate.plots import _png
+from milling_twin.orchestrator.calibrate.residuals import ResidualModel, from_outputs
+from milling_twin.orchestrator.calibrate.result import CalibrationResult, Figure, Series, Table, error_row
+from milling_twin.orchestrator.calibrate.scenario_fit import check_tokens, identities
+from milling_twin.orchestrator.calibrate.spec import CalibrationSpec, ParameterSpec
+from milling_twin.orchestrator.master import SimulationError
+from milling_twin.orchestrator.results import sha256_of
+from milling_twin.orchestrator.scenario import Scenario, load_scenario
+from milling_twin.orchestrator.validation import slot_milling as sm
 
 __all__ = ["SlotData", "calibrate_slot_forces", "load_slot_data", "regression_model", "waveform_model"]
 
@@ -77,7 +78,7 @@ RUNOUT_DEFAULTS = {"runout_offset": ParameterSpec("force.runout_offset", '[param
 class SlotData:
     """The recordings of one fit: folded waveforms and per-revolution means, in the files' axes."""
 
-    def __init__(self, recordings: list[sm.Recording], revolutions: int, n_flutes: int) -> None:
+    def __init__(self, recordings: list[datasets.Recording], revolutions: int, n_flutes: int) -> None:
         self.recordings = recordings
         self.waves, self.within, self.revs, self.rev_means = [], [], [], []
         for r in recordings:
@@ -100,7 +101,7 @@ class SlotData:
 
 def load_slot_data(folder: Path, feeds: tuple[float, ...], key: str, spec: CalibrationSpec, revolutions: int,
                    n_flutes: int) -> SlotData:
-    recordings = sm.read_recordings(folder)
+    recordings = datasets.read_recordings(folder)
     by_feed = {r.feed: r for r in recordings}
     missing = [f for f in feeds if f not in by_feed]
     if missing:
@@ -112,7 +113,7 @@ def load_slot_data(folder: Path, feeds: tuple[float, ...], key: str, spec: Calib
     return SlotData(chosen, revolutions, n_flutes)
 
 
-def _constants(scenario: Scenario, recording: sm.Recording) -> dict[str, float]:
+def _constants(scenario: Scenario, recording: datasets.Recording) -> dict[str, float]:
     """The force instance's parameters and inputs at the recording's conditions (SI)."""
     inst = scenario.instance(sm.INSTANCE)
     values = {**CUTTING_FORCE.defaults(), **{k: float(v) for k, v in inst.parameters.items()},
@@ -123,7 +124,7 @@ def _constants(scenario: Scenario, recording: sm.Recording) -> dict[str, float]:
     return values
 
 
-def _force_function(scenario: Scenario, recording: sm.Recording, fitted: list[str]) -> ca.Function:
+def _force_function(scenario: Scenario, recording: datasets.Recording, fitted: list[str]) -> ca.Function:
     """(fitted parameters, angle) -> forces in the files' axes, the rest folded in as constants."""
     theta = ca.SX.sym("theta", len(fitted))
     angle = ca.SX.sym("angle")
@@ -306,7 +307,7 @@ def calibrate_slot_forces(spec: CalibrationSpec, fmu_dir: Path, out_dir: Path, d
                           progress: bool = False) -> CalibrationResult:
     timings: dict[str, float] = {}
     t0 = time.perf_counter()
-    folder = sm.data_dir(data_option)
+    folder = datasets.data_dir(data_option)
     scenario = load_scenario(spec.scenario, fmu_dir)
     sm._check_scenario(scenario)
     n_flutes = sm._n_flutes(scenario)
@@ -352,11 +353,11 @@ def calibrate_slot_forces(spec: CalibrationSpec, fmu_dir: Path, out_dir: Path, d
               "data_sha256": ", ".join(sha256_of(r.path)[:16] for r in learn.recordings)}
     set_path = write_parameter_set(spec.parameter_set, params, waveform.theta, waveform.statistics.parameters,
                                    spec.description or spec.name, source,
-                                   f"python -m orchestrator calibrate {os.path.relpath(spec.path)}")
+                                   f"python -m milling_twin.orchestrator calibrate {os.path.relpath(spec.path)}")
     ssv = write_ssv(out_dir / f"{spec.parameter_set.stem}.ssv", spec.name, params, waveform.theta)
     calibrated = load_scenario(spec.scenario, fmu_dir, parameter_sets=[set_path])
     runs = out_dir / "runs"
-    cases: dict[str, list[tuple[str, sm.Recording, dict]]] = {"prior": [], "regression": [], "calibrated": []}
+    cases: dict[str, list[tuple[str, datasets.Recording, dict]]] = {"prior": [], "regression": [], "calibrated": []}
     reg_coefficients = dict(zip(COEFFICIENTS, regression.theta))
     try:
         for dataset, group in (("learning", learn), ("validation", held)):

@@ -3,7 +3,7 @@
 Parsed by :func:`load_spec` into a frozen :class:`CalibrationSpec`; structure, types and the
 relations that need no FMU (bounds reversed, initial value outside the bounds, empty or reversed
 segments) are checked here, the names (parameters, outputs, channels) when the scenario is loaded
-(:mod:`orchestrator.calibrate.scenario_fit`). Every problem is a :class:`CalibrationSpecError`
+(:mod:`milling_twin.orchestrator.calibrate.scenario_fit`). Every problem is a :class:`CalibrationSpecError`
 naming the spec file and the TOML key. Paths are relative to the spec file's folder.
 
 Format (kind "scenario", the default: fit parameters of the FMU instances of a scenario to its
@@ -76,7 +76,7 @@ Default start ranges: ``start_range`` if given; else the bounds when both are fi
 initial -/+ 2 scales otherwise, clipped to the bounds.
 
 Kind "slot_forces" (the cutting-force coefficients from the slot-milling recordings, read as
-``orchestrator.validation.slot_milling`` reads them; ``[[outputs]]``, ``[segments]``,
+``milling_twin.orchestrator.validation.slot_milling`` reads them; ``[[outputs]]``, ``[segments]``,
 ``[alignment]`` and ``[inputs]`` do not apply)::
 
     [calibration]
@@ -101,8 +101,8 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, NoReturn
 
-from orchestrator.toml_access import TomlAccess
-from orchestrator.calibrate.errors import CalibrationSpecError
+from milling_twin.orchestrator.toml_access import TomlAccess
+from milling_twin.orchestrator.calibrate.errors import CalibrationSpecError
 
 __all__ = ["AlignmentSpec", "CalibrationSpec", "OutputSpec", "ParameterSpec", "SlotForcesSpec",
            "SolverSpec", "StatisticsSpec", "load_spec"]

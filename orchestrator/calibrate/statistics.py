@@ -30,8 +30,8 @@ from dataclasses import dataclass
 import numpy as np
 from scipy import stats as scipy_stats
 
-from orchestrator.calibrate.parameters import Parameter
-from orchestrator.calibrate.spec import StatisticsSpec
+from milling_twin.orchestrator.calibrate.parameters import Parameter
+from milling_twin.orchestrator.calibrate.spec import StatisticsSpec
 
 __all__ = ["FitStatistics", "ParameterStatistics", "fit_statistics"]
 

@@ -1,6 +1,6 @@
 """Chatter: the onset of regenerative chatter in the co-simulation against the analytic lobes.
 
-    .venv/bin/python -m orchestrator.validation.chatter [--speeds 6000 9000 ...] [--iterations 8]
+    .venv/bin/python -m milling_twin.orchestrator.validation.chatter [--speeds 6000 9000 ...] [--iterations 8]
         [--scenario scenarios/chatter.toml] [--fmu-dir build/fmus] [--out runs] [--figure PNG]
 
 The scenario (default ``scenarios/chatter.toml``: CuttingForce and ToolVibration in a loop,
@@ -11,7 +11,7 @@ sample to sample) has a standard deviation over 0.15..0.2 s and over 0.1..0.15 s
 the ``growth``. A cut is unstable when it exceeds 1 in x or y: the free vibration excited by the
 tool's entry grows instead of dying out. At each speed a bisection on the axial depth between
 0.5 and 2 times the analytic limit finds the simulated limit, which is compared with the
-zero-order (Altintas-Budak) limit of ``models.stability`` for the scenario's coefficients and
+zero-order (Altintas-Budak) limit of ``milling_twin.models.stability`` for the scenario's coefficients and
 modes. Writes ``chatter.json`` (every run: speed, depth, growth, stable) and ``chatter.png``
 (simulated stable and unstable cuts over the analytic lobes) into ``<out>/chatter/``.
 """
@@ -28,10 +28,10 @@ from pathlib import Path
 import numpy as np
 from tqdm import tqdm
 
-from models.stability import Mode, stability_lobes
-from orchestrator.master import run
-from orchestrator.results import load_results
-from orchestrator.scenario import Scenario, load_scenario, with_values
+from milling_twin.models.stability import Mode, stability_lobes
+from milling_twin.orchestrator.master import run
+from milling_twin.orchestrator.results import load_results
+from milling_twin.orchestrator.scenario import Scenario, load_scenario, with_values
 
 REPO = Path(__file__).resolve().parents[2]
 WINDOWS = ((0.10, 0.15), (0.15, 0.20))  # s: growth = peak-to-peak in the second / in the first
@@ -78,7 +78,7 @@ def analytic_limit(scenario: Scenario, speeds: np.ndarray, lobes: int = 60) -> n
 
 def _defaults(scenario: Scenario) -> dict[str, float]:
     """Start values of the models behind the scenario's FMUs (what the FMUs use when not set)."""
-    from models import MODELS
+    from milling_twin.models import MODELS
 
     values: dict[str, float] = {}
     for inst in scenario.instances:

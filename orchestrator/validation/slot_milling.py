@@ -1,6 +1,6 @@
 """Slot milling: the CuttingForce FMU against measured Kistler forces.
 
-    .venv/bin/python -m orchestrator.validation.slot_milling [--data DIR] [--scenario FILE]
+    .venv/bin/python -m milling_twin.orchestrator.validation.slot_milling [--data DIR] [--scenario FILE]
         [--fmu-dir DIR] [--out DIR]
 
 The data (five DynoWare exports, 6000 rpm, 2 flutes, 3 mm axial depth, full slot, feeds 300 ...
@@ -31,14 +31,14 @@ right-handed frame with z pointing down (Kistler's convention), x_dyn = -y and y
 
 Two coefficient sets are run: the scenario's (literature priors; the workpiece material of the
 recordings is not stated) and the six coefficients identified from these five recorded means
-(Altintas' linear regression, ``models.cutting_force.identify_slot_coefficients``): the latter's
+(Altintas' linear regression, ``milling_twin.models.cutting_force.identify_slot_coefficients``): the latter's
 mean errors are in-sample, its waveform r2 is not fitted. Writes ``slot_milling.json`` and PNG
 plots into ``<out>/<scenario file name>/`` (the runs themselves into its ``runs/``).
 
 The force instance may also be the force net (``scenarios/slot_milling_forcenet.toml``: the same scenario
 with ``fmu = "ForceNet"``). It has no coefficients: its sets are the network packed in the FMU ("prior",
 trained on the mechanistic model with the literature coefficients) and, with ``--finetuned DIR`` (written by
-``python -m models.force_net_train finetune``), for each recording the network fine-tuned on the four
+``python -m milling_twin.training.force_net finetune``), for each recording the network fine-tuned on the four
 other recordings ("finetuned", a left-out prediction), run as a copy of the FMU with those weights.
 """
 from __future__ import annotations
@@ -47,7 +47,6 @@ import argparse
 import json
 import math
 import os
-import re
 import sys
 from dataclasses import dataclass, replace
 from pathlib import Path
@@ -57,25 +56,21 @@ import numpy as np
 import pandas as pd
 from matplotlib.figure import Figure
 
-from models.cutting_force import CUTTING_FORCE, identify_slot_coefficients, mean_slot_forces
-from orchestrator.master import SimulationError, run
-from orchestrator.recorded import RecordedDataError
-from orchestrator.results import load_results
-from orchestrator.scenario import Scenario, ScenarioError, load_scenario
-from models.units import UnitError
+from milling_twin.models.cutting_force import CUTTING_FORCE, identify_slot_coefficients, mean_slot_forces
+from milling_twin.orchestrator.master import SimulationError, run
+from milling_twin.orchestrator.recorded import RecordedDataError
+from milling_twin.orchestrator.results import load_results
+from milling_twin.orchestrator.scenario import Scenario, ScenarioError, load_scenario
+from milling_twin.models.units import UnitError
+from milling_twin.datasets import DATA_ENV, DEFAULT_DATA, SOURCE, DataMissing, Recording, data_dir, read_recordings
 
 REPO = Path(__file__).resolve().parents[2]
-DATA_ENV = "MILLING_TWIN_SLOT_DATA"
-DEFAULT_DATA = REPO.parent / "shared" / "data" / "slot_milling_forces"
 DEFAULT_SCENARIO = REPO / "scenarios" / "slot_milling.toml"
 FMU_DIR_ENV = "MILLING_TWIN_FMU_DIR"
 INSTANCE = "force"  # the CuttingForce instance of the scenario
-SOURCE = ("github.com/leekunhwee/ForceCalculation, commit 3fda341, folder 'General/Flat end milling' "
-          "(files 6-n6000f300ap3ae25.csv ... 6-n6000f1500ap3ae25.csv)")
 # recorded column -> simulated output (model frame), see the module docstring
 AXES = {"Fx": "Fy", "Fy": "Fx", "Fz": "Fz"}
 COEFFICIENTS = ("Ktc", "Krc", "Kac", "Kte", "Kre", "Kae")
-_NAME = re.compile(r"n(?P<rpm>\d+(?:\.\d+)?)f(?P<feed>\d+(?:\.\d+)?)ap(?P<ap>\d+(?:\.\d+)?)ae(?P<ae>\d+(?:\.\d+)?)")
 FINE = 3600  # points of the simulated waveform per revolution (0.1 deg)
 SET_LABELS = {"prior": "prior coefficients", "identified": "identified coefficients",
               "finetuned": "network fine-tuned on the other feeds"}
@@ -84,71 +79,6 @@ NET_PRIOR_LABEL = "network trained on the mechanistic model"  # "prior" of a for
 
 def set_labels(model: str) -> dict[str, str]:
     return SET_LABELS if model == "CuttingForce" else {**SET_LABELS, "prior": NET_PRIOR_LABEL}
-
-
-class DataMissing(RuntimeError):
-    """The recordings are not where they were looked for; the message says where to put them."""
-
-
-def data_dir(option: str | Path | None = None) -> Path:
-    """``option``, else $MILLING_TWIN_SLOT_DATA, else ../shared/data/slot_milling_forces beside the repo;
-    raises DataMissing (saying where the files go) if it holds no recording."""
-    folder = Path(option) if option else Path(os.environ[DATA_ENV]) if os.environ.get(DATA_ENV) else DEFAULT_DATA
-    if not folder.is_dir() or not any(_NAME.search(p.name) for p in folder.glob("*.csv")):
-        how = ("--data" if option else f"${DATA_ENV}" if os.environ.get(DATA_ENV) else "the default location")
-        raise DataMissing(
-            f"no slot-milling recordings in {folder} (from {how}). Put the five DynoWare CSV exports of {SOURCE} "
-            f"into {DEFAULT_DATA} (beside this repository), or pass --data DIR or set {DATA_ENV}=DIR. "
-            "They have no licence to redistribute: never copy them into the repository.")
-    return folder
-
-
-@dataclass(frozen=True)
-class Recording:
-    path: Path
-    rpm: float
-    feed: float  # mm/min
-    axial_depth: float  # mm
-    radial_depth: float  # mm
-    sample_rate: float  # Hz
-    time: np.ndarray
-    forces: np.ndarray  # samples x (Fx, Fy, Fz) of the file, N
-
-    @property
-    def label(self) -> str:
-        return f"f{self.feed:g}"
-
-
-def read_recording(path: Path) -> Recording:
-    """A DynoWare CSV export: header lines, ``Time,Fx,Fy,Fz``, a unit line ``s,N,N,N``, then data."""
-    match = _NAME.search(path.stem)
-    if not match:
-        raise ValueError(f"{path}: the file name does not give the conditions as n<rpm>f<feed>ap<mm>ae<mm>")
-    lines = path.read_text(encoding="utf-8", errors="replace").splitlines()
-    start = next((i for i, line in enumerate(lines) if line.replace(" ", "").startswith("Time,Fx,Fy,Fz")), None)
-    if start is None:
-        raise ValueError(f"{path}: no 'Time,Fx,Fy,Fz' header line")
-    units = [u.strip() for u in lines[start + 1].split(",")]
-    if units[:4] != ["s", "N", "N", "N"]:
-        raise ValueError(f"{path}: line {start + 2}: expected units s,N,N,N, got {lines[start + 1]!r}")
-    data = np.loadtxt(lines[start + 2:], delimiter=",", ndmin=2)
-    if data.shape[1] < 4 or len(data) < 100:
-        raise ValueError(f"{path}: expected at least 100 rows of Time,Fx,Fy,Fz, got {data.shape}")
-    t = data[:, 0]
-    dt = np.diff(t)
-    if np.any(dt <= 0) or np.ptp(dt) > 1e-6 * np.mean(dt) + 1e-9:
-        raise ValueError(f"{path}: time is not uniformly increasing")
-    rate = next((float(line.split(",")[1]) for line in lines[:start] if line.startswith("Sampling rate")),
-                1.0 / float(np.mean(dt)))
-    if abs(rate * np.mean(dt) - 1.0) > 1e-6:
-        raise ValueError(f"{path}: sampling rate {rate} Hz does not match the time column")
-    return Recording(path, float(match["rpm"]), float(match["feed"]), float(match["ap"]), float(match["ae"]),
-                     rate, t, data[:, 1:4])
-
-
-def read_recordings(folder: Path) -> list[Recording]:
-    recordings = [read_recording(p) for p in sorted(folder.glob("*.csv")) if _NAME.search(p.name)]
-    return sorted(recordings, key=lambda r: r.feed)
 
 
 def _n_flutes(scenario: Scenario) -> int:
@@ -348,13 +278,13 @@ def write_report(folder: Path, doc: dict, recordings: list[Recording], sets: dic
 def finetuned_fmus(scenario: Scenario, recordings: list[Recording], weights_dir: Path, folder: Path) -> dict:
     """Per recording, a copy of the scenario's ForceNet FMU holding the network fine-tuned without that
     recording (``<weights_dir>/finetuned_without_f<feed>.bin``)."""
-    from models.force_net import install_weights
+    from milling_twin.models.force_net import install_weights
 
     fmus = {}
     for r in recordings:
         weights = weights_dir / f"finetuned_without_f{r.feed:g}.bin"
         if not weights.is_file():
-            raise ValueError(f"{weights} is missing: run `python -m models.force_net_train finetune --out "
+            raise ValueError(f"{weights} is missing: run `python -m milling_twin.training.force_net finetune --out "
                              f"{weights_dir}` first")
         fmus[r.feed] = install_weights(scenario.instance(INSTANCE).path, weights,
                                        folder / "fmus" / f"{weights.stem}_{scenario.instance(INSTANCE).path.name}")
@@ -428,7 +358,7 @@ def summary(doc: dict) -> str:
 
 
 def main(argv: list[str] | None = None) -> int:
-    parser = argparse.ArgumentParser(prog="python -m orchestrator.validation.slot_milling",
+    parser = argparse.ArgumentParser(prog="python -m milling_twin.orchestrator.validation.slot_milling",
                                      description=__doc__.splitlines()[0])
     parser.add_argument("--data", type=Path, help=f"folder of the recordings (default: ${DATA_ENV} or {DEFAULT_DATA})")
     parser.add_argument("--scenario", type=Path, default=DEFAULT_SCENARIO)
@@ -436,7 +366,7 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--out", type=Path, default=REPO / "runs",
                         help="results go to OUT/<scenario file name>/ (OUT/slot_milling/ by default)")
     parser.add_argument("--finetuned", type=Path, help="ForceNet scenarios: folder of the left-out fine-tuned "
-                        "weights (python -m models.force_net_train finetune)")
+                        "weights (python -m milling_twin.training.force_net finetune)")
     args = parser.parse_args(argv)
     try:
         data = data_dir(args.data)

@@ -15,11 +15,11 @@ from pathlib import Path
 
 import numpy as np
 
-from orchestrator.align import align, path_residual
-from orchestrator.align.trajectory import Trajectory
-from orchestrator.master import run
-from orchestrator.results import load_results
-from orchestrator.scenario import load_scenario
+from milling_twin.orchestrator.align import align, path_residual
+from milling_twin.orchestrator.align.trajectory import Trajectory
+from milling_twin.orchestrator.master import run
+from milling_twin.orchestrator.results import load_results
+from milling_twin.orchestrator.scenario import load_scenario
 
 REPO = Path(__file__).resolve().parents[2]
 COLUMNS = ["interp.x", "interp.y", "interp.z"]

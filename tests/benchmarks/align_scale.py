@@ -25,8 +25,10 @@ from pathlib import Path
 
 import numpy as np
 
-from orchestrator.align import Trajectory, align
-from orchestrator.align.synthetic import Warp, concatenate_paths, make_recording, path_from_umich, umich_data_dir
+from milling_twin.orchestrator.align import Trajectory, align
+sys.path.insert(0, str(Path(__file__).resolve().parents[1]))  # tests/: the generated cases (tests/cases)
+
+from cases.align_synthetic import Warp, concatenate_paths, make_recording, path_from_umich, umich_data_dir
 
 REPO = Path(__file__).resolve().parents[2]
 N = 720_000

@@ -12,6 +12,7 @@ rotation (wall), the mean ICP distance F, and the wall time per part.
 """
 from __future__ import annotations
 
+import sys
 import argparse
 import time
 from pathlib import Path
@@ -20,9 +21,11 @@ import numpy as np
 from scipy.spatial.transform import Rotation
 from tqdm import tqdm
 
-from orchestrator.align import compensate_wall, work_offset_gcode
-from orchestrator.align.parts import make_ring, make_wall
-from orchestrator.align.plots import plot_spatial
+from milling_twin.orchestrator.align import compensate_wall, work_offset_gcode
+sys.path.insert(0, str(Path(__file__).resolve().parents[1]))  # tests/: the generated cases (tests/cases)
+
+from cases.align_parts import make_ring, make_wall
+from milling_twin.orchestrator.align.plots import plot_spatial
 
 REPO = Path(__file__).resolve().parents[2]
 

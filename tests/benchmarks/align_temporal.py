@@ -4,7 +4,7 @@
         [--data DIR] [--figure scenarios/figures/align_temporal.png]
 
 For each experiment, the recorded positions become a smooth "simulated" path at 100 Hz
-(:func:`orchestrator.align.synthetic.path_from_umich`), played through a random warp of each
+(:func:`cases.align_synthetic.path_from_umich`), played through a random warp of each
 kind (``affine``: start offset -3..8 s and global scale 0.8..1.25; ``piecewise``: + 3..6 feed
 override changes 0.6..1.5; ``pause``: + one pause of 5..30 s; ``all``: overrides, two pauses,
 idle tail, 3 dropout gaps of 0.5..3 s and 2 % dropped samples) and recorded at 10 Hz with
@@ -17,6 +17,7 @@ ratio to the dtaidistance baseline run on the same cases.
 """
 from __future__ import annotations
 
+import sys
 import argparse
 import time
 from pathlib import Path
@@ -24,9 +25,11 @@ from pathlib import Path
 import numpy as np
 from tqdm import tqdm
 
-from orchestrator.align import align
-from orchestrator.align.plots import plot_temporal
-from orchestrator.align.synthetic import make_recording, path_from_umich, random_warp, umich_data_dir
+from milling_twin.orchestrator.align import align
+from milling_twin.orchestrator.align.plots import plot_temporal
+sys.path.insert(0, str(Path(__file__).resolve().parents[1]))  # tests/: the generated cases (tests/cases)
+
+from cases.align_synthetic import make_recording, path_from_umich, random_warp, umich_data_dir
 
 REPO = Path(__file__).resolve().parents[2]
 KINDS = ("affine", "piecewise", "pause", "all")

@@ -21,6 +21,7 @@
 """
 from __future__ import annotations
 
+import sys
 import argparse
 import json
 import os
@@ -32,10 +33,12 @@ from pathlib import Path
 import numpy as np
 
 from calibrate_recovery import print_case, study_case
-from orchestrator.calibrate import load_spec
-from orchestrator.calibrate.recovery import RecoveryStudy
-from orchestrator.calibrate.scenario_fit import calibrate_scenario
-from orchestrator.calibrate.synthetic import POWER_TRUTH, SLOT_TRUTH, write_power_case
+from milling_twin.orchestrator.calibrate import load_spec
+sys.path.insert(0, str(Path(__file__).resolve().parents[1]))  # tests/: the generated cases (tests/cases)
+
+from cases.calibration_recovery import RecoveryStudy
+from milling_twin.orchestrator.calibrate.scenario_fit import calibrate_scenario
+from cases.calibration_synthetic import POWER_TRUTH, SLOT_TRUTH, write_power_case
 
 REPO = Path(__file__).resolve().parents[2]
 UMICH = REPO / "scenarios" / "calibration" / "umich_power.toml"

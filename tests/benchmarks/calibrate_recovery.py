@@ -22,6 +22,7 @@ on the real recording (best of 3).
 """
 from __future__ import annotations
 
+import sys
 import argparse
 import json
 import os
@@ -31,9 +32,11 @@ from pathlib import Path
 
 import numpy as np
 
-from orchestrator.calibrate import calibrate, load_spec
-from orchestrator.calibrate.recovery import RecoveryStudy
-from orchestrator.calibrate.synthetic import IMPULSE_NOISE, IMPULSE_TRUTH, POWER_TRUTH, write_power_case
+from milling_twin.orchestrator.calibrate import calibrate, load_spec
+sys.path.insert(0, str(Path(__file__).resolve().parents[1]))  # tests/: the generated cases (tests/cases)
+
+from cases.calibration_recovery import RecoveryStudy
+from cases.calibration_synthetic import IMPULSE_NOISE, IMPULSE_TRUTH, POWER_TRUTH, write_power_case
 
 REPO = Path(__file__).resolve().parents[2]
 UMICH_TRUTH = {"power.P_standby": 30.0, "power.P_idle": 120.0, "power.c1": 0.15, "power.c2": 800.0, "power.c3": 0.8}

@@ -23,8 +23,8 @@ from pathlib import Path
 
 import numpy as np
 
-from orchestrator.calibrate import calibrate
-from orchestrator.calibrate.slot_forces import RECORDED_AXES
+from milling_twin.orchestrator.calibrate import calibrate
+from milling_twin.orchestrator.calibrate.slot_forces import RECORDED_AXES
 
 REPO = Path(__file__).resolve().parents[2]
 SPEC = REPO / "scenarios" / "calibration" / "slot_forces.toml"

@@ -69,8 +69,8 @@ def best_of(driver: Path, weights: Path, case: tuple, evaluations: int, rounds: 
 def torch_benchmark(weights, case: tuple, calls: int) -> dict:
     import torch
 
-    from models import force_net as fn
-    from models import force_net_train as fnt
+    from milling_twin.models import force_net as fn
+    from milling_twin.training import force_net as fnt
 
     torch.set_num_threads(1)
     n, d, helix, omega, feed, ap, entry, exit_ = case
@@ -100,7 +100,7 @@ def main() -> None:
     parser.add_argument("--rounds", type=int, default=5)
     parser.add_argument("--weights", type=Path, default=FORCENET / "resources" / "weights.bin")
     args = parser.parse_args()
-    from models import force_net as fn
+    from milling_twin.models import force_net as fn
 
     weights = fn.read_weights(args.weights)
     avx2 = "avx2" in Path("/proc/cpuinfo").read_text() if Path("/proc/cpuinfo").is_file() else False

@@ -36,8 +36,8 @@ from scipy.interpolate import BSpline
 REPO = Path(__file__).resolve().parents[2]
 sys.path.insert(0, str(REPO))
 
-from models.interpolator import nurbs_block_gcode  # noqa: E402
-from models.rbf_predictor import load_weights  # noqa: E402
+from milling_twin.models.interpolator import nurbs_block_gcode  # noqa: E402
+from milling_twin.training.rbf import load_weights  # noqa: E402
 
 NURBS_DIR = REPO / "scenarios" / "nurbs"
 DRIVER = REPO / "build" / "tools" / "interp_run"
@@ -163,7 +163,7 @@ def methods(weights: dict[str, float]) -> list[tuple[str, dict[str, float]]]:
     return [
         ("1 first-order Taylor", {"method": 1}),
         ("2 second-order Taylor", {"method": 2}),
-        ("3 RBF network (trained, models/rbf_predictor.py)", {"method": 3, **weights}),
+        ("3 RBF network (trained, milling_twin/training/rbf.py)", {"method": 3, **weights}),
         ("3 RBF, network output zeroed (ablation)", {"method": 3, **zero}),
         ("4 corrector on 2nd-order Taylor (default)", {"method": 4, "corrector_predictor": 2}),
         ("4 corrector on the RBF predictor", {"method": 4, "corrector_predictor": 3, **weights}),
@@ -229,7 +229,7 @@ def main(argv: list[str] | None = None) -> int:
         axes[0].set_ylabel("feed (mm/s)")
         axes[0].legend(loc="lower right")
         axes[0].set_title("Butterfly: scheduled and actual feed along the curve")
-        for name, m in (("2nd-order Taylor", taylor), ("RBF", curves["3 RBF network (trained, models/rbf_predictor.py)"]),
+        for name, m in (("2nd-order Taylor", taylor), ("RBF", curves["3 RBF network (trained, milling_twin/training/rbf.py)"]),
                         ("corrector", corrector)):
             ok = m["plot_ok"]
             rel = np.abs(m["actual"][ok] - m["scheduled_step"][ok]) / m["scheduled_step"][ok]

@@ -19,8 +19,8 @@ from pathlib import Path
 from fmpy import extract, read_model_description
 from fmpy.fmi3 import FMU3Slave
 
-from orchestrator.master import run
-from orchestrator.scenario import load_scenario
+from milling_twin.orchestrator.master import run
+from milling_twin.orchestrator.scenario import load_scenario
 
 REPO = Path(__file__).resolve().parents[2]
 

@@ -14,7 +14,7 @@ with its own setup and its own result writing; what each includes:
    orchestrator gives its final run.json (temporary file, fsync, rename, fsync of the folder),
    freeing the instances and closing the libraries. It excludes the process start (about 1 ms)
    and unzipping the FMUs, which this script does once beforehand.
-2. fast: ``orchestrator.master.run(stepping="fast")``, the compiled stepping loop; the wall time
+2. fast: ``milling_twin.orchestrator.master.run(stepping="fast")``, the compiled stepping loop; the wall time
    around run(): hashing the files for run.json, finding the unpacked FMUs (orchestrator.fmu_cache:
    unzipped by the first run of each FMU, reused by the next ones, as the C driver reuses its
    folders), loading them with fmpy (orchestrator.fmu_loading), setup, stepping (recorded inputs
@@ -71,9 +71,9 @@ from fmpy.fmi3 import FMU3Slave
 REPO = Path(__file__).resolve().parents[2]
 sys.path.insert(0, str(REPO))
 
-from orchestrator.master import run  # noqa: E402
-from orchestrator.results import load_results  # noqa: E402
-from orchestrator.scenario import Scenario, load_scenario  # noqa: E402
+from milling_twin.orchestrator.master import run  # noqa: E402
+from milling_twin.orchestrator.results import load_results  # noqa: E402
+from milling_twin.orchestrator.scenario import Scenario, load_scenario  # noqa: E402
 
 PATHS = ("C driver", "fast", "python", "fmpy loop")
 # A case whose native run is this short (s) is repeated at least SHORT_REPEAT times: a few ms of disk or

@@ -22,7 +22,7 @@ REPO = Path(__file__).resolve().parents[2]
 if str(REPO) not in sys.path:
     sys.path.insert(0, str(REPO))
 
-from models import force_net  # noqa: E402
+from milling_twin.models import force_net  # noqa: E402
 
 CORPUS = Path(__file__).resolve().parent / "corpus"
 

@@ -16,12 +16,12 @@ from pathlib import Path
 import numpy as np
 from tqdm import tqdm
 
-from orchestrator.calibrate.fit import FitOutcome, fit
-from orchestrator.calibrate.lsq import LeastSquaresSolver
-from orchestrator.calibrate.pairing import LEARNING
-from orchestrator.calibrate.scenario_fit import Prepared, pairs_for, prepare
-from orchestrator.calibrate.spec import CalibrationSpec
-from orchestrator.calibrate.synthetic import truth_outputs, with_channels
+from milling_twin.orchestrator.calibrate.fit import FitOutcome, fit
+from milling_twin.orchestrator.calibrate.lsq import LeastSquaresSolver
+from milling_twin.orchestrator.calibrate.pairing import LEARNING
+from milling_twin.orchestrator.calibrate.scenario_fit import Prepared, pairs_for, prepare
+from milling_twin.orchestrator.calibrate.spec import CalibrationSpec
+from cases.calibration_synthetic import truth_outputs, with_channels
 
 __all__ = ["RecoveryRun", "RecoveryStudy"]
 

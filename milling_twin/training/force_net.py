@@ -1,17 +1,17 @@
 """Training, export and fine-tuning of the force net (models/force_net.py) with torch (the ``train`` extra).
 
-    .venv/bin/python -m models.force_net_train train [--quick] [--out FILE] [--report FILE]
-    .venv/bin/python -m models.force_net_train finetune [--data DIR] [--out DIR]
-    .venv/bin/python -m models.force_net_train header      # default_weights.h from resources/weights.bin
+    .venv/bin/python -m milling_twin.training.force_net train [--quick] [--out FILE] [--report FILE]
+    .venv/bin/python -m milling_twin.training.force_net finetune [--data DIR] [--out DIR]
+    .venv/bin/python -m milling_twin.training.force_net header      # default_weights.h from resources/weights.bin
 
 ``train`` regenerates the committed network ``fmus/forcenet/resources/weights.bin`` (and the FMU's built-in
 copy ``fmus/forcenet/default_weights.h``) reproducibly: fixed seeds, deterministic algorithms, one thread
 (bit-identical weights on the same machine and torch version; 106 s on the 2-core development machine).
 
-**Training data** (:func:`make_dataset`): cutting conditions sampled from :data:`models.force_net.DOMAIN`
+**Training data** (:func:`make_dataset`): cutting conditions sampled from :data:`milling_twin.models.force_net.DOMAIN`
 (flutes, tool diameter, helix, feed per tooth, feed direction, axial depth, radial engagement as slotting, up- or
 down-milling, spindle speed) and, per condition, tool angles theta0; the targets are the forces on the tool
-``Fx, Fy, Fz`` of the mechanistic model (``models.cutting_force.CUTTING_FORCE`` with its default Al7075
+``Fx, Fy, Fz`` of the mechanistic model (``milling_twin.models.cutting_force.CUTTING_FORCE`` with its default Al7075
 coefficients, no runout or vibration) plus Gaussian noise of ``NOISE`` times the condition's RMS force per
 axis. The network is trained through the integration over the edge (what a dynamometer measures), never on
 element loads: the same loss fine-tunes it on recorded forces. Held-out conditions are drawn separately
@@ -20,12 +20,12 @@ element loads: the same loss fine-tunes it on recorded forces. Held-out conditio
 **Fine-tuning on recorded forces** (:func:`finetune`): the slot-milling recordings (read from ``--data``,
 ``$MILLING_TWIN_SLOT_DATA`` or ``../shared/data/slot_milling_forces``; never copied into the repository) are
 folded into one mean waveform per revolution, their phase aligned with the network's prediction
-(``orchestrator.validation.slot_milling.align``), and the network is fine-tuned on those waveforms and
+(``milling_twin.orchestrator.validation.slot_milling.align``), and the network is fine-tuned on those waveforms and
 their means with BatchNorm frozen, a small learning rate and an L2 pull towards the pretrained weights
 (:func:`finetune_on`). Leave-one-out: for
 each measured feed a network fine-tuned on the four others predicts it; the errors are written to
 ``<out>/finetune.json`` with the weights (``finetuned_without_f<feed>.bin``, ``finetuned_all.bin``), which
-``python -m orchestrator.validation.slot_milling --scenario scenarios/slot_milling_forcenet.toml
+``python -m milling_twin.orchestrator.validation.slot_milling --scenario scenarios/slot_milling_forcenet.toml
 --finetuned <out>`` runs through the FMU.
 """
 from __future__ import annotations
@@ -43,8 +43,9 @@ import numpy as np
 import torch
 from torch import nn
 
-from models import force_net as fn
-from models.cutting_force import AL7075_CARBIDE, CUTTING_FORCE, TWO_PI
+from milling_twin import datasets
+from milling_twin.models import force_net as fn
+from milling_twin.models.cutting_force import AL7075_CARBIDE, CUTTING_FORCE, TWO_PI
 
 SEED = 20240605
 NOISE = 0.02  # Gaussian noise on the training forces, times the condition's RMS force per axis
@@ -300,7 +301,7 @@ def _recorded_targets(net: ForceNetModule, recording, tool: dict) -> tuple[dict,
     """The recording's mean waveform per revolution (model axes), at the tool angles its phase takes when
     aligned with the network's prediction (orchestrator.validation.slot_milling.align, the comparison of the
     validation); returns (element arrays at those angles, targets points x 3)."""
-    from orchestrator.validation import slot_milling as sm
+    from milling_twin.orchestrator.validation import slot_milling as sm
 
     rec_wave, _, _ = sm.recorded_waveform(recording)
     fine = np.arange(sm.FINE) * TWO_PI / sm.FINE
@@ -358,7 +359,7 @@ def slot_tool(scenario_path: Path | None = None) -> dict:
     """The tool of scenarios/slot_milling.toml (n_flutes, diameter, helix), read without the FMUs."""
     import tomllib
 
-    from models.units import conversion_factor
+    from milling_twin.models.units import conversion_factor
 
     path = scenario_path or fn.REPO / "scenarios" / "slot_milling_forcenet.toml"
     parameters = tomllib.loads(path.read_text())["fmus"]["force"]["parameters"]
@@ -378,10 +379,10 @@ def mean_slot_prediction(weights: fn.Weights, recording, tool: dict, points: int
 
 def finetune(data: Path, out: Path, weights: fn.Weights | None = None, log=print, **options) -> dict:
     """Leave-one-feed-out fine-tuning on the slot-milling recordings; writes weights and finetune.json."""
-    from orchestrator.validation import slot_milling as sm
+    from milling_twin.orchestrator.validation import slot_milling as sm
 
     weights = weights or fn.default_weights()
-    recordings = sm.read_recordings(data)
+    recordings = datasets.read_recordings(data)
     tool = slot_tool()
     out.mkdir(parents=True, exist_ok=True)
     started = time.perf_counter()
@@ -418,7 +419,7 @@ def write_default(weights: fn.Weights, path: Path = fn.WEIGHTS_FILE, header: Pat
 
 
 def main(argv: list[str] | None = None) -> int:
-    parser = argparse.ArgumentParser(prog="python -m models.force_net_train", description=__doc__.splitlines()[0])
+    parser = argparse.ArgumentParser(prog="python -m milling_twin.training.force_net", description=__doc__.splitlines()[0])
     sub = parser.add_subparsers(dest="command", required=True)
     p_train = sub.add_parser("train", help="train on the mechanistic model and export the weights")
     p_train.add_argument("--quick", action="store_true", help="a short run (tests)")
@@ -434,11 +435,11 @@ def main(argv: list[str] | None = None) -> int:
         fn.DEFAULT_WEIGHTS_HEADER.write_text(fn.weights_header(fn.WEIGHTS_FILE.read_bytes()))
         return 0
     if args.command == "finetune":
-        from orchestrator.validation import slot_milling as sm
+        from milling_twin.orchestrator.validation import slot_milling as sm
 
         try:
-            data = sm.data_dir(args.data)
-        except sm.DataMissing as exc:
+            data = datasets.data_dir(args.data)
+        except datasets.DataMissing as exc:
             print(f"error: {exc}", file=sys.stderr)
             return 2
         finetune(data, args.out)

@@ -1,11 +1,11 @@
 """The README figure of the force net in slot milling (no recorded data in it: only errors and scores).
 
-    .venv/bin/python -m models.force_net_figure [--runs runs] [--fmu-dir build/fmus] [--out scenarios/figures/forcenet_slot_milling.png]
+    .venv/bin/python -m milling_twin.training.force_net_figure [--runs runs] [--fmu-dir build/fmus] [--out scenarios/figures/forcenet_slot_milling.png]
 
 Top: ``scenarios/slot_milling.toml`` and ``scenarios/slot_milling_forcenet.toml`` (the one-line swap) simulated
 at 900 mm/min, forces over one revolution. Below, per recorded axis against the feed per tooth: the relative
 error of the mean force and the waveform r^2 of the slot-milling validation (``runs/slot_milling/`` and
-``runs/slot_milling_forcenet/slot_milling.json``, written by ``python -m orchestrator.validation.slot_milling``
+``runs/slot_milling_forcenet/slot_milling.json``, written by ``python -m milling_twin.orchestrator.validation.slot_milling``
 without and with ``--scenario scenarios/slot_milling_forcenet.toml --finetuned runs/forcenet_finetune``).
 The recordings themselves have no licence to redistribute and are not drawn.
 """
@@ -20,7 +20,7 @@ from pathlib import Path
 import numpy as np
 from matplotlib.figure import Figure
 
-REPO = Path(__file__).resolve().parents[1]
+REPO = Path(__file__).resolve().parents[2]
 AXES = ("Fx", "Fy", "Fz")  # recorded axes (= simulated Fy, Fx, Fz)
 SERIES = (  # (validation, set, label, style)
     ("slot_milling", "prior", "CuttingForce, literature coefficients", dict(color="tab:orange", marker="s", ls="--")),
@@ -34,9 +34,9 @@ SERIES = (  # (validation, set, label, style)
 
 
 def simulate_both(fmu_dir: Path) -> dict:
-    from orchestrator.master import run
-    from orchestrator.results import load_results
-    from orchestrator.scenario import load_scenario
+    from milling_twin.orchestrator.master import run
+    from milling_twin.orchestrator.results import load_results
+    from milling_twin.orchestrator.scenario import load_scenario
 
     out = {}
     with tempfile.TemporaryDirectory() as tmp:
@@ -94,7 +94,7 @@ def figure(runs: Path, fmu_dir: Path, path: Path) -> Path:
 
 
 def main(argv: list[str] | None = None) -> int:
-    parser = argparse.ArgumentParser(prog="python -m models.force_net_figure", description=__doc__.splitlines()[0])
+    parser = argparse.ArgumentParser(prog="python -m milling_twin.training.force_net_figure", description=__doc__.splitlines()[0])
     parser.add_argument("--runs", type=Path, default=REPO / "runs")
     parser.add_argument("--fmu-dir", type=Path, default=REPO / "build" / "fmus")
     parser.add_argument("--out", type=Path, default=REPO / "scenarios" / "figures" / "forcenet_slot_milling.png")

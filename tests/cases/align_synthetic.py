@@ -18,8 +18,8 @@ import pandas as pd
 from scipy.interpolate import PchipInterpolator
 from scipy.ndimage import gaussian_filter1d
 
-from orchestrator.align.errors import AlignmentError
-from orchestrator.align.trajectory import Trajectory
+from milling_twin.orchestrator.align.errors import AlignmentError
+from milling_twin.orchestrator.align.trajectory import Trajectory
 
 __all__ = ["Recording", "Warp", "concatenate_paths", "make_recording", "path_from_umich",
            "quantize_significant", "random_warp", "umich_row_times"]

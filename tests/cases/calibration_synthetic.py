@@ -6,12 +6,12 @@ recovery tests and benchmarks, and the bundled hammer-impulse recording.
 * :func:`with_channels`: a copy of a recording with some channels replaced (noisy truth).
 * :func:`write_power_case`: a small SpindlePower + MrrEstimator scenario on generated inputs that vary
   speed and material removal rate enough to identify all five power parameters, with its spec.
-* ``python -m orchestrator.calibrate.synthetic slot [FILE]`` regenerates
+* ``python -m cases.calibration_synthetic slot [FILE]`` regenerates
   ``scenarios/calibration/data/slot_milling_synthetic.csv``: the forces on the tool (Fx, Fy, Fz, N, 10 kHz)
   that the CuttingForce FMU gives in the slot of ``scenarios/slot_milling.toml`` (900 mm/min) with the
   coefficients :data:`SLOT_TRUTH`, plus Gaussian noise of :data:`SLOT_NOISE` N (seed 11): the data of the
   generic spec ``slot_forces_synthetic.toml``, which fits the coefficients through the FMU.
-* ``python -m orchestrator.calibrate.synthetic impulse [FILE]`` regenerates
+* ``python -m cases.calibration_synthetic impulse [FILE]`` regenerates
   ``scenarios/calibration/data/impulse_hammer.csv``: a half-sine hammer impulse on the tool tip in x
   and the tip acceleration the ToolVibration FMU gives for a 850 Hz, 2 % damping, 1.0e6 N/m mode
   (the FMU's defaults are 922 Hz, 1.1 %, 1.34e6 N/m), with Gaussian noise of 1 % of the peak
@@ -28,10 +28,10 @@ from pathlib import Path
 
 import numpy as np
 
-from orchestrator.master import run
-from orchestrator.recorded import RecordedData
-from orchestrator.results import load_results
-from orchestrator.scenario import Scenario, load_scenario, with_values
+from milling_twin.orchestrator.master import run
+from milling_twin.orchestrator.recorded import RecordedData
+from milling_twin.orchestrator.results import load_results
+from milling_twin.orchestrator.scenario import Scenario, load_scenario, with_values
 
 __all__ = ["IMPULSE_TRUTH", "POWER_TRUTH", "SLOT_TRUTH", "TWO_FMU_CASE", "edited", "impulse_force",
            "load_scenario_without_data", "truth_outputs", "with_channels",
@@ -296,7 +296,7 @@ def write_power_case(folder: Path, rows: int = 400, fmu_dir: Path | None = None,
 
 
 def main(argv: list[str] | None = None) -> int:
-    parser = argparse.ArgumentParser(prog="python -m orchestrator.calibrate.synthetic", description=__doc__.splitlines()[0])
+    parser = argparse.ArgumentParser(prog="python -m cases.calibration_synthetic", description=__doc__.splitlines()[0])
     parser.add_argument("what", choices=("impulse", "slot"))
     parser.add_argument("file", nargs="?", type=Path, default=None)
     parser.add_argument("--fmu-dir", type=Path, default=REPO / "build" / "fmus")

@@ -20,7 +20,7 @@ as in the method, full-batch gradient descent with momentum (learning rate 0.5, 
 squared error over centres, output weights and bias (targets standardised, widths fixed at 1.5); and, as an
 improvement, the output weights and bias refitted in closed form (linear least squares, centres fixed).
 
-    .venv/bin/python -m models.rbf_predictor scenarios/nurbs/butterfly.nc --param start_x=0.054493 \\
+    .venv/bin/python -m milling_twin.training.rbf scenarios/nurbs/butterfly.nc --param start_x=0.054493 \\
         --param start_y=0.052139 --param acceleration=1 --param jerk=100 ... (the benchmark's limits) \\
         --out scenarios/nurbs/butterfly_rbf_weights.toml
 
@@ -37,7 +37,7 @@ from typing import Mapping, Sequence
 
 import numpy as np
 
-from models import interpolator as ip
+from milling_twin.models import interpolator as ip
 
 LEARNING_RATE = 0.5
 MOMENTUM = 0.5
@@ -176,7 +176,7 @@ def load_weights(path: Path) -> dict[str, float]:
 
 
 def write_weights(path: Path, net: Network, report: Mapping[str, float], source: str) -> None:
-    lines = [f"# RBF predictor weights for the Interpolator FMU (method 3), trained by models/rbf_predictor.py",
+    lines = [f"# RBF predictor weights for the Interpolator FMU (method 3), trained by milling_twin/training/rbf.py",
              f"# on {source}: {int(report['samples'])} steps; relative error of the base step (rms) "
              f"{report['target_rms']:.3e}, after the network: gradient descent {report['rms_gradient_descent']:.3e}, "
              f"least squares {report['rms_least_squares']:.3e}.",

@@ -19,7 +19,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from orchestrator.align.spatial import ProbeData
+from milling_twin.orchestrator.align.spatial import ProbeData
 
 __all__ = ["Part", "make_ring", "make_wall"]
 

@@ -1,0 +1,1 @@
+from milling_twin.orchestrator.cli import main  # noqa: F401

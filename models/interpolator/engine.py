@@ -63,7 +63,7 @@ METHOD_TAYLOR1, METHOD_TAYLOR2, METHOD_RBF, METHOD_CORRECTOR = 1, 2, 3, 4
 METHOD_NAMES = {1: "taylor1", 2: "taylor2", 3: "rbf", 4: "corrector"}
 OFFSET_NAMES = ("g54", "g55", "g56", "g57", "g58", "g59")
 RBF_HIDDEN, RBF_INPUTS = 5, 4
-RESOURCE_PROGRAM = FilePath(__file__).resolve().parents[1] / "fmus" / "interpolator" / "resources" / "program.nc"
+RESOURCE_PROGRAM = FilePath(__file__).resolve().parents[2] / "fmus" / "interpolator" / "resources" / "program.nc"
 
 # Default RBF network: trained by milling_twin/training/rbf.py on the butterfly curve of
 # scenarios/nurbs/ (F 100 mm/s, A 1000 mm/s2, J 1e5 mm/s3, 1 um, 1 ms); rewritten by

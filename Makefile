@@ -6,7 +6,7 @@ BUILD := build
 VENV_PYTHON := $(abspath $(VENV))/bin/python
 JOBS ?= 2
 
-.PHONY: setup build demo test test-sanitize clean fuzz fuzz-tools
+.PHONY: setup configure fmus build demo test test-sanitize clean fuzz fuzz-tools
 
 # Reinstalled only when the dependency pins change.
 $(VENV)/.installed: pyproject.toml
@@ -23,16 +23,26 @@ $(VENV)/.installed-train: $(VENV)/.installed
 
 setup: $(VENV)/.installed
 
-build: setup
+configure: setup
 	cmake -S . -B $(BUILD) -DPython3_EXECUTABLE=$(VENV_PYTHON) -DCMAKE_BUILD_TYPE=RelWithDebInfo
+
+# What an importer loads and the orchestrator runs: every FMU (FMI 2 and 3) and the stepper library.
+fmus: configure
+	cmake --build $(BUILD) -j $(JOBS) --target fmu_binaries
+
+# Everything, also the C lifecycle tests and the fuzz-corpus replays that ctest runs.
+build: configure
 	cmake --build $(BUILD) -j $(JOBS)
 
-# simulate -> align -> calibrate -> re-simulate -> report on the bundled UMich run, then the calibrated
-# scenario (which applies the written parameter set by name) through the plain run command.
-demo: build
-	$(VENV_PYTHON) -m milling_twin.orchestrator run scenarios/umich_power.toml --fmu-dir $(BUILD)/fmus --out runs --no-progress
-	$(VENV_PYTHON) -m milling_twin.orchestrator calibrate scenarios/calibration/umich_power.toml --fmu-dir $(BUILD)/fmus --out runs --no-progress
-	$(VENV_PYTHON) -m milling_twin.orchestrator run scenarios/calibration/umich_power_calibrated.toml --fmu-dir $(BUILD)/fmus --out runs --no-progress
+# simulate -> align -> calibrate -> re-simulate -> report on the bundled UMich run, then the calibrated scenario
+# with the parameter set just written (under runs/; the committed set changes only with calibrate --write-set).
+# Builds only what it runs (`make fmus`), not the C test binaries.
+MILLING_TWIN := $(abspath $(VENV))/bin/milling-twin
+demo: fmus
+	$(MILLING_TWIN) run scenarios/umich_power.toml --fmu-dir $(BUILD)/fmus --out runs --no-progress
+	$(MILLING_TWIN) calibrate scenarios/calibration/umich_power.toml --fmu-dir $(BUILD)/fmus --out runs --no-progress
+	$(MILLING_TWIN) run scenarios/calibration/umich_power_calibrated.toml --fmu-dir $(BUILD)/fmus --out runs \
+	  --parameter-set runs/calibration/umich_power/umich_power.params.toml --no-progress
 
 # clang for the short libFuzzer runs of tests/test_fuzz.py: installed when missing and we are root
 # (CI); otherwise that run is skipped with its reason and the corpus replay in ctest still runs.

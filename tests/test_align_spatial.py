@@ -8,7 +8,11 @@ import pytest
 from scipy.spatial.transform import Rotation
 
 from milling_twin.orchestrator.align import AlignmentError, ProbeData, compensate_wall, work_offset_gcode
-from milling_twin.orchestrator.align.__main__ import main as align_cli
+from milling_twin.cli import main
+
+
+def align_cli(args: list[str]) -> int:
+    return main(["align", *args])
 from milling_twin.orchestrator.align.icp import icp
 from cases.align_parts import make_ring, make_wall
 from milling_twin.orchestrator.align.shepard import shepard
@@ -145,5 +149,5 @@ def test_cli_spatial(tmp_path, capsys):
     assert align_cli(base + ["--threshold", "0.001"]) == 3
     assert "registration rejected" in capsys.readouterr().err
     assert align_cli(base[:2] + [str(tmp_path / "none.csv")] + base[3:] +
-                     ["--threshold", "0.02"]) == 1
+                     ["--threshold", "0.02"]) == 2  # bad input: exit 2, as in every subcommand
     assert "none.csv: file not found" in capsys.readouterr().err

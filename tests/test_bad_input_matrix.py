@@ -19,7 +19,7 @@ from milling_twin.models import MODELS
 from milling_twin.orchestrator.calibrate import CalibrationSpecError, load_spec
 from milling_twin.orchestrator.calibrate.scenario_fit import prepare
 from cases.calibration_synthetic import write_power_case
-from milling_twin.orchestrator.cli import main
+from milling_twin.cli import main
 from milling_twin.orchestrator.scenario import ScenarioError, load_scenario
 
 README = REPO_ROOT / "README.md"

@@ -9,6 +9,7 @@ import numpy as np
 import pytest
 
 from fmu_helpers import fmu_dir, repo_root
+from milling_twin.cli import main
 from milling_twin.models.stability import Mode, stability_lobes
 from milling_twin.orchestrator.scenario import load_scenario
 from milling_twin.orchestrator.validation import chatter
@@ -26,7 +27,8 @@ def test_analytic_limit_uses_the_scenarios_coefficients_and_modes() -> None:
 def test_one_speed_bisection_brackets_the_analytic_limit(tmp_path: Path) -> None:
     """6000 rpm, 3 bisection steps: stable at half the limit, chatter at twice, and the simulated
     limit within 10 % of the analytic one (-4.6 % with 8 steps)."""
-    assert chatter.main(["--speeds", "6000", "--iterations", "3", "--out", str(tmp_path)]) == 0
+    assert main(["validate", "chatter", "--speeds", "6000", "--iterations", "3", "--out", str(tmp_path),
+                 "--fmu-dir", str(fmu_dir())]) == 0
     report = json.loads((tmp_path / "chatter" / "chatter.json").read_text())
     (limit,) = report["limits"]
     low, high = limit["bracket"]

@@ -11,7 +11,7 @@ import numpy as np
 import pytest
 
 from conftest import REPO_ROOT
-from milling_twin.orchestrator.cli import main
+from milling_twin.cli import main
 from milling_twin.orchestrator.results import load_results, read_run_info
 
 PI = math.pi

@@ -18,7 +18,7 @@ import pytest
 
 from conftest import LONG_TOML, REPO_ROOT
 from milling_twin.orchestrator import fastpath, master
-from milling_twin.orchestrator.cli import main
+from milling_twin.cli import main
 from milling_twin.orchestrator.master import SimulationError, run
 from milling_twin.orchestrator.results import load_results, read_run_info
 from milling_twin.orchestrator.scenario import load_scenario, with_values

@@ -560,12 +560,12 @@ def test_slot_milling_validation_runs_the_force_net(literature_recordings: Path,
 
 
 def test_finetuned_validation_needs_the_weights(literature_recordings: Path, tmp_path: Path) -> None:
-    from milling_twin.orchestrator.validation import slot_milling as sm
+    from milling_twin.cli import main
 
     fmu_path(3)
-    assert sm.main(["--data", str(literature_recordings), "--scenario",
-                    str(REPO / "scenarios" / "slot_milling_forcenet.toml"), "--finetuned", str(tmp_path / "none"),
-                    "--out", str(tmp_path / "out"), "--fmu-dir", str(fmu_dir())]) == 2
+    assert main(["validate", "slot-milling", "--data", str(literature_recordings), "--scenario",
+                 str(REPO / "scenarios" / "slot_milling_forcenet.toml"), "--finetuned", str(tmp_path / "none"),
+                 "--out", str(tmp_path / "out"), "--fmu-dir", str(fmu_dir())]) == 2
 
 
 REAL_DATA = Path(__import__("os").environ.get("MILLING_TWIN_SLOT_DATA")

@@ -11,6 +11,7 @@ import pytest
 
 from fmu_helpers import fmu_dir, require_fmu
 from milling_twin import datasets
+from milling_twin.cli import main
 from milling_twin.models.cutting_force import CUTTING_FORCE
 from milling_twin.orchestrator.validation import slot_milling as sm
 
@@ -75,7 +76,7 @@ def test_recovers_the_synthetic_tool(synthetic: Path, tmp_path: Path) -> None:
 def test_missing_data_says_where_to_put_it(tmp_path: Path, monkeypatch, capsys) -> None:
     monkeypatch.delenv(datasets.DATA_ENV, raising=False)
     missing = tmp_path / "nowhere"
-    assert sm.main(["--data", str(missing), "--out", str(tmp_path / "out")]) == 2
+    assert main(["validate", "slot-milling", "--data", str(missing), "--out", str(tmp_path / "out")]) == 2
     message = capsys.readouterr().err
     for part in (f"no slot-milling recordings in {missing} (from --data)", str(datasets.DEFAULT_DATA), "--data DIR",
                  f"{datasets.DATA_ENV}=DIR", "leekunhwee/ForceCalculation", "never copy them into the repository"):

@@ -34,7 +34,6 @@ import argparse
 import json
 import math
 import os
-import sys
 import time
 from dataclasses import dataclass
 from pathlib import Path
@@ -45,7 +44,7 @@ from torch import nn
 
 from milling_twin import datasets
 from milling_twin.models import force_net as fn
-from milling_twin.models.cutting_force import AL7075_CARBIDE, CUTTING_FORCE, TWO_PI
+from milling_twin.models.cutting_force import AL7075_CARBIDE, TWO_PI
 
 SEED = 20240605
 NOISE = 0.02  # Gaussian noise on the training forces, times the condition's RMS force per axis
@@ -418,46 +417,30 @@ def write_default(weights: fn.Weights, path: Path = fn.WEIGHTS_FILE, header: Pat
     header.write_text(fn.weights_header(path.read_bytes()))
 
 
-def main(argv: list[str] | None = None) -> int:
-    parser = argparse.ArgumentParser(prog="python -m milling_twin.training.force_net", description=__doc__.splitlines()[0])
-    sub = parser.add_subparsers(dest="command", required=True)
-    p_train = sub.add_parser("train", help="train on the mechanistic model and export the weights")
-    p_train.add_argument("--quick", action="store_true", help="a short run (tests)")
-    p_train.add_argument("--out", type=Path, default=fn.WEIGHTS_FILE,
-                         help=f"weights file (default {fn.WEIGHTS_FILE}, which also rewrites default_weights.h)")
-    p_train.add_argument("--report", type=Path, default=fn.REPO / "runs" / "forcenet" / "train_report.json")
-    p_fine = sub.add_parser("finetune", help="leave-one-feed-out fine-tuning on the slot-milling recordings")
-    p_fine.add_argument("--data", type=Path)
-    p_fine.add_argument("--out", type=Path, default=fn.REPO / "runs" / "forcenet_finetune")
-    sub.add_parser("header", help="write fmus/forcenet/default_weights.h from resources/weights.bin")
-    args = parser.parse_args(argv)
-    if args.command == "header":
+def train_command(args: argparse.Namespace) -> int:
+    """``milling-twin train forcenet``: train, export and install the weights (or only rewrite the header)."""
+    os.environ.setdefault("OMP_NUM_THREADS", "2")
+    if args.header_only:
         fn.DEFAULT_WEIGHTS_HEADER.write_text(fn.weights_header(fn.WEIGHTS_FILE.read_bytes()))
+        print(f"wrote {fn.DEFAULT_WEIGHTS_HEADER}")
         return 0
-    if args.command == "finetune":
-        from milling_twin.orchestrator.validation import slot_milling as sm
-
-        try:
-            data = datasets.data_dir(args.data)
-        except datasets.DataMissing as exc:
-            print(f"error: {exc}", file=sys.stderr)
-            return 2
-        finetune(data, args.out)
-        print(f"weights and finetune.json in {args.out}")
-        return 0
+    out = args.out or fn.WEIGHTS_FILE
     net, report = train(QUICK if args.quick else Config())
     weights = export(net)
-    if args.out.resolve() == fn.WEIGHTS_FILE.resolve():
+    if out.resolve() == fn.WEIGHTS_FILE.resolve():
         write_default(weights)
     else:
-        fn.write_weights(weights, args.out)
+        fn.write_weights(weights, out)
     args.report.parent.mkdir(parents=True, exist_ok=True)
     args.report.write_text(json.dumps(report, indent=2))
     print(json.dumps({k: report[k] for k in ("held_out_r2", "held_out_rms_error_relative", "wall_seconds")}))
-    print(f"weights: {args.out}; report: {args.report}")
+    print(f"weights: {out}; report: {args.report}")
     return 0
 
 
-if __name__ == "__main__":
+def finetune_command(args: argparse.Namespace) -> int:
+    """``milling-twin train forcenet-finetune``: leave-one-feed-out fine-tuning on the slot recordings."""
     os.environ.setdefault("OMP_NUM_THREADS", "2")
-    sys.exit(main())
+    finetune(datasets.data_dir(args.data), args.out)
+    print(f"weights and finetune.json in {args.out}")
+    return 0

@@ -1,6 +1,6 @@
 """The README figure of the force net in slot milling (no recorded data in it: only errors and scores).
 
-    .venv/bin/python -m milling_twin.training.force_net_figure [--runs runs] [--fmu-dir build/fmus] [--out scenarios/figures/forcenet_slot_milling.png]
+    milling-twin validate forcenet-figure [--runs runs] [--fmu-dir build/fmus] [--out scenarios/figures/forcenet_slot_milling.png]
 
 Top: ``scenarios/slot_milling.toml`` and ``scenarios/slot_milling_forcenet.toml`` (the one-line swap) simulated
 at 900 mm/min, forces over one revolution. Below, per recorded axis against the feed per tooth: the relative
@@ -13,7 +13,6 @@ from __future__ import annotations
 
 import argparse
 import json
-import math
 import tempfile
 from pathlib import Path
 
@@ -93,15 +92,7 @@ def figure(runs: Path, fmu_dir: Path, path: Path) -> Path:
     return path
 
 
-def main(argv: list[str] | None = None) -> int:
-    parser = argparse.ArgumentParser(prog="python -m milling_twin.training.force_net_figure", description=__doc__.splitlines()[0])
-    parser.add_argument("--runs", type=Path, default=REPO / "runs")
-    parser.add_argument("--fmu-dir", type=Path, default=REPO / "build" / "fmus")
-    parser.add_argument("--out", type=Path, default=REPO / "scenarios" / "figures" / "forcenet_slot_milling.png")
-    args = parser.parse_args(argv)
+def command(args: argparse.Namespace) -> int:
+    """``milling-twin validate forcenet-figure``."""
     print(figure(args.runs, args.fmu_dir, args.out))
     return 0
-
-
-if __name__ == "__main__":
-    raise SystemExit(main())

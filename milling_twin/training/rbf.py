@@ -1,6 +1,6 @@
 """Training of the interpolator's RBF-network parameter predictor (method 3 of the Interpolator FMU).
 
-The predictor (models/interpolator.py ``predict``, fmus/interpolator/param_update.c) computes, for the next
+The predictor (models/interpolator/param_update.py ``predict``, fmus/interpolator/param_update.c) computes, for the next
 scheduled step L along a NURBS block,
 
     u(i+1) = u(i) + D * (1 + N(x)),
@@ -20,7 +20,7 @@ as in the method, full-batch gradient descent with momentum (learning rate 0.5, 
 squared error over centres, output weights and bias (targets standardised, widths fixed at 1.5); and, as an
 improvement, the output weights and bias refitted in closed form (linear least squares, centres fixed).
 
-    .venv/bin/python -m milling_twin.training.rbf scenarios/nurbs/butterfly.nc --param start_x=0.054493 \\
+    milling-twin train rbf scenarios/nurbs/butterfly.nc --param start_x=0.054493 \\
         --param start_y=0.052139 --param acceleration=1 --param jerk=100 ... (the benchmark's limits) \\
         --out scenarios/nurbs/butterfly_rbf_weights.toml
 
@@ -29,7 +29,6 @@ writes the weights as FMU parameters (a TOML table for a scenario's [fmus.<name>
 from __future__ import annotations
 
 import argparse
-import sys
 import tomllib
 from dataclasses import dataclass
 from pathlib import Path
@@ -176,7 +175,7 @@ def load_weights(path: Path) -> dict[str, float]:
 
 
 def write_weights(path: Path, net: Network, report: Mapping[str, float], source: str) -> None:
-    lines = [f"# RBF predictor weights for the Interpolator FMU (method 3), trained by milling_twin/training/rbf.py",
+    lines = ["# RBF predictor weights for the Interpolator FMU (method 3), trained by milling_twin/training/rbf.py",
              f"# on {source}: {int(report['samples'])} steps; relative error of the base step (rms) "
              f"{report['target_rms']:.3e}, after the network: gradient descent {report['rms_gradient_descent']:.3e}, "
              f"least squares {report['rms_least_squares']:.3e}.",
@@ -185,25 +184,21 @@ def write_weights(path: Path, net: Network, report: Mapping[str, float], source:
     path.write_text("\n".join(lines) + "\n")
 
 
-def main(argv: list[str] | None = None) -> int:
-    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("program", type=Path, help="part program with the NURBS block(s) to train on")
-    parser.add_argument("--param", action="append", default=[], help="interpolator parameter name=value (SI)")
-    parser.add_argument("--out", type=Path, required=True, help="weights file (TOML) to write")
-    parser.add_argument("--epochs", type=int, default=EPOCHS)
-    args = parser.parse_args(argv)
+def command(args: argparse.Namespace) -> int:
+    """``milling-twin train rbf PROGRAM --param name=value ... --out FILE``."""
     params = {}
     for item in args.param:
-        name, value = item.split("=", 1)
-        params[name] = float(value)
+        name, sep, value = item.partition("=")
+        try:
+            params[name.strip()] = float(value)
+        except ValueError:
+            raise ValueError(f"--param {item!r}: expected NAME=VALUE with a number in SI units") from None
+        if not sep:
+            raise ValueError(f"--param {item!r}: expected NAME=VALUE")
     samples = collect(args.program.read_text(), params)
-    net, report = train(samples, args.epochs)
+    net, report = train(samples, args.epochs or EPOCHS)
     write_weights(args.out, net, report, args.program.name)
     for k, v in report.items():
         print(f"{k}: {v:.6g}")
     print(f"wrote {args.out}")
     return 0
-
-
-if __name__ == "__main__":
-    sys.exit(main())

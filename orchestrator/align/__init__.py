@@ -8,7 +8,7 @@ Spatial (wall-thickness compensation by work-offset shift): :func:`compensate_wa
 the design target surface to the measured part and computes the work offset, with the G-code
 to apply it.
 
-Command line: ``python -m milling_twin.orchestrator.align temporal|spatial ...``.
+Command line: ``milling-twin align temporal|spatial ...`` (handlers in :mod:`milling_twin.orchestrator.align.cli`).
 """
 from milling_twin.orchestrator.align.errors import AlignmentError
 from milling_twin.orchestrator.align.spatial import (Compensation, ProbeData, compensate_wall,

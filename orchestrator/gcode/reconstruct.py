@@ -31,7 +31,6 @@ from __future__ import annotations
 import argparse
 import hashlib
 import math
-import sys
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -378,18 +377,11 @@ def program_text(recon: Reconstruction) -> str:
     return "\n".join(lines) + "\n"
 
 
-def main(argv: list[str] | None = None) -> int:
-    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("recording", type=Path, help="recorded run (CSV with the UMich columns)")
-    parser.add_argument("-o", "--output", type=Path, required=True, help="part program to write")
-    args = parser.parse_args(argv)
+def command(args: argparse.Namespace) -> int:
+    """``milling-twin reconstruct RECORDING -o PROGRAM``."""
     recon = reconstruct(args.recording)
     args.output.write_text(recon.program())
     for name, value in recon.stats.items():
         print(f"{name}: {value:g}")
     print(f"wrote {args.output}")
     return 0
-
-
-if __name__ == "__main__":
-    sys.exit(main())

@@ -1,6 +1,6 @@
 """Chatter: the onset of regenerative chatter in the co-simulation against the analytic lobes.
 
-    .venv/bin/python -m milling_twin.orchestrator.validation.chatter [--speeds 6000 9000 ...] [--iterations 8]
+    milling-twin validate chatter [--speeds 6000 9000 ...] [--iterations 8]
         [--scenario scenarios/chatter.toml] [--fmu-dir build/fmus] [--out runs] [--figure PNG]
 
 The scenario (default ``scenarios/chatter.toml``: CuttingForce and ToolVibration in a loop,
@@ -20,7 +20,6 @@ from __future__ import annotations
 import argparse
 import json
 import math
-import sys
 import tempfile
 from dataclasses import asdict, dataclass
 from pathlib import Path
@@ -173,15 +172,10 @@ def plot(base: Scenario, cuts: list[Cut], limits: list[Limit], path: Path) -> No
     plt.close(fig)
 
 
-def main(argv: list[str] | None = None) -> int:
-    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("--speeds", type=float, nargs="+", default=list(DEFAULT_SPEEDS), help="spindle speeds, rpm")
-    parser.add_argument("--iterations", type=int, default=8, help="bisection steps per speed")
-    parser.add_argument("--scenario", type=Path, default=REPO / "scenarios" / "chatter.toml")
-    parser.add_argument("--fmu-dir", type=Path, default=REPO / "build" / "fmus")
-    parser.add_argument("--out", type=Path, default=Path("runs"))
-    parser.add_argument("--figure", type=Path, help="also write the plot here (e.g. for README)")
-    args = parser.parse_args(argv)
+def command(args: argparse.Namespace) -> int:
+    """``milling-twin validate chatter``."""
+    if args.speeds is None:
+        args.speeds = list(DEFAULT_SPEEDS)
 
     base = load_scenario(args.scenario, args.fmu_dir)
     analytic = analytic_limit(base, np.array(args.speeds))
@@ -210,7 +204,3 @@ def main(argv: list[str] | None = None) -> int:
     worst = max(abs(lim.relative_difference) for lim in limits)
     print(f"largest difference {100 * worst:.1f} % (target: within 10 %); results in {out}")
     return 0
-
-
-if __name__ == "__main__":
-    sys.exit(main())

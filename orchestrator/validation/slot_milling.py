@@ -1,6 +1,6 @@
 """Slot milling: the CuttingForce FMU against measured Kistler forces.
 
-    .venv/bin/python -m milling_twin.orchestrator.validation.slot_milling [--data DIR] [--scenario FILE]
+    milling-twin validate slot-milling [--data DIR] [--scenario FILE]
         [--fmu-dir DIR] [--out DIR]
 
 The data (five DynoWare exports, 6000 rpm, 2 flutes, 3 mm axial depth, full slot, feeds 300 ...
@@ -46,9 +46,7 @@ from __future__ import annotations
 import argparse
 import json
 import math
-import os
-import sys
-from dataclasses import dataclass, replace
+from dataclasses import replace
 from pathlib import Path
 from typing import Callable
 
@@ -58,15 +56,12 @@ from matplotlib.figure import Figure
 
 from milling_twin.models.cutting_force import CUTTING_FORCE, identify_slot_coefficients, mean_slot_forces
 from milling_twin.orchestrator.master import SimulationError, run
-from milling_twin.orchestrator.recorded import RecordedDataError
 from milling_twin.orchestrator.results import load_results
 from milling_twin.orchestrator.scenario import Scenario, ScenarioError, load_scenario
-from milling_twin.models.units import UnitError
-from milling_twin.datasets import DATA_ENV, DEFAULT_DATA, SOURCE, DataMissing, Recording, data_dir, read_recordings
+from milling_twin.datasets import SOURCE, Recording, data_dir, read_recordings
 
 REPO = Path(__file__).resolve().parents[2]
 DEFAULT_SCENARIO = REPO / "scenarios" / "slot_milling.toml"
-FMU_DIR_ENV = "MILLING_TWIN_FMU_DIR"
 INSTANCE = "force"  # the CuttingForce instance of the scenario
 # recorded column -> simulated output (model frame), see the module docstring
 AXES = {"Fx": "Fy", "Fy": "Fx", "Fz": "Fz"}
@@ -357,34 +352,11 @@ def summary(doc: dict) -> str:
     return "\n".join(lines)
 
 
-def main(argv: list[str] | None = None) -> int:
-    parser = argparse.ArgumentParser(prog="python -m milling_twin.orchestrator.validation.slot_milling",
-                                     description=__doc__.splitlines()[0])
-    parser.add_argument("--data", type=Path, help=f"folder of the recordings (default: ${DATA_ENV} or {DEFAULT_DATA})")
-    parser.add_argument("--scenario", type=Path, default=DEFAULT_SCENARIO)
-    parser.add_argument("--fmu-dir", type=Path, default=Path(os.environ.get(FMU_DIR_ENV, REPO / "build" / "fmus")))
-    parser.add_argument("--out", type=Path, default=REPO / "runs",
-                        help="results go to OUT/<scenario file name>/ (OUT/slot_milling/ by default)")
-    parser.add_argument("--finetuned", type=Path, help="ForceNet scenarios: folder of the left-out fine-tuned "
-                        "weights (python -m milling_twin.training.force_net finetune)")
-    args = parser.parse_args(argv)
-    try:
-        data = data_dir(args.data)
-        doc = validate(data, args.scenario, args.fmu_dir, args.out, args.finetuned)
-    except DataMissing as exc:
-        print(f"error: {exc}", file=sys.stderr)
-        return 2
-    except (ScenarioError, RecordedDataError, UnitError, ValueError) as exc:
-        print(f"error: {exc}", file=sys.stderr)
-        return 2
-    except SimulationError as exc:
-        print(f"error: {exc}", file=sys.stderr)
-        return 1
+def command(args: argparse.Namespace) -> int:
+    """``milling-twin validate slot-milling``."""
+    doc = validate(data_dir(args.data), args.scenario, args.fmu_dir, args.out, args.finetuned)
     print(summary(doc))
     folder = args.out / args.scenario.stem
-    print(f"results: {folder} ({', '.join(sorted(p.name for p in folder.glob('*.json')) + sorted(p.name for p in folder.glob('*.png')))})")
+    names = sorted(p.name for p in folder.glob("*.json")) + sorted(p.name for p in folder.glob("*.png"))
+    print(f"results: {folder} ({', '.join(names)})")
     return 0
-
-
-if __name__ == "__main__":
-    sys.exit(main())

@@ -1,0 +1,120 @@
+"""The Python API: one call to simulate a scenario, one to calibrate, one to load results.
+
+    import milling_twin as mt
+    results = mt.simulate("scenarios/umich_power.toml", overrides={"power.P_idle": {"value": 0.25, "unit": "kW"}})
+    results.frame["power.P_total"]            # SI (W); results.frame.attrs["display_units"]["power.P_total"] == "kW"
+    cal = mt.calibrate("scenarios/calibration/umich_power.toml", out="runs")
+
+The command line (``milling-twin run``, ``milling-twin calibrate``) is built on these functions.
+"""
+from __future__ import annotations
+
+import os
+import tempfile
+from collections.abc import Mapping, Sequence
+from dataclasses import dataclass
+from pathlib import Path
+from typing import TYPE_CHECKING, Any, Callable
+
+if TYPE_CHECKING:  # the heavy modules load when a function is called, not on `import milling_twin`
+    import pandas as pd
+
+    from milling_twin.orchestrator.calibrate.result import CalibrationResult
+    from milling_twin.orchestrator.master import RunResult
+    from milling_twin.orchestrator.report import Report
+    from milling_twin.orchestrator.scenario import Scenario
+
+__all__ = ["Results", "calibrate", "default_fmu_dir", "load_results", "load_scenario", "simulate"]
+
+FMU_DIR_ENV = "MILLING_TWIN_FMU_DIR"
+
+
+def default_fmu_dir() -> Path:
+    """$MILLING_TWIN_FMU_DIR, else build/fmus (relative to the working directory)."""
+    return Path(os.environ.get(FMU_DIR_ENV, "build/fmus"))
+
+
+@dataclass(frozen=True)
+class Results:
+    """A finished (or interrupted) run: its rows, how it ran, and the comparison with the recording."""
+
+    frame: pd.DataFrame  # one row per output time, SI; frame.attrs["units"], frame.attrs["display_units"]
+    run: RunResult  # status, steps, wall time, stepping path
+    scenario: Scenario  # as run (overrides and parameter sets applied)
+    report: Report | None  # recorded-vs-simulated comparisons, when the scenario has [[compare]]
+    run_dir: Path | None  # where the results are, None when they were kept in memory only
+
+    @property
+    def status(self) -> str:
+        return self.run.status
+
+
+def load_scenario(path: str | Path, fmu_dir: str | Path | None = None, *,
+                  parameter_sets: Sequence[str | Path] = (),
+                  overrides: Mapping[str, Any] | None = None) -> Scenario:
+    """A scenario file, checked; ``parameter_sets`` are applied after its own, then ``overrides``
+    (``{"instance.variable": value}``, a value in SI or ``{"value": v, "unit": "kW"}``)."""
+    from milling_twin.orchestrator.scenario import load_scenario as load, with_values
+
+    scenario = load(path, fmu_dir if fmu_dir is not None else default_fmu_dir(), parameter_sets=parameter_sets)
+    return with_values(scenario, overrides) if overrides else scenario
+
+
+def load_results(path: str | Path) -> pd.DataFrame:
+    """The rows of a run folder (also of a killed run: every completed chunk), with units in ``attrs``."""
+    from milling_twin.orchestrator.results import load_results as load
+
+    return load(path)
+
+
+def simulate(scenario: Scenario | str | Path, *, fmu_dir: str | Path | None = None,
+             overrides: Mapping[str, Any] | None = None, parameter_sets: Sequence[str | Path] = (),
+             out: str | Path | None = None, stepping: str = "auto", progress: bool = False,
+             fmi_call_logger: Callable[[str], None] | None = None) -> Results:
+    """Co-simulate a scenario (a file or a loaded :class:`Scenario`).
+
+    ``out``: results go to ``out/<scenario name>/`` (Parquet chunks, run.json, the report and its plots);
+    None keeps them in memory only. ``stepping``: "auto", "fast" or "python". ``fmi_call_logger`` receives
+    every FMI call (the python stepping loop runs). Raises ``SimulationError`` when an FMU call fails
+    (with ``out``, the rows so far are on disk) and ``ScenarioError`` for an invalid scenario or override.
+    """
+    from milling_twin.orchestrator.master import run
+    from milling_twin.orchestrator.scenario import with_values
+
+    if isinstance(scenario, (str, Path)):
+        scenario = load_scenario(scenario, fmu_dir, parameter_sets=parameter_sets, overrides=overrides)
+    else:
+        if parameter_sets:
+            raise ValueError("parameter_sets apply to a scenario file; pass its path, or use overrides")
+        if overrides:
+            scenario = with_values(scenario, overrides)
+    if out is None:
+        with tempfile.TemporaryDirectory(prefix="milling-twin-") as folder:
+            result = _run_and_report(run, scenario, Path(folder), stepping, progress, fmi_call_logger)
+            return Results(result[0], result[1], scenario, result[2], None)
+    frame, run_result, report = _run_and_report(run, scenario, Path(out), stepping, progress, fmi_call_logger)
+    return Results(frame, run_result, scenario, report, run_result.run_dir)
+
+
+def _run_and_report(run: Callable[..., RunResult], scenario: Scenario, out: Path, stepping: str, progress: bool,
+                    fmi_call_logger: Callable[[str], None] | None) -> tuple[pd.DataFrame, RunResult, Report | None]:
+    result = run(scenario, out, progress=progress, stepping=stepping, fmi_call_logger=fmi_call_logger)
+    frame = load_results(result.run_dir)
+    report = None
+    if scenario.compare and result.rows:
+        from milling_twin.orchestrator.report import write_report
+
+        report = write_report(scenario, result.run_dir, frame)
+    return frame, result, report
+
+
+def calibrate(spec: str | Path, *, fmu_dir: str | Path | None = None, out: str | Path = "runs",
+              overrides: Mapping[str, Any] | None = None, write_set: str | Path | None = None,
+              data: str | Path | None = None, progress: bool = False) -> CalibrationResult:
+    """Calibrate the parameters a spec names against its recording: results, the parameter set and the
+    report (HTML, Markdown) go to ``out/calibration/<name>/``; ``write_set`` also publishes the set there
+    (e.g. the committed file the calibrated scenario applies). ``overrides`` change the scenario first."""
+    from milling_twin.orchestrator.calibrate.run import calibrate as run_calibration
+
+    return run_calibration(spec, fmu_dir if fmu_dir is not None else default_fmu_dir(), out, data=data,
+                           progress=progress, write_set=write_set, overrides=overrides)

@@ -1,0 +1,76 @@
+"""Handlers of ``milling-twin run`` and ``milling-twin calibrate``: the API call, then a summary to read.
+
+What they raise is turned into the exit code and message by :data:`milling_twin.cli.EXIT_CODES`.
+"""
+from __future__ import annotations
+
+import argparse
+import logging
+from pathlib import Path
+
+from milling_twin import api
+from milling_twin.cli import overrides_of
+from milling_twin.models.units import conversion_factor
+
+_fmi_log = logging.getLogger("milling_twin.fmi")
+
+
+def run_summary(results: api.Results) -> str:
+    """What a run did and, per comparison, how far the simulation is from the recording (display units)."""
+    result, report = results.run, results.report
+    lines = [f"{result.status}: {result.steps} steps to t = {result.end_time:g} s "
+             f"({result.fmu_steps} FMU steps) in {result.wall_time:.3g} s, "
+             f"{result.steps_per_second:,.0f} steps/s; {result.rows} rows; "
+             + ("fast path" if result.stepping == "fast" else f"python path ({result.stepping_reason})")]
+    for c in report.comparisons if report else ():
+        s = 1.0 if c.unit == c.display_unit else conversion_factor(c.unit, c.display_unit)
+        rel = f"{100 * c.relative_rms:.1f} % of RMS recorded" if c.relative_rms is not None else "n/a"
+        lines.append(f"{c.simulated} vs {c.recorded} ({c.n_samples} samples): RMS error "
+                     f"{c.rms_error * s:.4g} {c.display_unit} ({rel}), mean |error| "
+                     f"{c.mean_abs_error * s:.4g}, max |error| {c.max_error * s:.4g}, "
+                     f"mean recorded {c.mean_recorded * s:.4g} {c.display_unit}")
+        lines.append(f"plot: {result.run_dir / c.plot}")
+    lines.append(f"results: {result.run_dir} (milling_twin.load_results)")
+    return "\n".join(lines)
+
+
+def run(args: argparse.Namespace) -> int:
+    scenario = api.load_scenario(args.scenario, args.fmu_dir, parameter_sets=args.parameter_set,
+                                 overrides=overrides_of(args))
+    run_dir = args.out / scenario.name
+    logger = None
+    if args.fmi_logging:
+        _fmi_log.setLevel(logging.DEBUG)
+        if not logging.getLogger().handlers:
+            logging.basicConfig()
+        logger = _fmi_log.info
+    try:
+        results = api.simulate(scenario, out=args.out, stepping=args.path, progress=not args.no_progress,
+                               fmi_call_logger=logger)
+    except (KeyboardInterrupt, _simulation_error()) as exc:
+        exc.add_note(f"results so far in {run_dir}")
+        raise
+    except OSError as exc:  # the results folder cannot be created or written (a file in the way, no space, ...)
+        raise OSError(f"cannot write the results to {run_dir}: {exc}") from exc
+    print(run_summary(results))
+    return 130 if results.status == "interrupted" else 0
+
+
+def _simulation_error() -> type[Exception]:
+    from milling_twin.orchestrator.master import SimulationError
+
+    return SimulationError
+
+
+def calibrate(args: argparse.Namespace) -> int:
+    from milling_twin.orchestrator.calibrate.report import summary_lines
+
+    result = api.calibrate(args.spec, fmu_dir=args.fmu_dir, out=args.out, data=args.data,
+                           overrides=overrides_of(args), write_set=args.write_set, progress=not args.no_progress)
+    print("stages: " + ", ".join(f"{name} {seconds:.2f} s" for name, seconds in result.timings.items()))
+    print("\n".join(summary_lines(result)))
+    print(f"parameter set: {result.parameter_set}")
+    if args.write_set:
+        print(f"published: {Path(args.write_set)}")
+    print(f"report: {result.report_html} (and {result.report_md.name})")
+    return 0

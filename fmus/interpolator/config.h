@@ -1,4 +1,4 @@
-/* Interpolator: variables are generated from models/interpolator.py (model_generated.h); every output is
+/* Interpolator: variables are generated from models/interpolator/ (model_generated.h); every output is
  * computed by the engine in interpolator.c from the part program parsed at initialization. The Python
  * reference of the same algorithm is models.interpolator.Interpolator; tests/test_interpolator*.py and the
  * generic FMU tests prove the two equal.

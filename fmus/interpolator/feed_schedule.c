@@ -1,5 +1,5 @@
-/* Feedrate schedule (see feed_schedule.h); the same operations in the same order as the Schedule section
- * of models/interpolator.py. */
+/* Feedrate schedule (see feed_schedule.h); the same operations in the same order as
+ * models/interpolator/schedule.py. */
 #include "feed_schedule.h"
 
 #include <math.h>

@@ -2,8 +2,8 @@
  * the program end at rest. Stations (nodes where the acceleration is zero) split the path into segments,
  * each a jerk-limited S-curve to a cruise velocity and another to the next station's velocity; station
  * velocities come from a backward pass over every cap and a forward pass from the start; nodes where a
- * segment would exceed the velocity limit become stations until none does. Mirrors the Schedule section of
- * models/interpolator.py. */
+ * segment would exceed the velocity limit become stations until none does. Mirrored by
+ * models/interpolator/schedule.py. */
 #ifndef FEED_SCHEDULE_H
 #define FEED_SCHEDULE_H
 

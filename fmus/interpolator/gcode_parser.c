@@ -1,4 +1,4 @@
-/* G-code parser: the subset documented in models/interpolator.py (Parser section), line by line, with the
+/* G-code parser: the subset documented in models/interpolator/parser.py, line by line, with the
  * same checks and the same arithmetic as that reference. Every malformed line is an error naming the line,
  * its text and what was expected; nothing is skipped. Bounded work per byte: safe on any input (fuzzed). */
 #include "gcode_parser.h"

@@ -1,5 +1,5 @@
 /* G-code parser of the interpolator: part program text -> moves (lines, arcs, NURBS pieces) in machine
- * coordinates (m), as documented in models/interpolator.py (the Python reference of this file). */
+ * coordinates (m), as documented in models/interpolator/parser.py (the Python reference of this file). */
 #ifndef GCODE_PARSER_H
 #define GCODE_PARSER_H
 

@@ -1,5 +1,5 @@
-/* The interpolator engine (see interpolator.h); the same operations in the same order as the Interpolator
- * section of models/interpolator.py. */
+/* The interpolator engine (see interpolator.h); the same operations in the same order as
+ * models/interpolator/engine.py. */
 #include "interpolator.h"
 
 #include <math.h>

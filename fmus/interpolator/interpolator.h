@@ -1,7 +1,7 @@
 /* The interpolator engine: part program text -> a flat array of doubles (the FMU's instance heap: moves,
  * curves, path nodes, schedule pieces) plus flat structs (layout, state), then one interpolation point per
- * tick. Used by the FMU (model.c) and by the standalone tools (benchmark driver, fuzz harness). Mirrors the
- * Interpolator section of models/interpolator.py. */
+ * tick. Used by the FMU (model.c) and by the standalone tools (benchmark driver, fuzz harness). Mirrored by
+ * models/interpolator/engine.py. */
 #ifndef INTERPOLATOR_H
 #define INTERPOLATOR_H
 

@@ -1,4 +1,4 @@
-/* NURBS evaluation (see nurbs.h); the same operations in the same order as models/interpolator.py. */
+/* NURBS evaluation (see nurbs.h); the same operations in the same order as models/interpolator/nurbs.py. */
 #include "nurbs.h"
 
 #include <math.h>

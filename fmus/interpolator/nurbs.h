@@ -1,6 +1,6 @@
 /* NURBS evaluation: knot span search, B-spline basis derivatives (Piegl & Tiller A2.3), rational point and
- * derivatives, Gauss-Legendre arc length, arc-length derivatives. Mirrors the NURBS section of
- * models/interpolator.py operation for operation. */
+ * derivatives, Gauss-Legendre arc length, arc-length derivatives. Mirrored by
+ * models/interpolator/nurbs.py operation for operation. */
 #ifndef NURBS_H
 #define NURBS_H
 

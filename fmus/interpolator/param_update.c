@@ -1,5 +1,5 @@
 /* NURBS parameter update (see param_update.h); the same operations in the same order as
- * models/interpolator.py. */
+ * models/interpolator/param_update.py. */
 #include "param_update.h"
 
 #include <math.h>

@@ -1,6 +1,6 @@
 /* NURBS parameter update: u(i+1) for a scheduled step length, by first- or second-order Taylor expansion,
- * the RBF-network predictor, or a predictor refined by Newton iterations on the chord length. Mirrors the
- * parameter-update section of models/interpolator.py. */
+ * the RBF-network predictor, or a predictor refined by Newton iterations on the chord length. Mirrored by
+ * models/interpolator/param_update.py. */
 #ifndef PARAM_UPDATE_H
 #define PARAM_UPDATE_H
 

@@ -1,5 +1,5 @@
-/* Path: nodes and velocity limits (see path.h); the same operations in the same order as the Path section
- * of models/interpolator.py. */
+/* Path: nodes and velocity limits (see path.h); the same operations in the same order as
+ * models/interpolator/path.py. */
 #include "path.h"
 
 #include <math.h>
@@ -384,7 +384,7 @@ int path_build(const GcProgram *program, const Limits *lim, const char *file, Pa
             vc = malloc(n * sizeof *vc);
             if (!vc) goto oom;
             for (i = 0; i < n; i++) {
-                /* the lowest of the neighbours and of every sample within one step (see models/interpolator.py) */
+                /* the lowest of the neighbours and of every sample within one step (see models/interpolator/path.py) */
                 double v = min2(min2(x->v[i > 0 ? i - 1 : 0], x->v[i]), x->v[i + 1 < n ? i + 1 : n - 1]);
                 double window = min2(x->v[i], lim->max_feed) * lim->period;
                 size_t j;

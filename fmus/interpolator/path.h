@@ -1,6 +1,6 @@
 /* The path as the feedrate schedule sees it: moves laid end to end along the arc length s, nodes along s
  * with their hard speed caps (chord error, centripetal acceleration, curvature jerk, axis shares,
- * junctions), intervals with their tangential limits. Mirrors the Path section of models/interpolator.py. */
+ * junctions), intervals with their tangential limits. Mirrored by models/interpolator/path.py. */
 #ifndef PATH_H
 #define PATH_H
 

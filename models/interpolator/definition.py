@@ -1,0 +1,146 @@
+"""The model definition ``INTERPOLATOR``: variables, units, ranges, defaults (the FMU's parameters and
+outputs; ``fmus/interpolator/model.c`` reads them through the generated ``model_generated.h``)."""
+from __future__ import annotations
+
+from milling_twin.models.definition import ModelDefinition, Variable
+from milling_twin.models.interpolator.param_update import RBF_HIDDEN, RBF_INPUTS
+from milling_twin.models.interpolator.parser import OFFSET_NAMES
+
+# Default RBF network: trained by milling_twin/training/rbf.py on the butterfly curve of
+# scenarios/nurbs/ (F 100 mm/s, A 1000 mm/s2, J 1e5 mm/s3, 1 um, 1 ms); rewritten by
+# `python -m milling_twin.training.rbf --write-defaults`.
+# BEGIN RBF DEFAULTS
+RBF_DEFAULTS: dict[str, float] = {
+    "rbf_width": 1.5,
+    "rbf_offset_1": 0.0, "rbf_offset_2": 0.0, "rbf_offset_3": 0.0, "rbf_offset_4": 0.0,
+    "rbf_scale_1": 1.0, "rbf_scale_2": 1.0, "rbf_scale_3": 1.0, "rbf_scale_4": 1.0,
+    **{f"rbf_center_{j}_{d}": 0.0 for j in range(1, 6) for d in range(1, 5)},
+    **{f"rbf_weight_{j}": 0.0 for j in range(1, 6)},
+    "rbf_bias": 0.0,
+}
+# END RBF DEFAULTS
+
+JERK_UNIT = ""  # m/s3: not yet in models/units.py (display units); documented in the descriptions
+
+
+def _variables() -> tuple[Variable, ...]:
+    fixed = "fixed"
+    v: list[Variable] = [
+        Variable("program", "String", "parameter",
+                 "Part program file (absolute path, or relative to the working directory); empty: "
+                 "resources/program.nc of the FMU", start="", variability=fixed),
+        Variable("period", "Float64", "parameter", "Interpolation period", unit="s", display_unit="ms",
+                 start=1e-3, min=1e-5, max=0.1, variability=fixed),
+        Variable("method", "Int32", "parameter",
+                 "NURBS parameter update: 1 first-order Taylor, 2 second-order Taylor, 3 RBF network, "
+                 "4 predictor-corrector (Newton on the chord length)", start=4, min=1, max=4, variability=fixed),
+        Variable("corrector_predictor", "Int32", "parameter",
+                 "Predictor refined by method 4: 1 first-order Taylor, 2 second-order Taylor, 3 RBF network",
+                 start=2, min=1, max=3, variability=fixed),
+        Variable("arc_length_feedback", "Boolean", "parameter",
+                 "NURBS steps aim at the scheduled arc length from the actual position (the chords travelled in "
+                 "the block), so the error of an inexact update does not accumulate; false: the scheduled step as "
+                 "is (open loop, as in the NURBS-interpolation literature)", start=True, variability=fixed),
+        Variable("corrector_tolerance", "Float64", "parameter",
+                 "Method 4: relative tolerance of the chord length (|chord - step| / step)",
+                 start=1e-6, min=1e-15, max=1e-2, variability=fixed),
+        Variable("max_feed", "Float64", "parameter", "Highest feed a program may command (F is clipped)",
+                 unit="m/s", display_unit="mm/min", start=1.0 / 3.0, min=1e-6, max=10.0, variability=fixed),
+        Variable("rapid_feed", "Float64", "parameter", "Path speed of rapid moves (G0; no override)",
+                 unit="m/s", display_unit="mm/min", start=1.0 / 6.0, min=1e-6, max=10.0, variability=fixed),
+        Variable("acceleration", "Float64", "parameter", "Tangential (path) acceleration limit",
+                 unit="m/s2", display_unit="mm/s2", start=1.0, min=1e-3, max=1e3, variability=fixed),
+        Variable("jerk", "Float64", "parameter",
+                 "Tangential jerk limit, also the curvature jerk limit v^3 kappa^2 [m/s3]",
+                 unit=JERK_UNIT, start=100.0, min=1e-2, max=1e6, variability=fixed),
+        Variable("centripetal_acceleration", "Float64", "parameter", "Centripetal acceleration limit v^2 kappa",
+                 unit="m/s2", display_unit="mm/s2", start=1.0, min=1e-3, max=1e3, variability=fixed),
+        Variable("chord_error", "Float64", "parameter", "Largest distance between the path and the chord "
+                 "between two interpolation points", unit="m", display_unit="um", start=1e-6, min=1e-9,
+                 max=1e-3, variability=fixed),
+    ]
+    for axis in "xyz":
+        v.append(Variable(f"axis_acceleration_{axis}", "Float64", "parameter",
+                          f"Acceleration limit of the {axis.upper()} axis", unit="m/s2", display_unit="mm/s2",
+                          start=2.0, min=1e-3, max=1e4, variability=fixed))
+    for axis in "xyz":
+        v.append(Variable(f"axis_jerk_{axis}", "Float64", "parameter",
+                          f"Jerk limit of the {axis.upper()} axis [m/s3]", unit=JERK_UNIT, start=300.0,
+                          min=1e-2, max=1e7, variability=fixed))
+    for axis in "xyz":
+        v.append(Variable(f"start_{axis}", "Float64", "parameter",
+                          f"Machine {axis.upper()} position of the tool before the program starts",
+                          unit="m", display_unit="mm", start=0.0, min=-10.0, max=10.0, variability=fixed))
+    for name in OFFSET_NAMES:
+        for axis in "xyz":
+            v.append(Variable(f"{name}_{axis}", "Float64", "parameter",
+                              f"Work offset {name.upper()}: machine {axis.upper()} position of the work zero",
+                              unit="m", display_unit="mm", start=0.0, min=-10.0, max=10.0, variability=fixed))
+    v.append(Variable("rbf_width", "Float64", "parameter", "RBF network: width of the Gaussian units",
+                      start=RBF_DEFAULTS["rbf_width"], min=1e-3, max=1e3, variability=fixed))
+    for d in range(1, RBF_INPUTS + 1):
+        v.append(Variable(f"rbf_offset_{d}", "Float64", "parameter",
+                          f"RBF network: offset of input feature {d} (x = (feature - offset) * scale)",
+                          start=RBF_DEFAULTS[f"rbf_offset_{d}"], min=-1e9, max=1e9, variability=fixed))
+    for d in range(1, RBF_INPUTS + 1):
+        v.append(Variable(f"rbf_scale_{d}", "Float64", "parameter", f"RBF network: scale of input feature {d}",
+                          start=RBF_DEFAULTS[f"rbf_scale_{d}"], min=-1e9, max=1e9, variability=fixed))
+    for j in range(1, RBF_HIDDEN + 1):
+        for d in range(1, RBF_INPUTS + 1):
+            v.append(Variable(f"rbf_center_{j}_{d}", "Float64", "parameter",
+                              f"RBF network: coordinate {d} of the centre of unit {j}",
+                              start=RBF_DEFAULTS[f"rbf_center_{j}_{d}"], min=-1e9, max=1e9, variability=fixed))
+    for j in range(1, RBF_HIDDEN + 1):
+        v.append(Variable(f"rbf_weight_{j}", "Float64", "parameter", f"RBF network: output weight of unit {j}",
+                          start=RBF_DEFAULTS[f"rbf_weight_{j}"], min=-1e9, max=1e9, variability=fixed))
+    v.append(Variable("rbf_bias", "Float64", "parameter", "RBF network: output bias",
+                      start=RBF_DEFAULTS["rbf_bias"], min=-1e9, max=1e9, variability=fixed))
+    v.append(Variable("feed_override", "Float64", "input", "Feed override (1 = 100 %; 0 = feed hold; not for G0)",
+                      unit="1", display_unit="%", start=1.0, min=0.0, max=1.5))
+    for axis in "xyz":
+        v.append(Variable(axis, "Float64", "output", f"Machine {axis.upper()} position of the tool",
+                          unit="m", display_unit="mm"))
+    for axis in "xyz":
+        v.append(Variable(f"{axis}_program", "Float64", "output",
+                          f"Commanded {axis.upper()} position in work coordinates (before the work offset)",
+                          unit="m", display_unit="mm"))
+    for axis in "xyz":
+        v.append(Variable(f"feed_velocity_{axis}", "Float64", "output", f"Feed velocity, {axis.upper()} component",
+                          unit="m/s", display_unit="mm/min"))
+    v += [
+        Variable("feed", "Float64", "output", "Scheduled path speed", unit="m/s", display_unit="mm/min"),
+        Variable("path_acceleration", "Float64", "output", "Scheduled tangential acceleration",
+                 unit="m/s2", display_unit="mm/s2"),
+        Variable("u", "Float64", "output", "NURBS parameter in NURBS blocks, else the fraction of the block done"),
+        Variable("line_number", "Int32", "output", "Line of the part program being executed (0 before the start)"),
+        Variable("block_number", "Int32", "output", "N word of the block being executed (0 without one)"),
+        Variable("spindle_speed", "Float64", "output", "Commanded spindle speed (negative for M4, 0 when stopped)",
+                 unit="rad/s", display_unit="rpm"),
+        Variable("spindle_on", "Boolean", "output", "Spindle running (M3/M4)"),
+        Variable("rapid", "Boolean", "output", "A rapid move (G0) is being executed"),
+        Variable("finished", "Boolean", "output", "The program has ended: the tool is at rest on its last point"),
+    ]
+    return tuple(v)
+
+
+INTERPOLATOR = ModelDefinition(
+    identifier="Interpolator",
+    description="CNC interpolator: G-code with NURBS blocks to tool positions every interpolation period, "
+                "with look-ahead feedrate scheduling and Taylor/RBF/predictor-corrector parameter update",
+    default_step_size=1e-3,
+    default_stop_time=10.0,
+    equations=None,
+    variables=_variables(),
+    native_outputs=tuple(n for n in (
+        "x", "y", "z", "x_program", "y_program", "z_program", "feed_velocity_x", "feed_velocity_y",
+        "feed_velocity_z", "feed", "path_acceleration", "u", "line_number", "block_number", "spindle_speed",
+        "spindle_on",
+        "rapid", "finished")),
+)
+
+OUTPUTS = tuple(v.name for v in INTERPOLATOR.of("output"))
+PARAMETERS = tuple(v.name for v in INTERPOLATOR.of("parameter") if v.type != "String")
+
+
+def default_parameters() -> dict[str, float]:
+    return {v.name: float(v.start) for v in INTERPOLATOR.of("parameter") if v.type != "String"}

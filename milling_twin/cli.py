@@ -85,6 +85,8 @@ def parse_override(text: str) -> tuple[str, object]:
         if not math.isfinite(value):
             raise UsageError(f"--set {key}: {raw!r} is not a finite number")
         return key, {"value": value, "unit": match.group(2).strip()} if match.group(2) else value
+    if raw.strip().lower().lstrip("+-") in ("nan", "inf", "infinity"):
+        raise UsageError(f"--set {key}: {raw.strip()!r} is not a finite number")
     if raw.strip().lower() in ("true", "false"):
         return key, raw.strip().lower() == "true"
     return key, raw

@@ -94,7 +94,7 @@ import math
 import re
 import tomllib
 import zipfile
-from collections.abc import Mapping, Sequence
+from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass, field, replace
 from fractions import Fraction
 from pathlib import Path
@@ -112,6 +112,8 @@ __all__ = [
     "ScenarioError", "Variable", "load_scenario", "with_values",
 ]
 
+BUILD_HINT = ("build the FMUs first: `make build` (or `cmake -S . -B build && cmake --build build`), "
+              "or pass --fmu-dir / set MILLING_TWIN_FMU_DIR")  # an FMU is missing from the FMU folder
 MAX_STEP_RATIO = 10_000  # largest step / base step; beyond it steps are incommensurate
 RECORDABLE_TYPES = ("real", "bool", "int")  # [outputs].record: Int32 outputs too (stored as int32)
 _SUPPORTED_TYPES = {"Real": "real", "Float64": "real", "Boolean": "bool", "Integer": "int", "Int32": "int",
@@ -151,13 +153,30 @@ class Variable:
 
 @dataclass(frozen=True)
 class Ref:
-    """``instance.variable``."""
+    """``instance.variable``: parsed once, where the text enters (a scenario, a spec, an API call), with
+    :meth:`parse`; ``str(ref)`` gives the text back (the column name of the results)."""
 
     instance: str
     variable: str
 
     def __str__(self) -> str:
         return f"{self.instance}.{self.variable}"
+
+    @classmethod
+    def parse(cls, text: Any, where: str = "", fail: Callable[[str, str], NoReturn] | None = None) -> Ref:
+        """``"instance.variable"`` (split at the first "."; both parts non-empty) as a Ref. ``where`` names
+        the text in the message (a TOML key, ``with_values['x']``); ``fail(where, message)`` raises the
+        caller's error, e.g. a TOML reader's ``fail`` (ScenarioError, CalibrationSpecError naming the file);
+        without it a ValueError ``"<where>: expected "instance.variable", got ..."`` is raised."""
+        if isinstance(text, cls):
+            return text
+        instance, _, variable = text.partition(".") if isinstance(text, str) else ("", "", "")
+        if not instance or not variable:
+            message = f"expected \"instance.variable\", got {text!r}"
+            if fail is not None:
+                fail(where, message)
+            raise ValueError(f"{where}: {message}" if where else message)
+        return cls(instance, variable)
 
 
 @dataclass(frozen=True)
@@ -302,8 +321,9 @@ def _load_fmu(ctx: _Ctx, name: str, table: dict, fmu_dir: Path) -> tuple[dict, P
         found = sorted(p.stem for p in fmu_dir.glob("*.fmu")) if fmu_dir.is_dir() else []
         where = (f"available in {fmu_dir}: {', '.join(found)}" if found else
                  f"{fmu_dir} holds no FMUs" if fmu_dir.is_dir() else
-                 f"{fmu_dir} does not exist (build the FMUs first)")
-        ctx.fail(f"{key}.fmu", f"FMU {fmu!r} not found: looked for {path}; {where}")
+                 f"{fmu_dir} does not exist")
+        how = "" if fmu.endswith(".fmu") else f"; {BUILD_HINT}"
+        ctx.fail(f"{key}.fmu", f"FMU {fmu!r} not found: looked for {path}; {where}{how}")
     try:
         md = read_model_description(str(path))
     except Exception as exc:  # fmpy raises plain Exceptions for broken archives
@@ -466,9 +486,8 @@ def _resolve(ctx: _Ctx, key: str, text: Any, instances: Mapping[str, FmuInstance
              types: Sequence[str] = ("real", "bool")) -> tuple[Ref, Variable]:
     """Look up "instance.variable"; ``causality`` None accepts any; ``whole_arrays``: an array may be named;
     ``types``: the accepted scalar types."""
-    if not isinstance(text, str) or "." not in text:
-        ctx.fail(key, f"expected \"instance.variable\", got {text!r}")
-    inst_name, var_name = text.split(".", 1)
+    ref = Ref.parse(text, key, ctx.fail)
+    inst_name, var_name = ref.instance, ref.variable
     inst = instances.get(inst_name)
     if inst is None:
         ctx.fail(key, f"unknown instance {inst_name!r}; instances: {', '.join(instances)}")
@@ -483,14 +502,14 @@ def _resolve(ctx: _Ctx, key: str, text: Any, instances: Mapping[str, FmuInstance
         ctx.fail(key, f"{text} is {_a(var.causality)}, not {_a(causality)}; {what} of {inst_name}: "
                       f"{', '.join(candidates)}")
     if var.type == "real[]" and whole_arrays:
-        return Ref(inst_name, var_name), var
+        return ref, var
     if var.type == "real[]":
         ctx.fail(key, f"{text} is {_what(var)}: connect it to an array input of the same shape "
                       f"([[connections]]), record it whole, or name one element, e.g. {var.elements[0]}")
     if var.type not in types:
         names = {"real": "Real/Float64", "bool": "Boolean", "int": "Integer/Int32"}
         ctx.fail(key, f"{text} has unsupported type {var.type} (only {' and '.join(names[x] for x in types)})")
-    return Ref(inst_name, var_name), var
+    return ref, var
 
 
 def _shape(var: Variable) -> str:
@@ -500,7 +519,11 @@ def _shape(var: Variable) -> str:
 def _resolve_all(ctx: _Ctx, key: str, text: Any, instances: Mapping[str, FmuInstance],
                  causality: str | None, types: Sequence[str] = ("real", "bool")) -> list[tuple[Ref, Variable]]:
     """Like _resolve, but a whole array stands for its elements, row-major."""
-    ref, var = _resolve(ctx, key, text, instances, causality, whole_arrays=True, types=types)
+    return _elements(instances, *_resolve(ctx, key, text, instances, causality, whole_arrays=True, types=types))
+
+
+def _elements(instances: Mapping[str, FmuInstance], ref: Ref, var: Variable) -> list[tuple[Ref, Variable]]:
+    """A scalar itself; a whole array its elements, row-major."""
     if var.type != "real[]":
         return [(ref, var)]
     variables = instances[ref.instance].variables
@@ -573,6 +596,9 @@ def load_scenario(path: str | Path, fmu_dir: str | Path, parameter_sets: Sequenc
         ctx.fail("", "scenario file not found")
     except (tomllib.TOMLDecodeError, UnicodeDecodeError) as exc:
         ctx.fail("", f"invalid TOML: {exc}")
+    if "calibration" in doc and "scenario" not in doc:
+        ctx.fail("", f"this is a calibration spec ([calibration] table), not a scenario: use "
+                     f"`milling-twin calibrate {path}`")
     ctx.table(doc, "", ("scenario", "fmus", "recorded", "inputs", "connections", "outputs", "compare"))
 
     sc = ctx.table(doc.get("scenario"), "[scenario]", (
@@ -657,13 +683,12 @@ def load_scenario(path: str | Path, fmu_dir: str | Path, parameter_sets: Sequenc
 
     conns = []
     for key, item in _array(ctx, doc, "connections", ("from", "to", "delay")):
-        sources = _resolve_all(ctx, f"{key}.from", item.get("from"), instances, "output")
-        targets = _resolve_all(ctx, f"{key}.to", item.get("to"), instances, "input")
+        src_ref, src_var = _resolve(ctx, f"{key}.from", item.get("from"), instances, "output", whole_arrays=True)
+        dst_ref, dst_var = _resolve(ctx, f"{key}.to", item.get("to"), instances, "input", whole_arrays=True)
+        sources, targets = _elements(instances, src_ref, src_var), _elements(instances, dst_ref, dst_var)
         if len(sources) > 1 or len(targets) > 1:  # an array to an array of the same shape, element by element
-            src_var = instances[sources[0][0].instance].variables[item["from"].split(".", 1)[1]]
-            dst_var = instances[targets[0][0].instance].variables[item["to"].split(".", 1)[1]]
             if src_var.shape != dst_var.shape:
-                ctx.fail(f"{key}.to", f"shape mismatch: {item['from']} is {_what(src_var)}, {item['to']} "
+                ctx.fail(f"{key}.to", f"shape mismatch: {src_ref} is {_what(src_var)}, {dst_ref} "
                                       f"is {_what(dst_var)}")
         elif targets[0][1].array:
             _settable_element(ctx, f"{key}.to", *targets[0])
@@ -722,24 +747,25 @@ def load_scenario(path: str | Path, fmu_dir: str | Path, parameter_sets: Sequenc
     )
 
 
-def with_values(scenario: Scenario, values: Mapping[str, Any], *, name: str | None = None) -> Scenario:
+def with_values(scenario: Scenario, values: Mapping[str | Ref, Any], *, name: str | None = None) -> Scenario:
     """A copy of ``scenario`` with parameters or constant inputs changed, checked like the file's own
-    (causality, type, unit, range). ``values``: ``{"instance.variable": value}``, a plain number in
-    the variable's SI unit or ``{"value": ..., "unit": ...}``. ``name`` renames the run (its folder),
-    so that the runs of a sweep do not overwrite each other."""
+    (causality, type, unit, range). ``values``: ``{"instance.variable": value}`` (or a :class:`Ref` as the
+    key), a plain number in the variable's SI unit or ``{"value": ..., "unit": ...}``. ``name`` renames
+    the run (its folder), so that the runs of a sweep do not overwrite each other."""
     ctx = _Ctx(scenario.path)
-    fed = {str(i.target) for i in scenario.inputs} | {str(c.target) for c in scenario.connections}
+    fed = {i.target for i in scenario.inputs} | {c.target for c in scenario.connections}
+    names = [inst.name for inst in scenario.instances]
     grouped: dict[str, dict[str, dict[str, Any]]] = {}
     for key, value in values.items():
-        instance, _, variable = key.partition(".")
-        names = [inst.name for inst in scenario.instances]
-        if instance not in names:
-            ctx.fail(f"with_values[{key!r}]", f"unknown instance {instance!r}; instances: {', '.join(names)}")
-        var = scenario.instance(instance).variables.get(variable)
+        where = f"with_values[{str(key)!r}]"
+        ref = Ref.parse(key, where, ctx.fail)
+        if ref.instance not in names:
+            ctx.fail(where, f"unknown instance {ref.instance!r}; instances: {', '.join(names)}")
+        var = scenario.instance(ref.instance).variables.get(ref.variable)
         causality = var.causality if var is not None else "parameter"
-        if causality == "input" and key in fed:
-            ctx.fail(f"with_values[{key!r}]", "this input is fed by [[inputs]] or [[connections]]")
-        grouped.setdefault(instance, {}).setdefault(causality, {})[variable] = value
+        if causality == "input" and ref in fed:
+            ctx.fail(where, "this input is fed by [[inputs]] or [[connections]]")
+        grouped.setdefault(ref.instance, {}).setdefault(causality, {})[ref.variable] = value
     instances = []
     for inst in scenario.instances:
         changes = grouped.get(inst.name, {})

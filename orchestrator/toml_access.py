@@ -69,8 +69,3 @@ class TomlAccess:
         if not isinstance(value, list) or not all(isinstance(v, str) for v in value) or len(value) != count:
             self.fail(f"{key}.{name}", f"expected a list of {count} strings, got {value!r}")
         return tuple(value)
-
-    def ref(self, value: Any, key: str) -> str:
-        if not isinstance(value, str) or value.count(".") < 1 or not all(value.split(".", 1)):
-            self.fail(key, f"expected \"instance.variable\", got {value!r}")
-        return value

@@ -69,14 +69,15 @@ class Failure:
 class FmuOutputs:
     """theta (SI, ``parameters`` order) -> fitted ``outputs`` at ``row_time`` (pairs x outputs)."""
 
-    def __init__(self, scenario: Scenario, parameters: Sequence[Parameter], outputs: Sequence[str],
+    def __init__(self, scenario: Scenario, parameters: Sequence[Parameter], outputs: Sequence[Ref],
                  row_time: np.ndarray, work_dir: Path, *, method: str = "forward", step: float | None = None,
                  cache_size: int = 64) -> None:
         if method not in FD_METHODS:
             raise ValueError(f"finite-difference method {method!r}: one of {', '.join(FD_METHODS)}")
         self.parameters = tuple(parameters)
         self.names = [q.name for q in parameters]
-        self.outputs = list(outputs)
+        self.refs = [q.ref or q.name for q in parameters]  # with_values keys
+        self.outputs = [str(o) for o in outputs]  # their columns in the results
         self.row_time = np.asarray(row_time, dtype=float)
         self.method = method
         self.step = default_step(method) if step is None else float(step)
@@ -85,7 +86,7 @@ class FmuOutputs:
         # the row at or after the last pair, on the output grid (rows are at start + k * output_interval)
         rows = np.ceil((last - scenario.start_time) / scenario.output_interval - 1e-9)
         stop = min(scenario.stop_time, scenario.start_time + max(rows, 1.0) * scenario.output_interval)
-        self.scenario = replace(scenario, outputs=tuple(Ref(*o.split(".", 1)) for o in self.outputs),
+        self.scenario = replace(scenario, outputs=tuple(outputs),
                                 stop_time=stop, name=f"{scenario.name.removesuffix('_initial')}_evaluation")
         self.lower = np.array([q.lower for q in parameters])
         self.upper = np.array([q.upper for q in parameters])
@@ -110,7 +111,7 @@ class FmuOutputs:
         # IPOPT keeps strictly inside the bounds (strict_bounds); what lies outside by rounding is clipped
         theta = np.where(np.abs(theta - np.clip(theta, self.lower, self.upper)) <= 1e-9 * self.scale,
                          np.clip(theta, self.lower, self.upper), theta)
-        case = with_values(self.scenario, dict(zip(self.names, (float(v) for v in theta))))
+        case = with_values(self.scenario, dict(zip(self.refs, (float(v) for v in theta))))
         result = run(case, self.work_dir, progress=False)
         if result.status != "completed":
             raise RuntimeError(f"the simulation ended {result.status}")

@@ -38,7 +38,7 @@ import numpy as np
 
 from milling_twin.models import MODELS
 from milling_twin.models.definition import ModelDefinition, State
-from milling_twin.orchestrator.scenario import Scenario
+from milling_twin.orchestrator.scenario import Ref, Scenario
 
 __all__ = ["DataColumn", "DynamicPart", "ModelGraph", "NO_DATA_DERIVATIVE", "NotExpressible", "build_graph"]
 
@@ -59,6 +59,7 @@ class NotExpressible(Exception):
 class DataColumn:
     ref: str  # "instance.input": a column of the results
     is_bool: bool
+    input: Ref  # the input whose values the column holds
 
 
 @dataclass(frozen=True)
@@ -73,33 +74,33 @@ class DynamicPart:
 
 @dataclass(frozen=True)
 class ModelGraph:
-    parameters: tuple[str, ...]  # fitted, in theta order
-    outputs: tuple[str, ...]  # fitted outputs, in y order
+    parameters: tuple[Ref, ...]  # fitted, in theta order
+    outputs: tuple[Ref, ...]  # fitted outputs, in y order
     data: tuple[DataColumn, ...]  # per-sample data, in d order
     sample: ca.Function | None  # stateless: (theta, d) -> y
     dynamic: DynamicPart | None
     instances: tuple[str, ...]  # instances whose equations are part of the graph
     models: dict[str, ModelDefinition]
-    inputs: tuple[str, ...] = ()  # every input the graph reads ("instance.input"), from data or a connection
+    inputs: tuple[Ref, ...] = ()  # every input the graph reads, from data or a connection
 
 
 def model_of(scenario: Scenario, instance: str) -> ModelDefinition | None:
     return MODELS.get(scenario.instance(instance).model_identifier)
 
 
-def build_graph(scenario: Scenario, parameters: Sequence[str], outputs: Sequence[str],
-                fail: Callable[[str, str], NoReturn], keys: Mapping[str, str],
-                floors: Mapping[str, float] | None = None) -> ModelGraph:
-    """``parameters`` and ``outputs`` are "instance.variable"; ``keys`` maps each to its spec key
-    for ``fail(key, message)``; ``floors``: "instance.input" -> lower limit applied to that input."""
+def build_graph(scenario: Scenario, parameters: Sequence[Ref], outputs: Sequence[Ref],
+                fail: Callable[[str, str], NoReturn], keys: Mapping[Ref, str],
+                floors: Mapping[Ref, float] | None = None) -> ModelGraph:
+    """``keys`` maps each of ``parameters`` and ``outputs`` to its spec key for ``fail(key, message)``;
+    ``floors``: input -> lower limit applied to that input."""
     floors = floors or {}
-    inputs_used: list[str] = []
-    theta = {name: ca.SX.sym(name) for name in parameters}
-    fitted_instances = {name.split(".", 1)[0] for name in parameters}
-    data_symbols: dict[str, ca.SX] = {}
+    inputs_used: list[Ref] = []
+    theta = {ref: ca.SX.sym(str(ref)) for ref in parameters}
+    fitted_instances = {ref.instance for ref in parameters}
+    data_symbols: dict[Ref, ca.SX] = {}
     data_columns: list[DataColumn] = []
     models: dict[str, ModelDefinition] = {}
-    feeds = {str(c.target): c for c in scenario.connections if not c.delay}
+    feeds = {c.target: c for c in scenario.connections if not c.delay}
     depends: dict[str, bool] = {}
 
     def model(instance: str, key: str) -> ModelDefinition:
@@ -113,16 +114,15 @@ def build_graph(scenario: Scenario, parameters: Sequence[str], outputs: Sequence
     def needs(instance: str, seen: tuple[str, ...] = ()) -> bool:
         """Does the instance's output depend on a fitted parameter?"""
         if instance not in depends:
-            upstream = [c.source.instance for t, c in feeds.items() if t.split(".", 1)[0] == instance]
+            upstream = [c.source.instance for t, c in feeds.items() if t.instance == instance]
             depends[instance] = instance in fitted_instances or any(
                 needs(u, seen + (instance,)) for u in upstream if u not in seen)
         return depends[instance]
 
-    def data(ref: str) -> ca.SX:
+    def data(ref: Ref) -> ca.SX:
         if ref not in data_symbols:
-            inst, var = ref.split(".", 1)
-            data_symbols[ref] = ca.SX.sym(ref)
-            data_columns.append(DataColumn(ref, scenario.instance(inst).variables[var].type == "bool"))
+            data_symbols[ref] = ca.SX.sym(str(ref))
+            data_columns.append(DataColumn(str(ref), scenario.variable(ref).type == "bool", ref))
         return data_symbols[ref]
 
     def arguments(instance: str, key: str, states: Mapping[str, ca.SX] | None) -> dict[str, ca.SX]:
@@ -131,7 +131,7 @@ def build_graph(scenario: Scenario, parameters: Sequence[str], outputs: Sequence
         values: dict[str, ca.SX] = {}
         for arg in m.arguments:
             name = arg.name
-            ref = f"{instance}.{name}"
+            ref = Ref(instance, name)
             if isinstance(arg, State):
                 if states is None:
                     raise NotExpressible(key, f"{instance} ({m.identifier}) has states: only the fitted outputs' own instance "
@@ -165,31 +165,31 @@ def build_graph(scenario: Scenario, parameters: Sequence[str], outputs: Sequence
             cache[instance] = m.equations(arguments(instance, key, None))
         return cache[instance]
 
-    out_instances = {o.split(".", 1)[0] for o in outputs}
+    out_instances = {o.instance for o in outputs}
     for o in outputs:
-        inst, var = o.split(".", 1)
-        m = model(inst, keys[o])
+        var = o.variable
+        m = model(o.instance, keys[o])
         if var in m.native_outputs:
             raise NotExpressible(keys[o], f"{o} is computed by the FMU's C code (model.c), not by a models/ expression")
         if m.variable(var).causality != "output":
             fail(keys[o], f"{o} is {m.variable(var).causality}, not an output")
     for name in parameters:
-        inst = name.split(".", 1)[0]
+        inst = name.instance
         if not any(needs(i) and (i == inst or _upstream(feeds, i, inst)) for i in out_instances):
             fail(keys[name], f"no fitted output depends on {name}: the outputs come from "
                              f"{', '.join(sorted(out_instances))}, and {inst} does not feed them through "
                              "non-delayed connections")
 
-    dynamic_instances = sorted(i for i in out_instances if model(i, keys[next(o for o in outputs if o.startswith(i + "."))]).states)
+    dynamic_instances = sorted(i for i in out_instances if model(i, keys[next(o for o in outputs if o.instance == i)]).states)
     if not dynamic_instances:
-        y = [outputs_of(o.split(".", 1)[0], keys[o])[o.split(".", 1)[1]] for o in outputs]
+        y = [outputs_of(o.instance, keys[o])[o.variable] for o in outputs]
         th = ca.vertcat(*[theta[n] for n in parameters])
-        d = ca.vertcat(*[data_symbols[c.ref] for c in data_columns]) if data_columns else ca.SX(0, 1)
+        d = ca.vertcat(*[data_symbols[c.input] for c in data_columns]) if data_columns else ca.SX(0, 1)
         sample = ca.Function("sample", [th, d], [ca.vertcat(*y)], ["theta", "d"], ["y"], NO_DATA_DERIVATIVE)
         return ModelGraph(tuple(parameters), tuple(outputs), tuple(data_columns), sample, None,
                           tuple(models), models, tuple(inputs_used))
     if len(out_instances) > 1:
-        o = next(o for o in outputs if o.startswith(dynamic_instances[0] + "."))
+        o = next(o for o in outputs if o.instance == dynamic_instances[0])
         raise NotExpressible(keys[o], f"outputs of a dynamic model ({dynamic_instances[0]}) are fitted together with outputs of "
                       f"{', '.join(sorted(out_instances - {dynamic_instances[0]}))}: fit one dynamic instance at a time")
     graph = _dynamic(scenario, dynamic_instances[0], parameters, outputs, theta, arguments, data_symbols,
@@ -203,7 +203,7 @@ def _upstream(feeds: Mapping, target: str, source: str) -> bool:
     while frontier:
         node = frontier.pop()
         for t, c in feeds.items():
-            if t.split(".", 1)[0] == node and c.source.instance not in seen:
+            if t.instance == node and c.source.instance not in seen:
                 if c.source.instance == source:
                     return True
                 seen.add(c.source.instance)
@@ -211,11 +211,11 @@ def _upstream(feeds: Mapping, target: str, source: str) -> bool:
     return False
 
 
-def _dynamic(scenario: Scenario, instance: str, parameters: Sequence[str], outputs: Sequence[str],
-             theta: Mapping[str, ca.SX], arguments: Callable, data_symbols: dict, data_columns: list,
-             models: dict, fail: Callable[[str, str], NoReturn], keys: Mapping[str, str]) -> ModelGraph:
+def _dynamic(scenario: Scenario, instance: str, parameters: Sequence[Ref], outputs: Sequence[Ref],
+             theta: Mapping[Ref, ca.SX], arguments: Callable, data_symbols: dict, data_columns: list,
+             models: dict, fail: Callable[[str, str], NoReturn], keys: Mapping[Ref, str]) -> ModelGraph:
     m = models[instance]
-    key = keys[next(o for o in outputs if o.startswith(instance + "."))]
+    key = keys[next(o for o in outputs if o.instance == instance)]
     if m.native_states:
         raise NotExpressible(key, f"{instance} ({m.identifier}) keeps states in its C code ({', '.join(m.native_states)}): "
                   "not expressible for the generic fit")
@@ -228,7 +228,7 @@ def _dynamic(scenario: Scenario, instance: str, parameters: Sequence[str], outpu
     h = ca.SX(float(inst.step_size))
     new = m.update(values, h)
     equations = m.equations(values)
-    y_of_x = [equations[o.split(".", 1)[1]] for o in outputs]
+    y_of_x = [equations[o.variable] for o in outputs]
     # states the outputs need, closed under the update
     kept: list[str] = [s for s in states if any(ca.depends_on(y, states[s]) for y in y_of_x)]
     changed = True
@@ -241,7 +241,7 @@ def _dynamic(scenario: Scenario, instance: str, parameters: Sequence[str], outpu
                     changed = True
     kept = [s.name for s in m.states if s.name in kept]
     th = ca.vertcat(*[theta[n] for n in parameters])
-    d = ca.vertcat(*[data_symbols[c.ref] for c in data_columns]) if data_columns else ca.SX(0, 1)
+    d = ca.vertcat(*[data_symbols[c.input] for c in data_columns]) if data_columns else ca.SX(0, 1)
     x = ca.vertcat(*[states[s] for s in kept]) if kept else ca.SX(0, 1)
     x_next = ca.vertcat(*[new[s] for s in kept]) if kept else ca.SX(0, 1)
     y = ca.vertcat(*y_of_x)

@@ -81,7 +81,7 @@ def map_times(recorded: RecordedData, results: pd.DataFrame, alignment: Alignmen
     """(row time per recorded sample, confidence, the TimeMap or None for method "none")."""
     if alignment.method == "none":
         return recorded.time.copy(), np.ones(recorded.time.size), None
-    time_map = align_results(recorded, results, list(alignment.simulated), list(alignment.recorded),
+    time_map = align_results(recorded, results, [str(r) for r in alignment.simulated], list(alignment.recorded),
                              method=alignment.method, output_delay=alignment.output_delay)
     return time_map.simulated_time + alignment.output_delay, time_map.confidence, time_map
 

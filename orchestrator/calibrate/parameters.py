@@ -10,6 +10,7 @@ import numpy as np
 
 from milling_twin.models.units import UnitError, conversion_factor
 from milling_twin.orchestrator.calibrate.spec import ParameterSpec
+from milling_twin.orchestrator.scenario import Ref
 
 __all__ = ["Parameter", "draw_starts", "resolve_parameter", "unit_factor"]
 
@@ -24,7 +25,7 @@ class Parameter:
     """A fitted quantity. ``initial``, ``lower``, ``upper``, ``scale`` and ``start_range`` are SI;
     the optimiser works on value / scale. ``nuisance`` ones (e.g. the spindle phase of a recording)
     are estimated with the others but are no model parameters: they are not written to the
-    parameter set."""
+    parameter set. ``ref``: the FMU parameter (None for a nuisance parameter); ``name`` its text."""
 
     name: str
     initial: float
@@ -38,6 +39,7 @@ class Parameter:
     log_start: bool
     nuisance: bool = False
     key: str = ""
+    ref: Ref | None = None
 
     def display(self, value: float) -> float:
         return value * self.display_factor
@@ -92,7 +94,8 @@ def resolve_parameter(spec: ParameterSpec, unit: str, default: float, fmu_min: f
         display_factor = unit_factor(unit, shown)
     except UnitError:
         shown, display_factor = unit, 1.0
-    return Parameter(spec.name, initial, lower, upper, scale, unit, shown, display_factor, start, log_start, key=spec.key)
+    return Parameter(spec.name, initial, lower, upper, scale, unit, shown, display_factor, start, log_start, key=spec.key,
+                     ref=spec.ref)
 
 
 def draw_starts(parameters: Sequence[Parameter], starts: int, seed: int) -> np.ndarray:

@@ -41,7 +41,7 @@ def write_parameter_set(path: Path, parameters: Sequence[Parameter], estimates: 
     for q, value, st in zip(parameters, estimates, statistics):
         if q.nuisance:
             continue
-        instance, variable = q.name.split(".", 1)
+        instance, variable = q.ref.instance, q.ref.variable
         value = min(max(float(value), q.lower), q.upper)
         comment = (f"{q.unit or '1'}; se {_num(st.standard_error)}, 95 % CI [{_num(st.ci_low)}, {_num(st.ci_high)}]"
                    + (f"; {'; '.join(st.flags)}" if st.flags else ""))

@@ -59,7 +59,7 @@ CONSISTENCY_TOLERANCE = 1e-8
 
 @dataclass(frozen=True)
 class ResolvedOutput:
-    ref: str
+    ref: Ref
     channel: str
     factor: float  # recorded SI value * factor = output unit
     unit: str
@@ -67,6 +67,11 @@ class ResolvedOutput:
     display_factor: float
     weight: float
     sigma: float | None  # SI of the output
+
+    @property
+    def column(self) -> str:
+        """The output's column in the results."""
+        return str(self.ref)
 
 
 @dataclass
@@ -106,19 +111,18 @@ def _model(spec: CalibrationSpec, scenario: Scenario, instance: str, key: str) -
     return m
 
 
-def _instance(spec: CalibrationSpec, scenario: Scenario, ref: str, key: str):
-    instance, variable = ref.split(".", 1)
+def _instance(spec: CalibrationSpec, scenario: Scenario, ref: Ref, key: str):
     names = list(scenario.execution_order)
-    if instance not in names:
-        spec.fail(key, f"unknown instance {instance!r} in {scenario.path.name}; instances: {', '.join(names)}")
-    inst = scenario.instance(instance)
-    return inst, inst.variables.get(variable)
+    if ref.instance not in names:
+        spec.fail(key, f"unknown instance {ref.instance!r} in {scenario.path.name}; instances: {', '.join(names)}")
+    inst = scenario.instance(ref.instance)
+    return inst, inst.variables.get(ref.variable)
 
 
 def resolve_parameters(spec: CalibrationSpec, scenario: Scenario) -> tuple[Parameter, ...]:
     out = []
     for ps in spec.parameters:
-        inst, var = _instance(spec, scenario, ps.name, ps.key)
+        inst, var = _instance(spec, scenario, ps.ref, ps.key)
         candidates = [v.name for v in inst.variables.values() if v.causality == "parameter" and v.type == "real"]
         if var is None or var.causality != "parameter" or var.type != "real":
             what = "unknown parameter" if var is None else f"{var.causality} variable" if var.causality != "parameter" \
@@ -245,9 +249,8 @@ def _run(scenario: Scenario, out: Path, progress: bool) -> tuple[pd.DataFrame, P
     return load_results(result.run_dir), result.run_dir
 
 
-def _recording_outputs(scenario: Scenario, refs: list[str]) -> Scenario:
-    extra = tuple(Ref(*r.split(".", 1)) for r in refs)
-    return replace(scenario, outputs=tuple(dict.fromkeys(scenario.outputs + extra)))
+def _recording_outputs(scenario: Scenario, refs: list[Ref]) -> Scenario:
+    return replace(scenario, outputs=tuple(dict.fromkeys(scenario.outputs + tuple(refs))))
 
 
 def prepare(spec: CalibrationSpec, fmu_dir: Path, out_dir: Path, progress: bool = False) -> Prepared:
@@ -264,11 +267,11 @@ def prepare(spec: CalibrationSpec, fmu_dir: Path, out_dir: Path, progress: bool 
         for ref in spec.input_floors:
             if ref not in graph.inputs:
                 spec.fail(f'[inputs."{ref}"]', f"{ref} is not an input of the fitted outputs' equations "
-                                              f"({', '.join(graph.inputs) or 'none'})")
+                                              f"({', '.join(map(str, graph.inputs)) or 'none'})")
     timings["check"] = time.perf_counter() - t0
     t0 = time.perf_counter()
-    initial = with_values(scenario, {q.name: q.initial for q in parameters}, name=f"{scenario.name}_initial")
-    data = [c.ref for c in graph.data] if graph is not None else []
+    initial = with_values(scenario, {q.ref: q.initial for q in parameters}, name=f"{scenario.name}_initial")
+    data = [c.input for c in graph.data] if graph is not None else []
     initial = _recording_outputs(initial, data + list(spec.alignment.simulated) + [o.ref for o in outputs])
     results, run_dir = _run(initial, out_dir / "runs", progress)
     timings["simulate (initial parameters)"] = time.perf_counter() - t0
@@ -278,8 +281,8 @@ def prepare(spec: CalibrationSpec, fmu_dir: Path, out_dir: Path, progress: bool 
 def _derivative_path(spec: CalibrationSpec, scenario: Scenario, parameters: tuple[Parameter, ...],
                      outputs: tuple[ResolvedOutput, ...]) -> tuple[ModelGraph | None, str]:
     """(the models/ graph, "") for exact derivatives, or (None, why) for FMU finite differences."""
-    keys = {p.name: p.key for p in spec.parameters} | {o.simulated: f"{o.key}.simulated" for o in spec.outputs}
-    names, refs = [q.name for q in parameters], [o.ref for o in outputs]
+    keys = {p.ref: p.key for p in spec.parameters} | {o.simulated: f"{o.key}.simulated" for o in spec.outputs}
+    names, refs = [q.ref for q in parameters], [o.ref for o in outputs]
     if spec.solver.derivatives != "finite-differences":
         try:
             return build_graph(scenario, names, refs, spec.fail, keys, spec.input_floors), ""
@@ -290,9 +293,9 @@ def _derivative_path(spec: CalibrationSpec, scenario: Scenario, parameters: tupl
             reason = f"the models/ expressions cannot give the fitted outputs ({exc.key}: {exc.message})"
     else:
         reason = "[solver].derivatives = \"finite-differences\""
-    out_instances = {r.split(".", 1)[0] for r in refs}
+    out_instances = {r.instance for r in refs}
     for q, key in zip(names, (p.key for p in spec.parameters)):
-        inst = q.split(".", 1)[0]
+        inst = q.instance
         if inst not in out_instances and not any(_feeds(scenario, i, inst) for i in out_instances):
             spec.fail(key, f"no fitted output depends on {q}: the outputs come from {', '.join(sorted(out_instances))}, "
                            f"and {inst} does not feed them through connections")
@@ -318,7 +321,7 @@ def pairs_for(prepared: Prepared, recorded=None, alignment: AlignmentSpec | None
     spec = prepared.spec
     recorded = recorded if recorded is not None else prepared.scenario.recorded
     pairs, summary, time_map = make_pairs(recorded, prepared.results, prepared.data_columns,
-                                          [o.ref for o in prepared.outputs],
+                                          [o.column for o in prepared.outputs],
                                           [o.channel for o in prepared.outputs], [o.factor for o in prepared.outputs],
                                           alignment or spec.alignment, spec.learning, spec.validation)
     t = prepared.results["time"].to_numpy()
@@ -348,7 +351,7 @@ def consistency(prepared: Prepared, model, learning: Pairs) -> float:
                 f"({'; '.join(f.message for f in model.keep_alive.fmu.failures[:1]) or 'no failure recorded'})")
         return deviation
     rows = np.unique(learning.rows) if prepared.graph.dynamic is None else learning.rows
-    fmu = prepared.results[[o.ref for o in prepared.outputs]].to_numpy(dtype=float)[rows]
+    fmu = prepared.results[[o.column for o in prepared.outputs]].to_numpy(dtype=float)[rows]
     if prepared.graph.dynamic is None:
         data = prepared.results[[c.ref for c in prepared.graph.data]].to_numpy(dtype=float)[rows]
         mapped = prepared.graph.sample.map(len(rows))
@@ -458,8 +461,7 @@ def calibrate_scenario(spec: CalibrationSpec, fmu_dir: Path, out_dir: Path, prog
     if spec.calibrated_scenario is not None:
         after = load_scenario(spec.calibrated_scenario, fmu_dir)
         for q, value in zip(prepared.parameters, outcome.theta):
-            instance, variable = q.name.split(".", 1)
-            applied = after.instance(instance).parameters.get(variable)
+            applied = after.instance(q.ref.instance).parameters.get(q.ref.variable)
             if applied is None or abs(applied - value) > 1e-12 * max(abs(value), 1e-300):
                 spec.fail("[calibration].calibrated_scenario",
                           f"{spec.calibrated_scenario.name} does not apply the parameter set {set_path.name}: "
@@ -471,13 +473,13 @@ def calibrate_scenario(spec: CalibrationSpec, fmu_dir: Path, out_dir: Path, prog
     results_after, run_after = _run(after, out_dir / "runs", progress)
     timings["re-simulate (calibrated parameter set)"] = time.perf_counter() - t0
     series = []
-    names = [o.ref for o in prepared.outputs]
+    names = [o.column for o in prepared.outputs]
     for dataset, subset in (("learning", learning), ("validation", validation)):
         if not len(subset):
             continue
         fmu_after = subset.with_fmu(results_after, names).fmu
         for k, o in enumerate(prepared.outputs):
-            series.append(Series(o.ref, o.channel, dataset, subset.recorded_time, subset.recorded[:, k],
+            series.append(Series(o.column, o.channel, dataset, subset.recorded_time, subset.recorded[:, k],
                                  subset.fmu[:, k], fmu_after[:, k], o.unit, o.display_unit, o.display_factor))
     ident = identities(spec, prepared.scenario, tokens)
     ident["runs"] = {"initial": str(prepared.run_dir), "calibrated": str(run_after)}

@@ -58,7 +58,7 @@ from milling_twin.orchestrator.calibrate.scenario_fit import check_tokens, ident
 from milling_twin.orchestrator.calibrate.spec import CalibrationSpec, ParameterSpec
 from milling_twin.orchestrator.master import SimulationError
 from milling_twin.orchestrator.results import sha256_of
-from milling_twin.orchestrator.scenario import Scenario, load_scenario
+from milling_twin.orchestrator.scenario import Ref, Scenario, load_scenario
 from milling_twin.orchestrator.validation import slot_milling as sm
 
 __all__ = ["SlotData", "calibrate_slot_forces", "load_slot_data", "regression_model", "waveform_model"]
@@ -67,10 +67,10 @@ COEFFICIENTS = sm.COEFFICIENTS
 RUNOUT = ("runout_offset", "runout_angle")
 RECORDED_AXES = tuple(sm.AXES)  # the files' Fx, Fy, Fz
 MODEL_AXES = tuple(sm.AXES[a] for a in RECORDED_AXES)  # the model's outputs compared with them
-RUNOUT_DEFAULTS = {"runout_offset": ParameterSpec("force.runout_offset", '[parameters."force.runout_offset"]',
+RUNOUT_DEFAULTS = {"runout_offset": ParameterSpec(Ref("force", "runout_offset"), '[parameters."force.runout_offset"]',
                                                   initial=5.0, min=0.0, max=100.0, unit="um",
                                                   start_range=(0.0, 30.0)),
-                   "runout_angle": ParameterSpec("force.runout_angle", '[parameters."force.runout_angle"]',
+                   "runout_angle": ParameterSpec(Ref("force", "runout_angle"), '[parameters."force.runout_angle"]',
                                                  initial=0.0, min=-360.0, max=360.0, unit="deg", scale=90.0,
                                                  start_range=(-180.0, 180.0))}
 
@@ -144,7 +144,7 @@ def _force_function(scenario: Scenario, recording: datasets.Recording, fitted: l
 def waveform_model(scenario: Scenario, data: SlotData, parameters: list[Parameter]) -> ResidualModel:
     """Residuals of the mean waveforms (weighted by revolutions) for the model parameters followed by one
     phase per recording (``parameters`` lists both, phases last)."""
-    fitted = [q.name.split(".", 1)[1] for q in parameters if not q.nuisance]
+    fitted = [q.ref.variable for q in parameters if not q.nuisance]
     n_model = len(fitted)
     blocks = []
     for i, r in enumerate(data.recordings):
@@ -263,7 +263,7 @@ def _parameters(spec: CalibrationSpec, scenario: Scenario, initial: dict[str, fl
     names = list(COEFFICIENTS) + (runout if spec.slot_forces.runout else [])
     out = []
     for name in names:
-        ps = specs.get(name) or RUNOUT_DEFAULTS.get(name) or ParameterSpec(f"{sm.INSTANCE}.{name}",
+        ps = specs.get(name) or RUNOUT_DEFAULTS.get(name) or ParameterSpec(Ref(sm.INSTANCE, name),
                                                                            f'[parameters."{sm.INSTANCE}.{name}"]')
         var = inst.variables[name]
         default = initial.get(name, float(inst.parameters.get(name, CUTTING_FORCE.variable(name).start)))
@@ -336,7 +336,7 @@ def calibrate_slot_forces(spec: CalibrationSpec, fmu_dir: Path, out_dir: Path, d
     t0 = time.perf_counter()
     model_params = _parameters(spec, scenario, dict(zip(COEFFICIENTS, regression.theta)), "the linear regression")
     params = model_params + _phase_parameters(learn)
-    fitted = [q.name.split(".", 1)[1] for q in model_params]
+    fitted = [q.ref.variable for q in model_params]
     model = waveform_model(scenario, learn, params)
     strategy = alternating(PhaseSearch(scenario, learn, fitted), len(model_params), model.scale())
     recorded = np.concatenate(learn.waves)
@@ -401,7 +401,7 @@ def calibrate_slot_forces(spec: CalibrationSpec, fmu_dir: Path, out_dir: Path, d
         Table("Coefficients: linear regression of per-revolution means vs waveform fit (95 % CI)",
               ("coefficient", "unit", "prior (scenario)", "regression", "regression 95 % CI", "waveform fit",
                "waveform 95 % CI"),
-              tuple((q.name, q.display_unit, f"{q.display(prior[q.name.split('.')[1]]):.4g}",
+              tuple((q.name, q.display_unit, f"{q.display(prior[q.ref.variable]):.4g}",
                      f"{q.display(rs.estimate):.5g}", f"[{q.display(rs.ci_low):.5g}, {q.display(rs.ci_high):.5g}]",
                      f"{q.display(ws.estimate):.5g}", f"[{q.display(ws.ci_low):.5g}, {q.display(ws.ci_high):.5g}]")
                     for q, rs, ws in zip(coefficient_params, regression.statistics.parameters,

@@ -103,6 +103,7 @@ from typing import Any, NoReturn
 
 from milling_twin.orchestrator.toml_access import TomlAccess
 from milling_twin.orchestrator.calibrate.errors import CalibrationSpecError
+from milling_twin.orchestrator.scenario import Ref
 
 __all__ = ["AlignmentSpec", "CalibrationSpec", "OutputSpec", "ParameterSpec", "SlotForcesSpec",
            "SolverSpec", "StatisticsSpec", "load_spec"]
@@ -117,7 +118,7 @@ _NAME_RE = re.compile(r"^[A-Za-z0-9_.-]+$")
 class ParameterSpec:
     """One parameter to fit, as written (values in ``unit``; None: take the default)."""
 
-    name: str  # "instance.variable"
+    ref: Ref  # instance.variable
     key: str  # the TOML key, for messages
     initial: float | None = None
     min: float | None = None
@@ -127,17 +128,21 @@ class ParameterSpec:
     start_range: tuple[float, float] | None = None
 
     @property
+    def name(self) -> str:
+        return str(self.ref)
+
+    @property
     def instance(self) -> str:
-        return self.name.split(".", 1)[0]
+        return self.ref.instance
 
     @property
     def variable(self) -> str:
-        return self.name.split(".", 1)[1]
+        return self.ref.variable
 
 
 @dataclass(frozen=True)
 class OutputSpec:
-    simulated: str
+    simulated: Ref
     recorded: str
     key: str
     weight: float = 1.0
@@ -148,7 +153,7 @@ class OutputSpec:
 @dataclass(frozen=True)
 class AlignmentSpec:
     method: str = "none"
-    simulated: tuple[str, ...] = ()
+    simulated: tuple[Ref, ...] = ()
     recorded: tuple[str, ...] = ()
     output_delay: float = 0.0
     min_confidence: float = 0.0
@@ -199,7 +204,7 @@ class CalibrationSpec:
     learning: tuple[tuple[float, float], ...] = ()
     validation: tuple[tuple[float, float], ...] = ()
     alignment: AlignmentSpec = field(default_factory=AlignmentSpec)
-    input_floors: dict[str, float] = field(default_factory=dict)
+    input_floors: dict[Ref, float] = field(default_factory=dict)
     solver: SolverSpec = field(default_factory=SolverSpec)
     statistics: StatisticsSpec = field(default_factory=StatisticsSpec)
     slot_forces: SlotForcesSpec | None = None
@@ -236,7 +241,7 @@ def _segments(ctx: _Ctx, table: dict, name: str, required: bool) -> tuple[tuple[
 
 def _parameter(ctx: _Ctx, name: str, raw: Any) -> ParameterSpec:
     key = f'[parameters."{name}"]'
-    ctx.ref(name, key)
+    ref = Ref.parse(name, key, ctx.fail)
     table = ctx.table(raw, key, ("initial", "min", "max", "unit", "scale", "start_range"))
     lo, hi = ctx.number(table, key, "min", None), ctx.number(table, key, "max", None)
     if lo is not None and hi is not None and lo >= hi:
@@ -252,7 +257,7 @@ def _parameter(ctx: _Ctx, name: str, raw: Any) -> ParameterSpec:
                 or sr[1] <= sr[0]):
             ctx.fail(f"{key}.start_range", f"expected [low, high] with low < high, got {sr!r}")
         start_range = (float(sr[0]), float(sr[1]))
-    return ParameterSpec(name=name, key=key, initial=initial, min=lo, max=hi, unit=ctx.string(table, key, "unit", None),
+    return ParameterSpec(ref=ref, key=key, initial=initial, min=lo, max=hi, unit=ctx.string(table, key, "unit", None),
                          scale=ctx.number(table, key, "scale", None, positive=True), start_range=start_range)
 
 
@@ -264,12 +269,12 @@ def _outputs(ctx: _Ctx, doc: dict) -> tuple[OutputSpec, ...]:
     for i, item in enumerate(items):
         key = f"[[outputs]][{i}]"
         table = ctx.table(item, key, ("simulated", "recorded", "weight", "unit", "sigma"))
-        out.append(OutputSpec(simulated=ctx.ref(table.get("simulated"), f"{key}.simulated"),
+        out.append(OutputSpec(simulated=Ref.parse(table.get("simulated"), f"{key}.simulated", ctx.fail),
                               recorded=ctx.string(table, key, "recorded"), key=key,
                               weight=ctx.number(table, key, "weight", 1.0, positive=True),
                               unit=ctx.string(table, key, "unit", None),
                               sigma=ctx.number(table, key, "sigma", None, positive=True)))
-    seen = [o.simulated + "|" + o.recorded for o in out]
+    seen = [(o.simulated, o.recorded) for o in out]
     for i, s in enumerate(seen):
         if s in seen[:i]:
             ctx.fail(f"[[outputs]][{i}]", f"the pair {out[i].simulated} / {out[i].recorded} is listed twice")
@@ -289,9 +294,8 @@ def _alignment(ctx: _Ctx, raw: Any) -> AlignmentSpec:
             if name in table:
                 ctx.fail(f"{key}.{name}", "not used with method = \"none\"")
         return AlignmentSpec("none", (), (), delay, confidence)
-    simulated = ctx.strings(table, key, "simulated", 3)
-    for i, s in enumerate(simulated):
-        ctx.ref(s, f"{key}.simulated[{i}]")
+    simulated = tuple(Ref.parse(s, f"{key}.simulated[{i}]", ctx.fail)
+                      for i, s in enumerate(ctx.strings(table, key, "simulated", 3)))
     return AlignmentSpec(method, simulated, ctx.strings(table, key, "recorded", 3), delay, confidence)
 
 
@@ -361,6 +365,9 @@ def load_spec(path: str | Path) -> CalibrationSpec:
         ctx.fail("", "calibration spec not found")
     except (tomllib.TOMLDecodeError, UnicodeDecodeError) as exc:
         ctx.fail("", f"invalid TOML: {exc}")
+    if "scenario" in doc and "calibration" not in doc:
+        ctx.fail("", f"this is a scenario file ([scenario] table), not a calibration spec: run it with "
+                     f"`milling-twin run {path}`")
     ctx.table(doc, "", ("calibration", "parameters", "outputs", "segments", "alignment", "inputs", "solver",
                         "statistics", "slot_forces"))
     key = "[calibration]"
@@ -408,11 +415,10 @@ def load_spec(path: str | Path) -> CalibrationSpec:
             if a < d and c < b:
                 ctx.fail(f"[segments].validation[{i}]", f"[{a!r}, {b!r}] overlaps the learning window [{c!r}, {d!r}]: "
                                                         "validation data must be unseen")
-    floors: dict[str, float] = {}
+    floors: dict[Ref, float] = {}
     inputs = ctx.table(doc.get("inputs", {}), "[inputs]", list(doc.get("inputs") or {}))
-    for ref, item in inputs.items():
-        k = f'[inputs."{ref}"]'
-        ctx.ref(ref, k)
-        floors[ref] = ctx.number(ctx.table(item, k, ("floor",)), k, "floor")
+    for name, item in inputs.items():
+        k = f'[inputs."{name}"]'
+        floors[Ref.parse(name, k, ctx.fail)] = ctx.number(ctx.table(item, k, ("floor",)), k, "floor")
     return CalibrationSpec(**common, outputs=_outputs(ctx, doc), learning=learning, validation=validation,
                            alignment=_alignment(ctx, doc.get("alignment", {})), input_floors=floors)

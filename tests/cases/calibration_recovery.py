@@ -52,7 +52,7 @@ class RecoveryStudy:
             raise ValueError(f"truth must give every fitted parameter ({', '.join(names)}); got {sorted(truth)}")
         self.truth = np.array([truth[n] for n in names])
         rec = self.prepared.scenario.recorded
-        outputs = [o.ref for o in self.prepared.outputs]
+        outputs = [o.column for o in self.prepared.outputs]
         self.clean = truth_outputs(self.prepared.scenario, dict(truth), outputs, rec.time, out_dir / "truth")
         self.recorded = rec
         pairs, _, _ = pairs_for(self.prepared, self._recording(np.zeros_like(self.clean)))

@@ -592,13 +592,15 @@ def run(scenario: Scenario, out_dir: str | Path, *, progress: bool = True,
     columns = ["time"] + [str(r) for r in scenario.outputs]
     bools = [str(r) for r in scenario.outputs if scenario.variable(r).type == "bool"]
     ints = [str(r) for r in scenario.outputs if scenario.variable(r).type == "int"]
+    units = {"time": {"unit": "s"}} | {str(r): {"unit": v.unit, "display_unit": v.display_unit}
+                                       for r, v in ((r, scenario.variable(r)) for r in scenario.outputs)}
     # each FMU file hashed once, for run.json and as the key of its unpacked folder (orchestrator.fmu_cache)
     fmu_hashes = {path: sha256_of(path) for path in dict.fromkeys(i.path for i in scenario.instances)}
     info = {**_run_info(scenario, fmu_hashes), "stepping": {
         "path": choice.path, "library": None if choice.library is None else str(choice.library),
         "reason": choice.reason}}
     writer = _Writer(Path(out_dir) / scenario.name, columns, bools, info,
-                     flush_rows=flush_rows, flush_seconds=flush_seconds, int_columns=ints)
+                     flush_rows=flush_rows, flush_seconds=flush_seconds, int_columns=ints, units=units)
     state = _Run(scenario, writer, fmu_hashes)
     t0_wall = time.perf_counter()
     wall = 0.0

@@ -6,6 +6,14 @@ A run folder holds::
     chunks/chunk_000001.parquet   rows in time order, one file per flush
     chunks/chunk_000002.parquet   ...
 
+Units: the values are SI. Each chunk's Parquet schema carries, per column, the field metadata
+``b"unit"`` (the variable's SI unit, e.g. ``b"W"``; ``b"s"`` for ``time``; ``b"bool"`` for booleans) and
+``b"display_unit"`` (e.g. ``b"kW"``) where the model description gives them, so that every chunk,
+even of a killed run, says what its numbers are; ``run.json`` holds the same as ``"units"``:
+``{column: {"unit": ..., "display_unit": ...}}``. ``load_results`` returns them as
+``df.attrs["units"]`` (column -> unit, "" where none is declared) and ``df.attrs["display_units"]``
+(column -> display unit, only the columns that have one).
+
 Every file is written to a temporary name in its final folder and then renamed with
 ``os.replace``, so a chunk or ``run.json`` is either complete or absent. Chunks are
 flushed every ``flush_rows`` rows, after ``flush_seconds`` of wall time since the last
@@ -32,7 +40,7 @@ import json
 import os
 import platform
 import time
-from collections.abc import Sequence
+from collections.abc import Mapping, Sequence
 from pathlib import Path
 from typing import Any
 
@@ -95,18 +103,23 @@ class RunWriter:
 
     ``columns``: "time" first, then "instance.variable"; ``bool_columns``: those stored
     as booleans, ``int_columns``: as int32 (Int32 outputs; rows carry them as float64, which
-    holds every int32 exactly). ``info``: provenance for ``run.json`` (scenario, FMUs, ...), to which
+    holds every int32 exactly). ``units``: by column, ``{"unit": ..., "display_unit": ...}`` (either
+    may be absent or ""), written into every chunk's schema and into ``run.json`` (see the module
+    text). ``info``: provenance for ``run.json`` (scenario, FMUs, ...), to which
     the writer adds versions, wall times, status, rows written and ``extra`` of
     :meth:`finish`.
     """
 
     def __init__(self, run_dir: str | Path, columns: Sequence[str], bool_columns: Sequence[str] = (),
                  info: dict[str, Any] | None = None, flush_rows: int = 10_000,
-                 flush_seconds: float = 1.0, int_columns: Sequence[str] = ()) -> None:
+                 flush_seconds: float = 1.0, int_columns: Sequence[str] = (),
+                 units: Mapping[str, Mapping[str, str]] | None = None) -> None:
         self.run_dir = Path(run_dir)
         self.columns = list(columns)
         self._types = [bool if c in set(bool_columns) else np.int32 if c in set(int_columns) else None
                        for c in self.columns]
+        self.units = {c: {k: v for k, v in (units or {}).get(c, {}).items() if v} for c in self.columns}
+        self._schema: Any = None  # the chunks' pyarrow schema, made at the first flush
         self._buffer = np.empty((flush_rows, len(self.columns)))
         self._fill = 0
         self._flush_seconds = flush_seconds
@@ -120,7 +133,7 @@ class RunWriter:
             if stale.is_file():
                 stale.unlink()
         self.info = {**(info or {}), "columns": self.columns, "bool_columns": list(bool_columns),
-                     "int_columns": list(int_columns),
+                     "int_columns": list(int_columns), "units": self.units,
                      "versions": software_versions(), "start_wall_time": _now(),
                      "end_wall_time": None, "status": "running", "rows_written": 0}
         self._write_info()
@@ -141,7 +154,9 @@ class RunWriter:
         block = self._buffer[: self._fill]
         arrays = [pa.array(block[:, i] if kind is None else block[:, i].astype(kind))
                   for i, kind in enumerate(self._types)]
-        table = pa.Table.from_arrays(arrays, names=self.columns)
+        if self._schema is None:
+            self._schema = _schema(self.columns, self._types, self.units)
+        table = pa.Table.from_arrays(arrays, schema=self._schema)
         self.chunks += 1
         path = self.run_dir / CHUNK_DIR / f"chunk_{self.chunks:06d}.parquet"
         # no dictionary encoding for float columns: continuous signals hardly repeat, and trying costs
@@ -163,12 +178,24 @@ class RunWriter:
         _replace_atomically(self.run_dir / RUN_INFO, lambda fh: fh.write(text), durable)
 
 
+def _schema(columns: Sequence[str], types: Sequence[Any], units: Mapping[str, Mapping[str, str]]) -> Any:
+    """The chunks' schema: each column's type and its units as field metadata (b"unit", b"display_unit")."""
+    import pyarrow as pa
+
+    kinds = {None: pa.float64(), bool: pa.bool_(), np.int32: pa.int32()}
+    return pa.schema([pa.field(c, kinds[t], metadata={k.encode(): v.encode() for k, v in units[c].items()} or None)
+                      for c, t in zip(columns, types)])
+
+
 def read_run_info(run_dir: str | Path) -> dict[str, Any]:
     return json.loads((Path(run_dir) / RUN_INFO).read_text())
 
 
 def load_results(run_dir: str | Path) -> pd.DataFrame:
-    """All chunks of a run in order: column ``time`` first, then "instance.variable"."""
+    """All chunks of a run in order: column ``time`` first, then "instance.variable"; SI values.
+    ``df.attrs["units"]``: column -> unit ("" where none is declared); ``df.attrs["display_units"]``:
+    column -> display unit, for the columns that have one (from the chunks' field metadata; for a run
+    without chunks, from ``run.json``)."""
     import pandas as pd
     import pyarrow as pa
     import pyarrow.parquet as pq
@@ -177,6 +204,14 @@ def load_results(run_dir: str | Path) -> pd.DataFrame:
     chunks = sorted((run_dir / CHUNK_DIR).glob("chunk_*.parquet"),
                     key=lambda p: int(p.stem.split("_")[1]))
     if not chunks:
-        columns = read_run_info(run_dir)["columns"] if (run_dir / RUN_INFO).exists() else ["time"]
-        return pd.DataFrame({c: pd.Series(dtype=float) for c in columns})
-    return pa.concat_tables([pq.read_table(p) for p in chunks]).to_pandas()
+        info = read_run_info(run_dir) if (run_dir / RUN_INFO).exists() else {}
+        columns = info.get("columns", ["time"])
+        df = pd.DataFrame({c: pd.Series(dtype=float) for c in columns})
+        units = {c: info.get("units", {}).get(c, {}) for c in columns}
+    else:
+        table = pa.concat_tables([pq.read_table(p) for p in chunks])
+        df = table.to_pandas()
+        units = {f.name: {k.decode(): v.decode() for k, v in (f.metadata or {}).items()} for f in table.schema}
+    df.attrs["units"] = {c: u.get("unit", "") for c, u in units.items()}
+    df.attrs["display_units"] = {c: u["display_unit"] for c, u in units.items() if u.get("display_unit")}
+    return df

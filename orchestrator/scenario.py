@@ -132,7 +132,8 @@ class ScenarioError(ValueError):
 @dataclass(frozen=True)
 class Variable:
     """An FMU variable as far as the orchestrator cares. ``type``: "real", "bool" or
-    the FMI type name when unsupported; ``unit``: "" when undeclared, "bool" for booleans."""
+    the FMI type name when unsupported; ``unit``: "" when undeclared, "bool" for booleans;
+    ``display_unit``: the model description's displayUnit ("" when it gives none)."""
 
     name: str
     value_reference: int
@@ -149,6 +150,7 @@ class Variable:
     elements: tuple[str, ...] = ()
     array: str = ""
     element: int = 0
+    display_unit: str = ""
 
 
 @dataclass(frozen=True)
@@ -259,10 +261,12 @@ def _variables(md: Any) -> dict[str, Variable]:
     out = {}
     for v in md.modelVariables:
         unit = v.unit or (v.declaredType.unit if v.declaredType is not None else None) or ""
+        display = v.displayUnit or (v.declaredType.displayUnit if v.declaredType is not None else None) or ""
         kind = _SUPPORTED_TYPES.get(v.type, v.type) if not v.dimensions else f"{_SUPPORTED_TYPES.get(v.type, v.type)}[]"
         bound = lambda x: float(x) if x is not None and kind in ("real", "int", "real[]") else None  # noqa: E731
         out[v.name] = Variable(v.name, v.valueReference, kind, v.causality, v.variability,
-                               "bool" if kind == "bool" else unit, bound(v.min), bound(v.max))
+                               "bool" if kind == "bool" else unit, bound(v.min), bound(v.max),
+                               display_unit="" if kind == "bool" else display)
     return {**out, **_arrays(md, out)}
 
 

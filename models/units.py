@@ -47,6 +47,7 @@ import numpy.typing as npt
 
 __all__ = [
     "BASE_DIMENSIONS",
+    "DISPLAY_UNITS",
     "SI_UNITS",
     "UNITS",
     "Unit",
@@ -54,6 +55,9 @@ __all__ = [
     "conversion_factor",
     "convert",
     "dimension_name",
+    "display_unit_of",
+    "display_value",
+    "format_quantity",
     "known_units",
     "parse_unit",
     "si_unit_of",
@@ -316,3 +320,38 @@ def si_unit_of(unit: str) -> str:
         raise UnitError(
             f"no SI unit known for {unit!r} (dimension {dimension_name(u.dimensions)})"
         ) from None
+
+
+#: Units people read more easily than the SI units the FMUs compute in (the summaries and plots show
+#: quantities in these; the FMUs' model descriptions declare the same ones as their variables' displayUnit).
+DISPLAY_UNITS: Final[dict[str, str]] = {"W": "kW", "m3/s": "cm3/min", "m/s": "mm/min", "rad/s": "rpm", "m": "mm"}
+
+
+def display_unit_of(unit: str) -> str:
+    """The display unit of a quantity given in ``unit``: that of its SI unit in :data:`DISPLAY_UNITS`
+    (``"W"`` and ``"kW"`` -> ``"kW"``), else ``unit`` itself (also for an unknown unit)."""
+    try:
+        si = si_unit_of(unit)
+    except UnitError:
+        return unit
+    return DISPLAY_UNITS.get(si, unit)
+
+
+def display_value(value: float, unit: str, display_unit: str | None = None) -> tuple[float, str]:
+    """``value`` (in ``unit``) converted to ``display_unit`` (default :func:`display_unit_of`), and the
+    unit it is in: ``unit`` itself when the display unit does not fit it or is unknown."""
+    shown = display_unit_of(unit) if display_unit is None else display_unit
+    if shown == unit:
+        return value, unit
+    try:
+        return value * conversion_factor(unit, shown), shown
+    except UnitError:
+        return value, unit
+
+
+def format_quantity(value: float, unit: str, display_unit: str | None = None, spec: str = ".4g") -> str:
+    """``value`` (in ``unit``) as text in its display unit (see :func:`display_value`), formatted with
+    ``spec``: ``format_quantity(1234.5, "W")`` -> ``"1.234 kW"``, ``format_quantity(0.5, "1")`` -> ``"0.5"``."""
+    shown_value, shown = display_value(value, unit, display_unit)
+    text = format(shown_value, spec)
+    return f"{text} {shown}" if shown not in ("", "1") else text

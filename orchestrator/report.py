@@ -25,13 +25,9 @@ from matplotlib.figure import Figure  # no pyplot: no global figure state, Agg b
 
 from milling_twin.orchestrator.results import load_results
 from milling_twin.orchestrator.scenario import Compare, Scenario
-from milling_twin.models.units import UnitError, conversion_factor
+from milling_twin.models.units import DISPLAY_UNITS, UnitError, conversion_factor
 
 __all__ = ["Comparison", "Report", "default_display_unit", "write_report"]
-
-#: Units people read more easily than the SI units the FMUs compute in.
-DISPLAY_UNITS = {"W": "kW", "m3/s": "cm3/min", "m/s": "mm/min", "rad/s": "rpm", "m": "mm"}
-
 
 def default_display_unit(unit: str) -> str:
     return DISPLAY_UNITS.get(unit, unit)
@@ -90,11 +86,12 @@ def _compare(scenario: Scenario, pair: Compare, results: pd.DataFrame, run_dir: 
         relative_rms=rms / rms_recorded if rms_recorded > 0 else None,
         plot=f"compare_{pair.simulated.instance}_{pair.simulated.variable}.png",
     )
-    _plot(run_dir / comparison.plot, comparison, t, simulated, recorded, scale, scenario.name)
+    _plot(run_dir / comparison.plot, comparison, pair.simulated.variable, t, simulated, recorded, scale,
+          scenario.name)
     return comparison
 
 
-def _plot(path: Path, c: Comparison, t: np.ndarray, simulated: np.ndarray, recorded: np.ndarray,
+def _plot(path: Path, c: Comparison, variable: str, t: np.ndarray, simulated: np.ndarray, recorded: np.ndarray,
           s: float, title: str) -> None:
     """``s`` scales values from ``c.unit`` to ``c.display_unit``."""
     fig = Figure(figsize=(10, 6), layout="constrained")
@@ -102,7 +99,7 @@ def _plot(path: Path, c: Comparison, t: np.ndarray, simulated: np.ndarray, recor
     simulated, recorded = simulated * s, recorded * s
     top.plot(t, recorded, label=f"recorded: {c.recorded}", color="tab:gray", linewidth=1.0)
     top.plot(t, simulated, label=f"simulated: {c.simulated}", color="tab:blue", linewidth=1.0)
-    top.set_ylabel(f"{c.simulated.split('.', 1)[1]} [{c.display_unit}]")
+    top.set_ylabel(f"{variable} [{c.display_unit}]")
     rel = f"{100 * c.relative_rms:.1f} %" if c.relative_rms is not None else "n/a"
     top.set_title(f"{title}: {c.simulated} vs {c.recorded}\nRMS error {c.rms_error * s:.4g} "
                   f"{c.display_unit} ({rel} of RMS recorded), mean |error| "

@@ -20,6 +20,7 @@ from typing import Any
 
 import numpy as np
 
+from milling_twin.models.units import display_value, format_quantity
 from milling_twin.orchestrator.calibrate.plots import correlation_png, fit_png, residual_png, trace_png
 from milling_twin.orchestrator.calibrate.result import CalibrationResult, Figure, Table
 
@@ -184,9 +185,10 @@ def summary_lines(result: CalibrationResult) -> list[str]:
         d = q.display
         lines.append(f"  {q.name} = {d(st.estimate):.6g} {q.display_unit} (initial {d(q.initial):.4g}; 95 % CI "
                      f"[{d(st.ci_low):.4g}, {d(st.ci_high):.4g}]){'  ' + '; '.join(st.flags) if st.flags else ''}")
-    for e in result.errors:
+    for e in result.errors:  # in the display unit, as the run summary shows a comparison (kW, not W)
+        before, _ = display_value(e.rms_before, e.unit)
         lines.append(f"  {e.output} on {e.dataset}{' ' + e.label if e.label else ''} ({e.n} samples): RMS error "
-                     f"{e.rms_before:.4g} -> {e.rms_after:.4g} {e.unit} ({100 * e.relative_before:.2f} % -> "
+                     f"{before:.4g} -> {format_quantity(e.rms_after, e.unit)} ({100 * e.relative_before:.2f} % -> "
                      f"{100 * e.relative_after:.2f} % of RMS recorded), r2 {e.r2_before:.3f} -> {e.r2_after:.3f}")
     return lines
 

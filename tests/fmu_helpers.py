@@ -20,12 +20,10 @@ from typing import Callable, Iterable, Sequence
 import numpy as np
 
 REPO = Path(__file__).resolve().parents[1]
-if str(REPO) not in sys.path:  # `models` when this module runs as a script (sanitizer subprocess)
-    sys.path.insert(0, str(REPO))
 
-from fmpy import calloc, extract, free, read_model_description  # noqa: E402
-from fmpy.fmi1 import FMICallException  # noqa: E402
-from fmpy.fmi2 import (  # noqa: E402
+from fmpy import calloc, extract, free, read_model_description
+from fmpy.fmi1 import FMICallException
+from fmpy.fmi2 import (
     FMU2Slave,
     fmi2CallbackAllocateMemoryTYPE,
     fmi2CallbackFreeMemoryTYPE,
@@ -33,7 +31,7 @@ from fmpy.fmi2 import (  # noqa: E402
     fmi2CallbackLoggerTYPE,
     fmi2True,
 )
-from fmpy.fmi3 import FMU3Slave, fmi3Boolean, fmi3Float64  # noqa: E402
+from fmpy.fmi3 import FMU3Slave, fmi3Boolean, fmi3Float64
 
 OK, WARNING, DISCARD, ERROR, FATAL = 0, 1, 2, 3, 4
 

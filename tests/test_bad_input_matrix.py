@@ -1,4 +1,4 @@
-"""The bad-input matrix of README.md ("Bad input: what you get"): the table cannot rot, because every row
+"""The bad-input matrix of docs/testing.md ("Bad input: what you get"): the table cannot rot, because every row
 names the test that proves it and ``test_every_row_of_the_readme_table_names_a_collected_test`` fails when
 that test is not collected. Here too are the matrix's cases no other file covers: scenario files, recorded
 data, calibration specs and parameter sets as the user meets them (load_scenario / load_spec, the message
@@ -22,17 +22,17 @@ from cases.calibration_synthetic import write_power_case
 from milling_twin.cli import main
 from milling_twin.orchestrator.scenario import ScenarioError, load_scenario
 
-README = REPO_ROOT / "README.md"
-SECTION = "### Bad input: what you get"
+MATRIX = REPO_ROOT / "docs" / "testing.md"
+SECTION = "## Bad input: what you get"
 
 
-# ---- the README table ----
+# ---- the table ----
 
 
 def readme_rows() -> list[list[str]]:
     """The cells of the table under SECTION (header and separator left out)."""
-    text = README.read_text()
-    assert SECTION in text, f"README.md has no section {SECTION!r}"
+    text = MATRIX.read_text()
+    assert SECTION in text, f"{MATRIX} has no section {SECTION!r}"
     body = text.split(SECTION, 1)[1]
     rows, started = [], False
     for line in body.splitlines():
@@ -60,7 +60,7 @@ def collected(files: set[str]) -> set[str]:
 def test_every_row_of_the_readme_table_names_a_collected_test() -> None:
     rows = readme_rows()
     assert len(rows) >= 60, f"only {len(rows)} rows under {SECTION!r}"
-    header = [c.lower() for c in re.split(r"(?<!\\)\|", README.read_text().split(SECTION, 1)[1]
+    header = [c.lower() for c in re.split(r"(?<!\\)\|", MATRIX.read_text().split(SECTION, 1)[1]
                                           .split("\n|", 1)[1].split("\n", 1)[0])]
     assert any("test" in c for c in header)
     wanted: dict[str, list[int]] = {}
@@ -74,7 +74,7 @@ def test_every_row_of_the_readme_table_names_a_collected_test() -> None:
     ids = collected({t.split("::")[0] for t in wanted})
     missing = [f"row {', '.join(map(str, rows_))}: {test}" for test, rows_ in wanted.items()
                if test not in ids and not any(i.startswith(test + "[") for i in ids)]
-    assert not missing, "README rows name tests that pytest does not collect:\n" + "\n".join(missing)
+    assert not missing, "docs/testing.md rows name tests that pytest does not collect:\n" + "\n".join(missing)
 
 
 # ---- scenario files ----
@@ -223,6 +223,36 @@ def test_calibration_spec_empty_or_truncated(tmp_path: Path) -> None:
     assert spec_error(spec, tmp_path) == "[segments]: missing required table"
     spec.write_text(text[: text.index("[segments]") + 25])
     assert spec_error(spec, tmp_path) == "invalid TOML: Unclosed array (at end of document)"
+
+
+def test_a_scenario_file_given_as_a_calibration_spec_and_the_reverse(make_case, tmp_path: Path,
+                                                                      fmu_dir: Path) -> None:
+    """Each loader recognises the other kind of file and says which command takes it."""
+    case = make_case()
+    assert spec_error(case, tmp_path) == (f"this is a scenario file ([scenario] table), not a calibration spec: "
+                                          f"run it with `milling-twin run {case}`")
+    spec = write_power_case(tmp_path / "case")
+    with pytest.raises(ScenarioError) as info:
+        load_scenario(spec, fmu_dir)
+    assert str(info.value) == (f"{spec}: this is a calibration spec ([calibration] table), not a scenario: use "
+                               f"`milling-twin calibrate {spec}`")
+
+
+@pytest.mark.parametrize("folder", ["missing", "empty", "other FMUs"])
+def test_a_missing_fmu_says_how_to_build_them(make_case, tmp_path: Path, fmu_dir: Path, folder: str) -> None:
+    hint = ("build the FMUs first: `make build` (or `cmake -S . -B build && cmake --build build`), or pass "
+            "--fmu-dir / set MILLING_TWIN_FMU_DIR")
+    case = make_case()
+    where = tmp_path / "fmus"
+    if folder != "missing":
+        where.mkdir()
+    if folder == "other FMUs":
+        (where / "Other.fmu").write_bytes(b"")
+    state = {"missing": f"{where} does not exist", "empty": f"{where} holds no FMUs",
+             "other FMUs": f"available in {where}: Other"}[folder]
+    assert scenario_error(case, where) == (f"[fmus.power].fmu: FMU 'SpindlePower' not found: looked for "
+                                           f"{where / 'SpindlePower.fmu'}; {state}; {hint}").replace(str(tmp_path),
+                                                                                                    "<dir>")
 
 
 # ---- parameter sets ----

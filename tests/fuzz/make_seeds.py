@@ -13,16 +13,13 @@ other names and are not touched.
 from __future__ import annotations
 
 import struct
-import sys
 from pathlib import Path
 
 import numpy as np
 
 REPO = Path(__file__).resolve().parents[2]
-if str(REPO) not in sys.path:
-    sys.path.insert(0, str(REPO))
 
-from milling_twin.models import force_net  # noqa: E402
+from milling_twin.models import force_net
 
 CORPUS = Path(__file__).resolve().parent / "corpus"
 

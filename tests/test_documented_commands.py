@@ -1,0 +1,97 @@
+"""Every command the README and docs/ show in a ```sh block is checked: each milling-twin command parses
+with the real parser (so a renamed subcommand or option fails here), each make target exists, cheap ones
+run for real, and a line of any other program fails unless that program is listed below."""
+from __future__ import annotations
+
+import os
+import re
+import shlex
+import subprocess
+import sys
+from pathlib import Path
+
+import pytest
+
+from conftest import REPO_ROOT
+from milling_twin.cli import build_parser
+
+DOCUMENTS = [REPO_ROOT / "README.md", *sorted((REPO_ROOT / "docs").glob("*.md"))]
+# programs a reader runs that are not ours: shown, not run here
+EXTERNAL = {"cmake", "git", "chromium", "xdg-open", "open", "pip", "python3", "fmpy", "sh", "bash", "cd", "ctest",
+            "valgrind", "apt-get", "export", "ls", "cat", "sudo", "sha256sum", "python"}
+# milling-twin subcommands cheap enough to run from the docs as they stand (a few seconds each)
+RUN = {"run", "info", "lobes", "calibrate", "--version"}
+FENCE = re.compile(r"^```sh\s*\n(.*?)^```", re.M | re.S)
+
+
+def documented_commands() -> list[tuple[str, int, str]]:
+    """(document, line number, command) of each command line in a ```sh block (continuations joined)."""
+    found = []
+    for doc in DOCUMENTS:
+        text = doc.read_text()
+        for block in FENCE.finditer(text):
+            start = text[:block.start(1)].count("\n") + 1
+            pending, first = "", 0
+            for offset, line in enumerate(block.group(1).splitlines()):
+                if not pending:
+                    first = start + offset
+                pending += line.rstrip("\\").strip() + " " if line.rstrip().endswith("\\") else line.strip()
+                if line.rstrip().endswith("\\"):
+                    continue
+                words = shlex.split(pending, comments=True)
+                if words:
+                    found.append((doc.relative_to(REPO_ROOT).as_posix(), first, pending))
+                pending = ""
+    return found
+
+
+COMMANDS = documented_commands()
+
+
+def _words(command: str) -> list[str]:
+    words = shlex.split(command, comments=True)
+    while words and re.fullmatch(r"[A-Z_]+=\S*", words[0]):  # VAR=value prefixes
+        words = words[1:]
+    return words
+
+
+def test_the_docs_show_commands() -> None:
+    assert len(COMMANDS) >= 5, COMMANDS
+    assert any(_words(c)[0] == "make" and "demo" in c for _, _, c in COMMANDS)
+
+
+@pytest.mark.parametrize("doc, line, command", COMMANDS, ids=[f"{d}:{n}" for d, n, _ in COMMANDS])
+def test_documented_command(doc: str, line: int, command: str, tmp_path: Path, fmu_dir: Path) -> None:
+    words = _words(command)
+    program = Path(words[0]).name
+    if program == "make":
+        targets = [w for w in words[1:] if not w.startswith("-") and "=" not in w]
+        proc = subprocess.run(["make", "-n", *targets], cwd=REPO_ROOT, capture_output=True, text=True, timeout=60)
+        assert proc.returncode == 0, f"{doc}:{line}: {command}: {proc.stderr}"
+        return
+    if program in ("python", "python3") and words[1:3] == ["-m", "milling_twin"]:
+        words, program = ["milling-twin", *words[3:]], "milling-twin"
+    if program != "milling-twin":
+        assert program in EXTERNAL, f"{doc}:{line}: {command!r}: a command of {program!r} is not covered; " \
+                                    "make it a milling-twin or make command, or list the program in EXTERNAL"
+        return
+    arguments = words[1:]
+    try:
+        build_parser().parse_args(arguments)
+    except SystemExit as exc:
+        if exc.code != 0:  # --help and --version exit 0
+            pytest.fail(f"{doc}:{line}: {command!r} does not parse (exit {exc.code})")
+    subcommand = next((w for w in arguments if not w.startswith("-")), arguments[0] if arguments else "")
+    if subcommand not in RUN or "--help" in arguments:
+        return
+    # run it as written, in a folder where the relative paths of the docs resolve and the results stay apart
+    (tmp_path / "scenarios").symlink_to(REPO_ROOT / "scenarios")
+    (tmp_path / "build").mkdir()
+    (tmp_path / "build" / "fmus").symlink_to(fmu_dir)
+    env = {**os.environ, "MILLING_TWIN_FMU_DIR": str(fmu_dir)}
+    if "--parameter-set" in arguments:  # written by the calibration the docs show before it
+        subprocess.run([sys.executable, "-m", "milling_twin", "calibrate", "scenarios/calibration/umich_power.toml",
+                        "--no-progress"], cwd=tmp_path, env=env, capture_output=True, timeout=600, check=True)
+    proc = subprocess.run([sys.executable, "-m", "milling_twin", *arguments], cwd=tmp_path, env=env,
+                          capture_output=True, text=True, timeout=600)
+    assert proc.returncode == 0, f"{doc}:{line}: {command}\n{proc.stdout[-2000:]}\n{proc.stderr[-2000:]}"

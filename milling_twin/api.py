@@ -46,7 +46,13 @@ class Results:
 
     @property
     def status(self) -> str:
+        """"completed", "interrupted" or "terminated: ..." (an FMU ended the run)."""
         return self.run.status
+
+    @property
+    def steps(self) -> int:
+        """Base-grid steps done."""
+        return self.run.steps
 
 
 def load_scenario(path: str | Path, fmu_dir: str | Path | None = None, *,

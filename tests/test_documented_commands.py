@@ -22,6 +22,7 @@ EXTERNAL = {"cmake", "git", "chromium", "xdg-open", "open", "pip", "python3", "f
 # milling-twin subcommands cheap enough to run from the docs as they stand (a few seconds each)
 RUN = {"run", "info", "lobes", "calibrate", "--version"}
 FENCE = re.compile(r"^```sh\s*\n(.*?)^```", re.M | re.S)
+PYTHON = re.compile(r"^```python\s*\n(.*?)^```", re.M | re.S)
 
 
 def documented_commands() -> list[tuple[str, int, str]]:
@@ -55,6 +56,29 @@ def _words(command: str) -> list[str]:
     return words
 
 
+def _workspace(tmp_path: Path, fmu_dir: Path) -> dict[str, str]:
+    """A folder where the relative paths of the docs resolve and results stay apart; the environment."""
+    (tmp_path / "scenarios").symlink_to(REPO_ROOT / "scenarios")
+    (tmp_path / "build").mkdir()
+    (tmp_path / "build" / "fmus").symlink_to(fmu_dir)
+    return {**os.environ, "MILLING_TWIN_FMU_DIR": str(fmu_dir)}
+
+
+PYTHON_BLOCKS = [(doc.relative_to(REPO_ROOT).as_posix(), doc.read_text()[:m.start()].count("\n") + 1, m.group(1))
+                 for doc in DOCUMENTS for m in PYTHON.finditer(doc.read_text())]
+
+
+@pytest.mark.parametrize("doc, line, code", PYTHON_BLOCKS, ids=[f"{d}:{n}" for d, n, _ in PYTHON_BLOCKS])
+def test_documented_python(doc: str, line: int, code: str, tmp_path: Path, fmu_dir: Path) -> None:
+    """Each ```python block runs as written (after the run the docs show first, whose folder it may read)."""
+    env = _workspace(tmp_path, fmu_dir)
+    subprocess.run([sys.executable, "-m", "milling_twin", "run", "scenarios/umich_power.toml", "--no-progress"],
+                   cwd=tmp_path, env=env, capture_output=True, timeout=600, check=True)
+    proc = subprocess.run([sys.executable, "-c", code], cwd=tmp_path, env=env, capture_output=True, text=True,
+                          timeout=600)
+    assert proc.returncode == 0, f"{doc}:{line}:\n{proc.stderr[-3000:]}"
+
+
 def test_the_docs_show_commands() -> None:
     assert len(COMMANDS) >= 5, COMMANDS
     assert any(_words(c)[0] == "make" and "demo" in c for _, _, c in COMMANDS)
@@ -84,11 +108,7 @@ def test_documented_command(doc: str, line: int, command: str, tmp_path: Path, f
     subcommand = next((w for w in arguments if not w.startswith("-")), arguments[0] if arguments else "")
     if subcommand not in RUN or "--help" in arguments:
         return
-    # run it as written, in a folder where the relative paths of the docs resolve and the results stay apart
-    (tmp_path / "scenarios").symlink_to(REPO_ROOT / "scenarios")
-    (tmp_path / "build").mkdir()
-    (tmp_path / "build" / "fmus").symlink_to(fmu_dir)
-    env = {**os.environ, "MILLING_TWIN_FMU_DIR": str(fmu_dir)}
+    env = _workspace(tmp_path, fmu_dir)  # run it as written
     if "--parameter-set" in arguments:  # written by the calibration the docs show before it
         subprocess.run([sys.executable, "-m", "milling_twin", "calibrate", "scenarios/calibration/umich_power.toml",
                         "--no-progress"], cwd=tmp_path, env=env, capture_output=True, timeout=600, check=True)

@@ -130,14 +130,16 @@ class _Slave:
     """One FMU instance with its value-reference and value buffers built once."""
 
     def __init__(self, inst: FmuInstance, unzip_dir: str, scenario: Scenario,
-                 fmi2_loggers: dict[bytes, Callable[[int, bytes | None], None]]) -> None:
+                 fmi2_loggers: dict[bytes, Callable[[int, bytes | None], None]],
+                 fmi_call_logger: Callable[[str], None] | None = None) -> None:
         self.inst, self.name, self.m = inst, inst.name, inst.ticks_per_step
         fmi3 = inst.fmi_version == 3
         vr_t, real_t, bool_t, int_t = ((fmi3ValueReference, fmi3Float64, fmi3Boolean, fmi3Int32) if fmi3
                                        else (fmi2ValueReference, fmi2Real, fmi2Boolean, fmi2Integer))
         cls = FMU3Slave if fmi3 else FMU2Slave
         fmu = cls(guid=inst.instantiation_token, unzipDirectory=unzip_dir,
-                  modelIdentifier=inst.model_identifier, instanceName=inst.name)
+                  modelIdentifier=inst.model_identifier, instanceName=inst.name, fmiCallLogger=fmi_call_logger)
+        self.log_all = fmi_call_logger is not None  # FMI logging: the FMU's OK messages are logged too
         self.fmu, self.fmi3 = fmu, fmi3
         self.errors: deque[str] = deque(maxlen=3)  # the FMU's latest Discard/Error messages
         try:
@@ -233,6 +235,8 @@ class _Slave:
             self.errors.append(text)
         elif status == 1:
             _log.warning("%s: %s", self.name, text)
+        elif self.log_all:
+            _log.info("%s: %s", self.name, text)
 
     def set_parameters(self) -> None:
         """Parameters and constant inputs, as start values (before initialization)."""
@@ -431,7 +435,9 @@ class _StopFlag:
 class _Run:
     """The state of one run; ``run()`` is the public entry point."""
 
-    def __init__(self, scenario: Scenario, writer: RunWriter, fmu_hashes: dict[Path, str]) -> None:
+    def __init__(self, scenario: Scenario, writer: RunWriter, fmu_hashes: dict[Path, str],
+                 fmi_call_logger: Callable[[str], None] | None = None) -> None:
+        self.fmi_call_logger = fmi_call_logger
         self.scenario, self.writer, self.fmu_hashes = scenario, writer, fmu_hashes
         self.base, self.start = scenario.base_step, scenario.start_time
         self.n_ticks = math.floor((scenario.stop_time - self.start) / scenario.output_interval
@@ -454,7 +460,8 @@ class _Run:
             self.current = inst.name
             if inst.path not in self.unzip_dirs:
                 self.unzip_dirs[inst.path] = fmu_cache.unpack(inst.path, self.fmu_hashes[inst.path])
-            self.slaves[inst.name] = _Slave(inst, self.unzip_dirs[inst.path].folder, scenario, self.fmi2_loggers)
+            self.slaves[inst.name] = _Slave(inst, self.unzip_dirs[inst.path].folder, scenario, self.fmi2_loggers,
+                                          self.fmi_call_logger)
             self.slaves[inst.name].set_parameters()
         _wire(self.slaves, scenario)
         order = list(self.slaves.values())
@@ -579,15 +586,24 @@ class _Run:
 
 def run(scenario: Scenario, out_dir: str | Path, *, progress: bool = True,
         should_stop: Callable[[float], bool] | None = None, flush_rows: int = 10_000,
-        flush_seconds: float = 1.0, stepping: str = "auto") -> RunResult:
+        flush_seconds: float = 1.0, stepping: str = "auto",
+        fmi_call_logger: Callable[[str], None] | None = None) -> RunResult:
     """Co-simulate ``scenario``, writing results to ``out_dir/<scenario name>/``.
 
     ``should_stop(t)`` is asked after each output row; True ends the run like Ctrl-C.
     ``stepping``: "auto" (the fast path when available, else Python), "fast" (raises
     :class:`milling_twin.orchestrator.fastpath.FastPathUnavailable`, before writing anything, when it cannot
     run) or "python".
+    ``fmi_call_logger`` receives every FMI call as text (fmpy's call logging), and the FMUs' messages of
+    every status go to this module's logger: the FMI calls are made from Python, so the python stepping loop
+    runs ("fast" raises :class:`~milling_twin.orchestrator.fastpath.FastPathUnavailable`).
     Raises :class:`SimulationError` when an FMI call fails (results so far are kept).
     """
+    if fmi_call_logger is not None:
+        if stepping == "fast":
+            raise fastpath.FastPathUnavailable("FMI call logging needs the python stepping loop (the compiled "
+                                               "loop calls the FMUs from C): use --path auto or python")
+        stepping = "python"
     choice = fastpath.choose(scenario, stepping)
     columns = ["time"] + [str(r) for r in scenario.outputs]
     bools = [str(r) for r in scenario.outputs if scenario.variable(r).type == "bool"]
@@ -601,7 +617,7 @@ def run(scenario: Scenario, out_dir: str | Path, *, progress: bool = True,
         "reason": choice.reason}}
     writer = _Writer(Path(out_dir) / scenario.name, columns, bools, info,
                      flush_rows=flush_rows, flush_seconds=flush_seconds, int_columns=ints, units=units)
-    state = _Run(scenario, writer, fmu_hashes)
+    state = _Run(scenario, writer, fmu_hashes, fmi_call_logger)
     t0_wall = time.perf_counter()
     wall = 0.0
     try:

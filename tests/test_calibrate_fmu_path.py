@@ -156,7 +156,8 @@ def test_the_whole_loop_writes_the_path_in_the_report(tmp_path: Path, fmu_dir: P
     text = result.report_md.read_text()
     assert "derivatives: FMU re-simulation with forward finite differences" in text
     assert "Fitted through the FMUs because" in text
-    assert (tmp_path / "set.params.toml").is_file()
+    assert result.parameter_set == result.out_dir / "set.params.toml" and result.parameter_set.is_file()
+    assert not (tmp_path / "set.params.toml").exists()  # nothing beside the spec unless write_set asks
     validation = [e for e in result.errors if e.dataset == "validation"]
     assert validation and all(e.rms_after < e.rms_before for e in validation)
     assert all(e.rms_after < 6.0 for e in validation)  # the recording's noise is 5 N

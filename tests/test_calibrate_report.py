@@ -63,6 +63,8 @@ def test_the_parameter_set_round_trips(calibrated, fmu_dir: Path) -> None:
     applied = scenario.instance("power").parameters
     for q, value in zip(calibrated.fit.parameters, calibrated.fit.theta):
         assert applied[q.name.split(".")[1]] == value
+    assert calibrated.parameter_set == calibrated.out_dir / "power_case.params.toml"
+    assert not (calibrated.spec.parameter_set).exists()  # the spec's place changes only with write_set
     text = calibrated.parameter_set.read_text()
     assert "[parameters.power]" in text and "95 % CI" in text and "spec_sha256" in text
     ssv = calibrated.ssv.read_text()

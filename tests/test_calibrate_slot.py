@@ -107,4 +107,5 @@ def test_the_whole_slot_calibration_predicts_the_held_out_feeds(data: Path, fmu_
     assert regression.estimate("force.Ktc") == pytest.approx(TOOL["Ktc"], rel=0.1)
     assert abs(regression.estimate("force.Ktc") / TOOL["Ktc"] - 1) > 0.01
     assert "Held-out feeds" in result.report_html.read_text()
-    assert result.parameter_set == tmp_path / "slot_forces.params.toml"
+    assert result.parameter_set == tmp_path / "out" / "calibration" / "slot_forces" / "slot_forces.params.toml"
+    assert not (tmp_path / "slot_forces.params.toml").exists()

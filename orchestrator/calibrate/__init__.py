@@ -9,8 +9,9 @@ the slot-milling forces in :mod:`milling_twin.orchestrator.calibrate.slot_forces
 """
 from __future__ import annotations
 
+from collections.abc import Mapping
 from pathlib import Path
-from typing import TYPE_CHECKING
+from typing import TYPE_CHECKING, Any
 
 from milling_twin.orchestrator.calibrate.errors import CalibrationError, CalibrationSpecError
 from milling_twin.orchestrator.calibrate.spec import CalibrationSpec, load_spec
@@ -22,7 +23,9 @@ __all__ = ["CalibrationError", "CalibrationSpec", "CalibrationSpecError", "calib
 
 
 def calibrate(spec_path: str | Path, fmu_dir: str | Path, out: str | Path = "runs", *,
-              data: str | Path | None = None, progress: bool = True) -> "CalibrationResult":
+              data: str | Path | None = None, progress: bool = True, write_set: str | Path | None = None,
+              overrides: Mapping[str, Any] | None = None) -> "CalibrationResult":
     """See :func:`milling_twin.orchestrator.calibrate.run.calibrate`."""
     from milling_twin.orchestrator.calibrate.run import calibrate as run_calibration
-    return run_calibration(spec_path, fmu_dir, out, data=data, progress=progress)
+    return run_calibration(spec_path, fmu_dir, out, data=data, progress=progress, write_set=write_set,
+                           overrides=overrides)

@@ -3,12 +3,15 @@
 
 Values are SI (the FMU variables' units), written with ``repr`` so that they read back bit for
 bit; standard errors, 95 % intervals and flags go into comments. Nuisance estimates (spindle
-phases) are not model parameters and are left out. The content depends only on the fit (no
-time stamps), so re-running a calibration rewrites the same file.
+phases) are not model parameters and are left out. The content depends only on the fit and on
+where the file is written (provenance paths are relative to its folder; no time stamps), so
+re-running a calibration rewrites the same file. A calibration writes the set into its output
+folder; the committed copy beside the spec changes only when asked (``calibrate(..., write_set=...)``).
 """
 from __future__ import annotations
 
 import math
+import os
 from collections.abc import Mapping, Sequence
 from pathlib import Path
 from xml.sax.saxutils import quoteattr
@@ -29,14 +32,17 @@ def _num(x: float) -> str:
 
 def write_parameter_set(path: Path, parameters: Sequence[Parameter], estimates: Sequence[float],
                         statistics: Sequence[ParameterStatistics], description: str,
-                        source: Mapping[str, str], command: str) -> Path:
-    """Write the TOML parameter set (atomically) and return its path."""
+                        source: Mapping[str, str | Path], command: str) -> Path:
+    """Write the TOML parameter set (atomically) and return its path. ``source``: provenance; a Path value
+    (the spec, scenario, recording) is written relative to the folder of ``path``, so that the same
+    call gives the same file wherever it is written from, and a copy elsewhere names the same files."""
     lines = [f"# Parameter set written by `{command}`; do not edit by hand, re-run the calibration.",
              "# Apply it by name from a scenario: [scenario] parameter_sets = [\"<path relative to the scenario>\"].",
              "# Values in SI units (the FMU variables' own units); standard error, 95 % confidence interval and",
              "# flags of each estimate in its comment.",
              f"description = {_toml_string(description)}", "", "[source]"]
-    lines += [f"{k} = {_toml_string(str(v))}" for k, v in source.items()]
+    lines += [f"{k} = {_toml_string(os.path.relpath(v, path.parent) if isinstance(v, Path) else str(v))}"
+              for k, v in source.items()]
     by_instance: dict[str, list[str]] = {}
     for q, value, st in zip(parameters, estimates, statistics):
         if q.nuisance:

@@ -225,10 +225,13 @@ def write_report(result: CalibrationResult) -> tuple[Path, Path]:
              f"<p>{html.escape(spec.description)}</p>" if spec.description else "",
              "<div class='summary'><pre>" + html.escape("\n".join(summary)) + "</pre></div>",
              f"<p>Parameter set: <code>{html.escape(str(result.parameter_set))}</code>"
+             + (f"; published to <code>{html.escape(str(result.published_set))}</code>" if result.published_set else "")
              + (f"; SSP copy <code>{html.escape(str(result.ssv))}</code>" if result.ssv else "") + "</p>"]
     parts += [f"<p class='note'>{html.escape(n)}</p>" for n in result.notes]
     md = [f"# {title}", "", spec.description, "", "```", *summary, "```", "",
-          f"Parameter set: `{result.parameter_set}`" + (f"; SSP copy `{result.ssv}`" if result.ssv else ""), ""]
+          f"Parameter set: `{result.parameter_set}`"
+          + (f"; published to `{result.published_set}`" if result.published_set else "")
+          + (f"; SSP copy `{result.ssv}`" if result.ssv else ""), ""]
     md += [f"- {n}" for n in result.notes] + [""]
     for t in tables:
         parts.append(_html_table(t))
@@ -250,6 +253,7 @@ def write_report(result: CalibrationResult) -> tuple[Path, Path]:
     doc = {
         "spec": str(spec.path), "spec_sha256": spec.sha256, "kind": spec.kind, "derivatives": result.fit.derivatives,
         "parameter_set": str(result.parameter_set),
+        "published_parameter_set": str(result.published_set) if result.published_set else None,
         "parameters": [{"name": q.name, "unit": q.unit, "initial": q.initial, "lower": q.lower, "upper": q.upper,
                         "estimate": st.estimate, "standard_error": st.standard_error, "ci95": [st.ci_low, st.ci_high],
                         "flags": list(st.flags), "nuisance": q.nuisance}

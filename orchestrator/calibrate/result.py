@@ -91,7 +91,7 @@ class CalibrationResult:
     identities: dict[str, Any]
     timings: dict[str, float]
     out_dir: Path
-    parameter_set: Path
+    parameter_set: Path  # the set as written, in out_dir
     ssv: Path | None
     alignment: AlignmentSummary | None = None
     notes: list[str] = field(default_factory=list)
@@ -100,3 +100,4 @@ class CalibrationResult:
     report_html: Path | None = None
     report_md: Path | None = None
     extra: dict[str, Any] = field(default_factory=dict)  # kind-specific results for scripts (benchmarks)
+    published_set: Path | None = None  # the copy written to calibrate(..., write_set=...), if any

@@ -2,6 +2,7 @@
 from __future__ import annotations
 
 import time
+from collections.abc import Mapping
 from pathlib import Path
 
 from milling_twin.orchestrator.calibrate.report import write_report
@@ -10,20 +11,33 @@ from milling_twin.orchestrator.calibrate.spec import load_spec
 
 __all__ = ["calibrate"]
 
+Override = float | tuple[float, str] | Mapping[str, object]
+
 
 def calibrate(spec_path: str | Path, fmu_dir: str | Path, out: str | Path = "runs", *, data: str | Path | None = None,
-              progress: bool = True) -> CalibrationResult:
-    """Run the calibration of ``spec_path``; results and report go to ``out/calibration/<name>/``.
+              progress: bool = True, write_set: str | Path | None = None,
+              overrides: Mapping[str, Override] | None = None) -> CalibrationResult:
+    """Run the calibration of ``spec_path``; results, report and the parameter set go to
+    ``out/calibration/<name>/`` (the set under the file name of the spec's ``parameter_set``), and nothing
+    is written outside ``out`` unless ``write_set`` is given: the set is then also published there (e.g.
+    the spec's own ``parameter_set``, the committed file a calibrated scenario applies by name), after the
+    re-simulation succeeded. ``overrides``: ``{"instance.variable": value}`` applied to the scenario before
+    the fit, as a parameter set's values are (SI, or ``(value, unit)`` / ``{"value": v, "unit": u}``); the
+    calibrated values win over them in the re-simulation.
     ``data``: the slot-milling recordings' folder (kind "slot_forces"; default as the validation finds it)."""
     spec = load_spec(spec_path)
     out_dir = Path(out) / "calibration" / spec.name
     out_dir.mkdir(parents=True, exist_ok=True)
+    values = {key: ({"value": value[0], "unit": value[1]} if isinstance(value, tuple) else value)
+              for key, value in (overrides or {}).items()}
+    publish = Path(write_set) if write_set is not None else None
     if spec.kind == "slot_forces":
         from milling_twin.orchestrator.calibrate.slot_forces import calibrate_slot_forces
-        result = calibrate_slot_forces(spec, Path(fmu_dir), out_dir, data, progress)
+        result = calibrate_slot_forces(spec, Path(fmu_dir), out_dir, data, progress, write_set=publish,
+                                       overrides=values)
     else:
         from milling_twin.orchestrator.calibrate.scenario_fit import calibrate_scenario
-        result = calibrate_scenario(spec, Path(fmu_dir), out_dir, progress)
+        result = calibrate_scenario(spec, Path(fmu_dir), out_dir, progress, write_set=publish, overrides=values)
     t0 = time.perf_counter()
     write_report(result)
     result.timings["report"] = time.perf_counter() - t0

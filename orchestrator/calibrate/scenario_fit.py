@@ -18,18 +18,26 @@ Stages (each timed for the report):
    projected Levenberg-Marquardt on the FMU path), statistics.
    With an alignment method, the fit is repeated once on identity pairs to show what the alignment
    changed.
-5. **write**: the parameter set (TOML the scenarios apply by name, and an .ssv copy).
-6. **re-simulate**: ``calibrated_scenario`` if the spec names one (it must apply the set: its values
-   are checked), else the scenario with the set applied; errors before/after on learning and
-   validation data from the FMU runs.
+5. **write**: the parameter set (TOML the scenarios apply by name, and an .ssv copy) into the output
+   folder, under the file name of the spec's ``parameter_set``.
+6. **re-simulate**: ``calibrated_scenario`` if the spec names one (it must apply the spec's
+   ``parameter_set`` by name; the set just written is applied after it, so it wins), else the scenario
+   with the set applied; errors before/after on learning and validation data from the FMU runs. Then,
+   only if asked (``write_set``), the set is published (e.g. to the spec's ``parameter_set``).
+
+Overrides (``calibrate(..., overrides=...)``) change the scenario before stage 1, as a parameter set's
+values would; in the re-simulation they apply before the calibrated set (a fitted value wins).
 """
 from __future__ import annotations
 
 import inspect
 import os
 import time
+import tomllib
+from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, replace
 from pathlib import Path
+from typing import Any
 
 import casadi as ca
 import numpy as np
@@ -253,11 +261,34 @@ def _recording_outputs(scenario: Scenario, refs: list[Ref]) -> Scenario:
     return replace(scenario, outputs=tuple(dict.fromkeys(scenario.outputs + tuple(refs))))
 
 
-def prepare(spec: CalibrationSpec, fmu_dir: Path, out_dir: Path, progress: bool = False) -> Prepared:
-    """Stages 1 and 2: checks, graph, tokens and the simulation with the initial values."""
+def with_overrides(scenario: Scenario, overrides: Mapping[str, Any] | None, fitted: Sequence[Ref] = ()) -> Scenario:
+    """``scenario`` with a caller's values (``calibrate(..., overrides=...)``, ``{"instance.variable": value}``)
+    applied as a parameter set's are, checked like the scenario's own; after the fit, those naming a
+    ``fitted`` parameter are left out (the calibrated value wins)."""
+    skip = {str(r) for r in fitted}
+    values = {k: v for k, v in (overrides or {}).items() if str(k) not in skip}
+    return with_values(scenario, values) if values else scenario
+
+
+def describe_overrides(overrides: Mapping[str, Any]) -> str:
+    """``power.c1 = 0.3; power.P_idle = 0.25 kW``: the overrides as the report and the parameter set say them."""
+    return "; ".join(f"{k} = {v['value']!r} {v.get('unit', '')}".rstrip() if isinstance(v, Mapping) else f"{k} = {v!r}"
+                     for k, v in overrides.items())
+
+
+def _names_set(scenario_file: Path, set_file: Path) -> bool:
+    """Does ``scenario_file`` (already loaded, so valid) apply ``set_file`` in its [scenario].parameter_sets?"""
+    own = tomllib.loads(scenario_file.read_text(encoding="utf-8"))["scenario"].get("parameter_sets", [])
+    return any((scenario_file.parent / name).resolve() == set_file.resolve() for name in own)
+
+
+def prepare(spec: CalibrationSpec, fmu_dir: Path, out_dir: Path, progress: bool = False,
+            overrides: Mapping[str, Any] | None = None) -> Prepared:
+    """Stages 1 and 2: checks, graph, tokens and the simulation with the initial values (``overrides``
+    applied to the scenario first)."""
     timings: dict[str, float] = {}
     t0 = time.perf_counter()
-    scenario = load_scenario(spec.scenario, fmu_dir)
+    scenario = with_overrides(load_scenario(spec.scenario, fmu_dir), overrides)
     parameters = resolve_parameters(spec, scenario)
     outputs = resolve_outputs(spec, scenario)
     _check_alignment(spec, scenario)
@@ -396,8 +427,11 @@ def _notes(outcome: FitOutcome) -> list[str]:
     return notes
 
 
-def calibrate_scenario(spec: CalibrationSpec, fmu_dir: Path, out_dir: Path, progress: bool = False) -> CalibrationResult:
-    prepared = prepare(spec, fmu_dir, out_dir, progress)
+def calibrate_scenario(spec: CalibrationSpec, fmu_dir: Path, out_dir: Path, progress: bool = False, *,
+                       write_set: Path | None = None, overrides: Mapping[str, Any] | None = None) -> CalibrationResult:
+    """The calibration of a kind "scenario" spec; the parameter set goes to ``out_dir`` under the file name
+    of the spec's ``parameter_set``, and to ``write_set`` too (after the re-simulation) if given."""
+    prepared = prepare(spec, fmu_dir, out_dir, progress, overrides)
     timings = prepared.timings
     t0 = time.perf_counter()
     if prepared.graph is not None:
@@ -446,20 +480,26 @@ def calibrate_scenario(spec: CalibrationSpec, fmu_dir: Path, out_dir: Path, prog
         timings["fit on identity pairs (alignment effect)"] = time.perf_counter() - t0
     t0 = time.perf_counter()
     rec = prepared.scenario.recorded
-    source = {"calibration": spec.name, "spec": os.path.relpath(spec.path, spec.parameter_set.parent),
-              "spec_sha256": spec.sha256,
-              "scenario": os.path.relpath(spec.scenario, spec.parameter_set.parent),
-              "scenario_sha256": sha256_of(spec.scenario),
-              "recorded": os.path.relpath(rec.path, spec.parameter_set.parent), "recorded_sha256": sha256_of(rec.path),
-              "learning": str(list(spec.learning))}
-    set_path = write_parameter_set(spec.parameter_set, prepared.parameters, outcome.theta, outcome.statistics.parameters,
-                                   spec.description or spec.name, source,
-                                   f"python -m milling_twin.orchestrator calibrate {os.path.relpath(spec.path)}")
+    source: dict[str, str | Path] = {  # paths relative to where the set is written
+        "calibration": spec.name, "spec": spec.path, "spec_sha256": spec.sha256, "scenario": spec.scenario,
+        "scenario_sha256": sha256_of(spec.scenario), "recorded": rec.path, "recorded_sha256": sha256_of(rec.path),
+        "learning": str(list(spec.learning))}
+    if overrides:
+        source["overrides"] = describe_overrides(overrides)
+    set_args = (prepared.parameters, outcome.theta, outcome.statistics.parameters, spec.description or spec.name,
+                source, f"python -m milling_twin.orchestrator calibrate {os.path.relpath(spec.path)}")
+    set_path = write_parameter_set(out_dir / spec.parameter_set.name, *set_args)
     ssv = write_ssv(out_dir / f"{spec.parameter_set.stem}.ssv", spec.name, prepared.parameters, outcome.theta)
     timings["write parameter set"] = time.perf_counter() - t0
     t0 = time.perf_counter()
-    if spec.calibrated_scenario is not None:
-        after = load_scenario(spec.calibrated_scenario, fmu_dir)
+    fitted = [q.ref for q in prepared.parameters]
+    if spec.calibrated_scenario is not None:  # it names the spec's parameter_set; the set just written wins
+        if not _names_set(spec.calibrated_scenario, spec.parameter_set):
+            spec.fail("[calibration].calibrated_scenario",
+                      f"{spec.calibrated_scenario.name} does not apply the parameter set {spec.parameter_set.name} "
+                      "(add it to [scenario].parameter_sets)")
+        after = with_overrides(load_scenario(spec.calibrated_scenario, fmu_dir, parameter_sets=[set_path]),
+                               overrides, fitted)
         for q, value in zip(prepared.parameters, outcome.theta):
             applied = after.instance(q.ref.instance).parameters.get(q.ref.variable)
             if applied is None or abs(applied - value) > 1e-12 * max(abs(value), 1e-300):
@@ -467,7 +507,7 @@ def calibrate_scenario(spec: CalibrationSpec, fmu_dir: Path, out_dir: Path, prog
                           f"{spec.calibrated_scenario.name} does not apply the parameter set {set_path.name}: "
                           f"{q.name} = {applied!r} there, {value!r} calibrated (add it to [scenario].parameter_sets)")
     else:
-        after = load_scenario(spec.scenario, fmu_dir, parameter_sets=[set_path])
+        after = with_overrides(load_scenario(spec.scenario, fmu_dir, parameter_sets=[set_path]), overrides, fitted)
     after = _recording_outputs(replace(after, name=f"{prepared.scenario.name.removesuffix('_initial')}_calibrated"),
                                [o.ref for o in prepared.outputs])
     results_after, run_after = _run(after, out_dir / "runs", progress)
@@ -485,5 +525,10 @@ def calibrate_scenario(spec: CalibrationSpec, fmu_dir: Path, out_dir: Path, prog
     ident["runs"] = {"initial": str(prepared.run_dir), "calibrated": str(run_after)}
     ident["calibrated_scenario"] = str(spec.calibrated_scenario or f"{spec.scenario} + {set_path}")
     ident["parameter_set"] = {"path": str(set_path), "sha256": sha256_of(set_path)}
+    if overrides:
+        ident["overrides"] = describe_overrides(overrides)
+    published = write_parameter_set(write_set, *set_args) if write_set is not None else None
+    if published is not None:
+        ident["parameter_set"]["published"] = str(published)
     return CalibrationResult(spec, outcome, series, [error_row(s) for s in series], ident, timings, out_dir, set_path,
-                             ssv, summary, notes + _notes(outcome), [], tables)
+                             ssv, summary, notes + _notes(outcome), [], tables, published_set=published)

@@ -36,8 +36,10 @@ from __future__ import annotations
 import math
 import os
 import time
+from collections.abc import Mapping
 from dataclasses import replace
 from pathlib import Path
+from typing import Any
 
 import casadi as ca
 import numpy as np
@@ -54,7 +56,7 @@ from milling_twin.orchestrator.calibrate.paramset import write_parameter_set, wr
 from milling_twin.orchestrator.calibrate.plots import _png
 from milling_twin.orchestrator.calibrate.residuals import ResidualModel, from_outputs
 from milling_twin.orchestrator.calibrate.result import CalibrationResult, Figure, Series, Table, error_row
-from milling_twin.orchestrator.calibrate.scenario_fit import check_tokens, identities
+from milling_twin.orchestrator.calibrate.scenario_fit import check_tokens, describe_overrides, identities, with_overrides
 from milling_twin.orchestrator.calibrate.spec import CalibrationSpec, ParameterSpec
 from milling_twin.orchestrator.master import SimulationError
 from milling_twin.orchestrator.results import sha256_of
@@ -304,11 +306,14 @@ def _means_png(learn: SlotData, held: SlotData, regression: FitOutcome, waveform
 
 
 def calibrate_slot_forces(spec: CalibrationSpec, fmu_dir: Path, out_dir: Path, data_option: str | Path | None,
-                          progress: bool = False) -> CalibrationResult:
+                          progress: bool = False, *, write_set: Path | None = None,
+                          overrides: Mapping[str, Any] | None = None) -> CalibrationResult:
+    """The parameter set goes to ``out_dir`` under the file name of the spec's ``parameter_set``, and to
+    ``write_set`` too (after the re-simulation) if given; ``overrides`` change the scenario first."""
     timings: dict[str, float] = {}
     t0 = time.perf_counter()
     folder = datasets.data_dir(data_option)
-    scenario = load_scenario(spec.scenario, fmu_dir)
+    scenario = with_overrides(load_scenario(spec.scenario, fmu_dir), overrides)
     sm._check_scenario(scenario)
     n_flutes = sm._n_flutes(scenario)
     cfg = spec.slot_forces
@@ -346,16 +351,19 @@ def calibrate_slot_forces(spec: CalibrationSpec, fmu_dir: Path, out_dir: Path, d
 
     # 3. parameter set and re-simulation through the FMUs
     t0 = time.perf_counter()
-    source = {"calibration": spec.name, "spec": os.path.relpath(spec.path, spec.parameter_set.parent),
-              "spec_sha256": spec.sha256, "scenario": os.path.relpath(spec.scenario, spec.parameter_set.parent),
-              "data": "slot-milling recordings (" + ", ".join(r.path.name for r in learn.recordings) + "; not in the "
-                      "repository: " + sm.SOURCE + ")",
-              "data_sha256": ", ".join(sha256_of(r.path)[:16] for r in learn.recordings)}
-    set_path = write_parameter_set(spec.parameter_set, params, waveform.theta, waveform.statistics.parameters,
-                                   spec.description or spec.name, source,
-                                   f"python -m milling_twin.orchestrator calibrate {os.path.relpath(spec.path)}")
+    source: dict[str, str | Path] = {  # paths relative to where the set is written
+        "calibration": spec.name, "spec": spec.path, "spec_sha256": spec.sha256, "scenario": spec.scenario,
+        "data": "slot-milling recordings (" + ", ".join(r.path.name for r in learn.recordings) + "; not in the "
+                "repository: " + sm.SOURCE + ")",
+        "data_sha256": ", ".join(sha256_of(r.path)[:16] for r in learn.recordings)}
+    if overrides:
+        source["overrides"] = describe_overrides(overrides)
+    set_args = (params, waveform.theta, waveform.statistics.parameters, spec.description or spec.name, source,
+                f"python -m milling_twin.orchestrator calibrate {os.path.relpath(spec.path)}")
+    set_path = write_parameter_set(out_dir / spec.parameter_set.name, *set_args)
     ssv = write_ssv(out_dir / f"{spec.parameter_set.stem}.ssv", spec.name, params, waveform.theta)
-    calibrated = load_scenario(spec.scenario, fmu_dir, parameter_sets=[set_path])
+    calibrated = with_overrides(load_scenario(spec.scenario, fmu_dir, parameter_sets=[set_path]), overrides,
+                                [q.ref for q in model_params])
     runs = out_dir / "runs"
     cases: dict[str, list[tuple[str, datasets.Recording, dict]]] = {"prior": [], "regression": [], "calibrated": []}
     reg_coefficients = dict(zip(COEFFICIENTS, regression.theta))
@@ -418,6 +426,11 @@ def calibrate_slot_forces(spec: CalibrationSpec, fmu_dir: Path, out_dir: Path, d
     ident["recorded"] = [{"path": str(r.path), "sha256": sha256_of(r.path), "role": d}
                          for d, g in (("learning", learn), ("validation", held)) for r in g.recordings]
     ident["parameter_set"] = {"path": str(set_path), "sha256": sha256_of(set_path)}
+    if overrides:
+        ident["overrides"] = describe_overrides(overrides)
+    published = write_parameter_set(write_set, *set_args) if write_set is not None else None
+    if published is not None:
+        ident["parameter_set"]["published"] = str(published)
     notes = [f"Data: {folder} (never copied into the repository; source {sm.SOURCE}).",
              "Learning feeds " + ", ".join(f"{f:g}" for f in cfg.learning_feeds) + " mm/min; held-out "
              + ", ".join(f"{f:g}" for f in cfg.validation_feeds) + " mm/min.",
@@ -426,7 +439,7 @@ def calibrate_slot_forces(spec: CalibrationSpec, fmu_dir: Path, out_dir: Path, d
     if waveform.note:
         notes.append(waveform.note)
     result = CalibrationResult(spec, waveform, series, [error_row(s) for s in series], ident, timings, out_dir, set_path,
-                               ssv, None, notes, figures, tables)
+                               ssv, None, notes, figures, tables, published_set=published)
     result.extra.update(regression=regression, cases=cases,
                         held_out={"mean_abs_error": {k: v.tolist() for k, v in held_errors.items()},
                                   "r2": {k: v.tolist() for k, v in held_r2.items()}})

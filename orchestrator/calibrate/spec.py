@@ -14,9 +14,12 @@ recorded data)::
     description = "..."               # optional
     kind = "scenario"                 # or "slot_forces" (see below)
     scenario = "../umich_power.toml"  # the scenario: FMU instances, recorded data, inputs, connections
-    parameter_set = "umich_power.params.toml"       # the calibrated values are written here
-    calibrated_scenario = "umich_power_calibrated.toml"  # optional: the re-simulation runs this
-                                      # scenario file, which must apply the parameter set by name
+    parameter_set = "umich_power.params.toml"       # the calibrated values: written as <out>/calibration/
+                                      # <name>/umich_power.params.toml; this file (the committed set) changes
+                                      # only when the set is published to it (calibrate(..., write_set=...))
+    calibrated_scenario = "umich_power_calibrated.toml"  # optional: the re-simulation runs this scenario
+                                      # file, which must apply parameter_set by name (the set just written
+                                      # is applied after it)
 
     [parameters."power.c1"]           # "instance.variable", a Float64 parameter of the instance
     initial = 0.264                   # optional: default the scenario's value, else the FMU's start

@@ -94,3 +94,67 @@ def test_alignment_effect_is_reported(tmp_path: Path, fmu_dir: Path) -> None:
     table = next(t for t in result.tables if t.title.startswith("What the alignment"))
     assert [row[0] for row in table.rows] == list(POWER_TRUTH)
     assert np.isfinite(result.alignment.max_shift)
+
+
+def _assert_readable(fig) -> None:
+    """Drawn as the report draws it: no offset text on any axis (matplotlib's "1e-9+1.7695e2" lands over the
+    axis label) and tick labels that differ from each other."""
+    from milling_twin.orchestrator.calibrate.plots import _png
+
+    _png(fig)
+    for ax in fig.axes:
+        for axis in (ax.xaxis, ax.yaxis):
+            assert axis.get_offset_text().get_text() == "", (ax.get_title(), axis.get_offset_text().get_text())
+            labels = [t.get_text() for t in axis.get_ticklabels() if t.get_text()]
+            assert len(labels) == len(set(labels)), labels
+
+
+def _series(recorded: np.ndarray, before: np.ndarray, after: np.ndarray):
+    from milling_twin.orchestrator.calibrate.result import Series
+
+    return Series("power.P_total", "power", "validation", np.arange(recorded.size) * 0.1, recorded, before, after,
+                  "W", "W", 1.0)
+
+
+@pytest.mark.parametrize("jitter", [0.0, 1e-9, 1e-12])
+def test_figures_of_constant_values_have_readable_axes(jitter: float) -> None:
+    """Simulated values constant (exactly, or to rounding as in the UMich validation layer): the axis of the
+    simulated values spans +-5 % around them; errors at rounding level of noise-free data are drawn as 0 on
+    +-5 % of the data's size."""
+    from milling_twin.orchestrator.calibrate.plots import fit_figure, residual_figure
+
+    k = np.arange(300)
+    simulated = 176.95 + jitter * (k % 3)
+    noisy = _series(simulated + np.random.default_rng(0).normal(0.0, 20.0, k.size), simulated, simulated)
+    fig = residual_figure([noisy])
+    _assert_readable(fig)
+    lo, hi = fig.axes[1].get_xlim()  # residual against the simulated value
+    assert lo < 176.95 < hi and hi - lo == pytest.approx(0.1 * 176.95, rel=1e-6)
+    _assert_readable(fit_figure([noisy]))
+    exact = _series(simulated, simulated + 1e-13 * (k % 2), simulated)  # a noise-free fit: errors of rounding
+    fig = fit_figure([exact])
+    _assert_readable(fig)
+    lo, hi = fig.axes[1].get_ylim()  # the errors
+    assert lo < 0 < hi and hi - lo == pytest.approx(0.1 * np.abs(simulated).max(), rel=1e-3)
+    _assert_readable(residual_figure([exact]))
+    zero = _series(np.zeros(k.size), np.zeros(k.size), np.zeros(k.size))
+    for fig in (fit_figure([zero]), residual_figure([zero])):
+        _assert_readable(fig)
+
+
+def test_a_calibration_with_constant_simulated_power_reports_readable_figures(tmp_path: Path, fmu_dir: Path) -> None:
+    """Over the validation window the spindle turns at a constant speed and feed, so the simulated power is
+    constant to rounding there (as in UMich's last layer): every figure of the report is readable."""
+    from milling_twin.orchestrator.calibrate.plots import fit_figure, residual_figure
+
+    spec = write_power_case(tmp_path / "case", fmu_dir=fmu_dir, noise=5.0, seed=6, steady_from=290)
+    spec.write_text(spec.read_text().replace("starts = 3", "starts = 1"))
+    result = calibrate(spec, fmu_dir, tmp_path / "out", progress=False)
+    validation = [s for s in result.series if s.dataset == "validation"]
+    after = validation[0].after
+    assert 0 < np.ptp(after) < 1e-9 * np.abs(after).max()  # constant to rounding, as UMich's 1e-9 W in 177 W
+    for fig in (fit_figure(validation), residual_figure(validation)):
+        _assert_readable(fig)
+    lo, hi = residual_figure(validation).axes[1].get_xlim()
+    assert hi - lo > 0.09 * np.abs(after).max()
+    assert result.report_html.is_file()

@@ -5,21 +5,62 @@ import io
 from collections.abc import Sequence
 
 import numpy as np
+from matplotlib.axes import Axes
 from matplotlib.figure import Figure as MplFigure
+from matplotlib.ticker import ScalarFormatter
 
 from milling_twin.orchestrator.calibrate.lsq import StartOutcome
 from milling_twin.orchestrator.calibrate.result import Series
 
-__all__ = ["correlation_png", "fit_png", "residual_png", "trace_png"]
+__all__ = ["correlation_png", "fit_figure", "fit_png", "residual_figure", "residual_png", "trace_png"]
+
+
+CONSTANT = 1e-6  # an axis whose data span is below this fraction of its magnitude is drawn as constant
+ROUNDING = 1e-9  # ... or below this fraction of the reference magnitude (errors against the data they are errors of)
+
+
+def _readable(ax: Axes, x_reference: float = 0.0, y_reference: float = 0.0) -> None:
+    """Tick labels that say the values: no offset text on linear axes (matplotlib's "1e-9+1.7695e2"
+    lands over the axis label), and an axis whose data are constant, or nearly (span below CONSTANT of
+    their magnitude, or below ROUNDING of ``*_reference``, e.g. the size of the recorded values for an axis
+    of errors), spans +-5 % of that magnitude around them (+-1 at 0) instead of ticks that differ in the
+    tenth digit or a range matplotlib picks for nothing."""
+    for axis, interval, reference, set_lim in ((ax.xaxis, ax.dataLim.intervalx, x_reference, ax.set_xlim),
+                                               (ax.yaxis, ax.dataLim.intervaly, y_reference, ax.set_ylim)):
+        formatter = axis.get_major_formatter()
+        if not isinstance(formatter, ScalarFormatter):  # log axes, named ticks
+            continue
+        formatter.set_useOffset(False)
+        lo, hi = (float(v) for v in interval)
+        if not (np.isfinite(lo) and np.isfinite(hi)) or hi < lo:  # no data
+            continue
+        magnitude = max(abs(lo), abs(hi))
+        if hi - lo <= CONSTANT * magnitude or hi - lo <= ROUNDING * abs(reference):
+            pad = 0.05 * max(magnitude, abs(reference)) or 1.0
+            set_lim((lo + hi) / 2 - pad, (lo + hi) / 2 + pad)
+
+
+def _scale(*values: np.ndarray) -> float:
+    """The largest finite magnitude among ``values`` (0 if none)."""
+    finite = [np.abs(v[np.isfinite(v)]) for v in values]
+    return max((float(f.max()) for f in finite if f.size), default=0.0)
 
 
 def _png(fig: MplFigure, dpi: int = 90) -> bytes:
+    """The figure as PNG, every axis made readable first (:func:`_readable`, no reference: a caller
+    that knows one calls it before)."""
+    for ax in fig.axes:
+        _readable(ax)
     buffer = io.BytesIO()
     fig.savefig(buffer, format="png", dpi=dpi)
     return buffer.getvalue()
 
 
 def fit_png(group: Sequence[Series]) -> bytes:
+    return _png(fit_figure(group))
+
+
+def fit_figure(group: Sequence[Series]) -> MplFigure:
     """Recorded and simulated (before, after) with the errors below, one column per output of a group
     (one data set and label)."""
     n = len(group)
@@ -45,13 +86,18 @@ def fit_png(group: Sequence[Series]) -> bytes:
         bottom.set_ylabel(f"error [{series.display_unit}]", fontsize=8)
         bottom.set_xlabel(series.x_label, fontsize=8)
         bottom.grid(True, alpha=0.3)
+        _readable(bottom, y_reference=_scale(rec, before, after))
     axes[0][0].legend(loc="best", fontsize=7)
     first = group[0]
     fig.suptitle(f"{first.dataset} data{' ' + first.label if first.label else ''}", fontsize=10)
-    return _png(fig)
+    return fig
 
 
 def residual_png(group: Sequence[Series]) -> bytes:
+    return _png(residual_figure(group))
+
+
+def residual_figure(group: Sequence[Series]) -> MplFigure:
     """Residuals after calibration, one row per output of a group: histogram, against the simulated
     value, and their autocorrelation."""
     fig = MplFigure(figsize=(10, 0.4 + 2.6 * len(group)))
@@ -79,10 +125,13 @@ def residual_png(group: Sequence[Series]) -> bytes:
         acf.set_ylabel("autocorrelation", fontsize=8)
         for ax in (hist, scatter, acf):
             ax.grid(True, alpha=0.3)
+        size = _scale(series.recorded * s, series.after * s)
+        _readable(hist, x_reference=size)
+        _readable(scatter, y_reference=size)
     first = group[0]
     fig.suptitle(f"residuals after calibration, {first.dataset} data{' ' + first.label if first.label else ''}",
                  fontsize=10)
-    return _png(fig)
+    return fig
 
 
 def correlation_png(names: Sequence[str], correlation: np.ndarray) -> bytes:

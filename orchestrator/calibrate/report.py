@@ -157,7 +157,7 @@ def _html_table(t: Table) -> str:
     head = "".join(f"<th>{html.escape(h)}</th>" for h in t.header)
     body = "".join("<tr>" + "".join(f"<td>{html.escape(c)}</td>" for c in row) + "</tr>" for row in t.rows)
     note = f"<p class='note'>{html.escape(t.note)}</p>" if t.note else ""
-    return f"<h2>{html.escape(t.title)}</h2><table><tr>{head}</tr>{body}</table>{note}"
+    return f"<h2>{html.escape(t.title)}</h2><div class='scroll'><table><tr>{head}</tr>{body}</table></div>{note}"
 
 
 def _md_table(t: Table) -> str:
@@ -170,11 +170,18 @@ def _md_table(t: Table) -> str:
     return "\n".join(lines)
 
 
-STYLE = """body{font-family:sans-serif;margin:2em;max-width:1200px;color:#222}
-table{border-collapse:collapse;margin:0.5em 0 1em 0;font-size:0.85em}
+# Nothing may widen the page beyond the window: the summary's long lines wrap inside its box, long paths
+# and hashes in text break anywhere, a table wider than the page scrolls inside its own box.
+STYLE = """*{box-sizing:border-box}
+body{font-family:sans-serif;margin:2em;max-width:1200px;color:#222;overflow-wrap:break-word}
+.scroll{max-width:100%;overflow-x:auto;margin:0.5em 0 1em 0}
+table{border-collapse:collapse;font-size:0.85em}
 td,th{border:1px solid #bbb;padding:3px 6px;text-align:left;vertical-align:top}
-th{background:#eee} .note{font-size:0.85em;color:#555} img{max-width:100%;border:1px solid #ddd}
-.summary{background:#f4f8ff;padding:0.6em 1em;border-left:4px solid #4a7bd0}"""
+th{background:#eee} .note{font-size:0.85em;color:#555} img{max-width:100%;height:auto;border:1px solid #ddd}
+code{overflow-wrap:anywhere}
+.summary{background:#f4f8ff;padding:0.6em 1em;border-left:4px solid #4a7bd0;max-width:100%;overflow-x:auto}
+.summary pre{margin:0;white-space:pre-wrap;overflow-wrap:anywhere}
+.summary pre span{display:block;padding-left:4ch;text-indent:-4ch}"""
 
 
 def summary_lines(result: CalibrationResult) -> list[str]:
@@ -223,7 +230,8 @@ def write_report(result: CalibrationResult) -> tuple[Path, Path]:
     parts = [f"<!DOCTYPE html><html lang='en'><head><meta charset='utf-8'><title>{html.escape(title)}</title>"
              f"<style>{STYLE}</style></head><body><h1>{html.escape(title)}</h1>",
              f"<p>{html.escape(spec.description)}</p>" if spec.description else "",
-             "<div class='summary'><pre>" + html.escape("\n".join(summary)) + "</pre></div>",
+             "<div class='summary'><pre>" + "".join(f"<span>{html.escape(line)}</span>" for line in summary)
+             + "</pre></div>",
              f"<p>Parameter set: <code>{html.escape(str(result.parameter_set))}</code>"
              + (f"; published to <code>{html.escape(str(result.published_set))}</code>" if result.published_set else "")
              + (f"; SSP copy <code>{html.escape(str(result.ssv))}</code>" if result.ssv else "") + "</p>"]

@@ -269,19 +269,27 @@ starts = 3
 
 
 def write_power_case(folder: Path, rows: int = 400, fmu_dir: Path | None = None, noise: float = 5.0,
-                     seed: int = 0) -> Path:
+                     seed: int = 0, steady_from: int | None = None) -> Path:
     """Scenario, recording and spec of a synthetic power case in ``folder``; returns the spec's path. Speed
     steps 0 .. 60 rev/s, feeds 2 .. 40 mm/s. The recorded power is 0, or with ``fmu_dir`` what the FMUs give
-    for :data:`POWER_TRUTH` plus Gaussian noise of ``noise`` W (``seed``)."""
+    for :data:`POWER_TRUTH` plus Gaussian noise of ``noise`` W (``seed``). ``steady_from``: from this row on
+    (290: the last second of learning and the validation window) the spindle turns at 30 rev/s cutting at
+    1 mm/s along x, the feed varying by 1e-9 mm/s, so that the simulated power is constant to 1e-10 relative
+    (figures of constant values)."""
     folder.mkdir(parents=True, exist_ok=True)
     k = np.arange(rows)
     speed = np.where(k < 20, 0.0, 5.0 + 55.0 * ((k // 25) % 6) / 5)
     feed = np.where((k % 50) < 35, 2.0 + 38.0 * ((k * 7) % 23) / 22, 0.0)
     angle = 0.05 * k
+    steady = k >= (steady_from if steady_from is not None else rows)
+    if steady_from is not None:
+        speed = np.where(steady, 30.0, speed)
+        feed = np.where(steady, 1.0 + 1e-9 * (k % 3), feed)
+        angle = np.where(steady, 0.0, angle)
     cutting = (feed > 0) & (speed > 1)
     lines = ["speed,vx,vy,process,power"] + [
-        f"{s:.6g},{f * math.cos(a):.6g},{f * math.sin(a):.6g},{'cut' if c else 'move'},0"
-        for s, f, a, c in zip(speed, feed, angle, cutting)]
+        f"{s:.6g},{f * math.cos(a):{'.12g' if d else '.6g'}},{f * math.sin(a):.6g},{'cut' if c else 'move'},0"
+        for s, f, a, c, d in zip(speed, feed, angle, cutting, steady)]
     (folder / "power_case.csv").write_text("\n".join(lines) + "\n", encoding="utf-8")
     (folder / "power_case.toml").write_text(POWER_SCENARIO, encoding="utf-8")
     (folder / "power_case_spec.toml").write_text(POWER_SPEC, encoding="utf-8")

@@ -1,4 +1,4 @@
 """Co-simulation orchestrator of the milling digital twin: scenarios, master, results, report.
 
-Run ``python -m milling_twin.orchestrator run <scenario.toml>``; see ``milling_twin.orchestrator.cli``.
+Run ``milling-twin run <scenario.toml>``; the command is :mod:`milling_twin.cli`, the Python API :mod:`milling_twin.api`.
 """

@@ -1,5 +1,5 @@
 """The chatter validation's pieces: analytic limit from the scenario, and chatter read from the
-co-simulation alone (the full sweep is `python -m milling_twin.orchestrator.validation.chatter`)."""
+co-simulation alone (the full sweep is `milling-twin validate chatter`)."""
 from __future__ import annotations
 
 import json

@@ -64,7 +64,7 @@ def test_the_committed_weights_and_their_builtin_copy_agree() -> None:
     assert (weights.kernel, weights.width, weights.blocks) == tuple(fn.DEFAULT_SIZES.values())
     assert fn.encode_weights(weights) == data  # the format round-trips exactly
     assert fn.DEFAULT_WEIGHTS_HEADER.read_text() == fn.weights_header(data), \
-        "fmus/forcenet/default_weights.h is stale: python -m milling_twin.training.force_net header"
+        "fmus/forcenet/default_weights.h is stale: milling-twin train forcenet --header-only"
 
 
 def _patched(data: bytes, offset: int, value: int, fix_checksum: bool) -> bytes:

@@ -208,7 +208,7 @@ REAL_DATA = Path(os.environ.get("MILLING_TWIN_SLOT_DATA") or REPO.parent / "shar
                     "them there (see orchestrator/validation/slot_milling.py) or set MILLING_TWIN_SLOT_DATA")
 def test_finetuning_on_the_measured_feeds_predicts_a_left_out_one() -> None:
     """The network fine-tuned on the recordings at 300, 600, 1200 and 1500 mm/min predicts the mean forces
-    at 900 mm/min (README: every left-out feed, python -m milling_twin.training.force_net finetune)."""
+    at 900 mm/min (README: every left-out feed, milling-twin train forcenet-finetune)."""
     from milling_twin.orchestrator.validation import slot_milling as sm
 
     recordings = datasets.read_recordings(datasets.data_dir(REAL_DATA))

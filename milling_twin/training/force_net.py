@@ -1,8 +1,8 @@
 """Training, export and fine-tuning of the force net (models/force_net.py) with torch (the ``train`` extra).
 
-    .venv/bin/python -m milling_twin.training.force_net train [--quick] [--out FILE] [--report FILE]
-    .venv/bin/python -m milling_twin.training.force_net finetune [--data DIR] [--out DIR]
-    .venv/bin/python -m milling_twin.training.force_net header      # default_weights.h from resources/weights.bin
+    milling-twin train forcenet [--quick] [--out FILE] [--report FILE]
+    milling-twin train forcenet-finetune [--data DIR] [--out DIR]
+    milling-twin train forcenet --header-only      # default_weights.h from resources/weights.bin
 
 ``train`` regenerates the committed network ``fmus/forcenet/resources/weights.bin`` (and the FMU's built-in
 copy ``fmus/forcenet/default_weights.h``) reproducibly: fixed seeds, deterministic algorithms, one thread
@@ -25,7 +25,7 @@ their means with BatchNorm frozen, a small learning rate and an L2 pull towards 
 (:func:`finetune_on`). Leave-one-out: for
 each measured feed a network fine-tuned on the four others predicts it; the errors are written to
 ``<out>/finetune.json`` with the weights (``finetuned_without_f<feed>.bin``, ``finetuned_all.bin``), which
-``python -m milling_twin.orchestrator.validation.slot_milling --scenario scenarios/slot_milling_forcenet.toml
+``milling-twin validate slot-milling --scenario scenarios/slot_milling_forcenet.toml
 --finetuned <out>`` runs through the FMU.
 """
 from __future__ import annotations

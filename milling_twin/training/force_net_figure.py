@@ -5,7 +5,7 @@
 Top: ``scenarios/slot_milling.toml`` and ``scenarios/slot_milling_forcenet.toml`` (the one-line swap) simulated
 at 900 mm/min, forces over one revolution. Below, per recorded axis against the feed per tooth: the relative
 error of the mean force and the waveform r^2 of the slot-milling validation (``runs/slot_milling/`` and
-``runs/slot_milling_forcenet/slot_milling.json``, written by ``python -m milling_twin.orchestrator.validation.slot_milling``
+``runs/slot_milling_forcenet/slot_milling.json``, written by ``milling-twin validate slot-milling``
 without and with ``--scenario scenarios/slot_milling_forcenet.toml --finetuned runs/forcenet_finetune``).
 The recordings themselves have no licence to redistribute and are not drawn.
 """

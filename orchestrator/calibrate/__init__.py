@@ -2,7 +2,7 @@
 equations the FMUs are generated from, or, where those cannot give the outputs, the FMUs themselves with
 finite differences) to aligned recorded data, report, and write a parameter set the scenarios apply by name.
 
-``python -m milling_twin.orchestrator calibrate SPEC`` (:mod:`milling_twin.orchestrator.calibrate.cli`); spec format in
+``milling-twin calibrate SPEC``; spec format in
 :mod:`milling_twin.orchestrator.calibrate.spec`; the generic kind in :mod:`milling_twin.orchestrator.calibrate.scenario_fit`,
 the slot-milling forces in :mod:`milling_twin.orchestrator.calibrate.slot_forces`. Importing the package is light
 (no casadi, no matplotlib) so that the orchestrator's command line starts fast.

@@ -487,7 +487,7 @@ def calibrate_scenario(spec: CalibrationSpec, fmu_dir: Path, out_dir: Path, prog
     if overrides:
         source["overrides"] = describe_overrides(overrides)
     set_args = (prepared.parameters, outcome.theta, outcome.statistics.parameters, spec.description or spec.name,
-                source, f"python -m milling_twin.orchestrator calibrate {os.path.relpath(spec.path)}")
+                source, f"milling-twin calibrate {os.path.relpath(spec.path)}")
     set_path = write_parameter_set(out_dir / spec.parameter_set.name, *set_args)
     ssv = write_ssv(out_dir / f"{spec.parameter_set.stem}.ssv", spec.name, prepared.parameters, outcome.theta)
     timings["write parameter set"] = time.perf_counter() - t0

@@ -359,7 +359,7 @@ def calibrate_slot_forces(spec: CalibrationSpec, fmu_dir: Path, out_dir: Path, d
     if overrides:
         source["overrides"] = describe_overrides(overrides)
     set_args = (params, waveform.theta, waveform.statistics.parameters, spec.description or spec.name, source,
-                f"python -m milling_twin.orchestrator calibrate {os.path.relpath(spec.path)}")
+                f"milling-twin calibrate {os.path.relpath(spec.path)}")
     set_path = write_parameter_set(out_dir / spec.parameter_set.name, *set_args)
     ssv = write_ssv(out_dir / f"{spec.parameter_set.stem}.ssv", spec.name, params, waveform.theta)
     calibrated = with_overrides(load_scenario(spec.scenario, fmu_dir, parameter_sets=[set_path]), overrides,

@@ -2,7 +2,7 @@
 the G-code line being executed, but not the program text (the UMich "CNC Mill Tool Wear" runs,
 scenarios/data/). The result runs on the Interpolator FMU (scenarios/umich_motion.toml).
 
-    .venv/bin/python -m milling_twin.orchestrator.gcode.reconstruct scenarios/data/umich_experiment_01.csv \\
+    milling-twin reconstruct scenarios/data/umich_experiment_01.csv \\
         -o scenarios/programs/umich_01.nc
 
 Method (each step documented in the program's header):

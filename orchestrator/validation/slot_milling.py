@@ -38,7 +38,7 @@ plots into ``<out>/<scenario file name>/`` (the runs themselves into its ``runs/
 The force instance may also be the force net (``scenarios/slot_milling_forcenet.toml``: the same scenario
 with ``fmu = "ForceNet"``). It has no coefficients: its sets are the network packed in the FMU ("prior",
 trained on the mechanistic model with the literature coefficients) and, with ``--finetuned DIR`` (written by
-``python -m milling_twin.training.force_net finetune``), for each recording the network fine-tuned on the four
+``milling-twin train forcenet-finetune``), for each recording the network fine-tuned on the four
 other recordings ("finetuned", a left-out prediction), run as a copy of the FMU with those weights.
 """
 from __future__ import annotations
@@ -279,7 +279,7 @@ def finetuned_fmus(scenario: Scenario, recordings: list[Recording], weights_dir:
     for r in recordings:
         weights = weights_dir / f"finetuned_without_f{r.feed:g}.bin"
         if not weights.is_file():
-            raise ValueError(f"{weights} is missing: run `python -m milling_twin.training.force_net finetune --out "
+            raise ValueError(f"{weights} is missing: run `milling-twin train forcenet-finetune --out "
                              f"{weights_dir}` first")
         fmus[r.feed] = install_weights(scenario.instance(INSTANCE).path, weights,
                                        folder / "fmus" / f"{weights.stem}_{scenario.instance(INSTANCE).path.name}")

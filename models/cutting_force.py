@@ -143,6 +143,7 @@ CUTTING_FORCE = ModelDefinition(
     update=update,
     native_states=("delayed_displacement_x", "delayed_displacement_y"),
     specialize_on="n_flutes",  # C code per flute count: absent flutes cost nothing
+    constants=(("OMEGA_MIN", OMEGA_MIN), ("TWO_PI", TWO_PI)),  # model.c: model_constants.h
     states=(
         State("angle", "Spindle angle: flute 0 at the tool tip, clockwise from +y", unit="rad"),
         State("delayed_displacement_x", "Tool displacement in x one tooth period ago (model.c)", unit="m"),

@@ -104,6 +104,10 @@ class ModelDefinition:
     specialize_on: str | None = None
     default_step_size: float = 1e-3
     default_stop_time: float = 10.0
+    # Constants the model's C code shares with its Python definition or reference (name, value: an int, a
+    # float or a tuple of floats): models.codegen writes them into the generated model_constants.h, so they
+    # are written once, here.
+    constants: tuple[tuple[str, int | float | tuple[float, ...]], ...] = ()
     _cache: dict = field(default_factory=dict, compare=False, repr=False)
 
     def __post_init__(self) -> None:

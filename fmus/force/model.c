@@ -10,9 +10,7 @@
 #include <math.h>
 #include "cutting_state.h"
 #include "fmu_instance.h"
-
-#define TWO_PI 6.283185307179586 /* 2.0 * math.pi */
-#define OMEGA_MIN 1.0            /* rad/s: models/cutting_force.py OMEGA_MIN, below it the spindle is stopped */
+#include "model_constants.h" /* OMEGA_MIN, TWO_PI: generated from models/cutting_force.py */
 
 static double tooth_period(const ModelVariables *v) {
     return TWO_PI / ((double)v->n_flutes * fmax(v->spindle_speed, OMEGA_MIN));

@@ -16,13 +16,12 @@
 #include "default_weights.h"
 #include "cutting_state.h"
 #include "fmu_instance.h"
+#include "model_constants.h" /* OMEGA_MIN, TWO_PI: generated from models/cutting_force.py */
 #include "resource_location.h"
 
 /* the engagement input is the Workpiece's map (models/force_net.py: shape of "engagement") */
 typedef char map_size_matches_the_model[(SIZE_engagement == FORCENET_MAP_ROWS * FORCENET_MAP_COLUMNS) ? 1 : -1];
 
-#define OMEGA_MIN 1.0            /* rad/s: below it the spindle counts as stopped (models/cutting_force.py) */
-#define TWO_PI 6.283185307179586 /* 2.0 * math.pi */
 
 FmuStatus model_instantiate(FmuInstance *instance, const char *function) {
     ModelInternal *in = &instance->internal;

@@ -5,9 +5,7 @@
 #include <math.h>
 #include <stdlib.h>
 
-#define BIG 1e300
-#define BISECTIONS 60
-#define VIOLATION_TOLERANCE 1e-9
+#include "model_constants.h" /* BIG, BISECTIONS, VIOLATION_TOLERANCE: generated from models/interpolator/ */
 
 static double min2(double a, double b) { return b < a ? b : a; }
 static double max2(double a, double b) { return b > a ? b : a; }
@@ -238,7 +236,7 @@ static size_t violations(ScheduleView *view, const Segment *segs, size_t n) {
 }
 
 static void put_piece(double *pc, double t, double s, double v, double a, double j) {
-    pc[0] = t, pc[1] = s, pc[2] = v, pc[3] = a, pc[4] = j;
+    pc[PC_T] = t, pc[PC_S] = s, pc[PC_V] = v, pc[PC_A] = a, pc[PC_J] = j;
 }
 
 static size_t s_curve_pieces(double *pieces, size_t n, double *t, double *s, double v0, double v1, double a,

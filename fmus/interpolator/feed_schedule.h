@@ -9,7 +9,8 @@
 
 #include <stddef.h>
 
-#define PIECE_DOUBLES 5 /* t, s, v, a, j */
+/* A piece of the schedule in the heap: from time t at path length s, velocity v, acceleration a, jerk j. */
+enum { PC_T = 0, PC_S = 1, PC_V = 2, PC_A = 3, PC_J = 4, PIECE_DOUBLES = 5 };
 #define PIECES_PER_INTERVAL 7
 
 typedef struct {

@@ -9,16 +9,7 @@
 #include <stdlib.h>
 #include <string.h>
 
-#define MAX_SIGNIFICANT_DIGITS 17
-#define MAX_COORDINATE 1e6
-#define MAX_FEED_WORD 1e7
-#define MAX_SPEED_WORD 1e6
-#define MAX_NURBS_POINTS 100000
-#define START_POINT_TOLERANCE 1e-6
-#define ARC_RADIUS_TOLERANCE 2e-6
-#define ARC_RADIUS_RELATIVE 1e-4
 #define MAX_WORDS 512
-#define PI 3.141592653589793
 
 static const double POW10[23] = {1e0,  1e1,  1e2,  1e3,  1e4,  1e5,  1e6,  1e7,  1e8,  1e9,  1e10, 1e11,
                                  1e12, 1e13, 1e14, 1e15, 1e16, 1e17, 1e18, 1e19, 1e20, 1e21, 1e22};
@@ -530,8 +521,8 @@ static int next_block_line(Parser *p, size_t line, size_t *next, int *has_words)
     size_t k = line + 1;
     *has_words = 0;
     while (k <= p->n_lines) {
-        if (p->line_length[k - 1] > GC_MAX_LINE_LENGTH) {
-            fail_at(p, k, "a line of at most %d characters", GC_MAX_LINE_LENGTH);
+        if (p->line_length[k - 1] > MAX_LINE_LENGTH) {
+            fail_at(p, k, "a line of at most %d characters", MAX_LINE_LENGTH);
             return -1;
         }
         if (is_tape_mark(p, k)) break;
@@ -555,7 +546,7 @@ static int grow_curve(Parser *p, GcCurve *c, size_t *cap, size_t need) {
         if (pts) c->points = pts;
         w = realloc(c->weights, n * sizeof *w);
         if (w) c->weights = w;
-        kn = realloc(c->knots, (n + GC_MAX_DEGREE + 2) * sizeof *kn);
+        kn = realloc(c->knots, (n + MAX_DEGREE + 2) * sizeof *kn);
         if (kn) c->knots = kn;
         if (!pts || !w || !kn) {
             snprintf(p->error, p->error_size, "%s: out of memory for %zu control points", p->file, n);
@@ -603,7 +594,7 @@ static int nurbs(Parser *p, size_t first_line, size_t *last_line) {
     if (has(p, 'P')) {
         double pv = val(p, 'P');
         if (pv != 1.0 && pv != 2.0 && pv != 3.0 && pv != 4.0 && pv != 5.0) {
-            fail_at(p, line, "a degree P of 1 to %d, got P%.*s", GC_MAX_DEGREE, slot(p, 'P')->text_length,
+            fail_at(p, line, "a degree P of 1 to %d, got P%.*s", MAX_DEGREE, slot(p, 'P')->text_length,
                     slot(p, 'P')->text);
             return -1;
         }
@@ -691,7 +682,7 @@ static int nurbs(Parser *p, size_t first_line, size_t *last_line) {
             memcpy(previous, pt, sizeof pt);
         } else {
             trailing++;
-            if (trailing > GC_MAX_DEGREE + 1) {
+            if (trailing > MAX_DEGREE + 1) {
                 fail_at(p, line, "degree + 1 = %d knot-only lines (K) closing the NURBS block started in line %zu",
                         degree + 1, first_line);
                 goto error;
@@ -826,8 +817,8 @@ error:
 static int parse_line(Parser *p, size_t line, size_t *last) {
     int motion_g;
     *last = line;
-    if (p->line_length[line - 1] > GC_MAX_LINE_LENGTH) {
-        fail_at(p, line, "a line of at most %d characters", GC_MAX_LINE_LENGTH);
+    if (p->line_length[line - 1] > MAX_LINE_LENGTH) {
+        fail_at(p, line, "a line of at most %d characters", MAX_LINE_LENGTH);
         return -1;
     }
     if (is_tape_mark(p, line)) return 0;

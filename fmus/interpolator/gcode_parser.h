@@ -5,10 +5,9 @@
 
 #include <stddef.h>
 
-enum { MOVE_RAPID = 0, MOVE_LINE = 1, MOVE_ARC = 2, MOVE_NURBS = 3 };
-
-#define GC_MAX_DEGREE 5
-#define GC_MAX_LINE_LENGTH 1000
+/* MOVE_RAPID..MOVE_NURBS, MAX_DEGREE, MAX_LINE_LENGTH and the parser's limits: generated from
+ * models/interpolator/ */
+#include "model_constants.h"
 
 typedef struct {
     int kind;

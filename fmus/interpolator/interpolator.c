@@ -67,22 +67,24 @@ void interp_install(const InterpPrepared *p, double *heap, InterpLayout *L) {
         const GcMove *m = &g->moves[k];
         double *r = heap + L->moves + MOVE_DOUBLES * k;
         int i;
-        r[0] = m->kind, r[1] = m->line, r[2] = path->move_s[k], r[3] = path->move_length[k];
+        r[MR_KIND] = m->kind, r[MR_LINE] = m->line, r[MR_BLOCK] = m->block;
+        r[MR_S] = path->move_s[k], r[MR_LENGTH] = path->move_length[k];
         for (i = 0; i < 3; i++) {
-            r[4 + i] = m->start[i], r[7 + i] = m->end[i], r[10 + i] = m->offset[i], r[16 + i] = m->center[i];
-            r[19 + i] = m->axes[i];
+            r[MR_START + i] = m->start[i], r[MR_END + i] = m->end[i], r[MR_OFFSET + i] = m->offset[i];
+            r[MR_CENTER + i] = m->center[i], r[MR_AXES + i] = m->axes[i];
         }
-        r[13] = m->feed, r[14] = m->spindle, r[15] = m->spindle_on;
-        r[22] = m->theta0, r[23] = m->sweep, r[24] = m->r0, r[25] = m->r1, r[26] = m->height;
-        r[27] = m->curve, r[28] = m->u0, r[29] = m->u1, r[30] = path->span_lo[k], r[31] = path->span_hi[k];
-        r[32] = m->block;
+        r[MR_FEED] = m->feed, r[MR_SPINDLE] = m->spindle, r[MR_SPINDLE_ON] = m->spindle_on;
+        r[MR_THETA0] = m->theta0, r[MR_SWEEP] = m->sweep, r[MR_R0] = m->r0, r[MR_R1] = m->r1, r[MR_HEIGHT] = m->height;
+        r[MR_CURVE] = m->curve, r[MR_U0] = m->u0, r[MR_U1] = m->u1;
+        r[MR_SPAN_LO] = path->span_lo[k], r[MR_SPAN_HI] = path->span_hi[k];
     }
     at = L->points;
     for (k = 0; k < g->n_curves; k++) {
         const GcCurve *c = &g->curves[k];
         double *r = heap + L->curves + CURVE_DOUBLES * k;
         size_t n = (size_t)c->n_points, n_knots = n + (size_t)c->degree + 1;
-        r[0] = c->degree, r[1] = c->n_points - 1, r[2] = (double)at, r[3] = (double)(at + 4 * n);
+        r[CR_DEGREE] = c->degree, r[CR_LAST_POINT] = c->n_points - 1, r[CR_PW] = (double)at,
+        r[CR_KNOTS] = (double)(at + 4 * n);
         memcpy(heap + at, path->pw[k], 4 * n * sizeof *heap);
         memcpy(heap + at + 4 * n, c->knots, n_knots * sizeof *heap);
         at += 4 * n + n_knots;
@@ -130,16 +132,17 @@ static const double *move_record(const double *heap, const InterpLayout *L, size
 
 static void curve_view(const double *heap, const InterpLayout *L, int curve, NurbsView *v) {
     const double *r = heap + L->curves + CURVE_DOUBLES * (size_t)curve;
-    v->degree = (int)r[0];
-    v->n = (int)r[1];
-    v->pw = heap + (size_t)r[2];
-    v->knots = heap + (size_t)r[3];
+    v->degree = (int)r[CR_DEGREE];
+    v->n = (int)r[CR_LAST_POINT];
+    v->pw = heap + (size_t)r[CR_PW];
+    v->knots = heap + (size_t)r[CR_KNOTS];
 }
 
 static void arc_of(const double *r, ArcParams *a) {
     int i;
-    for (i = 0; i < 3; i++) a->center[i] = r[16 + i], a->end[i] = r[7 + i], a->axes[i] = (int)r[19 + i];
-    a->theta0 = r[22], a->sweep = r[23], a->r0 = r[24], a->r1 = r[25], a->height = r[26];
+    for (i = 0; i < 3; i++)
+        a->center[i] = r[MR_CENTER + i], a->end[i] = r[MR_END + i], a->axes[i] = (int)r[MR_AXES + i];
+    a->theta0 = r[MR_THETA0], a->sweep = r[MR_SWEEP], a->r0 = r[MR_R0], a->r1 = r[MR_R1], a->height = r[MR_HEIGHT];
 }
 
 static int plan(double *heap, const InterpLayout *L, InterpState *st, const InterpSettings *settings, double s_start,
@@ -151,10 +154,10 @@ static int plan(double *heap, const InterpLayout *L, InterpState *st, const Inte
     if (!soft) return -1;
     for (k = 0; k < L->n_moves; k++) {
         const double *r = move_record(heap, L, k);
-        if ((int)r[0] == MOVE_RAPID) {
+        if ((int)r[MR_KIND] == MOVE_RAPID) {
             soft[k] = settings->rapid_feed;
         } else {
-            double f = r[13] * st->override;
+            double f = r[MR_FEED] * st->override;
             soft[k] = settings->max_feed < f ? settings->max_feed : f;
         }
     }
@@ -187,14 +190,14 @@ int interp_set_override(double *heap, const InterpLayout *L, InterpState *st, co
     t_now = (double)st->tick * settings->limits.period;
     k = st->piece;
     pc = pieces + PIECE_DOUBLES * k;
-    if (pc[3] == 0.0 && pc[4] == 0.0) {
-        double tau = t_now - pc[0];
-        t_r = t_now, s_r = pc[1] + pc[2] * tau, v_r = pc[2];
+    if (pc[PC_A] == 0.0 && pc[PC_J] == 0.0) {
+        double tau = t_now - pc[PC_T];
+        t_r = t_now, s_r = pc[PC_S] + pc[PC_V] * tau, v_r = pc[PC_V];
     } else {
         k++;
-        while (k < st->n_pieces && !(pieces[PIECE_DOUBLES * k + 3] == 0.0)) k++;
+        while (k < st->n_pieces && !(pieces[PIECE_DOUBLES * k + PC_A] == 0.0)) k++;
         pc = pieces + PIECE_DOUBLES * k;
-        t_r = pc[0], s_r = pc[1], v_r = pc[2];
+        t_r = pc[PC_T], s_r = pc[PC_S], v_r = pc[PC_V];
     }
     memmove(heap + L->pieces, heap + L->pieces + PIECE_DOUBLES * st->piece,
             PIECE_DOUBLES * (k - st->piece) * sizeof *heap);
@@ -209,7 +212,7 @@ static void set_final(const double *heap, const InterpLayout *L, InterpState *st
     int i;
     if (L->n_moves) {
         const double *r = move_record(heap, L, L->n_moves - 1);
-        pos = r + 7, offset = r + 10;
+        pos = r + MR_END, offset = r + MR_OFFSET;
     } else {
         pos = L->start, offset = L->start_offset;
     }
@@ -233,9 +236,9 @@ static void step_nurbs(const double *heap, const InterpLayout *L, InterpState *s
                        const double *r, double local, double length, double pos[3], double tangent[3], double *u) {
     NurbsState *ns = &st->nurbs;
     NurbsView curve;
-    int lo = (int)r[30], hi = (int)r[31], i;
-    double u0 = r[28], u1 = r[29], g;
-    curve_view(heap, L, (int)r[27], &curve);
+    int lo = (int)r[MR_SPAN_LO], hi = (int)r[MR_SPAN_HI], i;
+    double u0 = r[MR_U0], u1 = r[MR_U1], g;
+    curve_view(heap, L, (int)r[MR_CURVE], &curve);
     if (ns->move != (int)st->move) nurbs_state_start(ns, (int)st->move, &curve, u0, lo, hi);
     if (local >= length) {
         if (ns->u < u1) {
@@ -269,7 +272,7 @@ static void update_outputs(const double *heap, const InterpLayout *L, InterpStat
     }
     while (st->move + 1 < L->n_moves) {
         r = move_record(heap, L, st->move);
-        if (!(s > r[2] + r[3])) break;
+        if (!(s > r[MR_S] + r[MR_LENGTH])) break;
         st->move++;
     }
     if (st->finished) {
@@ -277,17 +280,17 @@ static void update_outputs(const double *heap, const InterpLayout *L, InterpStat
         return;
     }
     r = move_record(heap, L, st->move);
-    kind = (int)r[0];
-    local = s - r[2];
-    length = r[3];
+    kind = (int)r[MR_KIND];
+    local = s - r[MR_S];
+    length = r[MR_LENGTH];
     lam = local / length;
     if (lam > 1.0) lam = 1.0;
     if (lam < 0.0) lam = 0.0;
     if (kind == MOVE_RAPID || kind == MOVE_LINE) {
         double d[3], norm;
         for (i = 0; i < 3; i++) {
-            pos[i] = lam >= 1.0 ? r[7 + i] : r[4 + i] + lam * (r[7 + i] - r[4 + i]);
-            d[i] = r[7 + i] - r[4 + i];
+            pos[i] = lam >= 1.0 ? r[MR_END + i] : r[MR_START + i] + lam * (r[MR_END + i] - r[MR_START + i]);
+            d[i] = r[MR_END + i] - r[MR_START + i];
         }
         norm = sqrt(vec_dot(d, d));
         for (i = 0; i < 3; i++) tangent[i] = d[i] / norm;
@@ -303,16 +306,16 @@ static void update_outputs(const double *heap, const InterpLayout *L, InterpStat
     }
     for (i = 0; i < 3; i++) {
         out->x[i] = pos[i];
-        out->program[i] = pos[i] - r[10 + i];
+        out->program[i] = pos[i] - r[MR_OFFSET + i];
         out->velocity[i] = st->v * tangent[i];
     }
     out->feed = st->v;
     out->acceleration = st->a;
     out->u = u;
-    out->line = (int)r[1];
-    out->block = (int)r[32];
-    out->spindle = r[14];
-    out->spindle_on = r[15] != 0.0;
+    out->line = (int)r[MR_LINE];
+    out->block = (int)r[MR_BLOCK];
+    out->spindle = r[MR_SPINDLE];
+    out->spindle_on = r[MR_SPINDLE_ON] != 0.0;
     out->rapid = kind == MOVE_RAPID;
     out->finished = 0;
 }
@@ -323,12 +326,12 @@ void interp_tick(double *heap, const InterpLayout *L, InterpState *st, const Int
     int done;
     st->tick++;
     t = (double)st->tick * settings->limits.period;
-    while (st->piece + 1 < st->n_pieces && pieces[PIECE_DOUBLES * (st->piece + 1)] <= t) st->piece++;
+    while (st->piece + 1 < st->n_pieces && pieces[PIECE_DOUBLES * (st->piece + 1) + PC_T] <= t) st->piece++;
     pc = pieces + PIECE_DOUBLES * st->piece;
-    tau = t - pc[0];
-    s = pc[1] + tau * (pc[2] + tau * (0.5 * pc[3] + tau * pc[4] / 6.0));
-    v = pc[2] + tau * (pc[3] + 0.5 * tau * pc[4]);
-    a = pc[3] + tau * pc[4];
+    tau = t - pc[PC_T];
+    s = pc[PC_S] + tau * (pc[PC_V] + tau * (0.5 * pc[PC_A] + tau * pc[PC_J] / 6.0));
+    v = pc[PC_V] + tau * (pc[PC_A] + 0.5 * tau * pc[PC_J]);
+    a = pc[PC_A] + tau * pc[PC_J];
     done = !st->hold && t >= st->end_time;
     if (done || s >= L->total) s = L->total;
     if (done) v = a = 0.0;
@@ -345,7 +348,7 @@ int interp_holds_still(const double *heap, const InterpLayout *L, const InterpSt
     InterpState same;
     if (!after->hold || after->n_pieces == 0 || after->piece + 1 != after->n_pieces) return 0;
     pc = heap + L->pieces + PIECE_DOUBLES * after->piece;
-    if (pc[2] != 0.0 || pc[3] != 0.0 || pc[4] != 0.0) return 0; /* s, v, a no longer depend on t */
+    if (pc[PC_V] != 0.0 || pc[PC_A] != 0.0 || pc[PC_J] != 0.0) return 0; /* s, v, a no longer depend on t */
     /* bytewise, padding included: interp_start zeroes the state and the ticks write it field by field, so the
      * padding is zero; were it not, the comparison would only fail and nothing be skipped */
     memcpy(&same, before, sizeof same);

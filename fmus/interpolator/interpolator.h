@@ -13,9 +13,44 @@
 #include "param_update.h"
 #include "path.h"
 
-#define MOVE_DOUBLES 33
-#define CURVE_DOUBLES 4
 #define INTERP_MAGIC 1234567.0
+
+/* A move's record in the heap: offsets in doubles (3-vectors take three), MOVE_DOUBLES in all. */
+enum {
+    MR_KIND = 0,         /* MOVE_RAPID .. MOVE_NURBS */
+    MR_LINE = 1,         /* line of the part program */
+    MR_S = 2,            /* path length at its start */
+    MR_LENGTH = 3,
+    MR_START = 4,        /* [3] machine coordinates */
+    MR_END = 7,          /* [3] */
+    MR_OFFSET = 10,      /* [3] work offset in effect */
+    MR_FEED = 13,        /* programmed F, m/s */
+    MR_SPINDLE = 14,     /* rad/s, signed */
+    MR_SPINDLE_ON = 15,
+    MR_CENTER = 16,      /* [3] arcs */
+    MR_AXES = 19,        /* [3] arcs: in-plane a, b and the normal axis */
+    MR_THETA0 = 22,
+    MR_SWEEP = 23,
+    MR_R0 = 24,
+    MR_R1 = 25,
+    MR_HEIGHT = 26,
+    MR_CURVE = 27,       /* NURBS: index of the curve */
+    MR_U0 = 28,
+    MR_U1 = 29,
+    MR_SPAN_LO = 30,
+    MR_SPAN_HI = 31,
+    MR_BLOCK = 32,       /* N word */
+    MOVE_DOUBLES = 33
+};
+
+/* A curve's record in the heap (its control points and knots follow the records, from `points` on). */
+enum {
+    CR_DEGREE = 0,
+    CR_LAST_POINT = 1, /* index of the last control point */
+    CR_PW = 2,         /* heap offset of the homogeneous control points (4 per point) */
+    CR_KNOTS = 3,      /* heap offset of the knots */
+    CURVE_DOUBLES = 4
+};
 
 typedef struct {
     Limits limits; /* period, acceleration, jerk, centripetal, chord, axis limits */

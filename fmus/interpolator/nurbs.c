@@ -24,10 +24,10 @@ int nurbs_find_span(const double *knots, int p, double u, int lo, int hi) {
 }
 
 void nurbs_basis_derivatives(const double *knots, int i, double u, int p, int nd,
-                             double ders[NURBS_MAX_DERIVATIVE + 1][NURBS_MAX_DEGREE + 1]) {
-    double ndu[NURBS_MAX_DEGREE + 1][NURBS_MAX_DEGREE + 1];
-    double left[NURBS_MAX_DEGREE + 1], right[NURBS_MAX_DEGREE + 1];
-    double a[2][NURBS_MAX_DEGREE + 1];
+                             double ders[NURBS_MAX_DERIVATIVE + 1][MAX_DEGREE + 1]) {
+    double ndu[MAX_DEGREE + 1][MAX_DEGREE + 1];
+    double left[MAX_DEGREE + 1], right[MAX_DEGREE + 1];
+    double a[2][MAX_DEGREE + 1];
     double factor;
     int j, r, k;
     ndu[0][0] = 1.0;
@@ -77,7 +77,7 @@ void nurbs_basis_derivatives(const double *knots, int i, double u, int p, int nd
 }
 
 void nurbs_evaluate(const NurbsView *c, double u, int nd, int lo, int hi, double out[][3]) {
-    double ders[NURBS_MAX_DERIVATIVE + 1][NURBS_MAX_DEGREE + 1];
+    double ders[NURBS_MAX_DERIVATIVE + 1][MAX_DEGREE + 1];
     double aw[NURBS_MAX_DERIVATIVE + 1][4];
     int p = c->degree, i = nurbs_find_span(c->knots, p, u, lo, hi), k, j, m;
     double w0;
@@ -117,11 +117,6 @@ void nurbs_span_range(const NurbsView *c, double u0, double u1, int *lo, int *hi
     *lo = l;
     *hi = h;
 }
-
-static const double GL_NODES[5] = {-0.9061798459386640, -0.5384693101056831, 0.0, 0.5384693101056831,
-                                   0.9061798459386640};
-static const double GL_WEIGHTS[5] = {0.2369268850561891, 0.4786286704993665, 0.5688888888888889, 0.4786286704993665,
-                                     0.2369268850561891};
 
 double nurbs_gauss_length(const NurbsView *c, double ua, double ub, int lo, int hi) {
     double half = 0.5 * (ub - ua), mid = 0.5 * (ua + ub), total = 0.0, d[2][3];

@@ -4,7 +4,8 @@
 #ifndef NURBS_H
 #define NURBS_H
 
-#define NURBS_MAX_DEGREE 5
+#include "model_constants.h" /* MAX_DEGREE, GL_NODES, GL_WEIGHTS: generated from models/interpolator/ */
+
 #define NURBS_MAX_DERIVATIVE 3
 
 /* A curve stored flat: knots (n + degree + 2 values for control points 0..n) and homogeneous control
@@ -18,7 +19,7 @@ typedef struct {
 
 int nurbs_find_span(const double *knots, int p, double u, int lo, int hi);
 void nurbs_basis_derivatives(const double *knots, int i, double u, int p, int nd,
-                             double ders[NURBS_MAX_DERIVATIVE + 1][NURBS_MAX_DEGREE + 1]);
+                             double ders[NURBS_MAX_DERIVATIVE + 1][MAX_DEGREE + 1]);
 /* out[k] = d^k C / du^k, k = 0..nd (nd <= 3); span searched in [lo, hi]. */
 void nurbs_evaluate(const NurbsView *c, double u, int nd, int lo, int hi, double out[][3]);
 /* First and last span of positive length inside [u0, u1]. */

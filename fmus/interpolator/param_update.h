@@ -6,10 +6,7 @@
 
 #include "nurbs.h"
 
-enum { METHOD_TAYLOR1 = 1, METHOD_TAYLOR2 = 2, METHOD_RBF = 3, METHOD_CORRECTOR = 4 };
-#define RBF_HIDDEN 5
-#define RBF_INPUTS 4
-#define MAX_NEWTON 8
+/* METHOD_TAYLOR1..METHOD_CORRECTOR, RBF_HIDDEN, RBF_INPUTS, MAX_NEWTON: model_constants.h (through nurbs.h) */
 
 typedef struct {
     double width;

@@ -9,13 +9,7 @@
 
 #include "nurbs.h"
 
-#define CHORD_SAFETY 0.95
-#define TANGENT_TOLERANCE 1e-12
-#define CURVATURE_VARIATION 0.02
-#define SIGNIFICANT_TURN 1e-3
-#define MAX_SAMPLE_DEPTH 40
-#define MAX_SAMPLES 2000000
-#define INITIAL_SUBDIVISION 4
+/* CHORD_SAFETY, TANGENT_TOLERANCE, COS_TURN, ... BIG: model_constants.h (through path.h) */
 
 static double min2(double a, double b) { return b < a ? b : a; }
 static double max2(double a, double b) { return b > a ? b : a; }
@@ -36,7 +30,7 @@ void tangential_limits(const Limits *lim, const double t[3], int curved, double 
 }
 
 double curvature_limit(const Limits *lim, double kappa, const double k[3], const double kp[3], double at) {
-    double v = PATH_BIG;
+    double v = BIG;
     int i;
     if (kappa > 0.0) {
         double rho = 1.0 / kappa, delta = CHORD_SAFETY * lim->chord;
@@ -60,7 +54,7 @@ double curvature_limit(const Limits *lim, double kappa, const double k[3], const
 
 double junction_limit(const Limits *lim, const double ta[3], const double ka[3], const double tb[3],
                       const double kb[3]) {
-    double v = PATH_BIG, period = lim->period, dk[3], norm;
+    double v = BIG, period = lim->period, dk[3], norm;
     int i;
     if (vec_dot(ta, tb) < 1.0 - TANGENT_TOLERANCE) {
         double dt[3];
@@ -225,7 +219,7 @@ static int refine(Sampler *z, double ua, const Info *ia, double ub, const Info *
     chord = sqrt(vec_dot(e, e));
     kmax = max2(max2(ia->kappa, im.kappa), ib->kappa);
     kmin = min2(min2(ia->kappa, im.kappa), ib->kappa);
-    split = vec_dot(ia->t, im.t) < cos(0.02) || vec_dot(im.t, ib->t) < cos(0.02) ||
+    split = vec_dot(ia->t, im.t) < COS_TURN || vec_dot(im.t, ib->t) < COS_TURN ||
             (kmax * chord > SIGNIFICANT_TURN && kmax - kmin > CURVATURE_VARIATION * kmax);
     if (split && depth < MAX_SAMPLE_DEPTH && um > ua && um < ub) {
         double s_m;
@@ -339,8 +333,8 @@ int path_build(const GcProgram *program, const Limits *lim, const char *file, Pa
             tangential_limits(lim, t, 0, &at, &jt);
             memcpy(end_t[index][0], t, sizeof t);
             memcpy(end_t[index][1], t, sizeof t);
-            out->move_cap[index] = PATH_BIG;
-            if (samples_push(x, 0.0, PATH_BIG, at, jt) != 0 || samples_push(x, length, PATH_BIG, at, jt) != 0) goto oom;
+            out->move_cap[index] = BIG;
+            if (samples_push(x, 0.0, BIG, at, jt) != 0 || samples_push(x, length, BIG, at, jt) != 0) goto oom;
         } else if (m->kind == MOVE_ARC) {
             ArcParams a;
             double rm, omega, rw, t[3] = {0, 0, 0}, k[3] = {0, 0, 0}, kp[3] = {0, 0, 0}, at, jt, kappa, v;
@@ -394,7 +388,7 @@ int path_build(const GcProgram *program, const Limits *lim, const char *file, Pa
             }
             free(x->v);
             x->v = vc;
-            out->move_cap[index] = PATH_BIG;
+            out->move_cap[index] = BIG;
         }
         out->move_length[index] = length;
         s += length;

@@ -8,7 +8,6 @@
 
 #include "gcode_parser.h"
 
-#define PATH_BIG 1e300
 
 typedef struct {
     double period, acceleration, jerk, centripetal, chord;

@@ -2,7 +2,10 @@
 outputs; ``fmus/interpolator/model.c`` reads them through the generated ``model_generated.h``)."""
 from __future__ import annotations
 
+import math
+
 from milling_twin.models.definition import ModelDefinition, Variable
+from milling_twin.models.interpolator import nurbs, param_update, parser, path, schedule
 from milling_twin.models.interpolator.param_update import RBF_HIDDEN, RBF_INPUTS
 from milling_twin.models.interpolator.parser import OFFSET_NAMES
 
@@ -123,6 +126,20 @@ def _variables() -> tuple[Variable, ...]:
     return tuple(v)
 
 
+def _constants() -> tuple[tuple[str, int | float | tuple[float, ...]], ...]:
+    """The constants fmus/interpolator/*.c share with the modules here, under the same names (model_constants.h)."""
+    names = {parser: ("MAX_LINE_LENGTH", "MAX_SIGNIFICANT_DIGITS", "MAX_COORDINATE", "MAX_FEED_WORD", "MAX_SPEED_WORD",
+                      "MAX_NURBS_POINTS", "MAX_DEGREE", "START_POINT_TOLERANCE", "ARC_RADIUS_TOLERANCE",
+                      "ARC_RADIUS_RELATIVE", "MOVE_RAPID", "MOVE_LINE", "MOVE_ARC", "MOVE_NURBS"),
+             nurbs: ("GL_NODES", "GL_WEIGHTS"),
+             path: ("COS_TURN", "CURVATURE_VARIATION", "SIGNIFICANT_TURN", "MAX_SAMPLE_DEPTH", "MAX_SAMPLES",
+                    "INITIAL_SUBDIVISION", "CHORD_SAFETY", "TANGENT_TOLERANCE", "BIG"),
+             schedule: ("BISECTIONS", "VIOLATION_TOLERANCE"),
+             param_update: ("METHOD_TAYLOR1", "METHOD_TAYLOR2", "METHOD_RBF", "METHOD_CORRECTOR", "RBF_HIDDEN",
+                            "RBF_INPUTS", "MAX_NEWTON")}
+    return (("PI", math.pi),) + tuple((n, getattr(module, n)) for module, group in names.items() for n in group)
+
+
 INTERPOLATOR = ModelDefinition(
     identifier="Interpolator",
     description="CNC interpolator: G-code with NURBS blocks to tool positions every interpolation period, "
@@ -131,6 +148,7 @@ INTERPOLATOR = ModelDefinition(
     default_stop_time=10.0,
     equations=None,
     variables=_variables(),
+    constants=_constants(),
     native_outputs=tuple(n for n in (
         "x", "y", "z", "x_program", "y_program", "z_program", "feed_velocity_x", "feed_velocity_y",
         "feed_velocity_z", "feed", "path_acceleration", "u", "line_number", "block_number", "spindle_speed",

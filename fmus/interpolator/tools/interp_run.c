@@ -7,102 +7,45 @@
  * axis_acceleration_x.., axis_jerk_x.., start_x.., g54_x..g59_z, rbf_*). Runs the program to its end, one
  * tick per interpolation period; --csv writes every point (tick, t, x, y, z, feed, path_acceleration, u,
  * line, move, s, x_program, y_program, z_program, vx, vy, vz); --repeat N times the tick loop N times
- * (parsing and scheduling excluded) and prints the median cost per interpolation point. Built by CMake from
- * the same sources as the FMU (fmus/interpolator/interpolator.cmake). */
+ * (parsing and scheduling excluded) and prints the median cost per interpolation point. Parameters not given
+ * keep the model definition's start values (model_set_start_values); --param goes through the FMU's generated
+ * variable table. Built by CMake from the same sources as the FMU (fmus/interpolator/interpolator.cmake). */
 #define _POSIX_C_SOURCE 199309L
 #include <stdio.h>
 #include <stdlib.h>
 #include <string.h>
 #include <time.h>
 
-#include "../interpolator.h"
+#include "../interp_settings.h"
 
-typedef struct {
-    const char *name;
-    double *value;
-    int *integer;
-} Param;
-
-static void defaults(InterpSettings *s) {
-    int j, i;
-    memset(s, 0, sizeof *s);
-    s->limits.period = 1e-3;
-    s->limits.acceleration = 1.0;
-    s->limits.jerk = 100.0;
-    s->limits.centripetal = 1.0;
-    s->limits.chord = 1e-6;
-    for (i = 0; i < 3; i++) s->limits.axis_acceleration[i] = 2.0, s->limits.axis_jerk[i] = 300.0;
-    s->max_feed = 1.0 / 3.0;
-    s->rapid_feed = 1.0 / 6.0;
-    s->update.method = METHOD_CORRECTOR;
-    s->update.predictor = METHOD_TAYLOR2;
-    s->update.tolerance = 1e-6;
-    s->update.feedback = 1;
-    s->update.rbf.width = 1.5;
-    for (i = 0; i < RBF_INPUTS; i++) s->update.rbf.scale[i] = 1.0;
-    for (j = 0; j < 6; j++)
-        for (i = 0; i < 3; i++) s->gcode.offsets[j][i] = 0.0;
-}
-
-static int set_param(InterpSettings *s, int *predictor, const char *assignment) {
-    char name[64];
+/* Sets a parameter by its FMU name through the generated variable table (name, type, offset in ModelVariables),
+ * as the FMU's set functions do (without their range checks). */
+static int set_param(ModelVariables *v, const char *assignment) {
+    char name[64], *end;
     const char *eq = strchr(assignment, '=');
     double value;
-    char *end;
-    static const char *axes = "xyz";
-    int i, j;
+    unsigned int i;
     if (!eq || (size_t)(eq - assignment) >= sizeof name) return -1;
     memcpy(name, assignment, (size_t)(eq - assignment));
     name[eq - assignment] = '\0';
     value = strtod(eq + 1, &end);
     if (*end) return -1;
-#define MATCH(n, target)                                                                                             \
-    if (strcmp(name, n) == 0) {                                                                                      \
-        target = value;                                                                                              \
-        return 0;                                                                                                    \
-    }
-    MATCH("period", s->limits.period)
-    MATCH("acceleration", s->limits.acceleration)
-    MATCH("jerk", s->limits.jerk)
-    MATCH("centripetal_acceleration", s->limits.centripetal)
-    MATCH("chord_error", s->limits.chord)
-    MATCH("max_feed", s->max_feed)
-    MATCH("rapid_feed", s->rapid_feed)
-    MATCH("corrector_tolerance", s->update.tolerance)
-    MATCH("rbf_width", s->update.rbf.width)
-    MATCH("rbf_bias", s->update.rbf.bias)
-#undef MATCH
-    if (strcmp(name, "method") == 0) return s->update.method = (int)value, 0;
-    if (strcmp(name, "arc_length_feedback") == 0) return s->update.feedback = value != 0.0, 0;
-    if (strcmp(name, "corrector_predictor") == 0) return *predictor = (int)value, 0;
-    for (i = 0; i < 3; i++) {
-        char n[64];
-        snprintf(n, sizeof n, "axis_acceleration_%c", axes[i]);
-        if (strcmp(name, n) == 0) return s->limits.axis_acceleration[i] = value, 0;
-        snprintf(n, sizeof n, "axis_jerk_%c", axes[i]);
-        if (strcmp(name, n) == 0) return s->limits.axis_jerk[i] = value, 0;
-        snprintf(n, sizeof n, "start_%c", axes[i]);
-        if (strcmp(name, n) == 0) return s->gcode.start[i] = value, 0;
-        for (j = 0; j < 6; j++) {
-            snprintf(n, sizeof n, "g5%d_%c", 4 + j, axes[i]);
-            if (strcmp(name, n) == 0) return s->gcode.offsets[j][i] = value, 0;
+    for (i = 0; i < MODEL_VARIABLE_COUNT; i++) {
+        const FmuVariable *row = &MODEL_VARIABLE_TABLE[i];
+        char *field = (char *)v + row->offset;
+        if (!row->name || row->causality != FMU_PARAMETER || strcmp(row->name, name) != 0) continue;
+        if (row->type == FMU_FLOAT64) {
+            memcpy(field, &value, sizeof value);
+        } else if (row->type == FMU_INT32) {
+            int32_t x = (int32_t)value;
+            memcpy(field, &x, sizeof x);
+        } else if (row->type == FMU_BOOLEAN) {
+            bool x = value != 0.0;
+            memcpy(field, &x, sizeof x);
+        } else {
+            return -1; /* the program is the command's argument */
         }
-    }
-    for (i = 0; i < RBF_INPUTS; i++) {
-        char n[64];
-        snprintf(n, sizeof n, "rbf_offset_%d", i + 1);
-        if (strcmp(name, n) == 0) return s->update.rbf.offset[i] = value, 0;
-        snprintf(n, sizeof n, "rbf_scale_%d", i + 1);
-        if (strcmp(name, n) == 0) return s->update.rbf.scale[i] = value, 0;
-        for (j = 0; j < RBF_HIDDEN; j++) {
-            snprintf(n, sizeof n, "rbf_center_%d_%d", j + 1, i + 1);
-            if (strcmp(name, n) == 0) return s->update.rbf.centers[j][i] = value, 0;
-        }
-    }
-    for (j = 0; j < RBF_HIDDEN; j++) {
-        char n[64];
-        snprintf(n, sizeof n, "rbf_weight_%d", j + 1);
-        if (strcmp(name, n) == 0) return s->update.rbf.weights[j] = value, 0;
+        return 0;
     }
     return -1;
 }
@@ -142,15 +85,16 @@ int main(int argc, char **argv) {
     InterpLayout layout;
     InterpState state;
     const char *program = NULL, *csv = NULL;
-    int repeat = 0, predictor = METHOD_TAYLOR2, k;
+    ModelVariables variables;
+    int repeat = 0, k;
     double override = 1.0, *heap, *costs = NULL;
     size_t length = 0;
     char *text, error[1024];
     FILE *out = NULL;
-    defaults(&settings);
+    model_set_start_values(&variables); /* the model definition's defaults */
     for (k = 1; k < argc; k++) {
         if (strcmp(argv[k], "--param") == 0 && k + 1 < argc) {
-            if (set_param(&settings, &predictor, argv[++k]) != 0) {
+            if (set_param(&variables, argv[++k]) != 0) {
                 fprintf(stderr, "interp_run: bad --param %s\n", argv[k]);
                 return 2;
             }
@@ -172,8 +116,7 @@ int main(int argc, char **argv) {
         fprintf(stderr, "interp_run: no program\n");
         return 2;
     }
-    settings.update.predictor = settings.update.method == METHOD_CORRECTOR ? predictor : settings.update.method;
-    settings.limits.max_feed = settings.max_feed > settings.rapid_feed ? settings.max_feed : settings.rapid_feed;
+    interp_settings_of(&variables, &settings);
     text = read_all(program, &length);
     if (!text) {
         fprintf(stderr, "interp_run: cannot read %s\n", program);

@@ -11,7 +11,7 @@ from milling_twin.models.interpolator.parser import OFFSET_NAMES
 
 # Default RBF network: trained by milling_twin/training/rbf.py on the butterfly curve of
 # scenarios/nurbs/ (F 100 mm/s, A 1000 mm/s2, J 1e5 mm/s3, 1 um, 1 ms); rewritten by
-# `python -m milling_twin.training.rbf --write-defaults`.
+# `milling-twin train rbf`.
 # BEGIN RBF DEFAULTS
 RBF_DEFAULTS: dict[str, float] = {
     "rbf_width": 1.5,

@@ -307,6 +307,15 @@ COMMANDS: tuple[Subcommand | Group, ...] = (
 )
 
 
+def exit_code_table() -> str:
+    """The exit codes as a Markdown table (docs/orchestrator.md holds it verbatim; a test keeps it so)."""
+    rows = ["| code | when | raised as |", "|---:|---|---|", "| 0 | done | |"]
+    for e in sorted(EXIT_CODES, key=lambda e: (e.code, EXIT_CODES.index(e))):
+        rows.append(f"| {e.code} | {e.meaning} | `{e.name}` |")
+    rows.insert(-1, f"| {REJECTED} | a result was rejected (align spatial: F > k, no G-code is printed) | (returned) |")
+    return "\n".join(rows)
+
+
 def _exit_code_epilog() -> str:
     rows = [f"  {e.code:>3}  {e.meaning}" for e in EXIT_CODES]
     rows.insert(0, "    0  done")

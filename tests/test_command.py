@@ -179,3 +179,10 @@ def test_simulate_in_memory_and_to_a_folder(make_case, fmu_dir, tmp_path) -> Non
     loaded = mt.load_results(on_disk.run_dir)
     assert loaded.attrs["units"] == frame.attrs["units"]
     assert float(frame["power.P_total"].iloc[0] - loaded["power.P_total"].iloc[0]) == pytest.approx(500.0)
+
+
+def test_the_docs_give_the_exit_code_table_as_the_code_has_it() -> None:
+    from milling_twin.cli import exit_code_table
+
+    assert exit_code_table() in (REPO_ROOT / "docs" / "orchestrator.md").read_text(), \
+        "docs/orchestrator.md: paste milling_twin.cli.exit_code_table() under 'Exit codes'"

@@ -125,7 +125,7 @@ FORCE_NET = ModelDefinition(
     update=_angle_update,
     native_outputs=NATIVE_OUTPUTS,
     native_states=("delayed_displacement_x", "delayed_displacement_y"),
-    constants=(("OMEGA_MIN", OMEGA_MIN), ("TWO_PI", TWO_PI)),  # model.c: model_constants.h
+    constants=(("OMEGA_MIN", OMEGA_MIN), ("TWO_PI", TWO_PI), ("PI", math.pi)),  # model.c, forcenet.c: model_constants.h
     states=(State("angle", "Spindle angle: flute 0 at the tool tip, clockwise from +y", unit="rad"),
             State("delayed_displacement_x", "Tool displacement in x one tooth period ago (model.c)", unit="m"),
             State("delayed_displacement_y", "Tool displacement in y one tooth period ago (model.c)", unit="m")),

@@ -594,15 +594,7 @@ def load_scenario(path: str | Path, fmu_dir: str | Path, parameter_sets: Sequenc
     parameter-set files applied after the scenario's own ``[scenario].parameter_sets``."""
     path, fmu_dir = Path(path), Path(fmu_dir)
     ctx = _Ctx(path)
-    try:
-        doc = tomllib.loads(path.read_text(encoding="utf-8"))
-    except FileNotFoundError:
-        ctx.fail("", "scenario file not found")
-    except (tomllib.TOMLDecodeError, UnicodeDecodeError) as exc:
-        ctx.fail("", f"invalid TOML: {exc}")
-    if "calibration" in doc and "scenario" not in doc:
-        ctx.fail("", f"this is a calibration spec ([calibration] table), not a scenario: use "
-                     f"`milling-twin calibrate {path}`")
+    _, doc = ctx.document("scenario")
     ctx.table(doc, "", ("scenario", "fmus", "recorded", "inputs", "connections", "outputs", "compare"))
 
     sc = ctx.table(doc.get("scenario"), "[scenario]", (

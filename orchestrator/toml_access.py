@@ -5,9 +5,14 @@ built as ``error(path, key, message)``."""
 from __future__ import annotations
 
 import math
+import tomllib
 from collections.abc import Sequence
 from pathlib import Path
 from typing import Any, Callable, NoReturn
+
+
+# The two kinds of file the readers take, by their top table: what to call one, and the command that takes it.
+KINDS = {"scenario": ("scenario file", "run"), "calibration": ("calibration spec", "calibrate")}
 
 
 class TomlAccess:
@@ -18,6 +23,23 @@ class TomlAccess:
 
     def fail(self, key: str, message: str) -> NoReturn:
         raise type(self).error(self.path, key, message)
+
+    def document(self, kind: str) -> tuple[bytes, dict[str, Any]]:
+        """The file's bytes and its parsed TOML, a file of ``kind`` ("scenario" or "calibration"); a missing
+        file, invalid TOML, or a file of the other kind fails, the last saying which command takes it."""
+        try:
+            raw = self.path.read_bytes()
+            doc = tomllib.loads(raw.decode("utf-8"))
+        except FileNotFoundError:
+            self.fail("", f"{KINDS[kind][0]} not found")
+        except (tomllib.TOMLDecodeError, UnicodeDecodeError) as exc:
+            self.fail("", f"invalid TOML: {exc}")
+        other = next(k for k in KINDS if k != kind)
+        if other in doc and kind not in doc:
+            what, command = KINDS[other]
+            self.fail("", f"this is a {what} ([{other}] table), not a {KINDS[kind][0]}: use "
+                          f"`milling-twin {command} {self.path}`")
+        return raw, doc
 
     def table(self, value: Any, key: str, allowed: Sequence[str]) -> dict[str, Any]:
         if value is None:  # absent (an empty or truncated file lacks every table)

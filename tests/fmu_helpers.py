@@ -47,6 +47,15 @@ def fmu_dir() -> Path:
     return Path(os.environ.get(ENV_FMU_DIR, REPO / "build" / "fmus"))
 
 
+def generated_dir(identifier: str = "ForceNet") -> Path:
+    """What the build generated for ``identifier`` (model_constants.h, ...), beside the built FMUs: the C
+    sources a test compiles on its own include it from there."""
+    folder = fmu_dir().parent / "generated" / identifier
+    if not (folder / "model_constants.h").is_file():
+        raise FileNotFoundError(f"{folder / 'model_constants.h'} is missing: build the FMUs first (make fmus)")
+    return folder
+
+
 def fmu_file_name(identifier: str, fmi_version: int) -> str:
     return f"{identifier}.fmu" if fmi_version == 3 else f"{identifier}_fmi{fmi_version}.fmu"
 

@@ -230,12 +230,12 @@ def test_a_scenario_file_given_as_a_calibration_spec_and_the_reverse(make_case, 
     """Each loader recognises the other kind of file and says which command takes it."""
     case = make_case()
     assert spec_error(case, tmp_path) == (f"this is a scenario file ([scenario] table), not a calibration spec: "
-                                          f"run it with `milling-twin run {case}`")
+                                          f"use `milling-twin run {case}`")
     spec = write_power_case(tmp_path / "case")
     with pytest.raises(ScenarioError) as info:
         load_scenario(spec, fmu_dir)
-    assert str(info.value) == (f"{spec}: this is a calibration spec ([calibration] table), not a scenario: use "
-                               f"`milling-twin calibrate {spec}`")
+    assert str(info.value) == (f"{spec}: this is a calibration spec ([calibration] table), not a scenario file: "
+                               f"use `milling-twin calibrate {spec}`")
 
 
 @pytest.mark.parametrize("folder", ["missing", "empty", "other FMUs"])

@@ -22,7 +22,7 @@ import pytest
 from fmpy.fmi2 import fmi2CoSimulation, fmi2False
 from fmpy.fmi3 import fmi3False, fmi3InstanceEnvironment, fmi3IntermediateUpdateCallback, fmi3LogMessageCallback
 
-from fmu_helpers import OK, Slave, assert_close, fmi2_callbacks, fmi3_logger, fmu_dir, require_fmu
+from fmu_helpers import OK, Slave, assert_close, fmi2_callbacks, fmi3_logger, fmu_dir, generated_dir, require_fmu
 from milling_twin import datasets
 from milling_twin.models import force_net as fn
 from milling_twin.models.cutting_force import AL7075_CARBIDE, CUTTING_FORCE
@@ -312,7 +312,7 @@ def _kernel_driver(tmp_path: Path, kernel: int) -> Path:
         pytest.skip("no C compiler")
     folder = REPO / "fmus" / "forcenet"
     out = tmp_path / f"forcenet_run_{kernel}"
-    subprocess.run([compiler, *C_FLAGS, f"-DFORCENET_KERNEL={kernel}", "-I", str(folder),
+    subprocess.run([compiler, *C_FLAGS, f"-DFORCENET_KERNEL={kernel}", "-I", str(folder), "-I", str(generated_dir()),
                     str(folder / "tools" / "forcenet_run.c"), str(folder / "forcenet.c"), "-o", str(out), "-lm"],
                    check=True)
     return out

@@ -15,7 +15,7 @@ import pytest
 
 torch = pytest.importorskip("torch", reason="torch is the optional 'train' extra: pip install -e '.[test,train]'")
 
-from fmu_helpers import OK, Slave, fmu_dir, require_fmu  # noqa: E402
+from fmu_helpers import OK, Slave, fmu_dir, generated_dir, require_fmu  # noqa: E402
 from milling_twin import datasets
 from milling_twin.models import force_net as fn  # noqa: E402
 from milling_twin.training import force_net as fnt  # noqa: E402
@@ -33,7 +33,8 @@ def driver(tmp_path_factory) -> Path:
     compiler = shutil.which("cc") or shutil.which("gcc")
     assert compiler, "no C compiler"
     out = tmp_path_factory.mktemp("forcenet_run") / "forcenet_run"
-    subprocess.run([compiler, *C_FLAGS, "-I", str(FORCENET), str(FORCENET / "tools" / "forcenet_run.c"),
+    subprocess.run([compiler, *C_FLAGS, "-I", str(FORCENET), "-I", str(generated_dir()),
+                    str(FORCENET / "tools" / "forcenet_run.c"),
                     str(FORCENET / "forcenet.c"), "-o", str(out), "-lm"], check=True, capture_output=True, text=True)
     return out
 

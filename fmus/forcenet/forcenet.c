@@ -2,6 +2,7 @@
  * Every floating-point operation follows models/force_net.py (network, elements, tool_outputs) in the same
  * order, so the FMU equals that reference to rounding (the tests require 1e-12). */
 #include "forcenet.h"
+#include "model_constants.h" /* OMEGA_MIN (rad/s: below it the spindle is stopped), TWO_PI, PI: from models/ */
 
 #include <errno.h>
 #include <math.h>
@@ -10,9 +11,6 @@
 #include <stdlib.h>
 #include <string.h>
 
-#define TWO_PI 6.283185307179586 /* 2.0 * math.pi */
-#define PI 3.141592653589793
-#define OMEGA_MIN 1.0            /* rad/s: models/cutting_force.py OMEGA_MIN, below it the spindle is stopped */
 #define HEADER_BYTES 56          /* magic, version, 6 sizes, 3 scales */
 #define CHUNK 8                  /* elements evaluated together (the activation buffers are CHUNK x width) */
 

@@ -276,6 +276,20 @@ def describe_overrides(overrides: Mapping[str, Any]) -> str:
                      for k, v in overrides.items())
 
 
+def record_and_publish(ident: dict[str, Any], set_path: Path, set_args: tuple, write_set: Path | None,
+                       overrides: Mapping[str, Any] | None) -> Path | None:
+    """Name the parameter set written under the output folder (with its hash) and the overrides in the
+    identities, then publish the set to ``write_set`` when asked (after the re-simulation succeeded).
+    Returns the published file, or None."""
+    ident["parameter_set"] = {"path": str(set_path), "sha256": sha256_of(set_path)}
+    if overrides:
+        ident["overrides"] = describe_overrides(overrides)
+    published = write_parameter_set(write_set, *set_args) if write_set is not None else None
+    if published is not None:
+        ident["parameter_set"]["published"] = str(published)
+    return published
+
+
 def _names_set(scenario_file: Path, set_file: Path) -> bool:
     """Does ``scenario_file`` (already loaded, so valid) apply ``set_file`` in its [scenario].parameter_sets?"""
     own = tomllib.loads(scenario_file.read_text(encoding="utf-8"))["scenario"].get("parameter_sets", [])
@@ -524,11 +538,6 @@ def calibrate_scenario(spec: CalibrationSpec, fmu_dir: Path, out_dir: Path, prog
     ident = identities(spec, prepared.scenario, tokens)
     ident["runs"] = {"initial": str(prepared.run_dir), "calibrated": str(run_after)}
     ident["calibrated_scenario"] = str(spec.calibrated_scenario or f"{spec.scenario} + {set_path}")
-    ident["parameter_set"] = {"path": str(set_path), "sha256": sha256_of(set_path)}
-    if overrides:
-        ident["overrides"] = describe_overrides(overrides)
-    published = write_parameter_set(write_set, *set_args) if write_set is not None else None
-    if published is not None:
-        ident["parameter_set"]["published"] = str(published)
+    published = record_and_publish(ident, set_path, set_args, write_set, overrides)
     return CalibrationResult(spec, outcome, series, [error_row(s) for s in series], ident, timings, out_dir, set_path,
                              ssv, summary, notes + _notes(outcome), [], tables, published_set=published)

@@ -56,7 +56,8 @@ from milling_twin.orchestrator.calibrate.paramset import write_parameter_set, wr
 from milling_twin.orchestrator.calibrate.plots import _png
 from milling_twin.orchestrator.calibrate.residuals import ResidualModel, from_outputs
 from milling_twin.orchestrator.calibrate.result import CalibrationResult, Figure, Series, Table, error_row
-from milling_twin.orchestrator.calibrate.scenario_fit import check_tokens, describe_overrides, identities, with_overrides
+from milling_twin.orchestrator.calibrate.scenario_fit import (check_tokens, describe_overrides, identities,
+                                                            record_and_publish, with_overrides)
 from milling_twin.orchestrator.calibrate.spec import CalibrationSpec, ParameterSpec
 from milling_twin.orchestrator.master import SimulationError
 from milling_twin.orchestrator.results import sha256_of
@@ -425,12 +426,7 @@ def calibrate_slot_forces(spec: CalibrationSpec, fmu_dir: Path, out_dir: Path, d
     ident = identities(spec, scenario, tokens)
     ident["recorded"] = [{"path": str(r.path), "sha256": sha256_of(r.path), "role": d}
                          for d, g in (("learning", learn), ("validation", held)) for r in g.recordings]
-    ident["parameter_set"] = {"path": str(set_path), "sha256": sha256_of(set_path)}
-    if overrides:
-        ident["overrides"] = describe_overrides(overrides)
-    published = write_parameter_set(write_set, *set_args) if write_set is not None else None
-    if published is not None:
-        ident["parameter_set"]["published"] = str(published)
+    published = record_and_publish(ident, set_path, set_args, write_set, overrides)
     notes = [f"Data: {folder} (never copied into the repository; source {sm.SOURCE}).",
              "Learning feeds " + ", ".join(f"{f:g}" for f in cfg.learning_feeds) + " mm/min; held-out "
              + ", ".join(f"{f:g}" for f in cfg.validation_feeds) + " mm/min.",

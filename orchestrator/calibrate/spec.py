@@ -98,8 +98,6 @@ from __future__ import annotations
 import hashlib
 import math
 import re
-import tomllib
-from collections.abc import Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, NoReturn
@@ -361,16 +359,7 @@ def load_spec(path: str | Path) -> CalibrationSpec:
     """Parse and check a calibration spec file (see the module text)."""
     path = Path(path)
     ctx = _Ctx(path)
-    try:
-        raw = path.read_bytes()
-        doc = tomllib.loads(raw.decode("utf-8"))
-    except FileNotFoundError:
-        ctx.fail("", "calibration spec not found")
-    except (tomllib.TOMLDecodeError, UnicodeDecodeError) as exc:
-        ctx.fail("", f"invalid TOML: {exc}")
-    if "scenario" in doc and "calibration" not in doc:
-        ctx.fail("", f"this is a scenario file ([scenario] table), not a calibration spec: run it with "
-                     f"`milling-twin run {path}`")
+    raw, doc = ctx.document("calibration")
     ctx.table(doc, "", ("calibration", "parameters", "outputs", "segments", "alignment", "inputs", "solver",
                         "statistics", "slot_forces"))
     key = "[calibration]"

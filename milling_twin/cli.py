@@ -11,7 +11,6 @@ import argparse
 import importlib
 import logging
 import math
-import os
 import re
 import sys
 from collections.abc import Callable, Sequence
@@ -19,8 +18,8 @@ from dataclasses import dataclass
 from pathlib import Path
 
 from milling_twin import __version__
+from milling_twin.api import FMU_DIR_ENV, default_fmu_dir
 
-FMU_DIR_ENV = "MILLING_TWIN_FMU_DIR"
 LOG_LEVELS = ("debug", "info", "warning", "error")
 
 
@@ -96,12 +95,8 @@ def overrides_of(args: argparse.Namespace) -> dict[str, object]:
     return dict(parse_override(text) for text in args.set or ())
 
 
-def _fmu_dir_default() -> Path:
-    return Path(os.environ.get(FMU_DIR_ENV, "build/fmus"))
-
-
 def _add_fmu_dir(p: argparse.ArgumentParser) -> None:
-    p.add_argument("--fmu-dir", type=Path, default=_fmu_dir_default(),
+    p.add_argument("--fmu-dir", type=Path, default=default_fmu_dir(),
                    help=f"folder of the built FMUs (default: ${FMU_DIR_ENV} or build/fmus; `make build` makes them)")
 
 

@@ -4,7 +4,7 @@ fmpy binds each FMI function of an FMU's shared library in ``_loadFunctions``: f
 ``fmi2*``/``fmi3*`` method of the class it calls ``inspect.signature`` and turns the annotations into
 ctypes ``argtypes``/``restype``. That table depends only on the class, yet fmpy rebuilds it for every
 instance: about 34 (FMI 2) to 100 (FMI 3) signatures, 1-3 ms per FMU, more than a whole native run
-of the UMich scenarios takes (README "Compiled stepping"). The classes here compute the table with
+of the UMich scenarios takes (docs/performance.md). The classes here compute the table with
 fmpy's own rules the first time a class is loaded and then only bind the library's functions.
 Everything else (loading the library, instantiating, the convenience calls, error handling) is
 fmpy's; ``tests/test_fmu_loading.py`` checks that the bound functions equal fmpy's, name by name.

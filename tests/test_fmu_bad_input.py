@@ -644,7 +644,7 @@ def test_events_are_logged_only_with_debug_logging_on(fmu: Path) -> None:
         assert verbose.step(0.0) == ERROR and len(verbose.errors()) == 1
 
 
-# ---- the bad-input matrix (README "Bad input: what you get"): zero, negative and huge values, huge steps,
+# ---- the bad-input matrix (docs/testing.md "Bad input: what you get"): zero, negative and huge values, huge steps,
 # call order, missing resources ----
 
 

@@ -575,7 +575,7 @@ REAL_DATA = Path(__import__("os").environ.get("MILLING_TWIN_SLOT_DATA")
 @pytest.mark.skipif(not REAL_DATA.is_dir(), reason=f"the measured slot-milling recordings are not in {REAL_DATA}: put "
                     "them there (see orchestrator/validation/slot_milling.py) or set MILLING_TWIN_SLOT_DATA")
 def test_real_recordings_with_the_force_net(tmp_path: Path) -> None:
-    """The committed network on the five Kistler recordings: the mechanistic prior's figures (README)."""
+    """The committed network on the five Kistler recordings: the mechanistic prior's figures (docs/validation.md)."""
     from milling_twin.orchestrator.validation import slot_milling as sm
 
     fmu_path(3)

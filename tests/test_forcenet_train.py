@@ -60,7 +60,7 @@ def held_out_features(count: int = 40, seed: int = 77) -> np.ndarray:
 
 @pytest.fixture(scope="module")
 def quick(tmp_path_factory):
-    """The short training run (models.force_net_train.QUICK) and its export."""
+    """The short training run (milling_twin.training.force_net.QUICK) and its export."""
     started = time.perf_counter()
     net, report = fnt.train(fnt.QUICK, log=None)
     seconds = time.perf_counter() - started
@@ -209,7 +209,7 @@ REAL_DATA = Path(os.environ.get("MILLING_TWIN_SLOT_DATA") or REPO.parent / "shar
                     "them there (see orchestrator/validation/slot_milling.py) or set MILLING_TWIN_SLOT_DATA")
 def test_finetuning_on_the_measured_feeds_predicts_a_left_out_one() -> None:
     """The network fine-tuned on the recordings at 300, 600, 1200 and 1500 mm/min predicts the mean forces
-    at 900 mm/min (README: every left-out feed, milling-twin train forcenet-finetune)."""
+    at 900 mm/min (docs/forcenet.md: every left-out feed, milling-twin train forcenet-finetune)."""
     from milling_twin.orchestrator.validation import slot_milling as sm
 
     recordings = datasets.read_recordings(datasets.data_dir(REAL_DATA))

@@ -1,4 +1,4 @@
-"""Interpolator FMU (fmus/interpolator/, models/interpolator.py): equality with the Python reference, exact
+"""Interpolator FMU (fmus/interpolator/, models/interpolator/): equality with the Python reference, exact
 lines, arcs and NURBS circles, the limits on random programs, the end at rest on the last point, the feed
 override, step sizes, offsets and the other outputs. Bad programs: test_interpolator_programs.py."""
 from __future__ import annotations

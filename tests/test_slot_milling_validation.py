@@ -100,7 +100,7 @@ REAL_DATA = Path(__import__("os").environ.get(datasets.DATA_ENV) or datasets.DEF
 @pytest.mark.skipif(not REAL_DATA.is_dir(), reason=f"the measured slot-milling recordings are not in {REAL_DATA}: "
                     f"put them there (see orchestrator/validation/slot_milling.py) or set {datasets.DATA_ENV}")
 def test_real_recordings(tmp_path: Path) -> None:
-    """The five Kistler recordings: what the model achieves today, as a floor (numbers in the README)."""
+    """The five Kistler recordings: what the model achieves today, as a floor (numbers in docs/validation.md)."""
     require_fmu(fmu_dir() / "CuttingForce.fmu")
     doc = sm.validate(datasets.data_dir(REAL_DATA), sm.DEFAULT_SCENARIO, fmu_dir(), tmp_path)
     assert [c["feed_mm_per_min"] for c in doc["cases"]] == list(FEEDS)

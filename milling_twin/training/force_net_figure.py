@@ -1,4 +1,4 @@
-"""The README figure of the force net in slot milling (no recorded data in it: only errors and scores).
+"""The docs figure of the force net in slot milling (no recorded data in it: only errors and scores).
 
     milling-twin validate forcenet-figure [--runs runs] [--fmu-dir build/fmus] [--out scenarios/figures/forcenet_slot_milling.png]
 

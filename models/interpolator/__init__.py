@@ -18,7 +18,7 @@ operation like the C code so that the generic FMU tests compare the two to 1e-12
 
 Every public name of these modules is importable from here (``from milling_twin.models import
 interpolator as ip; ip.Interpolator``). Feedrate schedule, parameter update: see ``Path``, ``Schedule``
-and ``step_nurbs``, and README.
+and ``step_nurbs``, and docs/interpolator.md.
 """
 from __future__ import annotations
 

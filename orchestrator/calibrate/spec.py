@@ -48,7 +48,7 @@ recorded data)::
     min_confidence = 0.0              # pairs whose alignment confidence is lower are not used
 
     [inputs."power.mrr"]              # optional, per input of the fitted equations (data or connection)
-    floor = 1e-300                    # SI: the fit reads the input as max(value, floor) (see README: a
+    floor = 1e-300                    # SI: the fit reads the input as max(value, floor) (see docs/calibration.md: a
                                       # derivative the models/ expression leaves undefined at 0)
 
     [solver]                          # all optional

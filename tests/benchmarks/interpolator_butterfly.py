@@ -18,7 +18,7 @@ Metrics, over the interpolation steps inside the curve (the last step, clamped o
   tool actually travels in the period) and V_scheduled = (s_i+1 - s_i) / T (the schedule's step);
 - chord error: the largest distance of the curve between u_i and u_i+1 from the chord (16 samples per step);
 - time: the machining time against two lower bounds under the same limits: the velocity-limit-curve bound
-  (integral of ds / VLC, docs/interpolator.md's 4.533 s; it ignores the acceleration limit) and the acceleration-limited
+  (integral of ds / VLC, 4.533 s; it ignores the acceleration limit) and the acceleration-limited
   time-optimal bound (bidirectional scan on the VLC with the tangential acceleration limit; jerk ignored),
   which every feasible schedule also needs, both from the exact limits on a 200,000-point grid.
 """

@@ -125,7 +125,11 @@ FORCE_NET = ModelDefinition(
     update=_angle_update,
     native_outputs=NATIVE_OUTPUTS,
     native_states=("delayed_displacement_x", "delayed_displacement_y"),
-    constants=(("OMEGA_MIN", OMEGA_MIN), ("TWO_PI", TWO_PI), ("PI", math.pi)),  # model.c, forcenet.c: model_constants.h
+    # model.c, forcenet.c and forcenet.h read these from the generated model_constants.h
+    constants=(("OMEGA_MIN", OMEGA_MIN), ("TWO_PI", TWO_PI), ("PI", math.pi), ("N_FEATURES", N_FEATURES),
+               ("N_LOADS", N_LOADS), ("MAX_WIDTH", MAX_WIDTH), ("MAX_BLOCKS", MAX_BLOCKS),
+               ("ELEMENTS_PER_FLUTE", ELEMENTS_PER_FLUTE), ("MAX_FLUTES", MAX_FLUTES), ("MAP_ROWS", MAP_ROWS),
+               ("MAP_COLUMNS", MAP_COLUMNS)),
     states=(State("angle", "Spindle angle: flute 0 at the tool tip, clockwise from +y", unit="rad"),
             State("delayed_displacement_x", "Tool displacement in x one tooth period ago (model.c)", unit="m"),
             State("delayed_displacement_y", "Tool displacement in y one tooth period ago (model.c)", unit="m")),

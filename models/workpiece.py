@@ -157,6 +157,11 @@ WORKPIECE = ModelDefinition(
     equations=None,
     variables=_variables(),
     native_outputs=SCALAR_OUTPUTS + ("engagement",),
+    # model.c and config.h read these from the generated model_constants.h
+    constants=(("N_Z", N_Z), ("N_THETA", N_THETA), ("N_BISECTIONS", N_BISECTIONS), ("MAX_CELLS", float(MAX_CELLS)),
+               ("MIN_CELLS_ACROSS_TOOL", MIN_CELLS_ACROSS_TOOL), ("DESCEND_PER_SUBSEGMENT", DESCEND_PER_SUBSEGMENT),
+               ("FEED_DIRECTION_MIN_TRAVEL", FEED_DIRECTION_MIN_TRAVEL), ("SPINDLE_STOPPED", SPINDLE_STOPPED),
+               ("PI", math.pi)),
 )
 
 PARAMETERS = tuple(v.name for v in WORKPIECE.of("parameter"))

@@ -2,7 +2,6 @@
  * Every floating-point operation follows models/force_net.py (network, elements, tool_outputs) in the same
  * order, so the FMU equals that reference to rounding (the tests require 1e-12). */
 #include "forcenet.h"
-#include "model_constants.h" /* OMEGA_MIN (rad/s: below it the spindle is stopped), TWO_PI, PI: from models/ */
 
 #include <errno.h>
 #include <math.h>
@@ -75,17 +74,17 @@ int forcenet_parse(const unsigned char *data, size_t size, ForceNetLayout *layou
     lay.width = u32(data + 20);
     lay.blocks = u32(data + 24);
     n_out = u32(data + 28);
-    if (n_in != FORCENET_FEATURES || n_out != FORCENET_LOADS) {
+    if (n_in != N_FEATURES || n_out != N_LOADS) {
         say(message, message_size,
             "shape mismatch: the network has %lu inputs and %lu outputs, the model needs %d and %d",
-            (unsigned long)n_in, (unsigned long)n_out, FORCENET_FEATURES, FORCENET_LOADS);
+            (unsigned long)n_in, (unsigned long)n_out, N_FEATURES, N_LOADS);
         return -1;
     }
-    if (lay.kernel < 1 || lay.kernel > FORCENET_MAX_WIDTH || lay.width < 1 || lay.width > FORCENET_MAX_WIDTH ||
-        lay.blocks > FORCENET_MAX_BLOCKS) {
+    if (lay.kernel < 1 || lay.kernel > MAX_WIDTH || lay.width < 1 || lay.width > MAX_WIDTH ||
+        lay.blocks > MAX_BLOCKS) {
         say(message, message_size, "sizes K = %lu, W = %lu, B = %lu outside 1..%d, 1..%d, 0..%d",
-            (unsigned long)lay.kernel, (unsigned long)lay.width, (unsigned long)lay.blocks, FORCENET_MAX_WIDTH,
-            FORCENET_MAX_WIDTH, FORCENET_MAX_BLOCKS);
+            (unsigned long)lay.kernel, (unsigned long)lay.width, (unsigned long)lay.blocks, MAX_WIDTH,
+            MAX_WIDTH, MAX_BLOCKS);
         return -1;
     }
     for (i = 0; i < 3; i++) {
@@ -100,8 +99,8 @@ int forcenet_parse(const unsigned char *data, size_t size, ForceNetLayout *layou
     lay.load_ref = scales[2];
     lay.layers = 3 + 2 * lay.blocks;
     for (l = 0; l < lay.layers; l++) {
-        lay.n_in[l] = l == 0 ? FORCENET_FEATURES : l == 1 ? lay.kernel : lay.width;
-        lay.n_out[l] = l == 0 ? lay.kernel : l == lay.layers - 1 ? FORCENET_LOADS : lay.width;
+        lay.n_in[l] = l == 0 ? N_FEATURES : l == 1 ? lay.kernel : lay.width;
+        lay.n_out[l] = l == 0 ? lay.kernel : l == lay.layers - 1 ? N_LOADS : lay.width;
         lay.weight[l] = count;
         count += (size_t)lay.n_in[l] * lay.n_out[l];
         lay.bias[l] = count;
@@ -361,16 +360,16 @@ __attribute__((always_inline))
 #endif
 static inline void network(const ForceNetLayout *layout, const double *params, const double *features, size_t n,
                            double *loads, int wide) {
-    double a[CHUNK * FORCENET_MAX_WIDTH], t[CHUNK * FORCENET_MAX_WIDTH], u[CHUNK * FORCENET_MAX_WIDTH];
+    double a[CHUNK * MAX_WIDTH], t[CHUNK * MAX_WIDTH], u[CHUNK * MAX_WIDTH];
     const size_t K = layout->kernel, W = layout->width, last = layout->layers - 1;
     size_t start, i, block;
     (void)wide;
     for (start = 0; start < n; start += CHUNK) {
         size_t rows = n - start < CHUNK ? n - start : CHUNK;
-        double *out = loads + start * FORCENET_LOADS;
+        double *out = loads + start * N_LOADS;
         /* kernel-function block: cube */
-        DENSE(params + layout->weight[0], params + layout->bias[0], FORCENET_FEATURES, K,
-              features + start * FORCENET_FEATURES, rows, t);
+        DENSE(params + layout->weight[0], params + layout->bias[0], N_FEATURES, K,
+              features + start * N_FEATURES, rows, t);
         for (i = 0; i < rows * K; i++) t[i] = t[i] * t[i] * t[i];
         /* linear-transform block: ReLU */
         DENSE(params + layout->weight[1], params + layout->bias[1], K, W, t, rows, a);
@@ -385,8 +384,8 @@ static inline void network(const ForceNetLayout *layout, const double *params, c
                 a[i] = sum > 0.0 ? sum : 0.0;
             }
         }
-        DENSE(params + layout->weight[last], params + layout->bias[last], W, FORCENET_LOADS, a, rows, out);
-        for (i = 0; i < rows * FORCENET_LOADS; i++) out[i] = out[i] * layout->load_ref;
+        DENSE(params + layout->weight[last], params + layout->bias[last], W, N_LOADS, a, rows, out);
+        for (i = 0; i < rows * N_LOADS; i++) out[i] = out[i] * layout->load_ref;
     }
 }
 
@@ -422,11 +421,11 @@ static double wrap(double angle) { return angle - TWO_PI * floor(angle / TWO_PI)
  * when that cell is given (>= 0: in material from 0.5 on), else the entry..exit window. */
 static int in_material(const double *map, int k, double theta, int in_window) {
     if (map) {
-        const size_t row = (size_t)k * FORCENET_MAP_ROWS / FORCENET_ELEMENTS_PER_FLUTE;
-        size_t column = (size_t)(theta * (FORCENET_MAP_COLUMNS / TWO_PI));
+        const size_t row = (size_t)k * MAP_ROWS / ELEMENTS_PER_FLUTE;
+        size_t column = (size_t)(theta * (MAP_COLUMNS / TWO_PI));
         double value;
-        if (column >= FORCENET_MAP_COLUMNS) column = FORCENET_MAP_COLUMNS - 1; /* theta rounded up to 2 pi */
-        value = map[row * FORCENET_MAP_COLUMNS + column];
+        if (column >= MAP_COLUMNS) column = MAP_COLUMNS - 1; /* theta rounded up to 2 pi */
+        value = map[row * MAP_COLUMNS + column];
         if (value >= 0.0) return value >= 0.5;
     }
     return in_window;
@@ -434,13 +433,13 @@ static int in_material(const double *map, int k, double theta, int in_window) {
 
 size_t forcenet_elements(const ForceNetLayout *layout, const ForceNetCut *cut, double *features, double *sin_phi,
                          double *cos_phi, double *z_out, double *radius_out) {
-    const int n = cut->n_flutes < FORCENET_MAX_FLUTES ? cut->n_flutes : FORCENET_MAX_FLUTES;
+    const int n = cut->n_flutes < MAX_FLUTES ? cut->n_flutes : MAX_FLUTES;
     const double omega = cut->spindle_speed, vx = cut->feed_velocity_x, vy = cut->feed_velocity_y;
-    const double radius = cut->tool_diameter / 2.0, dz = cut->axial_depth / FORCENET_ELEMENTS_PER_FLUTE;
+    const double radius = cut->tool_diameter / 2.0, dz = cut->axial_depth / ELEMENTS_PER_FLUTE;
     const double dx = cut->displacement_x, dy = cut->displacement_y, offset = cut->runout_offset;
     double period, feed_angle, sin_feed, cos_feed, lag_per_height, entry, width, pitch, v_feature, theta0_feature;
-    double z[FORCENET_ELEMENTS_PER_FLUTE], psi[FORCENET_ELEMENTS_PER_FLUTE];
-    double sin_psi[FORCENET_ELEMENTS_PER_FLUTE], cos_psi[FORCENET_ELEMENTS_PER_FLUTE];
+    double z[ELEMENTS_PER_FLUTE], psi[ELEMENTS_PER_FLUTE];
+    double sin_psi[ELEMENTS_PER_FLUTE], cos_psi[ELEMENTS_PER_FLUTE];
     size_t count = 0;
     int m, k;
     if (!(omega >= OMEGA_MIN && dz > 0.0) || n < 1) return 0;
@@ -456,7 +455,7 @@ size_t forcenet_elements(const ForceNetLayout *layout, const ForceNetCut *cut, d
     theta0_feature = cut->angle / PI - 1.0;
     /* the helix lag of each height, the same for every flute: 2 H + 2 N + 3 libm calls per evaluation,
      * the angles of the elements by the addition theorems */
-    for (k = 0; k < FORCENET_ELEMENTS_PER_FLUTE; k++) {
+    for (k = 0; k < ELEMENTS_PER_FLUTE; k++) {
         z[k] = ((double)k + 0.5) * dz;
         psi[k] = z[k] * lag_per_height;
         sin_psi[k] = sin(psi[k]);
@@ -470,12 +469,12 @@ size_t forcenet_elements(const ForceNetLayout *layout, const ForceNetCut *cut, d
             runout = offset * (own - cos(cut->runout_angle - (double)(m - 1) * pitch));
             flute_radius = radius + offset * own;
         }
-        for (k = 0; k < FORCENET_ELEMENTS_PER_FLUTE; k++) {
+        for (k = 0; k < ELEMENTS_PER_FLUTE; k++) {
             const double phi = flute - psi[k];
             const double s = sin_flute * cos_psi[k] - cos_flute * sin_psi[k]; /* sin(phi) */
             const double c = cos_flute * cos_psi[k] + sin_flute * sin_psi[k]; /* cos(phi) */
             const double h = period * (vx * s + vy * c) + dx * s + dy * c + runout;
-            double *f = features + count * FORCENET_FEATURES;
+            double *f = features + count * N_FEATURES;
             if (!(h > 0.0 && in_material(cut->engagement, k, wrap(phi + feed_angle),
                                          wrap(phi + feed_angle - entry) < width)))
                 continue;
@@ -497,9 +496,9 @@ size_t forcenet_elements(const ForceNetLayout *layout, const ForceNetCut *cut, d
 }
 
 void forcenet_tool(const ForceNetLayout *layout, const double *params, const ForceNetCut *cut, ForceNetTool *out) {
-    double features[FORCENET_MAX_ELEMENTS * FORCENET_FEATURES], loads[FORCENET_MAX_ELEMENTS * FORCENET_LOADS];
+    double features[FORCENET_MAX_ELEMENTS * N_FEATURES], loads[FORCENET_MAX_ELEMENTS * N_LOADS];
     double s[FORCENET_MAX_ELEMENTS], c[FORCENET_MAX_ELEMENTS], z[FORCENET_MAX_ELEMENTS], r[FORCENET_MAX_ELEMENTS];
-    const double dz = cut->axial_depth / FORCENET_ELEMENTS_PER_FLUTE;
+    const double dz = cut->axial_depth / ELEMENTS_PER_FLUTE;
     const double zp = cut->moment_height;
     double fx = 0.0, fy = 0.0, fz = 0.0, torque = 0.0, mx = 0.0, my = 0.0, mz = 0.0, max_chip = 0.0;
     size_t n = forcenet_elements(layout, cut, features, s, c, z, r), i;
@@ -517,7 +516,7 @@ void forcenet_tool(const ForceNetLayout *layout, const double *params, const For
         mx += py * fa - pz * dfy;
         my += pz * dfx - px * fa;
         mz += px * dfy - py * dfx;
-        if (features[FORCENET_FEATURES * i] > max_chip) max_chip = features[FORCENET_FEATURES * i];
+        if (features[N_FEATURES * i] > max_chip) max_chip = features[N_FEATURES * i];
     }
     out->Fx = fx;
     out->Fy = fy;

@@ -8,16 +8,14 @@
 #include <stddef.h>
 #include <stdint.h>
 
-#define FORCENET_FEATURES 7           /* h/h_ref, v/v_ref, theta0/pi - 1, sin/cos(theta), sin/cos(psi) */
-#define FORCENET_LOADS 3              /* tangential, radial, axial load per unit edge length */
-#define FORCENET_MAX_WIDTH 128        /* largest K and W the FMU accepts (models.force_net.MAX_WIDTH) */
-#define FORCENET_MAX_BLOCKS 16        /* largest number of residual blocks (models.force_net.MAX_BLOCKS) */
-#define FORCENET_MAX_LAYERS (3 + 2 * FORCENET_MAX_BLOCKS)
-#define FORCENET_ELEMENTS_PER_FLUTE 16 /* H, models.force_net.ELEMENTS_PER_FLUTE */
-#define FORCENET_MAX_FLUTES 6
-#define FORCENET_MAX_ELEMENTS (FORCENET_MAX_FLUTES * FORCENET_ELEMENTS_PER_FLUTE)
-#define FORCENET_MAP_ROWS 8           /* the Workpiece's engagement map: heights (models.workpiece.N_Z) */
-#define FORCENET_MAP_COLUMNS 24       /* and angles, 15 deg each (models.workpiece.N_THETA) */
+/* From models/force_net.py, in the generated model_constants.h: N_FEATURES (h/h_ref, v/v_ref, theta0/pi - 1,
+ * sin/cos(theta), sin/cos(psi)), N_LOADS (tangential, radial, axial load per unit edge length), MAX_WIDTH and
+ * MAX_BLOCKS (the largest K, W and number of residual blocks accepted), ELEMENTS_PER_FLUTE (H), MAX_FLUTES,
+ * MAP_ROWS x MAP_COLUMNS (the Workpiece's engagement map: heights, and angles of 15 deg each). */
+#include "model_constants.h"
+
+#define FORCENET_MAX_LAYERS (3 + 2 * MAX_BLOCKS)
+#define FORCENET_MAX_ELEMENTS (MAX_FLUTES * ELEMENTS_PER_FLUTE)
 #define FORCENET_MAX_FILE_BYTES (16u << 20)
 #define FORCENET_WEIGHTS_FILE "weights.bin"
 
@@ -55,7 +53,7 @@ typedef struct {
     double displacement_x, displacement_y; /* the tool's displacement now minus one tooth period ago: the
                                             * regenerative chip (0 and 0: the static chip) */
     double angle; /* spindle angle theta0 of flute 0 at the tip */
-    const double *engagement; /* NULL, or the engagement map (FORCENET_MAP_ROWS x FORCENET_MAP_COLUMNS, row-major,
+    const double *engagement; /* NULL, or the engagement map (MAP_ROWS x MAP_COLUMNS, row-major,
                                * feed frame): a cell >= 0 says whether its elements are in material (>= 0.5), a
                                * negative cell leaves it to the window entry_angle..exit_angle */
 } ForceNetCut;

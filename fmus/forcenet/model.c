@@ -20,7 +20,7 @@
 #include "resource_location.h"
 
 /* the engagement input is the Workpiece's map (models/force_net.py: shape of "engagement") */
-typedef char map_size_matches_the_model[(SIZE_engagement == FORCENET_MAP_ROWS * FORCENET_MAP_COLUMNS) ? 1 : -1];
+typedef char map_size_matches_the_model[(SIZE_engagement == MAP_ROWS * MAP_COLUMNS) ? 1 : -1];
 
 
 FmuStatus model_instantiate(FmuInstance *instance, const char *function) {

@@ -12,11 +12,7 @@
 #define CONFIG_H
 
 #include "model_generated.h"
-
-#define WORKPIECE_N_Z 8       /* rows of the engagement map: models.workpiece.N_Z */
-#define WORKPIECE_N_THETA 24  /* columns of the engagement map: models.workpiece.N_THETA */
-
-#define WORKPIECE_N_BISECTIONS 10 /* refinement of entry and exit between two angle samples */
+#include "model_constants.h" /* N_Z x N_THETA (the engagement map), N_BISECTIONS, the grid limits: models/workpiece.py */
 
 /* Where a set of probes of the stock was made (the tool at x, y) and how far the probes then lay from
  * the edges of their cells, in cells, towards -x, +x, -y, +y: the set gives the same heights while the
@@ -59,8 +55,8 @@ typedef struct {
     ProbeRooms map_rooms;   /* probes of the map; outputs valid for the refined angles and depth below */
     double outputs_entry, outputs_leave, outputs_axial;
     /* the angles of the last bisections (entry, exit) and their cos and sin */
-    double bisection_phi[2][WORKPIECE_N_BISECTIONS], bisection_cos[2][WORKPIECE_N_BISECTIONS],
-        bisection_sin[2][WORKPIECE_N_BISECTIONS];
+    double bisection_phi[2][N_BISECTIONS], bisection_cos[2][N_BISECTIONS],
+        bisection_sin[2][N_BISECTIONS];
 } ModelInternal;
 
 #endif

@@ -12,15 +12,11 @@
 
 #include "fmu_instance.h"
 
-#define PI 3.14159265358979323846
-#define MAX_CELLS 20000000.0             /* memory cap: 160 MB of heights (models.workpiece.MAX_CELLS) */
-#define MIN_CELLS_ACROSS_TOOL 4.0
-#define DESCEND_PER_SUBSEGMENT 0.25      /* times delta */
-#define FEED_DIRECTION_MIN_TRAVEL 1e-3   /* times delta */
-#define SPINDLE_STOPPED (2.0 * PI / 60.0) /* rad/s: 1 rpm */
+/* PI, MAX_CELLS (memory cap: 160 MB of heights), MIN_CELLS_ACROSS_TOOL, DESCEND_PER_SUBSEGMENT and
+ * FEED_DIRECTION_MIN_TRAVEL (times delta), SPINDLE_STOPPED (rad/s: 1 rpm): model_constants.h, from models/ */
 
 /* the map is one row-major array of N_Z x N_THETA values (models.workpiece: shape of "engagement") */
-typedef char map_size_matches_the_model[(SIZE_engagement == WORKPIECE_N_Z * WORKPIECE_N_THETA) ? 1 : -1];
+typedef char map_size_matches_the_model[(SIZE_engagement == N_Z * N_THETA) ? 1 : -1];
 
 static double cell_count(double size, double resolution) { return ceil(size / resolution - 1e-6); }
 
@@ -132,7 +128,7 @@ FmuStatus model_exit_initialization(FmuInstance *instance) {
     w->z = v->tool_z;
     w->feed_x = 1.0;
     w->feed_y = 0.0;
-    for (k = 0; k < WORKPIECE_N_BISECTIONS; k++) /* no angle of [0, pi] bisected yet */
+    for (k = 0; k < N_BISECTIONS; k++) /* no angle of [0, pi] bisected yet */
         w->bisection_phi[0][k] = w->bisection_phi[1][k] = -1.0;
     return FMU_OK;
 }
@@ -377,7 +373,7 @@ static bool engaged_at(FmuInstance *instance, int side, int level, double phi) {
 /* The engaged angle next to the boundary between the samples `inside` (engaged) and `outside`. */
 static double boundary(FmuInstance *instance, int side, double inside, double outside) {
     int n;
-    for (n = 0; n < WORKPIECE_N_BISECTIONS; n++) {
+    for (n = 0; n < N_BISECTIONS; n++) {
         const double middle = 0.5 * (inside + outside);
         if (engaged_at(instance, side, n, middle))
             inside = middle;
@@ -436,7 +432,7 @@ static bool scan(const FmuInstance *instance, ProbeRooms *rooms, size_t *first, 
 
 static void zero_outputs(FmuInstance *instance) {
     int i;
-    for (i = 0; i < WORKPIECE_N_Z * WORKPIECE_N_THETA; i++) instance->v.engagement[i] = 0.0;
+    for (i = 0; i < N_Z * N_THETA; i++) instance->v.engagement[i] = 0.0;
     instance->v.axial_depth = instance->v.radial_depth = instance->v.entry_angle = instance->v.exit_angle = 0.0;
     instance->internal.map_rooms.valid = false;
 }
@@ -451,11 +447,11 @@ static bool same_bits(double a, double b) { return memcmp(&a, &b, sizeof a) == 0
 static void engagement(FmuInstance *instance, double volume) {
     ModelInternal *w = &instance->internal;
     const double x = w->x, y = w->y, z = w->z, fx = w->feed_x, fy = w->feed_y;
-    const double column = 2.0 * PI / WORKPIECE_N_THETA;
+    const double column = 2.0 * PI / N_THETA;
     double axial, entry, leave, r_top, widen, cos_entry, cos_exit, previous_ri = -INFINITY;
-    double column_ux[WORKPIECE_N_THETA], column_uy[WORKPIECE_N_THETA], height[WORKPIECE_N_THETA];
+    double column_ux[N_THETA], column_uy[N_THETA], height[N_THETA];
     size_t k, n_columns = 0;
-    int i, j, columns[WORKPIECE_N_THETA];
+    int i, j, columns[N_THETA];
     if (volume > 0.0 || !same_bits(z, w->probed_z) || !same_bits(fx, w->probed_feed_x) ||
         !same_bits(fy, w->probed_feed_y)) {
         w->scan_rooms.valid = w->bisection_rooms.valid = w->map_rooms.valid = false;
@@ -505,7 +501,7 @@ static void engagement(FmuInstance *instance, double volume) {
     instance->v.exit_angle = acos(cos_exit);
     instance->v.radial_depth = r_top * (cos_entry - cos_exit);
     /* the columns inside the cut and their directions, the same for every row */
-    for (j = 0; j < WORKPIECE_N_THETA && ((double)j + 0.5) * column < PI; j++) {
+    for (j = 0; j < N_THETA && ((double)j + 0.5) * column < PI; j++) {
         const double phi = ((double)j + 0.5) * column;
         double c, s;
         if (phi < instance->v.entry_angle || phi > instance->v.exit_angle) continue; /* outside the cut */
@@ -517,16 +513,16 @@ static void engagement(FmuInstance *instance, double volume) {
         n_columns++;
     }
     start_rooms(&w->map_rooms, x, y);
-    for (i = 0; i < WORKPIECE_N_Z * WORKPIECE_N_THETA; i++) instance->v.engagement[i] = 0.0;
-    for (i = 0; i < WORKPIECE_N_Z; i++) {
-        const double zi = ((double)i + 0.5) * (axial / WORKPIECE_N_Z);
+    for (i = 0; i < N_Z * N_THETA; i++) instance->v.engagement[i] = 0.0;
+    for (i = 0; i < N_Z; i++) {
+        const double zi = ((double)i + 0.5) * (axial / N_Z);
         const double ri = radius_at(w, zi) + w->delta;
         if (ri != previous_ri) /* rows on the cylinder (all of a flat end mill) probe the same points */
             for (k = 0; k < n_columns; k++)
                 height[k] = height_above(instance, &w->map_rooms, x + ri * column_ux[k], y + ri * column_uy[k], z);
         previous_ri = ri;
         for (k = 0; k < n_columns; k++)
-            if (height[k] > zi) instance->v.engagement[i * WORKPIECE_N_THETA + columns[k]] = 1.0;
+            if (height[k] > zi) instance->v.engagement[i * N_THETA + columns[k]] = 1.0;
     }
     w->outputs_entry = entry;
     w->outputs_leave = leave;

@@ -38,9 +38,9 @@ static uint64_t fnv1a64(const unsigned char *bytes, size_t size) {
 static void check_layout(const ForceNetLayout *layout, size_t size) {
     uint32_t l;
     size_t end = 0;
-    REQUIRE(layout->kernel >= 1 && layout->kernel <= FORCENET_MAX_WIDTH, "kernel width out of range");
-    REQUIRE(layout->width >= 1 && layout->width <= FORCENET_MAX_WIDTH, "width out of range");
-    REQUIRE(layout->blocks <= FORCENET_MAX_BLOCKS && layout->layers == 3 + 2 * layout->blocks, "bad layer count");
+    REQUIRE(layout->kernel >= 1 && layout->kernel <= MAX_WIDTH, "kernel width out of range");
+    REQUIRE(layout->width >= 1 && layout->width <= MAX_WIDTH, "width out of range");
+    REQUIRE(layout->blocks <= MAX_BLOCKS && layout->layers == 3 + 2 * layout->blocks, "bad layer count");
     for (l = 0; l < layout->layers; l++) {
         REQUIRE(layout->weight[l] == end, "layers not contiguous");
         end += (size_t)layout->n_in[l] * layout->n_out[l];
@@ -55,12 +55,12 @@ static void check_layout(const ForceNetLayout *layout, size_t size) {
 static void evaluate(const ForceNetLayout *layout, const double *params, const uint8_t *data, size_t size) {
     ForceNetCut cut;
     ForceNetTool tool;
-    double features[2 * FORCENET_FEATURES], loads[2 * FORCENET_LOADS];
+    double features[2 * N_FEATURES], loads[2 * N_LOADS];
     size_t i;
-    for (i = 0; i < 2 * FORCENET_FEATURES; i++) features[i] = ((double)data[(i * 7) % size] - 128.0) / 32.0;
+    for (i = 0; i < 2 * N_FEATURES; i++) features[i] = ((double)data[(i * 7) % size] - 128.0) / 32.0;
     forcenet_network(layout, params, features, 2, loads);
     memset(&cut, 0, sizeof cut);
-    cut.n_flutes = 1 + data[size / 2] % FORCENET_MAX_FLUTES;
+    cut.n_flutes = 1 + data[size / 2] % MAX_FLUTES;
     cut.tool_diameter = 0.01;
     cut.helix_angle = 0.5;
     cut.moment_height = 0.05;

@@ -59,10 +59,10 @@ int main(int argc, char **argv) {
         size_t n, i;
         double *features, *loads;
         if (scanf("%zu", &n) != 1) return 2;
-        features = malloc((n + 1) * FORCENET_FEATURES * sizeof *features);
-        loads = malloc((n + 1) * FORCENET_LOADS * sizeof *loads);
+        features = malloc((n + 1) * N_FEATURES * sizeof *features);
+        loads = malloc((n + 1) * N_LOADS * sizeof *loads);
         if (!features || !loads) return 2;
-        for (i = 0; i < n * FORCENET_FEATURES; i++)
+        for (i = 0; i < n * N_FEATURES; i++)
             if (scanf("%lf", &features[i]) != 1) return 2;
         forcenet_network(&layout, params, features, n, loads);
         for (i = 0; i < n; i++) printf("%.17g %.17g %.17g\n", loads[3 * i], loads[3 * i + 1], loads[3 * i + 2]);

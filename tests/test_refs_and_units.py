@@ -4,6 +4,7 @@ that show a quantity in its display unit."""
 from __future__ import annotations
 
 import json
+import os
 import signal
 import subprocess
 import sys
@@ -162,7 +163,7 @@ def test_the_chunks_of_a_killed_run_carry_units(fmu_dir, tmp_path, stepping) -> 
     out = tmp_path / "runs"
     proc = subprocess.Popen([sys.executable, "-c", RUN_SCRIPT, str(scenario), str(fmu_dir), str(out), stepping],
                             cwd=REPO_ROOT, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
-                            env={"PATH": "/usr/bin:/bin", "TMPDIR": str(tmp_path)})
+                            env={**os.environ, "TMPDIR": str(tmp_path)})  # LD_PRELOAD of the sanitizer stage too
     run_dir = out / "long"
     try:
         wait_for_first_chunk(proc, run_dir)

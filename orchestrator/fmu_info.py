@@ -53,7 +53,11 @@ def _resolve(path: Path, fmu_dir: Path | None) -> Path:
 
 def variables(fmu: str | Path) -> tuple[object, list[VariableInfo]]:
     """The model description and the variables of ``fmu`` (an .fmu file or an unpacked folder)."""
-    md = read_model_description(str(fmu), validate=False)
+    try:
+        md = read_model_description(str(fmu), validate=False)
+    except Exception as exc:  # fmpy raises zipfile's, lxml's and its own errors for what is not an FMU
+        raise ValueError(f"{fmu}: cannot read the model description ({type(exc).__name__}: {exc}); "
+                         "is it an FMU (a zip file with modelDescription.xml)?") from exc
     displays = {u.name: {d.name: (d.factor, d.offset) for d in u.displayUnits} for u in md.unitDefinitions}
     rows = []
     for v in md.modelVariables:

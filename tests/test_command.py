@@ -131,6 +131,8 @@ def test_info_lists_variables_with_units_and_ranges(fmu_dir, capsys) -> None:
     assert "FMI 2.0" in capsys.readouterr().out
     assert main(["info", "Nope", "--fmu-dir", str(fmu_dir)]) == 2
     assert "no such FMU file; FMUs in" in capsys.readouterr().err
+    assert main(["info", str(REPO_ROOT / "README.md")]) == 2
+    assert "README.md: cannot read the model description (BadZipFile: File is not a zip file)" in capsys.readouterr().err
 
 
 def test_lobes_plot_csv_and_pockets(fmu_dir, tmp_path, capsys) -> None:

@@ -188,3 +188,20 @@ def test_the_docs_give_the_exit_code_table_as_the_code_has_it() -> None:
 
     assert exit_code_table() in (REPO_ROOT / "docs" / "orchestrator.md").read_text(), \
         "docs/orchestrator.md: paste milling_twin.cli.exit_code_table() under 'Exit codes'"
+
+
+@pytest.mark.parametrize("words, message", [
+    (["reconstruct", "README.md", "-o", "{tmp}/x.nc"], "README.md: not a readable CSV file"),
+    (["reconstruct", "scenarios/calibration/data/impulse_hammer.csv", "-o", "{tmp}/x.nc"],
+     "impulse_hammer.csv: no column 'M1_sequence_number': a UMich recording (CSV) is expected"),
+    (["validate", "forcenet-figure", "--runs", "{tmp}"], "missing: run `milling-twin validate slot-milling"),
+    (["lobes", "{tmp}/none.toml"], "none.toml: scenario file not found"),
+    (["align", "temporal", "--recorded", "{tmp}/none.csv", "--columns", "a,b,c", "--sample-period", "0.1",
+      "--simulated", "{tmp}/s.csv", "--sim-columns", "a,b,c", "--out", "{tmp}/m.csv"], "none.csv: file not found"),
+])
+def test_bad_input_is_one_line_and_exit_2(words: list[str], message: str, tmp_path: Path, capsys,
+                                          monkeypatch) -> None:
+    monkeypatch.chdir(REPO_ROOT)
+    assert main([w.format(tmp=tmp_path) for w in words]) == 2
+    err = capsys.readouterr().err
+    assert err.startswith("error: ") and message in err and "Traceback" not in err, err

@@ -46,8 +46,13 @@ def simulate_both(fmu_dir: Path) -> dict:
 
 
 def figure(runs: Path, fmu_dir: Path, path: Path) -> Path:
-    docs = {name: json.loads((runs / name / "slot_milling.json").read_text())
-            for name in ("slot_milling", "slot_milling_forcenet")}
+    needed = {name: runs / name / "slot_milling.json" for name in ("slot_milling", "slot_milling_forcenet")}
+    missing = [str(p) for p in needed.values() if not p.is_file()]
+    if missing:
+        raise FileNotFoundError(f"{', '.join(missing)} missing: run `milling-twin validate slot-milling --out {runs}` "
+                                "and, with --scenario scenarios/slot_milling_forcenet.toml --finetuned DIR, for the "
+                                "force net first")
+    docs = {name: json.loads(path.read_text()) for name, path in needed.items()}
     simulated = simulate_both(fmu_dir)
     fig = Figure(figsize=(13, 10), layout="constrained")
     grid = fig.subplots(3, 3)

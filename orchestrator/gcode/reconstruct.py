@@ -379,7 +379,12 @@ def program_text(recon: Reconstruction) -> str:
 
 def command(args: argparse.Namespace) -> int:
     """``milling-twin reconstruct RECORDING -o PROGRAM``."""
-    recon = reconstruct(args.recording)
+    try:
+        recon = reconstruct(args.recording)
+    except KeyError as exc:
+        raise ValueError(f"{args.recording}: no column {exc}: a UMich recording (CSV) is expected") from exc
+    except pd.errors.ParserError as exc:
+        raise ValueError(f"{args.recording}: not a readable CSV file: {exc}") from exc
     args.output.write_text(recon.program())
     for name, value in recon.stats.items():
         print(f"{name}: {value:g}")

@@ -234,6 +234,9 @@ class Scenario:
     connections: tuple[Connection, ...]
     outputs: tuple[Ref, ...]
     compare: tuple[Compare, ...]
+    # the parameter-set files applied, in order: the file's own [scenario].parameter_sets (resolved against
+    # its folder), then those load_scenario(..., parameter_sets=...) was given
+    parameter_sets: tuple[Path, ...] = ()
 
     @property
     def execution_order(self) -> tuple[str, ...]:
@@ -630,8 +633,9 @@ def load_scenario(path: str | Path, fmu_dir: str | Path, parameter_sets: Sequenc
     own_sets = sc.get("parameter_sets", [])
     if not isinstance(own_sets, list) or not all(isinstance(s, str) for s in own_sets):
         ctx.fail("[scenario].parameter_sets", f"expected a list of file names, got {own_sets!r}")
-    for key, set_path in ([(f"[scenario].parameter_sets[{i}]", path.parent / s) for i, s in enumerate(own_sets)]
-                          + [(f"parameter_sets[{i}]", Path(s)) for i, s in enumerate(parameter_sets)]):
+    applied_sets = ([(f"[scenario].parameter_sets[{i}]", path.parent / s) for i, s in enumerate(own_sets)]
+                    + [(f"parameter_sets[{i}]", Path(s)) for i, s in enumerate(parameter_sets)])
+    for key, set_path in applied_sets:
         for inst, values in _parameter_set(ctx, key, set_path, instances).items():
             instances[inst] = replace(instances[inst], parameters={**instances[inst].parameters, **values})
 
@@ -740,6 +744,7 @@ def load_scenario(path: str | Path, fmu_dir: str | Path, parameter_sets: Sequenc
         ticks_per_output=ticks_per_output, instances=tuple(instances[n] for n in order),
         recorded=recorded, inputs=tuple(inputs), connections=tuple(c for _, c in conns),
         outputs=tuple(dict.fromkeys(outputs)), compare=tuple(compares),
+        parameter_sets=tuple(set_path for _, set_path in applied_sets),
     )
 
 

@@ -33,7 +33,6 @@ from __future__ import annotations
 import inspect
 import os
 import time
-import tomllib
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, replace
 from pathlib import Path
@@ -290,12 +289,6 @@ def record_and_publish(ident: dict[str, Any], set_path: Path, set_args: tuple, w
     return published
 
 
-def _names_set(scenario_file: Path, set_file: Path) -> bool:
-    """Does ``scenario_file`` (already loaded, so valid) apply ``set_file`` in its [scenario].parameter_sets?"""
-    own = tomllib.loads(scenario_file.read_text(encoding="utf-8"))["scenario"].get("parameter_sets", [])
-    return any((scenario_file.parent / name).resolve() == set_file.resolve() for name in own)
-
-
 def prepare(spec: CalibrationSpec, fmu_dir: Path, out_dir: Path, progress: bool = False,
             overrides: Mapping[str, Any] | None = None) -> Prepared:
     """Stages 1 and 2: checks, graph, tokens and the simulation with the initial values (``overrides``
@@ -508,12 +501,13 @@ def calibrate_scenario(spec: CalibrationSpec, fmu_dir: Path, out_dir: Path, prog
     t0 = time.perf_counter()
     fitted = [q.ref for q in prepared.parameters]
     if spec.calibrated_scenario is not None:  # it names the spec's parameter_set; the set just written wins
-        if not _names_set(spec.calibrated_scenario, spec.parameter_set):
+        after = with_overrides(load_scenario(spec.calibrated_scenario, fmu_dir, parameter_sets=[set_path]),
+                               overrides, fitted)
+        own_sets = after.parameter_sets[:-1]  # the set just written is applied last
+        if spec.parameter_set.resolve() not in {p.resolve() for p in own_sets}:
             spec.fail("[calibration].calibrated_scenario",
                       f"{spec.calibrated_scenario.name} does not apply the parameter set {spec.parameter_set.name} "
                       "(add it to [scenario].parameter_sets)")
-        after = with_overrides(load_scenario(spec.calibrated_scenario, fmu_dir, parameter_sets=[set_path]),
-                               overrides, fitted)
         for q, value in zip(prepared.parameters, outcome.theta):
             applied = after.instance(q.ref.instance).parameters.get(q.ref.variable)
             if applied is None or abs(applied - value) > 1e-12 * max(abs(value), 1e-300):

@@ -9,7 +9,7 @@ the simulated variable, and ``error = simulated - recorded`` gives:
   ``relative_rms`` = rms_error / sqrt(mean(recorded^2)) (None if the recording is all 0).
 
 Figures are in the simulated variable's unit in ``report.json`` and in the display
-unit (``[[compare]].unit``, else :func:`default_display_unit`) in the plot
+unit (``[[compare]].unit``, else :func:`~milling_twin.models.units.display_unit_of`) in the plot
 ``compare_<instance>_<variable>.png``: recorded and simulated over time, and the error.
 """
 from __future__ import annotations
@@ -25,13 +25,9 @@ from matplotlib.figure import Figure  # no pyplot: no global figure state, Agg b
 
 from milling_twin.orchestrator.results import load_results
 from milling_twin.orchestrator.scenario import Compare, Scenario
-from milling_twin.models.units import DISPLAY_UNITS, UnitError, conversion_factor
+from milling_twin.models.units import UnitError, conversion_factor, display_unit_of
 
-__all__ = ["Comparison", "Report", "default_display_unit", "write_report"]
-
-def default_display_unit(unit: str) -> str:
-    return DISPLAY_UNITS.get(unit, unit)
-
+__all__ = ["Comparison", "Report", "write_report"]
 
 def _factor(from_unit: str, to_unit: str) -> float:
     return 1.0 if from_unit == to_unit else conversion_factor(from_unit, to_unit)
@@ -72,7 +68,7 @@ def _compare(scenario: Scenario, pair: Compare, results: pd.DataFrame, run_dir: 
     n = int(t.size)
     rms = float(np.sqrt(np.mean(error**2))) if n else math.nan
     rms_recorded = float(np.sqrt(np.mean(recorded**2))) if n else 0.0
-    display = pair.display_unit or default_display_unit(unit)
+    display = pair.display_unit or display_unit_of(unit)
     try:
         scale = _factor(unit, display)
     except UnitError:  # only possible for a default display unit that does not fit

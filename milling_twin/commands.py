@@ -11,6 +11,7 @@ from pathlib import Path
 from milling_twin import api
 from milling_twin.cli import overrides_of
 from milling_twin.models.units import conversion_factor
+from milling_twin.orchestrator.master import SimulationError
 
 _fmi_log = logging.getLogger("milling_twin.fmi")
 
@@ -39,27 +40,19 @@ def run(args: argparse.Namespace) -> int:
                                  overrides=overrides_of(args))
     run_dir = args.out / scenario.name
     logger = None
-    if args.fmi_logging:
+    if args.fmi_logging:  # shown whatever --log-level says: the records propagate to main()'s handler
         _fmi_log.setLevel(logging.DEBUG)
-        if not logging.getLogger().handlers:
-            logging.basicConfig()
         logger = _fmi_log.info
     try:
         results = api.simulate(scenario, out=args.out, stepping=args.path, progress=not args.no_progress,
                                fmi_call_logger=logger)
-    except (KeyboardInterrupt, _simulation_error()) as exc:
+    except (KeyboardInterrupt, SimulationError) as exc:
         exc.add_note(f"results so far in {run_dir}")
         raise
     except OSError as exc:  # the results folder cannot be created or written (a file in the way, no space, ...)
         raise OSError(f"cannot write the results to {run_dir}: {exc}") from exc
     print(run_summary(results))
     return 130 if results.status == "interrupted" else 0
-
-
-def _simulation_error() -> type[Exception]:
-    from milling_twin.orchestrator.master import SimulationError
-
-    return SimulationError
 
 
 def calibrate(args: argparse.Namespace) -> int:

@@ -2,7 +2,8 @@
 exactly the functions fmpy binds, with the same ctypes signatures, and run an FMU the same way."""
 from __future__ import annotations
 
-import time
+import subprocess
+import sys
 
 import fmpy.fmi2
 import fmpy.fmi3
@@ -81,13 +82,34 @@ def test_an_instance_steps_and_reports_errors_as_with_fmpy(fmu_dir, name, fmpy_c
     assert results[0] == results[1]
 
 
+_TIMING = """
+import sys, time
+import fmpy.fmi3
+from fmpy import read_model_description
+from milling_twin.orchestrator import fmu_loading
+folder = sys.argv[1]
+md = read_model_description(folder)
+best = {fmpy.fmi3.FMU3Slave: float("inf"), fmu_loading.FMU3Slave: float("inf")}
+for _ in range(9):
+    for cls in best:
+        t0 = time.perf_counter()
+        fmu = cls(guid=md.guid, unzipDirectory=folder, modelIdentifier=md.coSimulation.modelIdentifier,
+                  instanceName="probe")
+        best[cls] = min(best[cls], time.perf_counter() - t0)
+        fmu.freeLibrary()
+print(best[fmu_loading.FMU3Slave], best[fmpy.fmi3.FMU3Slave])
+"""
+
+
 def test_loading_is_cheaper_than_fmpys(fmu_dir):
-    """The point of the module; best of 7, fmpy's and ours alternating (the ratio is what counts)."""
-    best = {fmpy.fmi3.FMU3Slave: float("inf"), fmu_loading.FMU3Slave: float("inf")}
-    for _ in range(7):
-        for cls in best:
-            t0 = time.perf_counter()
-            fmu, _ = _load(cls, fmu_dir, "SpindlePower.fmu")
-            best[cls] = min(best[cls], time.perf_counter() - t0)
-            fmu.freeLibrary()
-    assert best[fmu_loading.FMU3Slave] < 0.7 * best[fmpy.fmi3.FMU3Slave], best
+    """The point of the module: constructing a slave (load the library, bind its functions) costs less than
+    fmpy's. Only the construction is timed (unpacking and reading the model description are the same for
+    both), best of 9 alternating, in a process of its own: pytest's process has hundreds of libraries
+    loaded, which makes every dlopen slower and noisier than in a simulation's process."""
+    path = fmu_dir / "SpindlePower.fmu"
+    folder = fmu_cache.unpack(path, sha256_of(path)).folder
+    proc = subprocess.run([sys.executable, "-c", _TIMING, str(folder)], capture_output=True, text=True,
+                          timeout=120)
+    assert proc.returncode == 0, proc.stderr
+    ours, fmpys = map(float, proc.stdout.split())
+    assert ours < 0.6 * fmpys, (ours, fmpys)

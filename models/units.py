@@ -98,10 +98,13 @@ _ACCELERATION: Final = _d(m=1, s=-2)
 _TIME: Final = _d(s=1)
 _ANGLE: Final = _d(rad=1)
 _ANGULAR_VELOCITY: Final = _d(s=-1, rad=1)
+_ANGULAR_ACCELERATION: Final = _d(s=-2, rad=1)
 _POWER: Final = _d(kg=1, m=2, s=-3)
 _FORCE: Final = _d(kg=1, m=1, s=-2)
 _TORQUE: Final = _d(kg=1, m=2, s=-2)
 _POWER_PER_ANGULAR_VELOCITY: Final = _d(kg=1, m=2, s=-2, rad=-1)
+_TORQUE_PER_ANGULAR_VELOCITY: Final = _d(kg=1, m=2, s=-1, rad=-1)
+_MOMENT_OF_INERTIA: Final = _d(kg=1, m=2)
 _STIFFNESS: Final = _d(kg=1, s=-2)
 _PRESSURE: Final = _d(kg=1, m=-1, s=-2)
 _VOLUME_FLOW: Final = _d(m=3, s=-1)
@@ -119,10 +122,13 @@ _DIMENSION_NAMES: Final[dict[tuple[int, ...], str]] = {
     _TIME: "time",
     _ANGLE: "angle",
     _ANGULAR_VELOCITY: "angular velocity",
+    _ANGULAR_ACCELERATION: "angular acceleration",
     _POWER: "power",
     _FORCE: "force",
     _TORQUE: "torque",
     _POWER_PER_ANGULAR_VELOCITY: "power per angular velocity",
+    _TORQUE_PER_ANGULAR_VELOCITY: "torque per angular velocity",
+    _MOMENT_OF_INERTIA: "moment of inertia",
     _STIFFNESS: "stiffness",
     _PRESSURE: "pressure",
     _VOLUME_FLOW: "volume flow rate",
@@ -141,10 +147,13 @@ SI_UNITS: Final[dict[tuple[int, ...], str]] = {
     _TIME: "s",
     _ANGLE: "rad",
     _ANGULAR_VELOCITY: "rad/s",
+    _ANGULAR_ACCELERATION: "rad/s2",
     _POWER: "W",
     _FORCE: "N",
     _TORQUE: "N.m",
     _POWER_PER_ANGULAR_VELOCITY: "W.s/rad",
+    _TORQUE_PER_ANGULAR_VELOCITY: "N.m.s/rad",
+    _MOMENT_OF_INERTIA: "kg.m2",
     _STIFFNESS: "N/m",
     _PRESSURE: "N/m2",
     _VOLUME_FLOW: "m3/s",
@@ -166,10 +175,13 @@ def _table() -> dict[str, Unit]:
         ("s", _TIME, 1.0),
         ("rad", _ANGLE, 1.0),
         ("rad/s", _ANGULAR_VELOCITY, 1.0),
+        ("rad/s2", _ANGULAR_ACCELERATION, 1.0),
         ("W", _POWER, 1.0),
         ("N", _FORCE, 1.0),
         ("N.m", _TORQUE, 1.0),
         ("W.s/rad", _POWER_PER_ANGULAR_VELOCITY, 1.0),
+        ("N.m.s/rad", _TORQUE_PER_ANGULAR_VELOCITY, 1.0),
+        ("kg.m2", _MOMENT_OF_INERTIA, 1.0),
         ("N/m", _STIFFNESS, 1.0),
         ("N/m2", _PRESSURE, 1.0),
         ("m3/s", _VOLUME_FLOW, 1.0),

@@ -18,7 +18,8 @@ from milling_twin.models.units import (
     si_unit_of,
 )
 
-SI = ["m", "m/s", "m/s2", "s", "rad", "rad/s", "W", "N", "N.m", "m3/s", "1", "A", "V", "Hz", "kg"]
+SI = ["m", "m/s", "m/s2", "s", "rad", "rad/s", "rad/s2", "W", "N", "N.m", "N.m.s/rad", "m3/s", "1", "A", "V", "Hz",
+      "kg", "kg.m2"]
 USER = [
     "mm", "um", "mm/s", "mm/min", "m/min", "mm/s2", "min", "ms", "rpm", "rev/s", "1/min",
     "deg", "kW", "mW", "kN", "N.mm", "mm3/s", "cm3/s", "cm3/min", "mm3/min", "kHz", "%", "1",
@@ -130,6 +131,11 @@ def test_3200_rpm() -> None:
         ("A", "V", "electric current vs voltage"),
         ("kg", "N", "mass vs force"),
         ("s", "Hz", "time vs frequency"),
+        ("kg.m2", "kg", "moment of inertia vs mass"),
+        ("rad/s2", "m/s2", "angular acceleration vs acceleration"),
+        ("rad/s2", "rad/s", "angular acceleration vs angular velocity"),
+        ("N.m.s/rad", "W.s/rad", "torque per angular velocity vs power per angular velocity"),
+        ("N.m.s/rad", "N.m", "torque per angular velocity vs torque"),
     ],
 )
 def test_incompatible_dimensions(src: str, dst: str, dims: str) -> None:
@@ -235,3 +241,13 @@ def test_every_table_unit_has_an_si_unit() -> None:
             assert si == "bool"
         else:
             assert convert(1.0, name, si) == pytest.approx(unit.factor)
+
+
+def test_units_of_the_spindle_dynamics() -> None:
+    """SpindlePower's J_spindle (kg.m2), k_speed_loop (N.m.s/rad) and spindle_acceleration (rad/s2): each the SI
+    unit of a dimension of its own, which the model descriptions declare with these base units."""
+    assert parse_unit("kg.m2").dimensions == (1, 2, 0, 0, 0)
+    assert parse_unit("N.m.s/rad").dimensions == (1, 2, -1, 0, -1)
+    assert parse_unit("rad/s2").dimensions == (0, 0, -2, 0, 1)
+    for name in ("kg.m2", "N.m.s/rad", "rad/s2"):
+        assert si_unit_of(name) == name and parse_unit(name).factor == 1.0

@@ -1,6 +1,7 @@
-/* SpindlePower: P = P_standby + P_idle + c1*|n| + c2*(MRR/1 cm3/s)^c3, equations generated from
- * models/power.py. Ranges of parameters and inputs are enforced by the wrapper from the generated
- * table; this file adds the one physical consistency check the equations cannot express. */
+/* SpindlePower: P = P_standby + P_idle + c1*|n| + c2*(MRR/1 cm3/s)^c3 + J*n*dn/dt + k*(n_cmd - n)*|n|,
+ * equations and state update (the speed held over the previous step and the rate of change over the last one)
+ * generated from models/power.py. Ranges of parameters and inputs are enforced by the wrapper from the
+ * generated table; this file adds the one physical consistency check the equations cannot express. */
 #include "fmu_instance.h"
 
 FmuStatus model_exit_initialization(FmuInstance *instance) {
@@ -9,7 +10,7 @@ FmuStatus model_exit_initialization(FmuInstance *instance) {
 }
 
 FmuStatus model_do_step(FmuInstance *instance, double time, double step_size) {
-    (void)step_size;
+    model_update_states(&instance->v, step_size);
     if (!instance->v.spindle_on && instance->v.mrr > 0.0 && !instance->internal.warned_cutting_without_spindle) {
         /* The cutting term is zero with the spindle off; the importer probably wired MRR wrongly. */
         instance->internal.warned_cutting_without_spindle = true;

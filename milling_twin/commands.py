@@ -23,6 +23,9 @@ def run_summary(results: api.Results) -> str:
              f"({result.fmu_steps} FMU steps) in {result.wall_time:.3g} s, "
              f"{result.steps_per_second:,.0f} steps/s; {result.rows} rows; "
              + ("fast path" if result.stepping == "fast" else f"python path ({result.stepping_reason})")]
+    check = results.scenario.recorded.check if results.scenario.recorded is not None else None
+    if check is not None:
+        lines.extend(f"recording check: {line}" for line in check.summary()[:2])
     for c in report.comparisons if report else ():
         s = 1.0 if c.unit == c.display_unit else conversion_factor(c.unit, c.display_unit)
         rel = f"{100 * c.relative_rms:.1f} % of RMS recorded" if c.relative_rms is not None else "n/a"

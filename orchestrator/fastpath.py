@@ -248,11 +248,16 @@ class Stepper:
         def recorded(inputs: Sequence[Any]) -> int:
             table = (_Recorded * max(1, len(inputs)))()
             for item, i in zip(table, inputs):
-                if i.channel not in channels:
-                    channels[i.channel] = np.ascontiguousarray(rec.channels[i.channel], dtype=np.float64)
-                item.values = channels[i.channel].ctypes.data
-                item.factor = i.factor
-                item.linear = int(i.interpolation == "linear" and rec.channels[i.channel].dtype != np.bool_)
+                crossing = i.interpolation == "linear" and i.channel in rec.thresholds
+                key = f"{i.channel} (column)" if crossing else i.channel
+                if key not in channels:
+                    source = rec.thresholds[i.channel][0] if crossing else rec.channels[i.channel]
+                    channels[key] = np.ascontiguousarray(source, dtype=np.float64)
+                item.values = channels[key].ctypes.data
+                # a threshold channel: its column, sampled linearly, compared with the threshold (in factor)
+                item.factor = rec.thresholds[i.channel][1] if crossing else i.factor
+                item.linear = int(crossing or (i.interpolation == "linear"
+                                               and rec.channels[i.channel].dtype != np.bool_))
             self._keep.append(table)
             return ctypes.addressof(table)
 

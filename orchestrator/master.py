@@ -17,7 +17,8 @@ Semantics of :func:`run` (``base`` = the scenario's base step, ``t_k = start + k
 * One tick at ``t_k``: first the outputs feeding ``delay = true`` connections are
   copied (their values at the beginning of the tick). Then, in execution order,
   every due instance gets its inputs set and steps:
-  recorded channels are sampled at ``t_k`` (``linear`` or ``hold``; booleans hold);
+  recorded channels are sampled at ``t_k`` (``linear`` or ``hold``; booleans hold, except
+  threshold channels, which switch where their interpolated column crosses the threshold);
   a non-delayed connection passes the source's latest output: sources precede
   their targets, so a source due at ``t_k`` has already stepped to its next
   communication point (Gauss-Seidel); a delayed connection passes the copy taken
@@ -275,7 +276,8 @@ class _Slave:
             self.rec_real_rows = np.column_stack([rec.at(i.channel, times, i.interpolation) * i.factor
                                                   for i in self.rec_real]).tolist()
         if self.rec_bool:
-            self.rec_bool_rows = np.column_stack([rec.at(i.channel, times, "hold") for i in self.rec_bool]).tolist()
+            self.rec_bool_rows = np.column_stack([rec.at(i.channel, times, i.interpolation)
+                                                  for i in self.rec_bool]).tolist()
 
     def free(self) -> None:
         try:

@@ -18,7 +18,10 @@ Boolean channels:
 
 * ``ChannelSpec(..., above=x)``: ``True`` where the numeric column value (in the
   channel's ``unit``, i.e. the unit of the file, *not* SI) is strictly greater
-  than ``x``.
+  than ``x``. Between samples such a channel switches where the linearly
+  interpolated column crosses ``x`` (``at(..., "linear")``): an edge lies
+  between two samples, and the column says where (a spindle running up from
+  0 to 53 rev/s in one 0.1 s sample is on after 2 ms, not 0.1 s later).
 * ``ChannelSpec(..., match=regex)``: the column holds text; ``True`` where
   ``re.search(regex, text)`` matches.  ``unit`` must be ``"bool"``.
 * ``ChannelSpec(..., unit="bool")`` without ``above``/``match``: the column holds
@@ -37,6 +40,7 @@ from pathlib import Path
 import numpy as np
 
 from milling_twin.models.units import UnitError, convert, parse_unit, si_unit_of
+from milling_twin.orchestrator.recording_checks import RecordingCheck
 
 __all__ = [
     "ChannelSpec",
@@ -82,12 +86,19 @@ class RecordedData:
     ``time``: seconds, float64, strictly increasing, at least 2 samples.
     ``channels``: float64 arrays in SI units, or bool arrays.
     ``units``: SI unit string of each channel, or ``"bool"``.
+    ``thresholds``: for boolean channels defined by a threshold (``above``), the
+    column in SI and the threshold in SI: :meth:`at` places their edges between
+    samples.
+    ``check``: what :mod:`milling_twin.orchestrator.recording_checks` found and which
+    segments are used (None: the recording was not checked).
     """
 
     path: Path
     time: np.ndarray
     channels: dict[str, np.ndarray]
     units: dict[str, str] = field(default_factory=dict)
+    thresholds: dict[str, tuple[np.ndarray, float]] = field(default_factory=dict)
+    check: RecordingCheck | None = None
 
     def __post_init__(self) -> None:
         self.path = Path(self.path)
@@ -123,6 +134,25 @@ class RecordedData:
                     f"{self.path}: channel {name!r} has dtype {values.dtype} but unit "
                     f"{self.units[name]!r} (bool arrays need unit 'bool' and vice versa)"
                 )
+        for name, (column, threshold) in self.thresholds.items():
+            if name not in self.channels or self.channels[name].dtype != np.bool_ \
+                    or np.shape(column) != time.shape or not math.isfinite(threshold):
+                raise RecordedDataError(
+                    f"{self.path}: threshold of channel {name!r}: a boolean channel's column "
+                    f"(one value per sample) and a finite threshold are needed"
+                )
+
+    def consistent(self, t: np.ndarray) -> np.ndarray:
+        """Where times ``t`` lie in a segment the recording's check uses, after the segment's first sample
+        (the interval into a segment joins two moments of the machine: what a simulation computes there
+        belongs to neither). All True for an unchecked recording."""
+        tt = np.asarray(t, dtype=np.float64)
+        if self.check is None:
+            return np.ones(tt.shape, dtype=bool)
+        mask = np.zeros(tt.shape, dtype=bool)
+        for segment in self.check.segments:
+            mask |= (tt > self.time[segment.start]) & (tt <= self.time[segment.stop - 1])
+        return mask
 
     @property
     def t_start(self) -> float:
@@ -138,7 +168,8 @@ class RecordedData:
         """Value of channel ``name`` at time(s) ``t`` (seconds).
 
         ``interpolation``: ``"linear"`` or ``"hold"`` (zero-order hold: the sample at
-        or before ``t``).  Boolean channels always hold.  A scalar ``t`` gives a
+        or before ``t``).  Boolean channels hold, except those defined by a threshold,
+        which with ``"linear"`` switch where the interpolated column crosses it.  A scalar ``t`` gives a
         ``float`` (or ``bool``), an array gives an array of the same shape.
 
         ``t`` must lie in ``[t_start, t_end]``; a time beyond either end by at most
@@ -168,7 +199,10 @@ class RecordedData:
             )
         tt = np.clip(tt, t0, t1)
         values = self.channels[name]
-        if interpolation == "hold" or values.dtype == np.bool_:
+        if name in self.thresholds and interpolation == "linear":
+            column, threshold = self.thresholds[name]
+            result = np.interp(tt, self.time, column) > threshold
+        elif interpolation == "hold" or values.dtype == np.bool_:
             idx = np.searchsorted(self.time, tt, side="right") - 1
             result = values[np.clip(idx, 0, values.size - 1)]
         else:
@@ -454,6 +488,7 @@ def load_recorded(
 
     out: dict[str, np.ndarray] = {}
     units: dict[str, str] = {}
+    thresholds: dict[str, tuple[np.ndarray, float]] = {}
     for spec in channels:
         col = texts[needed[spec.column]]
         if spec.match is not None:
@@ -465,8 +500,12 @@ def load_recorded(
             units[spec.name] = "bool"
         elif spec.above is not None:
             values = _parse_numeric(path, spec.column, col, lines)
-            out[spec.name] = values > spec.above
+            si = si_unit_of(spec.unit)  # the edges between samples are placed on the column in SI
+            column = np.asarray(convert(values, spec.unit, si), dtype=np.float64)
+            threshold = float(convert(spec.above, spec.unit, si))
+            out[spec.name] = column > threshold
             units[spec.name] = "bool"
+            thresholds[spec.name] = (column, threshold)
         elif parse_unit(spec.unit).boolean:
             out[spec.name] = _parse_bool(path, spec.column, col, lines)
             units[spec.name] = "bool"
@@ -476,4 +515,4 @@ def load_recorded(
             out[spec.name] = np.asarray(convert(values, spec.unit, si), dtype=np.float64)
             units[spec.name] = si
 
-    return RecordedData(path=path, time=time, channels=out, units=units)
+    return RecordedData(path=path, time=time, channels=out, units=units, thresholds=thresholds)

@@ -1,8 +1,10 @@
 """Simulated outputs against recorded channels: error figures, report.json and plots.
 
 For each ``[[compare]]`` pair the recorded channel is resampled (linear; booleans
-hold) onto the output times that lie inside the recording, converted to the unit of
-the simulated variable, and ``error = simulated - recorded`` gives:
+hold) onto the output times that lie inside the recording (and, for a recording
+checked by ``[recorded.checks]``, inside its consistent segments after their first
+sample: :meth:`~milling_twin.orchestrator.recorded.RecordedData.consistent`), converted
+to the unit of the simulated variable, and ``error = simulated - recorded`` gives:
 
 * ``rms_error`` = sqrt(mean(error^2)), ``mean_abs_error`` = mean(|error|),
   ``max_error`` = max(|error|), ``mean_recorded`` = mean(recorded),
@@ -11,6 +13,7 @@ the simulated variable, and ``error = simulated - recorded`` gives:
 Figures are in the simulated variable's unit in ``report.json`` and in the display
 unit (``[[compare]].unit``, else :func:`~milling_twin.models.units.display_unit_of`) in the plot
 ``compare_<instance>_<variable>.png``: recorded and simulated over time, and the error.
+``report.json`` also says what the recording's check found and repaired (``recording_check``).
 """
 from __future__ import annotations
 
@@ -61,6 +64,7 @@ def _compare(scenario: Scenario, pair: Compare, results: pd.DataFrame, run_dir: 
     unit = var.unit
     times = results["time"].to_numpy(dtype=float)
     inside = (times >= rec.t_start) & (times <= rec.t_end)
+    inside[inside] = rec.consistent(times[inside])
     t = times[inside]
     simulated = results[str(pair.simulated)].to_numpy(dtype=float)[inside]
     recorded = np.asarray(rec.at(pair.recorded, t), dtype=float) * _factor(rec.units[pair.recorded], unit)
@@ -117,11 +121,24 @@ def write_report(scenario: Scenario, run_dir: str | Path, results: pd.DataFrame 
     results = load_results(run_dir) if results is None else results
     comparisons = tuple(_compare(scenario, pair, results, run_dir) for pair in scenario.compare)
     path = run_dir / "report.json"
-    doc = {"scenario": scenario.name, "comparisons": [asdict(c) for c in comparisons]}
+    doc = {"scenario": scenario.name, "comparisons": [asdict(c) for c in comparisons],
+           "recording_check": check_summary(scenario)}
     tmp = path.with_name(".report.json.tmp")
     tmp.write_text(json.dumps(_nan_to_none(doc), indent=2))
     tmp.replace(path)
     return Report(path, comparisons)
+
+
+def check_summary(scenario: Scenario) -> dict | None:
+    """What ``[recorded.checks]`` found and what its policy did (None: the recording was not checked)."""
+    check = scenario.recorded.check if scenario.recorded is not None else None
+    if check is None:
+        return None
+    return {"policy": check.policy, "rows": check.n_rows, "problems": check.counts(),
+            "segments_used": len(check.segments), "segments_dropped": len(check.dropped_segments),
+            "rows_dropped": check.dropped_rows, "summary": check.summary(),
+            "problem_rows": [{"row": p.row, "line": p.row + 2, "kind": p.kind, "detail": p.detail}
+                             for p in check.problems]}
 
 
 def _nan_to_none(value: object) -> object:

@@ -34,11 +34,16 @@ Format (all times in seconds; paths are relative to the scenario file's folder):
     spindle_speed = { column = "S1_ActualVelocity", unit = "rev/s" }   # make booleans,
     cutting = { column = "Machining_Process", match = "^Layer" }       # see recorded.py
     spindle_on = { column = "S1_ActualVelocity", unit = "rev/s", above = 1.0 }
+    [recorded.checks]           # optional: physical checks and repair policy, see recording_checks_spec.py
+    positions = ["x", "y", "z"]
+    max_axis_speed = { value = 50.0, unit = "mm/s" }
+    policy = "segment"
 
     [[inputs]]                  # recorded channel -> FMU input
     from = "spindle_speed"
     to = "power.spindle_speed"
-    interpolation = "linear"    # or "hold"; boolean channels always hold
+    interpolation = "linear"    # or "hold"; boolean channels hold, threshold (above) channels switch
+                                # where the interpolated column crosses (hold: at the sample)
 
     [[connections]]             # FMU output -> FMU input
     from = "mrr.mrr"
@@ -105,6 +110,7 @@ from fmpy import read_model_description
 
 from milling_twin.orchestrator.toml_access import TomlAccess
 from milling_twin.orchestrator.recorded import ChannelSpec, RecordedData, RecordedDataError, load_recorded
+from milling_twin.orchestrator.recording_checks_spec import check_table
 from milling_twin.models.units import UnitError, conversion_factor
 
 __all__ = [
@@ -460,7 +466,7 @@ def _parameter_set(ctx: _Ctx, key: str, path: Path, instances: Mapping[str, FmuI
 
 def _recorded(ctx: _Ctx, table: Any) -> RecordedData:
     key = "[recorded]"
-    ctx.table(table, key, ("file", "sample_period", "time_column", "time_unit", "channels"))
+    ctx.table(table, key, ("file", "sample_period", "time_column", "time_unit", "channels", "checks"))
     file = ctx.path.parent / ctx.string(table, key, "file")
     sample_period = ctx.number(table, key, "sample_period", None, positive=True)
     time_column = ctx.string(table, key, "time_column", None)
@@ -485,6 +491,8 @@ def _recorded(ctx: _Ctx, table: Any) -> RecordedData:
         culprit = next((s.name for s in specs if f"channel {s.name!r}" in str(exc)), None)
         ctx.fail(f"[recorded.channels].{culprit}" if culprit else
                  "[recorded].time_column" if "time column" in str(exc) else "[recorded].file", str(exc))
+    if "checks" in table:
+        data.check = check_table(ctx.fail, table["checks"], data)
     return data
 
 

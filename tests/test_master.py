@@ -75,11 +75,12 @@ def test_multi_rate_and_linear_interpolation(make_case, fmu_dir, tmp_path):
     assert (result.steps, result.fmu_steps) == (8, 8 + 4)
     frame = load_results(result.run_dir)
     check(frame, "time", [0.0, 0.1, 0.2, 0.3, 0.4])
-    # Row at t: power's last step started at t - 0.05 with the speed interpolated there
-    # and spindle_on held from the sample before; mrr's last step started at t - 0.1.
+    # Row at t: power's last step started at t - 0.05 with the speed interpolated there and
+    # spindle_on (speed above a threshold) switched where the interpolated speed crosses it: on at
+    # 0.05 s (5 rev/s), not held off until the next sample; mrr's last step started at t - 0.1.
     check(frame, "power.spindle_speed", [0.0, 2 * PI * 5, 2 * PI * 15, 2 * PI * 20, 2 * PI * 10])
     check(frame, "mrr.mrr", [0.0, 0.0, 5e-8, 1e-7, 0.0])
-    check(frame, "power.P_total", [100.0, 100.0, 300 + 0.5 * 2 * PI * 15 + 50,
+    check(frame, "power.P_total", [100.0, 300 + 0.5 * 2 * PI * 5, 300 + 0.5 * 2 * PI * 15 + 50,
                                    300 + 0.5 * 2 * PI * 20 + 100, 300 + 0.5 * 2 * PI * 10])
 
 

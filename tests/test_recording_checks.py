@@ -85,3 +85,89 @@ def test_reorder_sorts_by_line_numbers_or_says_why_not():
 def test_bad_limits_are_refused(kwargs, message):
     with pytest.raises(ValueError, match=message):
         CheckLimits(**kwargs)
+
+
+# --------------------------------------------------------------------------- [recorded.checks] in a scenario
+
+SCENARIO = """\
+[scenario]
+name = "spliced"
+output_interval = 0.1
+[fmus.power]
+fmu = "SpindlePower"
+step_size = 0.01
+[fmus.power.parameters]
+P_standby = 0.0
+P_idle = 100.0
+c1 = 0.0
+[recorded]
+file = "spliced.csv"
+sample_period = 0.1
+[recorded.channels]
+x = { column = "x", unit = "mm" }
+y = { column = "y", unit = "mm" }
+z = { column = "z", unit = "mm" }
+speed = { column = "speed", unit = "rev/s" }
+on = { column = "speed", unit = "rev/s", above = 1.0 }
+power = { column = "power", unit = "W" }
+[recorded.checks]
+positions = ["x", "y", "z"]
+max_axis_speed = { value = 50.0, unit = "mm/s" }
+resolution = { value = 0.1, unit = "mm" }
+[[inputs]]
+from = "speed"
+to = "power.spindle_speed"
+[[inputs]]
+from = "on"
+to = "power.spindle_on"
+[[compare]]
+simulated = "power.P_total"
+recorded = "power"
+"""
+
+
+def _spliced_csv() -> str:
+    """20 rows cutting at 53 rev/s (100 W) moving along x, with 6 rows of another moment (at home, spindle
+    stopped, 0 W) spliced in after row 8."""
+    rows = ["x,y,z,speed,power"]
+    cutting = [(100 + 0.5 * k, 50.0, 20.0, 53.0, 100.0) for k in range(20)]
+    home = [(198.0, 158.0, 119.0, 0.0, 0.0)] * 6
+    for r in cutting[:8] + home + cutting[8:]:
+        rows.append(",".join(f"{v:g}" for v in r))
+    return "\n".join(rows) + "\n"
+
+
+def test_a_scenario_checks_its_recording_and_compares_only_consistent_rows(tmp_path, fmu_dir):
+    from milling_twin.orchestrator.master import run
+    from milling_twin.orchestrator.report import write_report
+    from milling_twin.orchestrator.scenario import load_scenario
+
+    (tmp_path / "spliced.csv").write_text(_spliced_csv())
+    (tmp_path / "s.toml").write_text(SCENARIO)
+    scenario = load_scenario(tmp_path / "s.toml", fmu_dir)
+    check = scenario.recorded.check
+    assert [(p.row, p.kind) for p in check.problems] == [(8, "jump"), (14, "jump")]
+    assert [(s.start, s.stop) for s in check.segments] == [(0, 8), (8, 14), (14, 26)]
+    result = run(scenario, tmp_path / "runs", progress=False)
+    report = write_report(scenario, result.run_dir)
+    # the rows at which a segment starts (and t = 0) are left out: the step into them joins two moments
+    assert report.comparisons[0].n_samples == 26 - 3
+    # the spindle edges at the cuts fall between samples: no sample pays a full edge
+    assert report.comparisons[0].max_error < 1e-9
+    doc = __import__("json").loads(report.path.read_text())
+    assert doc["recording_check"]["problems"]["jump"] == 2 and doc["recording_check"]["segments_used"] == 3
+
+
+@pytest.mark.parametrize("edit, key", [
+    ('positions = ["x", "y", "z"]', '[recorded.checks].positions'),
+    ('max_axis_speed = { value = 50.0, unit = "mm/s" }', '[recorded.checks].max_axis_speed'),
+])
+def test_mistakes_in_the_checks_table_name_the_key(tmp_path, fmu_dir, edit, key):
+    from milling_twin.orchestrator.scenario import ScenarioError, load_scenario
+
+    (tmp_path / "spliced.csv").write_text(_spliced_csv())
+    broken = {'positions = ["x", "y", "z"]': 'positions = ["x", "y", "speed"]',
+              'max_axis_speed = { value = 50.0, unit = "mm/s" }': 'max_axis_speed = { value = 50.0, unit = "mm" }'}
+    (tmp_path / "s.toml").write_text(SCENARIO.replace(edit, broken[edit]))
+    with pytest.raises(ScenarioError, match=key.replace("[", r"\[").replace("]", r"\]").replace(".", r"\.")):
+        load_scenario(tmp_path / "s.toml", fmu_dir)

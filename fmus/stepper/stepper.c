@@ -71,8 +71,9 @@ static int feed(const stp_plan *plan, stp_instance *s, double t, stp_outcome *o)
     }
     for (i = 0; i < s->n_rec_bool; ++i) {
         stp_recorded *r = &s->rec_bool[i];
-        write_bool(s, i, recorded_sample(plan->recorded_time, r->values, 1, plan->recorded_samples, 0, t,
-                                         &r->hint) != 0.0);
+        const double value = recorded_sample(plan->recorded_time, r->values, 1, plan->recorded_samples, r->linear,
+                                             t, &r->hint);
+        write_bool(s, i, r->linear ? value > r->factor : value != 0.0);
     }
     for (i = 0; i < s->n_real_links; ++i) {
         const stp_link *l = &s->real_links[i];

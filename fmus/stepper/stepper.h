@@ -57,10 +57,12 @@ typedef struct {
 
 /* One recorded input of an instance: a channel of the plan's recording. */
 typedef struct {
-    const double *values; /* the channel, one value per recorded time (a boolean channel as 0.0 / 1.0) */
-    double factor;        /* reals: input = value * factor (the unit factor; booleans: unused) */
+    const double *values; /* the channel, one value per recorded time (a boolean channel as 0.0 / 1.0, or
+                             the column a threshold channel compares) */
+    double factor;        /* reals: input = value * factor (the unit factor); booleans with linear = 1: the
+                             threshold the interpolated column must exceed */
     int64_t hint;         /* search position between calls (recorded_sample.h); start at 0 */
-    int32_t linear;       /* 1: linear interpolation, 0: hold (boolean channels always hold) */
+    int32_t linear;       /* 1: linear interpolation, 0: hold (booleans: 1 = a threshold channel's crossing) */
     int32_t reserved;
 } stp_recorded;
 

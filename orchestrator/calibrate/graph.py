@@ -15,17 +15,19 @@ expressions the FMU's C code is generated from) are called with
 * an input with a floor (the spec's ``[inputs]``) is read as ``fmax(value, floor)``, for
   expressions whose derivative is undefined at a boundary value (0^c3 of the power model).
 
-Models with states (one instance, e.g. ToolVibration) are dynamic: ``step(x_prev, theta, d)``
-gives the states after one step ``x_k = update(theta, d_k, x_prev, h)`` and the outputs
-``y_k = equations(theta, d_k, x_k)``: row k of the results holds the inputs held over the step that
-ended at t_k and the outputs after it. Only the states the fitted outputs depend on (directly or
-through other states' updates) are kept.
+A model's states enter its equations as symbols too. An instance is dynamic when its fitted outputs
+depend on them (``ca.depends_on``, after the constants above are folded: SpindlePower's P_total with
+J_spindle = 0 not fitted does not read its speed-rate state, and is fitted as stateless). A dynamic
+instance (one, e.g. ToolVibration) gives ``step(x_prev, theta, d)``: the states after one step
+``x_k = update(theta, d_k, x_prev, h)`` and the outputs ``y_k = equations(theta, d_k, x_k)``: row k
+of the results holds the inputs held over the step that ended at t_k and the outputs after it. Only
+the states the fitted outputs depend on (directly or through other states' updates) are kept.
 
 What the graph cannot express raises :class:`NotExpressible` (naming the spec key): outputs or
 states computed by a model's C code (native), an instance without a models/ definition, an
-instance with states upstream of the fitted outputs, several dynamic instances, a dynamic instance
-not recorded every step. Such fits run through the FMUs with finite differences instead
-(:mod:`milling_twin.orchestrator.calibrate.fmu_outputs`).
+instance upstream of the fitted outputs whose output that feeds them depends on its states, several
+dynamic instances, a dynamic instance not recorded every step. Such fits run through the FMUs with
+finite differences instead (:mod:`milling_twin.orchestrator.calibrate.fmu_outputs`).
 """
 from __future__ import annotations
 
@@ -133,9 +135,6 @@ def build_graph(scenario: Scenario, parameters: Sequence[Ref], outputs: Sequence
             name = arg.name
             ref = Ref(instance, name)
             if isinstance(arg, State):
-                if states is None:
-                    raise NotExpressible(key, f"{instance} ({m.identifier}) has states: only the fitted outputs' own instance "
-                              "may be dynamic, not an instance upstream of it")
                 values[name] = states[name]
             elif arg.causality == "parameter":
                 if ref in theta:
@@ -146,7 +145,7 @@ def build_graph(scenario: Scenario, parameters: Sequence[Ref], outputs: Sequence
             else:
                 if ref in feeds and needs(feeds[ref].source.instance):
                     source = feeds[ref].source
-                    values[name] = outputs_of(source.instance, key)[source.variable] * feeds[ref].factor
+                    values[name] = output_of(source.instance, source.variable, key) * feeds[ref].factor
                 else:
                     values[name] = data(ref)
                 inputs_used.append(ref)
@@ -155,15 +154,29 @@ def build_graph(scenario: Scenario, parameters: Sequence[Ref], outputs: Sequence
         return values
 
     cache: dict[str, dict[str, ca.SX]] = {}
+    argument_cache: dict[str, dict[str, ca.SX]] = {}
+    state_symbols: dict[str, dict[str, ca.SX]] = {}
 
     def outputs_of(instance: str, key: str) -> dict[str, ca.SX]:
+        """The instance's outputs as expressions; its states (if any) as symbols (``state_symbols``)."""
         if instance not in cache:
             m = model(instance, key)
-            if m.states:
-                raise NotExpressible(key, f"{instance} ({m.identifier}) has states: a dynamic model must be the instance "
-                          "whose outputs are fitted, with its inputs from data")
-            cache[instance] = m.equations(arguments(instance, key, None))
+            states = state_symbols[instance] = {s.name: ca.SX.sym(f"{instance}.{s.name}") for s in m.states}
+            argument_cache[instance] = arguments(instance, key, states)
+            cache[instance] = m.equations(argument_cache[instance])
         return cache[instance]
+
+    def reads_states(instance: str, expression: ca.SX) -> bool:
+        return any(ca.depends_on(expression, s) for s in state_symbols[instance].values())
+
+    def output_of(instance: str, variable: str, key: str) -> ca.SX:
+        """An output feeding another instance: it must not depend on its instance's states."""
+        expression = outputs_of(instance, key)[variable]
+        if reads_states(instance, expression):
+            m = models[instance]
+            raise NotExpressible(key, f"{instance}.{variable} depends on the states of {instance} ({m.identifier}): a "
+                                 "dynamic model must be the instance whose outputs are fitted, with its inputs from data")
+        return expression
 
     out_instances = {o.instance for o in outputs}
     for o in outputs:
@@ -180,20 +193,33 @@ def build_graph(scenario: Scenario, parameters: Sequence[Ref], outputs: Sequence
                              f"{', '.join(sorted(out_instances))}, and {inst} does not feed them through "
                              "non-delayed connections")
 
-    dynamic_instances = sorted(i for i in out_instances if model(i, keys[next(o for o in outputs if o.instance == i)]).states)
-    if not dynamic_instances:
-        y = [outputs_of(o.instance, keys[o])[o.variable] for o in outputs]
+    # dynamic: an instance whose fitted outputs depend on its states (with the constants folded). What an
+    # output cannot be built from (an upstream instance's states, no definition) is reported after "fit one
+    # dynamic instance at a time", which holds whatever the other outputs are.
+    y: list[ca.SX] = []
+    deferred: NotExpressible | None = None
+    for o in outputs:
+        try:
+            y.append(outputs_of(o.instance, keys[o])[o.variable])
+        except NotExpressible as exc:
+            deferred = deferred or exc
+    dynamic_instances = sorted({o.instance for o in outputs
+                                if o.instance in cache and reads_states(o.instance, cache[o.instance][o.variable])})
+    if not dynamic_instances and deferred is None:
         th = ca.vertcat(*[theta[n] for n in parameters])
         d = ca.vertcat(*[data_symbols[c.input] for c in data_columns]) if data_columns else ca.SX(0, 1)
         sample = ca.Function("sample", [th, d], [ca.vertcat(*y)], ["theta", "d"], ["y"], NO_DATA_DERIVATIVE)
         return ModelGraph(tuple(parameters), tuple(outputs), tuple(data_columns), sample, None,
                           tuple(models), models, tuple(inputs_used))
-    if len(out_instances) > 1:
+    if dynamic_instances and len(out_instances) > 1:
         o = next(o for o in outputs if o.instance == dynamic_instances[0])
         raise NotExpressible(keys[o], f"outputs of a dynamic model ({dynamic_instances[0]}) are fitted together with outputs of "
                       f"{', '.join(sorted(out_instances - {dynamic_instances[0]}))}: fit one dynamic instance at a time")
-    graph = _dynamic(scenario, dynamic_instances[0], parameters, outputs, theta, arguments, data_symbols,
-                     data_columns, models, fail, keys)
+    if deferred is not None:
+        raise deferred
+    instance = dynamic_instances[0]
+    graph = _dynamic(scenario, instance, parameters, outputs, theta, state_symbols[instance],
+                     argument_cache[instance], cache[instance], data_symbols, data_columns, models, keys)
     return replace(graph, inputs=tuple(inputs_used))
 
 
@@ -212,8 +238,11 @@ def _upstream(feeds: Mapping, target: str, source: str) -> bool:
 
 
 def _dynamic(scenario: Scenario, instance: str, parameters: Sequence[Ref], outputs: Sequence[Ref],
-             theta: Mapping[Ref, ca.SX], arguments: Callable, data_symbols: dict, data_columns: list,
-             models: dict, fail: Callable[[str, str], NoReturn], keys: Mapping[Ref, str]) -> ModelGraph:
+             theta: Mapping[Ref, ca.SX], states: Mapping[str, ca.SX], values: Mapping[str, ca.SX],
+             equations: Mapping[str, ca.SX], data_symbols: dict, data_columns: list, models: dict,
+             keys: Mapping[Ref, str]) -> ModelGraph:
+    """``states``, ``values`` and ``equations``: the instance's state symbols, the arguments of its equations
+    (states included) and its outputs, as ``build_graph`` made them."""
     m = models[instance]
     key = keys[next(o for o in outputs if o.instance == instance)]
     if m.native_states:
@@ -223,11 +252,8 @@ def _dynamic(scenario: Scenario, instance: str, parameters: Sequence[Ref], outpu
     if inst.ticks_per_step != scenario.ticks_per_output:
         raise NotExpressible(key, f"{instance} is dynamic: the scenario must record every step of it ([scenario].output_interval = "
                   f"{inst.step_size!r} s, the instance's step_size; it is {scenario.output_interval!r} s)")
-    states = {s.name: ca.SX.sym(s.name) for s in m.states}
-    values = arguments(instance, key, states)
     h = ca.SX(float(inst.step_size))
     new = m.update(values, h)
-    equations = m.equations(values)
     y_of_x = [equations[o.variable] for o in outputs]
     # states the outputs need, closed under the update
     kept: list[str] = [s for s in states if any(ca.depends_on(y, states[s]) for y in y_of_x)]

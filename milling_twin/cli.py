@@ -251,7 +251,11 @@ def _info(p: argparse.ArgumentParser) -> None:
 
 def _reconstruct(p: argparse.ArgumentParser) -> None:
     p.add_argument("recording", type=Path, help="recorded run (CSV with the UMich columns)")
-    p.add_argument("-o", "--output", type=Path, required=True, help="part program to write")
+    p.add_argument("-o", "--output", type=Path, required=True,
+                   help="part program to write when the recording is one consistent pass; otherwise a folder "
+                        "that gets one program per consistent segment (seg_NNN.nc) and the index segments.csv "
+                        "(rows, times, program, start position, duration recorded and simulated, why a segment "
+                        "has no program)")
 
 
 @dataclass(frozen=True)
@@ -297,7 +301,8 @@ COMMANDS: tuple[Subcommand | Group, ...] = (
                    "milling_twin.training.rbf:command"))),
     Subcommand("info", "an FMU's variables: causality, type, units and display units, start, range", _info,
                "milling_twin.orchestrator.fmu_info:command"),
-    Subcommand("reconstruct", "rebuild a part program (G-code) from a UMich recording", _reconstruct,
+    Subcommand("reconstruct", "rebuild a part program (G-code) from a UMich recording, one per consistent segment",
+               _reconstruct,
                "milling_twin.orchestrator.gcode.reconstruct:command"),
 )
 

@@ -24,7 +24,25 @@ Method (each step documented in the program's header):
 5. Spindle: ``S1_ActualVelocity`` (controller units read as rev/s, scenarios/data/PROVENANCE.md) above 1 starts
    the spindle (S in rpm, M3) before the first move of the line where it runs, below stops it (M5).
 
+Arcs are written only where the samples lie within ARC_TOLERANCE of the circle and its radius is at most
+MAX_ARC_RADIUS (500 mm); straight moves otherwise, so no arc centre lies far off the machine.
+
 The commanded positions are machine coordinates in mm; the program uses G21 G90 G54 with G54 = 0.
+
+Recordings that are not one pass (rows of other moments spliced in: UMich runs 02-12) are cut by
+:mod:`milling_twin.orchestrator.recording_checks` (commanded positions and velocities, axes at most 50 mm/s,
+3 significant digits, policy ``segment``) into consistent segments, and :func:`reconstruct_segments` writes one
+program per segment (``milling-twin reconstruct`` does so when the check finds any impossible transition;
+a clean recording keeps the single program above). A segment program starts at the segment's first fused
+position (``start_x/y/z``), writes every move as G1, and its feeds make the Interpolator take the recorded
+time over each move: the feed is the move's length over its recorded time (pauses are added to the next move),
+then corrected against the Interpolator's own schedule (models/interpolator, INTERPOLATOR_PARAMETERS) until every
+move is within 1 %. The program is checked by the Interpolator's parser and path builder; one it refused would
+be rebuilt with straight moves only. Segments of fewer than MIN_SEGMENT_ROWS rows or without motion get no
+program (the index says which and why).
+
+    milling-twin reconstruct ../shared/data/umich_cnc/experiment_11.csv -o runs/umich_11
+    # runs/umich_11/seg_000.nc ..., runs/umich_11/segments.csv
 """
 from __future__ import annotations
 
@@ -38,6 +56,8 @@ import numpy as np
 import pandas as pd
 from scipy.linalg import solve_banded
 from scipy.optimize import minimize_scalar
+
+from milling_twin.orchestrator.recording_checks import CheckLimits, RecordingCheck, check_recording
 
 SAMPLE_PERIOD = 0.1          # s, the recordings' row spacing
 SIGNIFICANT_DIGITS = 3       # the recorded positions' resolution: 1 mm from 100 mm on, 0.1 mm below
@@ -54,6 +74,23 @@ MIN_MOTION = 1e-3            # mm: shorter intervals are no motion
 STOPPED = 0.05               # mm/s: commanded speed below which the tool stands
 CORNER_ANGLE = 0.35          # rad: a turn of the commanded velocity between two samples that is a corner
 CORNER_REACH = 1.0           # mm: how far a corner may lie from the sample taken for it
+MAX_ARC_RADIUS = 500.0       # mm: no arc of a larger radius (the machine's travel is under 500 mm; a wider
+                             # "arc" is a near-straight line whose centre the samples cannot fix)
+MIN_SEGMENT_ROWS = 5         # rows: shorter consistent segments get no program
+SEGMENT_MOTION = 0.1         # mm: a segment whose path is shorter has no motion and gets no program
+TIMING_ITERATIONS = 6        # feed corrections against the Interpolator's schedule (segment programs)
+TIMING_TOLERANCE = 0.01      # relative: stop correcting when every move is this close to its recorded time
+MIN_FEED = 0.01              # mm/s: the slowest feed written (a move that absorbs a long pause)
+#: the Interpolator as the segment programs are run (SI; scenarios/umich_motion.toml otherwise): the feeds
+#: are corrected against its schedule with these limits. A segment is cut out of a moving machine but its
+#: program starts and ends at rest: with the recording's 1 m/s2 a 50 mm/s move needs 0.06 s to start, 7 %
+#: of a 0.9 s segment, and a 7 mm first sample cannot be reached in 0.1 s at all. So the segment programs
+#: run with ten times the acceleration and jerk (ramps of ~6 ms) and feeds up to 100 mm/s, which make up
+#: the ramps' time; the path and, between the ends, the timing are the recording's.
+INTERPOLATOR_PARAMETERS = {"period": 1e-3, "rapid_feed": 0.05, "max_feed": 0.1, "acceleration": 10.0,
+                           "jerk": 1000.0, "centripetal_acceleration": 10.0, "axis_acceleration_x": 20.0,
+                           "axis_acceleration_y": 20.0, "axis_acceleration_z": 20.0, "axis_jerk_x": 3000.0,
+                           "axis_jerk_y": 3000.0, "axis_jerk_z": 3000.0}
 
 
 @dataclass
@@ -79,6 +116,8 @@ class Reconstruction:
     positions: np.ndarray            # fused positions at the samples (n x 3, mm)
     sequence: np.ndarray             # cleaned line numbers at the samples
     stats: dict[str, float] = field(default_factory=dict)
+    header: list[str] = field(default_factory=list)  # comment lines replacing the default note on N and F
+    move_lines: list[int] = field(default_factory=list)  # program line (1-based) of each block's move, as written
 
     def program(self) -> str:
         return program_text(self)
@@ -192,6 +231,8 @@ def _arc_through(start: np.ndarray, end: np.ndarray, samples: np.ndarray) -> tup
     result = minimize_scalar(cost, bracket=(t0 - abs(t0) - 1.0, t0 + abs(t0) + 1.0))
     c = mid + float(result.x) * normal
     radius = float(np.linalg.norm(s - c))
+    if not np.isfinite(radius) or radius > MAX_ARC_RADIUS:
+        return None
     deviation = float(np.max(np.abs(np.linalg.norm(pts - c, axis=1) - radius)))
     # direction from the samples' angles, which must progress monotonically from start to end
     angles = np.unwrap(np.arctan2(np.concatenate([[s[1]], pts[:, 1], [e[1]]]) - c[1],
@@ -259,7 +300,12 @@ def _fit_piece(points: np.ndarray, allow_arcs: bool) -> list[tuple[str, int, np.
 
 
 def reconstruct(path: Path) -> Reconstruction:
-    data = pd.read_csv(path)
+    """The program of a whole recording as one pass (run 01: scenarios/programs/umich_01.nc)."""
+    return _reconstruct_rows(pd.read_csv(path), Path(path))
+
+
+def _reconstruct_rows(data: pd.DataFrame, path: Path, allow_arcs: bool = True) -> Reconstruction:
+    data = data.reset_index(drop=True)
     n = len(data)
     sequence = clean_sequence(data["M1_sequence_number"].to_numpy())
     fused = np.column_stack([
@@ -284,7 +330,7 @@ def reconstruct(path: Path) -> Reconstruction:
             blocks.append(Block(int(sequence[mid]), [("G1", tuple(points[0]))], f, rapid,
                                 nominal_rpm if running[mid] else 0.0, previous_end, a, "line"))
         start = 0
-        for kind, j, centre in _fit_piece(points, not rapid):
+        for kind, j, centre in _fit_piece(points, allow_arcs and not rapid):
             mid = a + (start + j + 1) // 2
             move = (kind, tuple(points[j])) if centre is None else (kind, tuple(points[j]), tuple(centre))
             blocks.append(Block(int(sequence[min(mid, b)]), [move], f, rapid,
@@ -335,19 +381,33 @@ def _mm(x: float) -> str:
     return "0" if text in ("-0", "") else text
 
 
+def _digest(path: Path) -> str:
+    stat = path.stat()
+    key = (str(path.resolve()), stat.st_mtime_ns, stat.st_size)
+    if key not in _DIGESTS:
+        _DIGESTS[key] = hashlib.sha256(path.read_bytes()).hexdigest()
+    return _DIGESTS[key]
+
+
+_DIGESTS: dict[tuple[str, int, int], str] = {}
+
+
 def program_text(recon: Reconstruction) -> str:
-    digest = hashlib.sha256(recon.source.read_bytes()).hexdigest()
+    digest = _digest(recon.source)
     st = recon.stats
     lines = [
         f"(Reconstructed by orchestrator.gcode.reconstruct from {recon.source.name}, sha256 {digest})",
         f"({int(st['samples'])} samples at {SAMPLE_PERIOD:g} s: {int(st['lines'])} straight moves and "
         f"{int(st['arcs'])} arcs fitted to {LINE_TOLERANCE:g} mm)",
         "(positions: least squares of the commanded positions, stored to 3 significant digits, and velocities)",
-        "(N = the recorded M1_sequence_number; feed 50 mm/s = G0: run with rapid_feed = 50 mm/s; no dwells)",
+        *(recon.header or ["(N = the recorded M1_sequence_number; feed 50 mm/s = G0: run with rapid_feed = "
+                           "50 mm/s; no dwells)"]),
         "G21 G90 G17 G54",
         "G0 X{} Y{} Z{}".format(*(_mm(c) for c in recon.start)),
     ]
     feed_now = None
+    move_lines: list[int] = []
+    recon.move_lines = move_lines
     spindle_now = 0.0
     motion_now = None
     position = np.array([float(_mm(c)) for c in recon.start])
@@ -370,6 +430,7 @@ def program_text(recon: Reconstruction) -> str:
                 words.append(f"F{_mm(block.feed * 60.0)}")
                 feed_now = block.feed
             lines.append(" ".join(words))
+            move_lines.append(len(lines))
             position = end
     if spindle_now:
         lines.append("M5")
@@ -377,16 +438,244 @@ def program_text(recon: Reconstruction) -> str:
     return "\n".join(lines) + "\n"
 
 
+# -- per-segment programs ---------------------------------------------------------------------------------
+
+#: the recordings' physical limits for recording_checks (SI): every axis at most the positioning feed of
+#: 50 mm/s, positions stored with 3 significant digits
+CHECK_LIMITS = CheckLimits(max_axis_speed=(RAPID_FEED * 1e-3,) * 3, significant_digits=SIGNIFICANT_DIGITS,
+                           min_segment=MIN_SEGMENT_ROWS)
+
+
+@dataclass
+class SegmentProgram:
+    """One consistent segment of a recording (data rows ``start`` .. ``stop - 1``): its program, or why it
+    has none. ``recorded_time``: s from the segment's first to its last sample with motion (what the
+    program reproduces: it has no dwell, so stationary rows before the first and after the last motion
+    are not in it; pauses between motions are spread over the next move); ``simulated_time``: the
+    program's duration on the Interpolator (its schedule with :data:`INTERPOLATOR_PARAMETERS`)."""
+
+    index: int
+    start: int
+    stop: int
+    reason: str = ""                 # why there is no program ("" when there is one)
+    recon: Reconstruction | None = None
+    recorded_time: float = 0.0
+    simulated_time: float = 0.0
+    worst_move: float = 0.0          # largest |simulated / recorded - 1| of a single move
+
+    @property
+    def rows(self) -> int:
+        return self.stop - self.start
+
+    @property
+    def name(self) -> str:
+        return f"seg_{self.index:03d}"
+
+    @property
+    def ratio(self) -> float:
+        return self.simulated_time / self.recorded_time if self.recorded_time > 0 else math.nan
+
+
+@dataclass
+class SegmentedReconstruction:
+    source: Path
+    check: RecordingCheck
+    segments: list[SegmentProgram]
+
+    @property
+    def programs(self) -> list[SegmentProgram]:
+        return [s for s in self.segments if s.recon is not None]
+
+    def index_frame(self) -> pd.DataFrame:
+        rows = []
+        for s in self.segments:
+            start = tuple(float(_mm(c)) for c in s.recon.start) if s.recon is not None else (math.nan,) * 3
+            rows.append({"segment": s.index, "first_row": s.start, "last_row": s.stop - 1, "rows": s.rows,
+                         "t_first": s.start * SAMPLE_PERIOD, "t_last": (s.stop - 1) * SAMPLE_PERIOD,
+                         "program": f"{s.name}.nc" if s.recon is not None else "",
+                         "start_x_mm": start[0], "start_y_mm": start[1], "start_z_mm": start[2],
+                         "recorded_time": s.recorded_time, "simulated_time": s.simulated_time,
+                         "ratio": s.ratio, "skipped": s.reason})
+        return pd.DataFrame(rows)
+
+    def write(self, folder: Path) -> Path:
+        """seg_NNN.nc per segment with a program and segments.csv (the index); returns the index path."""
+        folder.mkdir(parents=True, exist_ok=True)
+        for s in self.programs:
+            (folder / f"{s.name}.nc").write_text(s.recon.program())
+        index = folder / "segments.csv"
+        self.index_frame().to_csv(index, index=False, float_format="%.10g")
+        return index
+
+
+def recording_check(data: pd.DataFrame, limits: CheckLimits = CHECK_LIMITS) -> RecordingCheck:
+    """recording_checks on the commanded positions and velocities (mm, mm/s in the file; SI here)."""
+    positions = data[[f"{a}1_CommandPosition" for a in "XYZ"]].to_numpy(dtype=float) * 1e-3
+    velocities = data[[f"{a}1_CommandVelocity" for a in "XYZ"]].to_numpy(dtype=float) * 1e-3
+    return check_recording(positions, np.arange(len(data)) * SAMPLE_PERIOD, limits, velocities=velocities,
+                           policy="segment")
+
+
+def _move_times(text: str, parameters: dict[str, float]) -> tuple[np.ndarray, np.ndarray]:
+    """(program line, end time in s) of every move of ``text`` on the Interpolator's schedule; raises
+    ProgramError/PathError where the Interpolator refuses the program."""
+    from milling_twin.models.interpolator.definition import default_parameters
+    from milling_twin.models.interpolator.parser import parse_program
+    from milling_twin.models.interpolator.path import build_path
+    from milling_twin.models.interpolator.schedule import Schedule
+
+    p = {**default_parameters(), **parameters}
+    program = parse_program(text, p)
+    path = build_path(program, p)
+    schedule = Schedule(path, p["max_feed"], p["rapid_feed"])
+    schedule.plan(0.0, 0.0, 0.0, 1.0)
+    t = np.array([pc.t for pc in schedule.pieces])
+    s_at = np.array([pc.s for pc in schedule.pieces])
+    ends = np.asarray(path.move_s) + np.asarray(path.move_length)
+    times = np.interp(ends, s_at, t) if len(t) > 1 else np.zeros(len(ends))
+    return np.array([m.line for m in program.moves], dtype=int), times
+
+
+def simulated_duration(text: str, start_mm: tuple[float, float, float],
+                       parameters: dict[str, float] | None = None) -> float:
+    """Duration (s) of a program on the Interpolator's schedule, the tool starting at ``start_mm``."""
+    p = {**INTERPOLATOR_PARAMETERS, **(parameters or {}), **_start(start_mm)}
+    times = _move_times(text, p)[1]
+    return float(times[-1]) if len(times) else 0.0
+
+
+def _start(start_mm: tuple[float, float, float]) -> dict[str, float]:
+    return {f"start_{a}": float(_mm(c)) * 1e-3 for a, c in zip("xyz", start_mm)}
+
+
+def _move_length(start: np.ndarray, move: tuple) -> float:
+    end = np.asarray(move[1])
+    if move[0] == "G1":
+        return float(np.linalg.norm(end - start))
+    centre = np.asarray(move[2])
+    a0 = math.atan2(start[1] - centre[1], start[0] - centre[0])
+    a1 = math.atan2(end[1] - centre[1], end[0] - centre[0])
+    sweep = (a1 - a0) % (2 * math.pi) if move[0] == "G3" else (a0 - a1) % (2 * math.pi)
+    return float(math.hypot(np.linalg.norm(start[:2] - centre[:2]) * sweep, end[2] - start[2]))
+
+
+def _timed(recon: Reconstruction) -> tuple[float, float, float]:
+    """Feeds of a segment program from the recorded time of each move, corrected against the Interpolator's
+    schedule (its accelerations, corners): (recorded, simulated duration, worst move's |ratio - 1|)."""
+    blocks = recon.blocks
+    first = blocks[0].first_sample
+    ends = np.array([b.last_sample for b in blocks])
+    target = np.diff(np.concatenate([[first], ends])) * SAMPLE_PERIOD
+    position = np.array([float(_mm(c)) for c in recon.start])
+    lengths = []
+    for b in blocks:
+        lengths.append(_move_length(position, b.moves[0]))
+        position = np.asarray(b.moves[0][1], dtype=float)
+    lengths = np.maximum(np.array(lengths), 1e-6)
+    max_feed = INTERPOLATOR_PARAMETERS["max_feed"] * 1e3
+    target = np.maximum(target, lengths / max_feed)  # a move recorded in no time: at the highest feed
+    feeds = np.clip(lengths / target, MIN_FEED, max_feed)
+    parameters = {**INTERPOLATOR_PARAMETERS, **_start(recon.start)}
+    simulated, worst = 0.0, math.inf
+    for _ in range(TIMING_ITERATIONS + 1):
+        for b, f in zip(blocks, feeds):
+            b.feed, b.rapid = float(f), False
+        move_line, times = _move_times(program_text(recon), parameters)
+        # each block's move ends when the Interpolator's move of its line ends (a move the parser leaves out,
+        # of no length, ends with the one before it)
+        at = np.searchsorted(move_line, recon.move_lines, side="right") - 1
+        block_end = np.where(at >= 0, times[np.clip(at, 0, None)], 0.0)
+        per_move = np.diff(np.concatenate([[0.0], block_end]))
+        simulated = float(times[-1]) if len(times) else 0.0
+        ratio = per_move / target
+        worst = float(np.max(np.abs(ratio - 1.0)))
+        if worst <= TIMING_TOLERANCE:
+            break
+        feeds = np.clip(feeds * np.clip(ratio, 0.5, 2.0), MIN_FEED, max_feed)
+    return float(target.sum()), simulated, worst
+
+
+def reconstruct_segments(path: Path, limits: CheckLimits = CHECK_LIMITS) -> SegmentedReconstruction:
+    """One program per consistent segment of the recording (recording_checks, policy ``segment``): each
+    starts at the segment's first (fused) position, writes every move as G1 with the feed that makes the
+    Interpolator take the recorded time over it, and is checked by the Interpolator's own parser and
+    schedule (a program it refuses is rebuilt with straight moves only)."""
+    path = Path(path)
+    data = pd.read_csv(path)
+    check = recording_check(data, limits)
+    used = {(s.start, s.stop) for s in check.segments}
+    pieces = sorted([*check.segments, *check.dropped_segments], key=lambda s: s.start)
+    out = []
+    for index, seg in enumerate(pieces):
+        item = SegmentProgram(index, seg.start, seg.stop)
+        out.append(item)
+        if (seg.start, seg.stop) not in used:
+            item.reason = check.reasons.get(seg.start, "dropped by the recording check")
+            continue
+        if len(seg) < MIN_SEGMENT_ROWS:
+            item.reason = f"shorter than {MIN_SEGMENT_ROWS} rows"
+            continue
+        rows = data.iloc[seg.start:seg.stop]
+        for allow_arcs in (True, False):
+            recon = _reconstruct_rows(rows, path, allow_arcs)
+            travel = float(np.sum(np.linalg.norm(np.diff(recon.positions, axis=0), axis=1)))
+            if not recon.blocks or travel < SEGMENT_MOTION:
+                item.reason = f"no motion (path {travel:.3g} mm)"
+                break
+            recon.header = [f"(segment {index}: data rows {seg.start}-{seg.stop - 1}; N = the recorded "
+                            "M1_sequence_number; every move G1 at the feed that takes the recorded time; "
+                            "start_x/y/z = the first position)"]
+            try:
+                item.recorded_time, item.simulated_time, item.worst_move = _timed(recon)
+            except ValueError:  # ProgramError, PathError: the Interpolator refuses it
+                if allow_arcs:
+                    continue
+                raise
+            item.recon = recon
+            break
+    return SegmentedReconstruction(path, check, out)
+
+
 def command(args: argparse.Namespace) -> int:
-    """``milling-twin reconstruct RECORDING -o PROGRAM``."""
+    """``milling-twin reconstruct RECORDING -o OUT``: one program (OUT a file) for a recording that is one
+    consistent pass; otherwise one program per consistent segment in the folder OUT (seg_NNN.nc and the
+    index segments.csv)."""
     try:
-        recon = reconstruct(args.recording)
+        data = pd.read_csv(args.recording)
+        data["M1_sequence_number"]  # the first column a UMich recording is recognised by
+        check = recording_check(data)
+        if check.clean:
+            recon = reconstruct(args.recording)
     except KeyError as exc:
         raise ValueError(f"{args.recording}: no column {exc}: a UMich recording (CSV) is expected") from exc
     except pd.errors.ParserError as exc:
         raise ValueError(f"{args.recording}: not a readable CSV file: {exc}") from exc
-    args.output.write_text(recon.program())
-    for name, value in recon.stats.items():
-        print(f"{name}: {value:g}")
-    print(f"wrote {args.output}")
+    if check.clean:
+        args.output.write_text(recon.program())
+        for name, value in recon.stats.items():
+            print(f"{name}: {value:g}")
+        print(f"wrote {args.output}")
+        return 0
+    if args.output.exists() and not args.output.is_dir():
+        raise ValueError(f"{args.output}: the recording has {len(check.problems)} impossible transitions, so "
+                         "one program per consistent segment is written into a folder: give a folder name")
+    segmented = reconstruct_segments(args.recording)
+    for line in check.summary()[:2]:
+        print(line)
+    programs = segmented.programs
+    skipped: dict[str, int] = {}
+    for s in segmented.segments:
+        if s.recon is None:
+            key = s.reason.split(" (")[0]
+            skipped[key] = skipped.get(key, 0) + 1
+    print(f"{len(programs)} programs; no program for {len(segmented.segments) - len(programs)} segments"
+          + "".join(f"; {count} {reason}" for reason, count in sorted(skipped.items())))
+    if programs:
+        recorded = sum(s.recorded_time for s in programs)
+        simulated = sum(s.simulated_time for s in programs)
+        worst = max(programs, key=lambda s: abs(s.ratio - 1.0))
+        print(f"duration simulated / recorded: total {simulated:.2f} / {recorded:.2f} s = {simulated / recorded:.4f}; "
+              f"worst segment {worst.index} (rows {worst.start}-{worst.stop - 1}) {worst.ratio:.4f}")
+    index = segmented.write(args.output)
+    print(f"wrote {len(programs)} programs and {index}")
     return 0

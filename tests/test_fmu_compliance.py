@@ -115,6 +115,83 @@ def test_simulate_fmu_gives_the_model_outputs(fmu: Path) -> None:
             assert result["P_cutting"][0] > 0  # the random point exercises the cutting term
 
 
+POWER_FMUS = [p for p in FMUS if split_fmu_name(p)[0] == "SpindlePower"]
+
+
+def spindle_run_up(step_size: float) -> list[dict[str, float]]:
+    """SpindlePower's inputs over a run-up like UMich run 01's: stopped, M3 with the command at 53.3 rev/s, the
+    speed ramping at 100 rev/s2, held (with a speed error), then M5 and the speed falling at 100 rev/s2."""
+    omega = 2 * np.pi  # rad/s per rev/s
+    slope = 100.0 * omega * step_size  # rad/s per step
+    command = 53.3 * omega
+    speeds = ([0.0] * 3 + [slope * k for k in range(1, 54)] + [command - 0.5, command + 0.3] * 5
+              + [command - slope * k for k in range(1, 11)])
+    on = [0.0] * 3 + [1.0] * (53 + 10) + [0.0] * 10
+    commands = [0.0] * 3 + [command] * (53 + 10) + [0.0] * 10
+    return [{"spindle_speed": n, "spindle_on": s, "spindle_speed_command": c, "mrr": 0.0}
+            for n, s, c in zip(speeds, on, commands)]
+
+
+@pytest.mark.parametrize("power_fmu", POWER_FMUS, ids=fmu_id)
+def test_power_fmu_gives_the_model_dynamics_over_a_speed_ramp(power_fmu: Path) -> None:
+    """The spindle dynamics of SpindlePower (J_spindle, k_speed_loop; the speed-rate state) over a run-up, a
+    speed error at the command and a stop: the FMU's outputs equal models/power.py stepped the same way, and
+    the inertia and speed-loop powers are what the ramp gives: J*n*slope, k*(n_cmd - n)*|n|; the rate is 0
+    until the second step and the dynamic power 0 while the spindle is off."""
+    require_fmu(power_fmu)
+    model = model_of(power_fmu)
+    h = 0.01
+    parameters = {"P_standby": 0.0, "P_idle": 170.0, "c1": 0.02, "J_spindle": 1.5e-3, "k_speed_loop": 0.076}
+    points = [{**parameters, **point} for point in spindle_run_up(h)]
+    names = output_names(model)
+    with Slave(power_fmu) as slave:
+        slave.instantiate()
+        slave.initialize(points[0])
+        initial = slave.get(names)
+        rows = []
+        for point in points:
+            slave.set(point)
+            assert slave.step(h) == OK
+            rows.append(slave.get(names))
+    actual = np.array(rows)
+    assert_close(initial, expected_outputs(model, points[0])[0])
+    assert_close(actual, reference_trajectory(model, points, h))
+    out = {name: actual[:, k] for k, name in enumerate(names)}
+    n = np.array([p["spindle_speed"] for p in points])
+    on = np.array([p["spindle_on"] for p in points])
+    command = np.array([p["spindle_speed_command"] for p in points])
+    rate = np.concatenate([[0.0], np.diff(n) / h])  # the first step has no previous speed
+    assert rate[3:56] == pytest.approx(200 * np.pi)  # the ramp: 100 rev/s2
+    np.testing.assert_allclose(out["spindle_acceleration"], rate, rtol=1e-12, atol=1e-9)
+    dynamic = on * (1.5e-3 * n * rate + 0.076 * (command - n) * np.abs(n))
+    np.testing.assert_allclose(out["P_dynamic"], dynamic, rtol=1e-12, atol=1e-9)
+    np.testing.assert_allclose(out["P_total"], on * (170.0 + 0.02 * np.abs(n)) + dynamic, rtol=1e-12)
+    assert np.all(out["P_dynamic"][on == 0] == 0.0) and np.any(out["spindle_acceleration"][on == 0] < 0)
+
+
+@pytest.mark.parametrize("power_fmu", POWER_FMUS, ids=fmu_id)
+def test_power_fmu_without_dynamics_is_the_static_model(power_fmu: Path) -> None:
+    """J_spindle and k_speed_loop at their defaults (0): over the same ramp, P_total is the static model's
+    P_standby + on*(P_idle + c1*|n|), exactly, and P_dynamic is 0 (the speed rate is still an output)."""
+    require_fmu(power_fmu)
+    h = 0.01
+    points = spindle_run_up(h)
+    with Slave(power_fmu) as slave:
+        slave.instantiate()
+        slave.initialize(points[0])
+        rows = []
+        for point in points:
+            slave.set(point)
+            assert slave.step(h) == OK
+            rows.append(slave.get(["P_total", "P_dynamic", "spindle_acceleration"]))
+    actual = np.array(rows)
+    n = np.array([p["spindle_speed"] for p in points])
+    on = np.array([p["spindle_on"] for p in points])
+    assert np.all(actual[:, 1] == 0.0)
+    assert np.array_equal(actual[:, 0], 500.0 + on * (200.0 + 0.3 * np.abs(n)))  # the defaults
+    assert np.max(actual[:, 2]) == pytest.approx(200 * np.pi)
+
+
 def test_outputs_equal_the_model_over_a_random_grid(fmu: Path) -> None:
     """Random parameters within [min, max] and random inputs, 400 points (the corners included), each
     set, stepped and read through one instance: the outputs equal models.MODELS[id].evaluate(...)."""

@@ -124,7 +124,8 @@ def test_dynamic_graph_steps_like_the_model(power_case) -> None:
     x = graph.dynamic.initial
     expected_states = {s.name: s.start for s in POWER.states}
     for n in speeds:
-        row = {"power.spindle_speed": n, "power.spindle_on": 1.0, "power.mrr": 0.0, "power.spindle_speed_command": 335.0}
+        row = {"power.spindle_speed": n, "power.spindle_on": 1.0, "power.mrr": 0.0,
+               "power.spindle_speed_command": 335.0}
         x, y = graph.dynamic.step(x, theta, [row[c] for c in columns])
         values = dict(P_standby=100.0, P_idle=170.0, c1=0.5, c2=1000.0, c3=1.0, J_spindle=1.5e-3, k_speed_loop=0.076,
                       spindle_speed=n, spindle_on=1.0, mrr=0.0, spindle_speed_command=335.0)

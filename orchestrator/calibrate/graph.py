@@ -174,8 +174,9 @@ def build_graph(scenario: Scenario, parameters: Sequence[Ref], outputs: Sequence
         expression = outputs_of(instance, key)[variable]
         if reads_states(instance, expression):
             m = models[instance]
-            raise NotExpressible(key, f"{instance}.{variable} depends on the states of {instance} ({m.identifier}): a "
-                                 "dynamic model must be the instance whose outputs are fitted, with its inputs from data")
+            raise NotExpressible(key, f"{instance}.{variable} depends on the states of {instance} ({m.identifier}): "
+                                 "a dynamic model must be the instance whose outputs are fitted, with its inputs "
+                                 "from data")
         return expression
 
     out_instances = {o.instance for o in outputs}

@@ -472,6 +472,14 @@ class SegmentProgram:
         return f"seg_{self.index:03d}"
 
     @property
+    def motion_start(self) -> float | None:
+        """Recorded time (s, rows at SAMPLE_PERIOD from row 0) at which the program starts: the segment's
+        first motion."""
+        if self.recon is None or not self.recon.blocks:
+            return None
+        return (self.start + self.recon.blocks[0].first_sample) * SAMPLE_PERIOD
+
+    @property
     def ratio(self) -> float:
         return self.simulated_time / self.recorded_time if self.recorded_time > 0 else math.nan
 

@@ -164,6 +164,9 @@ def _align_temporal(t: argparse.ArgumentParser) -> None:
                    help="s to shift results back (docs/alignment.md)")
     t.add_argument("--method", choices=("multiscale", "patent", "dtw"), default="multiscale")
     t.add_argument("--out", type=Path, required=True, help="time map CSV to write")
+    t.add_argument("--min-confidence", type=float, default=0.3,
+                   help="median confidence below which the alignment (each segment of it) is reported as failed "
+                        "(default 0.3, orchestrator.align.segments.DEFAULT_MIN_CONFIDENCE)")
     t.add_argument("--plot", type=Path, help="figure (PNG) to write")
     t.add_argument("--progress", action="store_true")
 

@@ -18,6 +18,7 @@ import numpy as np
 
 from milling_twin.cli import REJECTED
 from milling_twin.orchestrator.align.multiscale import MultiscaleOptions
+from milling_twin.orchestrator.align.segments import PiecewiseTimeMap, SegmentMap
 from milling_twin.orchestrator.align.spatial import (compensate_wall, load_cloud_csv, load_probe_csv,
                                         work_offset_gcode)
 from milling_twin.orchestrator.align.temporal import align
@@ -46,6 +47,9 @@ def temporal(args: argparse.Namespace) -> int:
     print(f"{args.method}: {len(tm)} samples mapped to simulated "
           f"{tm.simulated_time[0]:.3f} .. {tm.simulated_time[-1]:.3f} s; median confidence "
           f"{np.median(tm.confidence):.2f}; wrote {args.out}")
+    piecewise = PiecewiseTimeMap(len(tm), (SegmentMap(0, 0, len(tm), tm),), str(args.recorded))
+    for line in piecewise.report(args.min_confidence):
+        print(line)
     if args.plot:
         from milling_twin.orchestrator.align.plots import plot_temporal
 

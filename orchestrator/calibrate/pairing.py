@@ -6,7 +6,9 @@ on the channels the spec names. The results row time is ``s_i + output_delay`` (
 works on delay-corrected simulated time, see orchestrator.align.trajectory). At that time the
 model's data columns are taken from the rows (real values linear between rows, booleans from
 the nearest row); dynamic models use the nearest row index. Samples whose simulated time falls
-outside the run, or whose alignment confidence is below ``min_confidence``, are not used.
+outside the run, or whose alignment confidence is below ``min_confidence``, are not used; an alignment
+whose median confidence is below it has failed, and calibration stops with a CalibrationError naming the
+recording, the segment and the confidence (:func:`refuse_failed_alignment`).
 """
 from __future__ import annotations
 
@@ -18,10 +20,12 @@ import numpy as np
 import pandas as pd
 
 from milling_twin.orchestrator.align import TimeMap, align_results
+from milling_twin.orchestrator.align.segments import segment_confidence
+from milling_twin.orchestrator.calibrate.errors import CalibrationError
 from milling_twin.orchestrator.calibrate.spec import AlignmentSpec
 from milling_twin.orchestrator.recorded import RecordedData
 
-__all__ = ["AlignmentSummary", "Pairs", "at_rows", "make_pairs", "map_times"]
+__all__ = ["AlignmentSummary", "Pairs", "at_rows", "make_pairs", "map_times", "refuse_failed_alignment"]
 
 LEARNING, VALIDATION = 0, 1
 
@@ -77,12 +81,27 @@ def at_rows(results: pd.DataFrame, columns: Sequence[str], times: np.ndarray) ->
     return out
 
 
+def refuse_failed_alignment(recorded: RecordedData, time_map: TimeMap, alignment: AlignmentSpec,
+                            segment: int = 0, rows: tuple[int, int] | None = None) -> None:
+    """A CalibrationError when the alignment's confidence (the median over its samples, as
+    orchestrator.align.segments measures a segment) is below ``[alignment].min_confidence``: its pairs
+    would fit garbage. The whole recording is segment 0 unless ``segment`` and ``rows`` say otherwise."""
+    confidence = segment_confidence(time_map.confidence)
+    if confidence < alignment.min_confidence:
+        first, last = rows if rows is not None else (0, len(time_map) - 1)
+        raise CalibrationError(
+            f"{recorded.path}: segment {segment} (rows {first}-{last}): alignment confidence {confidence:.2f} is "
+            f"below [alignment].min_confidence = {alignment.min_confidence:g}; the alignment failed, no pairs are "
+            "made from it (check the simulated run and the recording, e.g. milling-twin align temporal)")
+
+
 def map_times(recorded: RecordedData, results: pd.DataFrame, alignment: AlignmentSpec) -> tuple[np.ndarray, np.ndarray, TimeMap | None]:
     """(row time per recorded sample, confidence, the TimeMap or None for method "none")."""
     if alignment.method == "none":
         return recorded.time.copy(), np.ones(recorded.time.size), None
     time_map = align_results(recorded, results, [str(r) for r in alignment.simulated], list(alignment.recorded),
                              method=alignment.method, output_delay=alignment.output_delay)
+    refuse_failed_alignment(recorded, time_map, alignment)
     return time_map.simulated_time + alignment.output_delay, time_map.confidence, time_map
 
 

@@ -45,7 +45,10 @@ recorded data)::
     simulated = ["power.spindle_speed", "mrr.feed_velocity_x", "mrr.feed_velocity_y"]
     recorded = ["spindle_speed", "feed_x", "feed_y"]   # three of each, same units pairwise
     output_delay = 0.0                # s, see orchestrator.align.trajectory
-    min_confidence = 0.0              # pairs whose alignment confidence is lower are not used
+    min_confidence = 0.0              # pairs whose alignment confidence is lower are not used, and an alignment
+                                      # whose median confidence is lower is refused (CalibrationError naming the
+                                      # recording, segment and confidence); orchestrator.align.segments uses
+                                      # DEFAULT_MIN_CONFIDENCE = 0.3
 
     [inputs."power.mrr"]              # optional, per input of the fitted equations (data or connection)
     floor = 1e-300                    # SI: the fit reads the input as max(value, floor) (see docs/calibration.md: a
@@ -78,6 +81,24 @@ Default start ranges: ``start_range`` if given; else the bounds when both are fi
 100 scales apart; else initial/4 .. initial*4 (log-uniform) for a positive initial value, and
 initial -/+ 2 scales otherwise, clipped to the bounds.
 
+Kind "runs" (one machine, several recordings: the fitted outputs of one FMU instance whose inputs come
+from data; the scenario is the template every recording runs through, its ``[recorded].file`` replaced by
+each run's file; ``[segments]`` and ``[alignment]`` do not apply: each run is paired on its recorded
+clock, inside the consistent segments its ``[recorded.checks]`` finds)::
+
+    [calibration]
+    kind = "runs"
+    scenario = "../umich_power.toml"
+    ...
+    [runs]
+    folder = "../../../shared/data/umich_cnc"   # relative to this file; `--data DIR` replaces it
+    files = ["experiment_01.csv", "experiment_02.csv"]   # the runs, named by their file stems
+    per_run = ["power.P_standby"]     # optional: parameters fitted for every run on its own (nuisance), not
+                                      # shared; each must also be in [parameters]
+    cross_validation = true           # leave-one-run-out: each run predicted by the set fitted without it
+    hac_lags = 6                      # optional: lags of the autocorrelation-consistent intervals (default:
+                                      # the Newey-West rule for the number of pairs)
+
 Kind "slot_forces" (the cutting-force coefficients from the slot-milling recordings, read as
 ``milling_twin.orchestrator.validation.slot_milling`` reads them; ``[[outputs]]``, ``[segments]``,
 ``[alignment]`` and ``[inputs]`` do not apply)::
@@ -106,10 +127,10 @@ from milling_twin.orchestrator.toml_access import TomlAccess
 from milling_twin.orchestrator.calibrate.errors import CalibrationSpecError
 from milling_twin.orchestrator.scenario import Ref
 
-__all__ = ["AlignmentSpec", "CalibrationSpec", "OutputSpec", "ParameterSpec", "SlotForcesSpec",
+__all__ = ["AlignmentSpec", "CalibrationSpec", "OutputSpec", "ParameterSpec", "RunsSpec", "SlotForcesSpec",
            "SolverSpec", "StatisticsSpec", "load_spec"]
 
-KINDS = ("scenario", "slot_forces")
+KINDS = ("scenario", "slot_forces", "runs")
 ALIGNMENT_METHODS = ("none", "multiscale", "dtw", "patent")
 DERIVATIVES = ("auto", "exact", "finite-differences")
 _NAME_RE = re.compile(r"^[A-Za-z0-9_.-]+$")
@@ -191,6 +212,18 @@ class SlotForcesSpec:
 
 
 @dataclass(frozen=True)
+class RunsSpec:
+    folder: Path
+    files: tuple[str, ...]
+    per_run: tuple[Ref, ...] = ()
+    cross_validation: bool = True
+    hac_lags: int | None = None  # None: newey_west_lags(pairs)
+
+    def names(self) -> tuple[str, ...]:
+        return tuple(Path(f).stem for f in self.files)
+
+
+@dataclass(frozen=True)
 class CalibrationSpec:
     path: Path
     sha256: str
@@ -209,6 +242,7 @@ class CalibrationSpec:
     solver: SolverSpec = field(default_factory=SolverSpec)
     statistics: StatisticsSpec = field(default_factory=StatisticsSpec)
     slot_forces: SlotForcesSpec | None = None
+    runs: RunsSpec | None = None
 
     def fail(self, key: str, message: str) -> NoReturn:
         raise CalibrationSpecError(self.path, key, message)
@@ -355,13 +389,44 @@ def _slot_forces(ctx: _Ctx, raw: Any) -> SlotForcesSpec:
     return SlotForcesSpec(learning, validation, runout, ctx.integer(table, key, "revolutions", 0, 0))
 
 
+def _runs(ctx: _Ctx, raw: Any, base: Path, parameters: tuple[ParameterSpec, ...]) -> RunsSpec:
+    key = "[runs]"
+    table = ctx.table(raw, key, ("folder", "files", "per_run", "cross_validation", "hac_lags"))
+    files = table.get("files")
+    if not isinstance(files, list) or not files or not all(isinstance(f, str) and f for f in files):
+        ctx.fail(f"{key}.files", f"expected a non-empty list of recording file names, got {files!r}")
+    stems = [Path(f).stem for f in files]
+    twice = sorted({s for s in stems if stems.count(s) > 1})
+    if twice:
+        ctx.fail(f"{key}.files", f"run name(s) {twice} appear twice (a run is named by its file's stem)")
+    fitted = {p.ref for p in parameters}
+    per_run = []
+    raw_per_run = table.get("per_run", [])
+    if not isinstance(raw_per_run, list):
+        ctx.fail(f"{key}.per_run", f"expected a list of \"instance.variable\" names, got {raw_per_run!r}")
+    for i, name in enumerate(raw_per_run):
+        ref = Ref.parse(name, f"{key}.per_run[{i}]", ctx.fail)
+        if ref not in fitted:
+            ctx.fail(f"{key}.per_run[{i}]", f"{ref} is not in [parameters]: a per-run parameter is a fitted one")
+        per_run.append(ref)
+    if len(per_run) == len(fitted):
+        ctx.fail(f"{key}.per_run", "every fitted parameter is per run: nothing would be shared between the runs")
+    cross = table.get("cross_validation", True)
+    if not isinstance(cross, bool):
+        ctx.fail(f"{key}.cross_validation", f"expected true or false, got {cross!r}")
+    lags = table.get("hac_lags")
+    if lags is not None:
+        lags = ctx.integer(table, key, "hac_lags", 0, 0)
+    return RunsSpec(base / ctx.string(table, key, "folder", "."), tuple(files), tuple(per_run), cross, lags)
+
+
 def load_spec(path: str | Path) -> CalibrationSpec:
     """Parse and check a calibration spec file (see the module text)."""
     path = Path(path)
     ctx = _Ctx(path)
     raw, doc = ctx.document("calibration")
     ctx.table(doc, "", ("calibration", "parameters", "outputs", "segments", "alignment", "inputs", "solver",
-                        "statistics", "slot_forces"))
+                        "statistics", "slot_forces", "runs"))
     key = "[calibration]"
     head = ctx.table(doc.get("calibration"), key, ("name", "description", "kind", "scenario", "parameter_set",
                                                    "calibrated_scenario"))
@@ -400,6 +465,17 @@ def load_spec(path: str | Path) -> CalibrationSpec:
 
     if "slot_forces" in doc:
         ctx.fail("[slot_forces]", "only used by kind = \"slot_forces\"")
+    if kind == "runs":
+        for section in ("segments", "alignment"):
+            if section in doc:
+                ctx.fail(f"[{section}]", "not used by kind = \"runs\" (each run is paired on its recorded clock, "
+                                         "inside the consistent segments of its [recorded.checks])")
+        if "runs" not in doc:
+            ctx.fail("[runs]", "missing required table for kind = \"runs\"")
+        return CalibrationSpec(**common, outputs=_outputs(ctx, doc), input_floors=_floors(ctx, doc),
+                               runs=_runs(ctx, doc["runs"], base, parameters))
+    if "runs" in doc:
+        ctx.fail("[runs]", "only used by kind = \"runs\"")
     segments = ctx.table(doc.get("segments"), "[segments]", ("learning", "validation"))
     learning, validation = _segments(ctx, segments, "learning", True), _segments(ctx, segments, "validation", False)
     for i, (a, b) in enumerate(validation):
@@ -407,10 +483,14 @@ def load_spec(path: str | Path) -> CalibrationSpec:
             if a < d and c < b:
                 ctx.fail(f"[segments].validation[{i}]", f"[{a!r}, {b!r}] overlaps the learning window [{c!r}, {d!r}]: "
                                                         "validation data must be unseen")
+    return CalibrationSpec(**common, outputs=_outputs(ctx, doc), learning=learning, validation=validation,
+                           alignment=_alignment(ctx, doc.get("alignment", {})), input_floors=_floors(ctx, doc))
+
+
+def _floors(ctx: _Ctx, doc: dict) -> dict[Ref, float]:
     floors: dict[Ref, float] = {}
     inputs = ctx.table(doc.get("inputs", {}), "[inputs]", list(doc.get("inputs") or {}))
     for name, item in inputs.items():
         k = f'[inputs."{name}"]'
         floors[Ref.parse(name, k, ctx.fail)] = ctx.number(ctx.table(item, k, ("floor",)), k, "floor")
-    return CalibrationSpec(**common, outputs=_outputs(ctx, doc), learning=learning, validation=validation,
-                           alignment=_alignment(ctx, doc.get("alignment", {})), input_floors=floors)
+    return floors

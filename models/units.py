@@ -201,6 +201,7 @@ def _table() -> dict[str, Unit]:
         ("ms", _TIME, 1e-3),
         ("rpm", _ANGULAR_VELOCITY, _TWO_PI / 60.0),
         ("rev/s", _ANGULAR_VELOCITY, _TWO_PI),
+        ("rev/s2", _ANGULAR_ACCELERATION, _TWO_PI),
         ("1/min", _ANGULAR_VELOCITY, _TWO_PI / 60.0),
         ("deg", _ANGLE, math.pi / 180.0),
         ("kW", _POWER, 1e3),

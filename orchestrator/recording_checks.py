@@ -11,7 +11,10 @@ consecutive rows that no machine within the given limits can make:
   logger's timing jitter and the position's storage resolution);
 * ``velocity``: with recorded axis velocities, the displacement disagrees with the trapezoid integral of
   the velocities by more than storage resolution, timing jitter and velocity change allow: two rows
-  of different moments that happen to lie close to each other.
+  of different moments that happen to lie close to each other;
+* ``rate``: another channel with a physical rate limit (the spindle speed: the drive's largest
+  acceleration) changes faster than it can, e.g. the spindle at 0 and at 53 rev/s in rows 0.1 s apart
+  while the axes stand still in both.
 
 The transitions cut the recording into segments, each physically consistent. A policy says what is
 used (:data:`POLICIES`):
@@ -36,12 +39,12 @@ from typing import Literal
 
 import numpy as np
 
-__all__ = ["POLICIES", "CheckLimits", "Problem", "RecordingCheck", "RepairError", "Segment", "check_recording",
-           "quantum_of_significant_digits"]
+__all__ = ["POLICIES", "CheckLimits", "Problem", "RateLimit", "RecordingCheck", "RepairError", "Segment",
+           "check_recording", "quantum_of_significant_digits"]
 
 POLICIES = ("segment", "drop", "reorder")
 Policy = Literal["segment", "drop", "reorder"]
-ProblemKind = Literal["time", "jump", "velocity"]
+ProblemKind = Literal["time", "jump", "velocity", "rate"]
 
 
 class RepairError(ValueError):
@@ -142,7 +145,7 @@ class RecordingCheck:
         return not self.problems
 
     def counts(self) -> dict[str, int]:
-        out = {kind: 0 for kind in ("time", "jump", "velocity")}
+        out = {kind: 0 for kind in ("time", "jump", "velocity", "rate")}
         for p in self.problems:
             out[p.kind] += 1
         return out
@@ -159,7 +162,8 @@ class RecordingCheck:
         counts = self.counts()
         lines = [f"{self.n_rows} rows; {len(self.problems)} impossible transitions "
                  f"({counts['jump']} jumps beyond the axis limits, {counts['velocity']} displacements that "
-                 f"disagree with the recorded velocities, {counts['time']} times going backwards)"]
+                 f"disagree with the recorded velocities, {counts['rate']} changes beyond a rate limit, "
+                 f"{counts['time']} times going backwards)"]
         lines.append(f"policy {self.policy!r}: {len(self.segments)} segments used "
                      f"({int(sum(len(s) for s in self.segments))} rows), {len(self.dropped_segments)} segments "
                      f"dropped ({self.dropped_rows} rows)")
@@ -168,6 +172,42 @@ class RecordingCheck:
         if len(self.problems) > 20:
             lines.append(f"  ... and {len(self.problems) - 20} more")
         return lines
+
+
+@dataclass(frozen=True)
+class RateLimit:
+    """A channel that cannot change faster than ``max_rate`` (its SI unit per second), e.g. the spindle
+    speed (rad/s, its largest acceleration in rad/s2); ``resolution`` / ``significant_digits`` as for the
+    positions."""
+
+    name: str
+    values: np.ndarray
+    max_rate: float
+    resolution: float = 0.0
+    significant_digits: int | None = None
+
+    def quantum(self) -> np.ndarray:
+        if self.significant_digits is not None:
+            return quantum_of_significant_digits(self.values, self.significant_digits)
+        return np.full(self.values.shape, self.resolution)
+
+
+def _rate_problems(rates: Sequence[RateLimit], time: np.ndarray, jitter: float, flagged: set[int]) -> list[Problem]:
+    problems = []
+    dt = np.maximum(np.diff(time), 0.0)
+    for limit in rates:
+        values = np.asarray(limit.values, dtype=float)
+        quantum = limit.quantum()
+        change = np.abs(np.diff(values))
+        allowed = limit.max_rate * (dt + jitter) + 0.5 * (quantum[1:] + quantum[:-1])
+        for k in np.flatnonzero(change > allowed):
+            row = int(k) + 1
+            if row in flagged:
+                continue
+            flagged.add(row)
+            problems.append(Problem(row, "rate", f"{limit.name} changes from {values[k]:.6g} to {values[row]:.6g} "
+                                    f"in {time[row] - time[k]:.3g} s (limit {limit.max_rate:.4g} per s)"))
+    return problems
 
 
 def _transitions(positions: np.ndarray, time: np.ndarray, limits: CheckLimits,
@@ -219,10 +259,11 @@ def _reachable(positions: np.ndarray, time: np.ndarray, limits: CheckLimits, a: 
 
 
 def check_recording(positions: np.ndarray, time: np.ndarray, limits: CheckLimits, *, policy: Policy = "segment",
-                    velocities: np.ndarray | None = None, lines: np.ndarray | None = None) -> RecordingCheck:
+                    velocities: np.ndarray | None = None, lines: np.ndarray | None = None,
+                    rates: Sequence[RateLimit] = ()) -> RecordingCheck:
     """Check ``positions`` (rows x axes, m) at ``time`` (s, as recorded), optionally against recorded axis
-    ``velocities`` (rows x axes, m/s), and split them into segments under ``policy``. ``lines``: the
-    program line executing at each row (for ``reorder``)."""
+    ``velocities`` (rows x axes, m/s) and the ``rates`` of other channels, and split them into segments
+    under ``policy``. ``lines``: the program line executing at each row (for ``reorder``)."""
     positions = np.asarray(positions, dtype=float)
     time = np.asarray(time, dtype=float)
     if positions.ndim != 2 or positions.shape[0] != time.shape[0]:
@@ -238,6 +279,11 @@ def check_recording(positions: np.ndarray, time: np.ndarray, limits: CheckLimits
             raise ValueError(f"velocities {velocities.shape} must have the positions' shape {positions.shape}")
     n = len(time)
     problems = _transitions(positions, time, limits, velocities)
+    for rate in rates:
+        if np.shape(rate.values) != time.shape:
+            raise ValueError(f"rate channel {rate.name!r} has {np.shape(rate.values)} values for {time.shape} times")
+    problems += _rate_problems(rates, time, limits.timing_jitter, {p.row for p in problems})
+    problems.sort(key=lambda p: p.row)
     pieces = _pieces(n, problems)
     short = [s for s in pieces if len(s) < limits.min_segment]
     reasons = {s.start: f"shorter than min_segment = {limits.min_segment} rows" for s in short}

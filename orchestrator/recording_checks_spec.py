@@ -10,6 +10,8 @@
     # resolution = { value = [1.0, 0.1, 0.1], unit = "mm" }   the storage step per axis
     timing_jitter = { value = 0.05, unit = "s" }   # how far a row's sampling moment may be off (default)
     min_segment = 3                                # shorter segments are dropped and counted (rows)
+    [recorded.checks.rates]                        # optional: channels with a physical rate limit (per second)
+    spindle_speed = { value = 150.0, unit = "rev/s2" }
     policy = "segment"                             # segment | drop | reorder (recording_checks)
 
 Plain numbers are SI (m/s, m, s).
@@ -23,14 +25,15 @@ import numpy as np
 
 from milling_twin.models.units import UnitError, convert, si_unit_of
 from milling_twin.orchestrator.recorded import RecordedData
-from milling_twin.orchestrator.recording_checks import (POLICIES, CheckLimits, RecordingCheck, RepairError,
-                                                        check_recording)
+from milling_twin.orchestrator.recording_checks import (POLICIES, CheckLimits, RateLimit, RecordingCheck,
+                                                        RepairError, check_recording)
 
 __all__ = ["KEYS", "check_table"]
 
 KEYS = ("positions", "velocities", "line", "max_axis_speed", "significant_digits", "resolution", "timing_jitter",
-        "min_segment", "policy")
+        "min_segment", "policy", "rates")
 KEY = "[recorded.checks]"
+_RATE_UNITS = {"m": "m/s", "m/s": "m/s2", "rad": "rad/s", "rad/s": "rad/s2"}  # SI unit -> SI unit per second
 
 
 def _quantity(fail: Callable[[str, str], NoReturn], table: dict, name: str, si: str, count: int,
@@ -107,9 +110,23 @@ def check_table(fail: Callable[[str, str], NoReturn], table: Any, data: Recorded
                              significant_digits=digits, min_segment=min_segment)
     except ValueError as exc:
         fail(KEY, str(exc))
+    rates = []
+    raw_rates = table.get("rates", {})
+    if not isinstance(raw_rates, dict):
+        fail(f"{KEY}.rates", f"expected a table of channel = {{ value, unit }}, got {raw_rates!r}")
+    for name in raw_rates:
+        if name not in data.channels or data.units[name] == "bool":
+            fail(f"{KEY}.rates.{name}", f"expected a numeric recorded channel; channels: {', '.join(data.channels)}")
+        per_second = _RATE_UNITS.get(data.units[name])
+        if per_second is None:
+            fail(f"{KEY}.rates.{name}", f"channel {name!r} is in {data.units[name]}: rate limits are known for "
+                                        f"channels in {', '.join(_RATE_UNITS)}")
+        (max_rate,) = _quantity(lambda key, message: fail(key.replace(KEY, f"{KEY}.rates"), message), raw_rates,
+                                name, per_second, 1)
+        rates.append(RateLimit(name, data.channels[name], max_rate, significant_digits=digits))
     try:
         return check_recording(np.column_stack([data.channels[n] for n in positions]), data.time, limits,
-                               policy=policy, lines=None if line is None else data.channels[line],
+                               policy=policy, lines=None if line is None else data.channels[line], rates=rates,
                                velocities=None if velocities is None else
                                np.column_stack([data.channels[n] for n in velocities]))
     except RepairError as exc:

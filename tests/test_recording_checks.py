@@ -48,6 +48,20 @@ def test_a_splice_within_the_axis_limits_is_found_by_the_velocities():
     assert check_recording(p, np.arange(20) * 0.1, LIMITS).clean  # without velocities it cannot be seen
 
 
+def test_a_channel_changing_faster_than_its_rate_limit_cuts_too():
+    from milling_twin.orchestrator.recording_checks import RateLimit
+
+    p, v = np.zeros((20, 3)), np.zeros((20, 3))  # the axes stand still: only the spindle tells the moments apart
+    speed = np.full(20, 335.0)  # rad/s
+    speed[8:12] = 0.0  # stopped in rows of another moment
+    speed[15:] = 335.0 - 60.0 * np.arange(5)  # braking at 600 rad/s2: possible
+    spindle = RateLimit("spindle_speed", speed, max_rate=942.0, resolution=0.6)
+    check = check_recording(p, np.arange(20) * 0.1, LIMITS, velocities=v, rates=[spindle])
+    assert [(pr.row, pr.kind) for pr in check.problems] == [(8, "rate"), (12, "rate")]
+    assert "spindle_speed changes from 335 to 0" in check.problems[0].detail
+    assert check.counts()["rate"] == 2
+
+
 def test_time_going_backwards_and_short_pieces():
     p, v = _line(12, 0.1)
     t = np.arange(12) * 0.1

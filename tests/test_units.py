@@ -21,7 +21,7 @@ from milling_twin.models.units import (
 SI = ["m", "m/s", "m/s2", "s", "rad", "rad/s", "rad/s2", "W", "N", "N.m", "N.m.s/rad", "m3/s", "1", "A", "V", "Hz",
       "kg", "kg.m2"]
 USER = [
-    "mm", "um", "mm/s", "mm/min", "m/min", "mm/s2", "min", "ms", "rpm", "rev/s", "1/min",
+    "mm", "um", "mm/s", "mm/min", "m/min", "mm/s2", "min", "ms", "rpm", "rev/s", "rev/s2", "1/min",
     "deg", "kW", "mW", "kN", "N.mm", "mm3/s", "cm3/s", "cm3/min", "mm3/min", "kHz", "%", "1",
     "bool",
 ]
@@ -89,6 +89,7 @@ def test_non_string_unit_raises() -> None:
         ("rpm", "rad/s", 2 * math.pi / 60),
         ("rev/s", "rad/s", 2 * math.pi),
         ("rev/s", "rpm", 60.0),
+        ("rev/s2", "rad/s2", 2 * math.pi),
         ("1/min", "rpm", 1.0),
         ("deg", "rad", math.pi / 180),
         ("kW", "W", 1e3),

@@ -57,12 +57,15 @@ class Results:
 
 def load_scenario(path: str | Path, fmu_dir: str | Path | None = None, *,
                   parameter_sets: Sequence[str | Path] = (),
-                  overrides: Mapping[str, Any] | None = None) -> Scenario:
+                  overrides: Mapping[str, Any] | None = None,
+                  recording: str | Path | None = None) -> Scenario:
     """A scenario file, checked; ``parameter_sets`` are applied after its own, then ``overrides``
-    (``{"instance.variable": value}``, a value in SI or ``{"value": v, "unit": "kW"}``)."""
+    (``{"instance.variable": value}``, a value in SI or ``{"value": v, "unit": "kW"}``). ``recording``: a
+    recording of the same machine and logger read instead of the scenario's ``[recorded].file``."""
     from milling_twin.orchestrator.scenario import load_scenario as load, with_values
 
-    scenario = load(path, fmu_dir if fmu_dir is not None else default_fmu_dir(), parameter_sets=parameter_sets)
+    scenario = load(path, fmu_dir if fmu_dir is not None else default_fmu_dir(), parameter_sets=parameter_sets,
+                    recording=recording)
     return with_values(scenario, overrides) if overrides else scenario
 
 

@@ -464,10 +464,10 @@ def _parameter_set(ctx: _Ctx, key: str, path: Path, instances: Mapping[str, FmuI
     return values
 
 
-def _recorded(ctx: _Ctx, table: Any) -> RecordedData:
+def _recorded(ctx: _Ctx, table: Any, recording: Path | None = None) -> RecordedData:
     key = "[recorded]"
     ctx.table(table, key, ("file", "sample_period", "time_column", "time_unit", "channels", "checks"))
-    file = ctx.path.parent / ctx.string(table, key, "file")
+    file = ctx.path.parent / ctx.string(table, key, "file") if recording is None else recording
     sample_period = ctx.number(table, key, "sample_period", None, positive=True)
     time_column = ctx.string(table, key, "time_column", None)
     time_unit = ctx.string(table, key, "time_unit", "s")
@@ -600,9 +600,12 @@ def _report_loop(ctx: _Ctx, remaining: list[str], edges: list[tuple[str, Connect
                           f"delay = true on one of these connections to break it")
 
 
-def load_scenario(path: str | Path, fmu_dir: str | Path, parameter_sets: Sequence[str | Path] = ()) -> Scenario:
+def load_scenario(path: str | Path, fmu_dir: str | Path, parameter_sets: Sequence[str | Path] = (), *,
+                  recording: str | Path | None = None) -> Scenario:
     """Parse and validate a scenario file; FMU names are resolved in ``fmu_dir``. ``parameter_sets``:
-    parameter-set files applied after the scenario's own ``[scenario].parameter_sets``."""
+    parameter-set files applied after the scenario's own ``[scenario].parameter_sets``. ``recording``: a
+    recording read instead of ``[recorded].file`` (another run of the same machine and logger: the same
+    columns, channels and checks)."""
     path, fmu_dir = Path(path), Path(fmu_dir)
     ctx = _Ctx(path)
     _, doc = ctx.document("scenario")
@@ -647,7 +650,10 @@ def load_scenario(path: str | Path, fmu_dir: str | Path, parameter_sets: Sequenc
         for inst, values in _parameter_set(ctx, key, set_path, instances).items():
             instances[inst] = replace(instances[inst], parameters={**instances[inst].parameters, **values})
 
-    recorded = _recorded(ctx, doc["recorded"]) if "recorded" in doc else None
+    if recording is not None and "recorded" not in doc:
+        ctx.fail("[recorded]", f"a recording ({recording}) is given, but the scenario has no [recorded] table")
+    recorded = _recorded(ctx, doc["recorded"], None if recording is None else Path(recording)) \
+        if "recorded" in doc else None
     if "stop_time" in sc:
         stop = ctx.number(sc, "[scenario]", "stop_time")
     elif recorded is not None:

@@ -99,9 +99,9 @@ def test_alignment_effect_is_reported(tmp_path: Path, fmu_dir: Path) -> None:
 def _assert_readable(fig) -> None:
     """Drawn as the report draws it: no offset text on any axis (matplotlib's "1e-9+1.7695e2" lands over the
     axis label) and tick labels that differ from each other."""
-    from milling_twin.orchestrator.calibrate.plots import _png
+    from milling_twin.orchestrator.calibrate.plots import figure_png
 
-    _png(fig)
+    figure_png(fig)
     for ax in fig.axes:
         for axis in (ax.xaxis, ax.yaxis):
             assert axis.get_offset_text().get_text() == "", (ax.get_title(), axis.get_offset_text().get_text())

@@ -48,7 +48,8 @@ def test_fmi2_and_defaults(make_case, fmu_dir):
     assert sc.instance("power").ticks_per_step == 1 and sc.instance("mrr").ticks_per_step == 2
     assert sc.stop_time == 0.3
     # default record list: every output, plus the compared variable (already in it)
-    assert [str(r) for r in sc.outputs] == ["power.P_total", "power.P_spindle", "power.P_cutting", "mrr.mrr"]
+    assert [str(r) for r in sc.outputs] == ["power.P_total", "power.P_spindle", "power.P_cutting",
+                                            "power.spindle_acceleration", "power.P_dynamic", "mrr.mrr"]
 
 
 def test_unknown_fmu(make_case, fmu_dir):

@@ -12,7 +12,7 @@ from matplotlib.ticker import ScalarFormatter
 from milling_twin.orchestrator.calibrate.lsq import StartOutcome
 from milling_twin.orchestrator.calibrate.result import Series
 
-__all__ = ["correlation_png", "fit_figure", "fit_png", "residual_figure", "residual_png", "trace_png"]
+__all__ = ["correlation_png", "figure_png", "fit_figure", "fit_png", "residual_figure", "residual_png", "trace_png"]
 
 
 CONSTANT = 1e-6  # an axis whose data span is below this fraction of its magnitude is drawn as constant
@@ -46,7 +46,7 @@ def _scale(*values: np.ndarray) -> float:
     return max((float(f.max()) for f in finite if f.size), default=0.0)
 
 
-def _png(fig: MplFigure, dpi: int = 90) -> bytes:
+def figure_png(fig: MplFigure, dpi: int = 90) -> bytes:
     """The figure as PNG, every axis made readable first (:func:`_readable`, no reference: a caller
     that knows one calls it before)."""
     for ax in fig.axes:
@@ -57,7 +57,7 @@ def _png(fig: MplFigure, dpi: int = 90) -> bytes:
 
 
 def fit_png(group: Sequence[Series]) -> bytes:
-    return _png(fit_figure(group))
+    return figure_png(fit_figure(group))
 
 
 def fit_figure(group: Sequence[Series]) -> MplFigure:
@@ -94,7 +94,7 @@ def fit_figure(group: Sequence[Series]) -> MplFigure:
 
 
 def residual_png(group: Sequence[Series]) -> bytes:
-    return _png(residual_figure(group))
+    return figure_png(residual_figure(group))
 
 
 def residual_figure(group: Sequence[Series]) -> MplFigure:
@@ -148,7 +148,7 @@ def correlation_png(names: Sequence[str], correlation: np.ndarray) -> bytes:
     ax.set_xticks(range(n), [x.split(".", 1)[-1] for x in names], rotation=45, ha="right", fontsize=8)
     ax.set_yticks(range(n), [x.split(".", 1)[-1] for x in names], fontsize=8)
     fig.colorbar(image, ax=ax, shrink=0.8)
-    return _png(fig)
+    return figure_png(fig)
 
 
 def trace_png(starts: Sequence[StartOutcome], best: int) -> bytes:
@@ -166,4 +166,4 @@ def trace_png(starts: Sequence[StartOutcome], best: int) -> bytes:
     ax.grid(True, alpha=0.3, which="both")
     if any(o.trace.get("obj") for o in starts):
         ax.legend(fontsize=7, loc="best")
-    return _png(fig)
+    return figure_png(fig)

@@ -24,7 +24,8 @@ def calibrate(spec_path: str | Path, fmu_dir: str | Path, out: str | Path = "run
     re-simulation succeeded. ``overrides``: ``{"instance.variable": value}`` applied to the scenario before
     the fit, as a parameter set's values are (SI, or ``(value, unit)`` / ``{"value": v, "unit": u}``); the
     calibrated values win over them in the re-simulation.
-    ``data``: the slot-milling recordings' folder (kind "slot_forces"; default as the validation finds it)."""
+    ``data``: the slot-milling recordings' folder (kind "slot_forces"; default as the validation finds it), or
+    the runs' folder (kind "runs"; default its ``[runs].folder``)."""
     spec = load_spec(spec_path)
     out_dir = Path(out) / "calibration" / spec.name
     out_dir.mkdir(parents=True, exist_ok=True)
@@ -35,6 +36,9 @@ def calibrate(spec_path: str | Path, fmu_dir: str | Path, out: str | Path = "run
         from milling_twin.orchestrator.calibrate.slot_forces import calibrate_slot_forces
         result = calibrate_slot_forces(spec, Path(fmu_dir), out_dir, data, progress, write_set=publish,
                                        overrides=values)
+    elif spec.kind == "runs":
+        from milling_twin.orchestrator.calibrate.runs_fit import calibrate_runs
+        result = calibrate_runs(spec, Path(fmu_dir), out_dir, data, progress, write_set=publish, overrides=values)
     else:
         from milling_twin.orchestrator.calibrate.scenario_fit import calibrate_scenario
         result = calibrate_scenario(spec, Path(fmu_dir), out_dir, progress, write_set=publish, overrides=values)

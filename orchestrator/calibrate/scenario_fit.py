@@ -246,7 +246,8 @@ def identities(spec: CalibrationSpec, scenario: Scenario, fmus: list[dict]) -> d
     }
 
 
-def _run(scenario: Scenario, out: Path, progress: bool) -> tuple[pd.DataFrame, Path]:
+def simulate_for_fit(scenario: Scenario, out: Path, progress: bool) -> tuple[pd.DataFrame, Path]:
+    """Run ``scenario`` into ``out``; its rows, and the run folder. A failed or incomplete run is a CalibrationError."""
     try:
         result = run(scenario, out, progress=progress)
     except SimulationError as exc:
@@ -256,7 +257,8 @@ def _run(scenario: Scenario, out: Path, progress: bool) -> tuple[pd.DataFrame, P
     return load_results(result.run_dir), result.run_dir
 
 
-def _recording_outputs(scenario: Scenario, refs: list[Ref]) -> Scenario:
+def recording_also(scenario: Scenario, refs: list[Ref]) -> Scenario:
+    """``scenario`` recording ``refs`` too (the inputs and outputs a fit reads from its results)."""
     return replace(scenario, outputs=tuple(dict.fromkeys(scenario.outputs + tuple(refs))))
 
 
@@ -310,8 +312,8 @@ def prepare(spec: CalibrationSpec, fmu_dir: Path, out_dir: Path, progress: bool 
     t0 = time.perf_counter()
     initial = with_values(scenario, {q.ref: q.initial for q in parameters}, name=f"{scenario.name}_initial")
     data = [c.input for c in graph.data] if graph is not None else []
-    initial = _recording_outputs(initial, data + list(spec.alignment.simulated) + [o.ref for o in outputs])
-    results, run_dir = _run(initial, out_dir / "runs", progress)
+    initial = recording_also(initial, data + list(spec.alignment.simulated) + [o.ref for o in outputs])
+    results, run_dir = simulate_for_fit(initial, out_dir / "runs", progress)
     timings["simulate (initial parameters)"] = time.perf_counter() - t0
     return Prepared(spec, initial, parameters, outputs, graph, results, run_dir, timings, reason)
 
@@ -516,9 +518,9 @@ def calibrate_scenario(spec: CalibrationSpec, fmu_dir: Path, out_dir: Path, prog
                           f"{q.name} = {applied!r} there, {value!r} calibrated (add it to [scenario].parameter_sets)")
     else:
         after = with_overrides(load_scenario(spec.scenario, fmu_dir, parameter_sets=[set_path]), overrides, fitted)
-    after = _recording_outputs(replace(after, name=f"{prepared.scenario.name.removesuffix('_initial')}_calibrated"),
+    after = recording_also(replace(after, name=f"{prepared.scenario.name.removesuffix('_initial')}_calibrated"),
                                [o.ref for o in prepared.outputs])
-    results_after, run_after = _run(after, out_dir / "runs", progress)
+    results_after, run_after = simulate_for_fit(after, out_dir / "runs", progress)
     timings["re-simulate (calibrated parameter set)"] = time.perf_counter() - t0
     series = []
     names = [o.column for o in prepared.outputs]

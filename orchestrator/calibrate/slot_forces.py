@@ -53,7 +53,7 @@ from milling_twin.orchestrator.calibrate.graph import NO_DATA_DERIVATIVE
 from milling_twin.orchestrator.calibrate.lsq import LeastSquaresSolver, StartOutcome
 from milling_twin.orchestrator.calibrate.parameters import Parameter, resolve_parameter
 from milling_twin.orchestrator.calibrate.paramset import write_parameter_set, write_ssv
-from milling_twin.orchestrator.calibrate.plots import _png
+from milling_twin.orchestrator.calibrate.plots import figure_png
 from milling_twin.orchestrator.calibrate.residuals import ResidualModel, from_outputs
 from milling_twin.orchestrator.calibrate.result import CalibrationResult, Figure, Series, Table, error_row
 from milling_twin.orchestrator.calibrate.scenario_fit import (check_tokens, describe_overrides, identities,
@@ -303,7 +303,7 @@ def _means_png(learn: SlotData, held: SlotData, regression: FitOutcome, waveform
         ax.set_ylabel("force [N]")
         ax.grid(True, alpha=0.3)
     axes[0].legend(fontsize=7)
-    return _png(fig)
+    return figure_png(fig)
 
 
 def calibrate_slot_forces(spec: CalibrationSpec, fmu_dir: Path, out_dir: Path, data_option: str | Path | None,

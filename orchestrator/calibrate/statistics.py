@@ -9,6 +9,13 @@ With residuals r (weighted, n of them) and J = dr/dtheta (n x p, SI parameters) 
 * standard error ``sqrt(Cov_ii)``, 95 % confidence interval ``estimate -/+ t(0.975, n - p) * se``;
 * correlation ``Cov_ij / sqrt(Cov_ii Cov_jj)``.
 
+Residuals that are autocorrelated (a recording's noise is not white: the UMich spindle power swings with
+a 0.3 s period) make ``sigma2 (J^T J)^-1`` too small. With ``hac`` (the group of every pair, e.g. its
+recording segment, and a number of lags L) the covariance is the Newey-West sandwich
+``(J^T J)^-1 S (J^T J)^-1`` with ``S = sum_l w_l (G_l + G_l^T)``, ``G_l = sum_t g_t g_(t-l)^T`` over
+pairs t of the same group, ``g_t = J_t^T r_t`` (a pair's rows summed), ``w_0 = 1/2`` and Bartlett weights
+``w_l = 1 - l / (L + 1)``; :func:`newey_west_lags` gives the usual L for n pairs.
+
 Flags (thresholds in :class:`~orchestrator.calibrate.spec.StatisticsSpec`):
 
 * **not identifiable**: the parameter dominates (variance-decomposition proportion >= 0.5, the
@@ -33,7 +40,7 @@ from scipy import stats as scipy_stats
 from milling_twin.orchestrator.calibrate.parameters import Parameter
 from milling_twin.orchestrator.calibrate.spec import StatisticsSpec
 
-__all__ = ["FitStatistics", "ParameterStatistics", "fit_statistics"]
+__all__ = ["FitStatistics", "ParameterStatistics", "fit_statistics", "hac_meat", "newey_west_lags"]
 
 
 @dataclass(frozen=True)
@@ -73,11 +80,37 @@ class FitStatistics:
         return next(p for p in self.parameters if p.name == name)
 
 
+def newey_west_lags(n: int) -> int:
+    """The Newey-West (1994) rule of thumb for the lags of the Bartlett kernel: floor(4 (n/100)^(2/9))."""
+    return int(math.floor(4.0 * (max(n, 1) / 100.0) ** (2.0 / 9.0)))
+
+
+def hac_meat(jacobian: np.ndarray, residual: np.ndarray, groups: np.ndarray, lags: int) -> np.ndarray:
+    """``S`` of the Newey-West sandwich (module text): rows are pair-major (``len(residual) / len(groups)``
+    outputs per pair); lags never reach across a change of group."""
+    J = np.asarray(jacobian, dtype=float)
+    r = np.asarray(residual, dtype=float).ravel()
+    groups = np.asarray(groups)
+    n_pairs = groups.size
+    if n_pairs == 0:
+        return np.zeros((J.shape[1], J.shape[1]))
+    n_out = r.size // n_pairs
+    g = (J * r[:, None]).reshape(n_pairs, n_out, J.shape[1]).sum(axis=1)
+    meat = g.T @ g
+    for lag in range(1, min(lags, n_pairs - 1) + 1):
+        same = groups[lag:] == groups[:-lag]
+        cross = g[lag:][same].T @ g[:-lag][same]
+        meat += (1.0 - lag / (lags + 1.0)) * (cross + cross.T)
+    return meat
+
+
 def fit_statistics(jacobian: np.ndarray, residual: np.ndarray, estimates: Sequence[float],
                    parameters: Sequence[Parameter], thresholds: StatisticsSpec | None = None, *,
-                   n_residuals: int | None = None, extra_ssr: float = 0.0) -> FitStatistics:
+                   n_residuals: int | None = None, extra_ssr: float = 0.0,
+                   hac: tuple[np.ndarray, int] | None = None) -> FitStatistics:
     """Statistics of ``estimates`` (SI) from the weighted ``residual`` and ``jacobian`` = dr/dtheta (SI).
-    Binned data: ``n_residuals`` samples stand behind the rows, ``extra_ssr`` is their within-bin part."""
+    Binned data: ``n_residuals`` samples stand behind the rows, ``extra_ssr`` is their within-bin part.
+    ``hac``: (group of every pair, lags): the autocorrelation-consistent covariance (module text)."""
     thresholds = thresholds or StatisticsSpec()
     J = np.asarray(jacobian, dtype=float)
     r = np.asarray(residual, dtype=float).ravel()
@@ -100,7 +133,8 @@ def fit_statistics(jacobian: np.ndarray, residual: np.ndarray, estimates: Sequen
     inv_s2 = np.where(singular, 0.0, 1.0 / np.where(singular, 1.0, s) ** 2)
     cov_n = (v * inv_s2) @ v.T
     scale = np.where(effect, 1.0 / np.where(effect, norms, 1.0), 0.0)
-    cov = sigma2 * cov_n * np.outer(scale, scale)
+    bread = cov_n * np.outer(scale, scale)  # (J^T J)^-1 on the identifiable directions
+    cov = bread @ hac_meat(J, r, *hac) @ bread if hac is not None else sigma2 * bread
     # a parameter that loads on an exactly singular direction (or has no effect) has no finite variance
     unbounded = (~effect) | (np.abs(v[:, singular]) > 1e-8).any(axis=1)
     var = np.where(unbounded, np.inf, np.diag(cov))

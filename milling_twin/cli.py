@@ -123,6 +123,9 @@ def _run(p: argparse.ArgumentParser) -> None:
     p.add_argument("--parameter-set", type=Path, action="append", default=[], metavar="FILE",
                    help="a parameter set (TOML, e.g. written by calibrate) applied after the scenario's own "
                         "(repeatable)")
+    p.add_argument("--recording", type=Path, default=None, metavar="CSV",
+                   help="another recording of the same machine and logger, read instead of the scenario's "
+                        "[recorded].file (same columns, channels and checks)")
     p.add_argument("--path", choices=("auto", "fast", "python"), default="auto",
                    help="stepping loop: fast (compiled), python (reference), or auto (fast when its library is "
                         "found and the scenario is supported; default)")
@@ -137,8 +140,9 @@ def _calibrate(p: argparse.ArgumentParser) -> None:
     p.add_argument("--out", type=Path, default=Path("runs"),
                    help="report, parameter set and runs go to OUT/calibration/<name>/ (default: runs)")
     p.add_argument("--data", type=Path, default=None,
-                   help="slot-milling recordings (kind slot_forces; default $MILLING_TWIN_SLOT_DATA or "
-                        "../shared/data/slot_milling_forces)")
+                   help="the recordings' folder: slot-milling recordings (kind slot_forces; default "
+                        "$MILLING_TWIN_SLOT_DATA or ../shared/data/slot_milling_forces) or the runs (kind runs; "
+                        "default the spec's [runs].folder)")
     _add_set(p)
     p.add_argument("--write-set", type=Path, metavar="PATH",
                    help="also publish the calibrated parameter set here (e.g. the spec's parameter_set, to "

@@ -40,7 +40,7 @@ def run_summary(results: api.Results) -> str:
 
 def run(args: argparse.Namespace) -> int:
     scenario = api.load_scenario(args.scenario, args.fmu_dir, parameter_sets=args.parameter_set,
-                                 overrides=overrides_of(args))
+                                 overrides=overrides_of(args), recording=args.recording)
     run_dir = args.out / scenario.name
     logger = None
     if args.fmi_logging:  # shown whatever --log-level says: the records propagate to main()'s handler

@@ -86,17 +86,23 @@ def _compare(scenario: Scenario, pair: Compare, results: pd.DataFrame, run_dir: 
         relative_rms=rms / rms_recorded if rms_recorded > 0 else None,
         plot=f"compare_{pair.simulated.instance}_{pair.simulated.variable}.png",
     )
+    cuts = rec.time[[s.start for s in rec.check.segments[1:]]] if rec.check is not None else np.zeros(0)
     _plot(run_dir / comparison.plot, comparison, pair.simulated.variable, t, simulated, recorded, scale,
-          scenario.name)
+          scenario.name, cuts)
     return comparison
 
 
 def _plot(path: Path, c: Comparison, variable: str, t: np.ndarray, simulated: np.ndarray, recorded: np.ndarray,
-          s: float, title: str) -> None:
-    """``s`` scales values from ``c.unit`` to ``c.display_unit``."""
+          s: float, title: str, cuts: np.ndarray) -> None:
+    """``s`` scales values from ``c.unit`` to ``c.display_unit``; ``cuts``: where the recording's consistent
+    segments start (drawn as faint lines)."""
     fig = Figure(figsize=(10, 6), layout="constrained")
     top, bottom = fig.subplots(2, 1, sharex=True, height_ratios=[3, 1])
     simulated, recorded = simulated * s, recorded * s
+    if cuts.size:
+        for ax in (top, bottom):
+            ax.vlines(cuts, 0, 1, transform=ax.get_xaxis_transform(), color="tab:purple", alpha=0.15,
+                      linewidth=0.8, label=f"{cuts.size} segment cuts" if ax is top else None)
     top.plot(t, recorded, label=f"recorded: {c.recorded}", color="tab:gray", linewidth=1.0)
     top.plot(t, simulated, label=f"simulated: {c.simulated}", color="tab:blue", linewidth=1.0)
     top.set_ylabel(f"{variable} [{c.display_unit}]")

@@ -185,3 +185,16 @@ def test_mistakes_in_the_checks_table_name_the_key(tmp_path, fmu_dir, edit, key)
     (tmp_path / "s.toml").write_text(SCENARIO.replace(edit, broken[edit]))
     with pytest.raises(ScenarioError, match=key.replace("[", r"\[").replace("]", r"\]").replace(".", r"\.")):
         load_scenario(tmp_path / "s.toml", fmu_dir)
+
+
+def test_the_run_command_reads_another_recording_and_says_what_its_check_found(tmp_path, fmu_dir, capsys):
+    from milling_twin.cli import main
+
+    (tmp_path / "spliced.csv").write_text(_spliced_csv())
+    (tmp_path / "s.toml").write_text(SCENARIO.replace('file = "spliced.csv"', 'file = "absent.csv"'))
+    code = main(["run", str(tmp_path / "s.toml"), "--recording", str(tmp_path / "spliced.csv"), "--fmu-dir",
+                 str(fmu_dir), "--out", str(tmp_path / "runs"), "--no-progress"])
+    out = capsys.readouterr().out
+    assert code == 0, out
+    assert "recording check: 26 rows; 2 impossible transitions (2 jumps beyond the axis limits" in out
+    assert "3 segments used" in out and "(23 samples)" in out

@@ -16,10 +16,11 @@ than the priors. Stages (each timed for the report):
    values must reproduce the FMU's outputs at every pair.
 3. **fit**: all runs together (``[runs].per_run`` parameters get one copy per run, nuisance, not written to
    the set); each run alone (how far the runs agree); leave-one-run-out: for each run, the fit without it,
-   predicting it with the shared estimates (per-run parameters at their initial values). Intervals: the
-   Newey-West sandwich over each run's segments (:mod:`.statistics`), not ``sigma2 (J^T J)^-1``, which
-   treats the swinging residuals of a 10 Hz recording as independent and gives intervals that exclude
-   each other from run to run.
+   predicting it with the shared estimates (per-run parameters at their initial values). Intervals
+   (:mod:`.statistics`): a moving-block bootstrap within each run's segments (default) or the Newey-West
+   sandwich, not ``sigma2 (J^T J)^-1``, which treats the swinging residuals of a 10 Hz recording as
+   independent and the five rows of a run-up as if they were many: its intervals exclude each other from
+   run to run.
 4. **write**: the parameter set of the joint fit; ``runs.csv`` and ``cross_validation.csv`` are written as
    each run and fold completes (a killed calibration leaves them readable).
 5. **re-simulate**: every run through the FMUs with the written set: errors before/after per run.
@@ -55,7 +56,8 @@ from milling_twin.orchestrator.calibrate.scenario_fit import (ResolvedOutput, ch
                                                               resolve_outputs, resolve_parameters, simulate_for_fit,
                                                               with_overrides)
 from milling_twin.orchestrator.calibrate.spec import CalibrationSpec
-from milling_twin.orchestrator.calibrate.statistics import fit_statistics, newey_west_lags
+from milling_twin.orchestrator.calibrate.statistics import (block_bootstrap, fit_statistics, newey_west_lags,
+                                                            with_intervals)
 from milling_twin.orchestrator.results import sha256_of
 from milling_twin.orchestrator.scenario import Ref, Scenario, load_scenario, with_values
 
@@ -231,6 +233,9 @@ def _fit_runs(spec: CalibrationSpec, model: SampleModel, runs: Sequence[RunData]
     groups = np.concatenate([k * 1_000_000 + run.groups for k, run in enumerate(runs)])
     lags = spec.runs.hac_lags if spec.runs.hac_lags is not None else newey_west_lags(len(groups))
     stats = fit_statistics(jac, r, outcome.theta, full, spec.statistics, hac=(groups, lags))
+    if spec.runs.intervals == "bootstrap":
+        stats = with_intervals(stats, block_bootstrap(jac, r, outcome.theta, groups, spec.runs.block,
+                                                      spec.runs.replicates, spec.solver.seed))
     return _Fit(replace(outcome, statistics=stats), full, index)
 
 
@@ -365,8 +370,7 @@ def calibrate_runs(spec: CalibrationSpec, fmu_dir: Path, out_dir: Path, data: st
     notes = [f"Derivatives: {joint.outcome.derivatives}.",
              f"models/ vs FMU at the calibrated values on every pair of every run: max relative deviation "
              f"{worst:.3g}.",
-             "Intervals: Newey-West (HAC) over each run's consistent segments, "
-             f"{spec.runs.hac_lags if spec.runs.hac_lags is not None else 'Newey-West rule'} lags."]
+             _intervals_note(spec)]
     if spec.runs.per_run:
         notes.append(f"Per-run parameters (nuisance, one per run, not in the set): "
                      f"{', '.join(map(str, spec.runs.per_run))}; held-out runs are predicted with their initial "
@@ -378,6 +382,16 @@ def calibrate_runs(spec: CalibrationSpec, fmu_dir: Path, out_dir: Path, data: st
                        for name, f in alone.items()}}
     return CalibrationResult(spec, joint.outcome, series, [error_row(s) for s in series], ident, timings, out_dir,
                              set_path, ssv, None, notes, figures, tables, extra=extra, published_set=published)
+
+
+def _intervals_note(spec: CalibrationSpec) -> str:
+    r = spec.runs
+    if r.intervals == "bootstrap":
+        return (f"Intervals: moving-block bootstrap, blocks of {r.block} pairs within each run's consistent "
+                f"segments, {r.replicates} replicates (one Gauss-Newton step each), 2.5 and 97.5 percentiles; "
+                "flags from the HAC covariance.")
+    return (f"Intervals: Newey-West (HAC) over each run's consistent segments, "
+            f"{r.hac_lags if r.hac_lags is not None else 'Newey-West rule'} lags.")
 
 
 def _cross_rows(runs, cross, joint, theta0, rms_of) -> list[dict[str, Any]]:
@@ -418,6 +432,12 @@ def _cross_table(runs, cross, joint, model, theta0, output: ResolvedOutput, rms_
                  tuple(rows), "Each run predicted by the set fitted to the other runs (it never saw the run).")
 
 
+def _identifies(st) -> bool:
+    """Does a run's fit fix this parameter on its own (see the intervals table's note)?"""
+    return st.identifiable and np.isfinite(st.standard_error) and not any(f.startswith("correlated")
+                                                                          for f in st.flags)
+
+
 def _overlap(intervals: Sequence[tuple[float, float]]) -> tuple[int, int]:
     """(pairs of intervals that overlap, pairs)."""
     n = len(intervals)
@@ -435,7 +455,7 @@ def _intervals_table(parameters: Sequence[Parameter], joint: _Fit, alone: Mappin
             st = f.outcome.statistics.parameters[j]
             shown.append(f"{name}: {q.display(st.estimate):.4g} [{q.display(st.ci_low):.4g}, "
                          f"{q.display(st.ci_high):.4g}]{' (' + '; '.join(st.flags) + ')' if st.flags else ''}")
-            if st.identifiable and np.isfinite(st.standard_error):
+            if _identifies(st):
                 identified.append((st.ci_low, st.ci_high))
         both, pairs = _overlap(identified)
         js = next(s for s, p in zip(joint.outcome.statistics.parameters, joint.parameters) if p.name == q.name) \
@@ -444,10 +464,11 @@ def _intervals_table(parameters: Sequence[Parameter], joint: _Fit, alone: Mappin
                      f"{q.display(js.estimate):.4g} [{q.display(js.ci_low):.4g}, {q.display(js.ci_high):.4g}]"
                      if js else "per run", f"{both} of {pairs} ({len(identified)} runs identify it)",
                      "; ".join(shown)))
-    return Table("Estimates with 95 % intervals (HAC): all runs together and each run alone",
+    return Table("Estimates with 95 % intervals: all runs together and each run alone",
                  ("parameter", "unit", "all runs", "pairs of identifying runs whose intervals overlap", "each run alone"),
-                 tuple(rows), "A run identifies a parameter when its fit flags it neither not identifiable nor at a "
-                              "bound.")
+                 tuple(rows), "A run identifies a parameter when its fit flags it neither not identifiable, nor at "
+                              "a bound, nor correlated with another beyond [statistics].correlation (then the run "
+                              "fixes a combination of the two, not each).")
 
 
 def _cross_figure(runs, cross, joint, theta0, output: ResolvedOutput, rms_of) -> Figure:
@@ -482,7 +503,7 @@ def _intervals_figure(parameters: Sequence[Parameter], joint: _Fit, alone: Mappi
     for j, (q, ax) in enumerate(zip(parameters, axes)):
         for i, name in enumerate(names):
             st = alone[name].outcome.statistics.parameters[j]
-            ok = st.identifiable and np.isfinite(st.standard_error)
+            ok = _identifies(st)
             lo, hi = (q.display(st.ci_low), q.display(st.ci_high)) if ok else (math.nan, math.nan)
             ax.plot([lo, hi], [i, i], color="tab:blue" if ok else "tab:gray")
             ax.plot(q.display(st.estimate), i, "o", color="tab:blue" if ok else "tab:gray")
@@ -494,5 +515,5 @@ def _intervals_figure(parameters: Sequence[Parameter], joint: _Fit, alone: Mappi
         ax.set_xlabel(f"{q.name} [{q.display_unit or '1'}]")
         ax.grid(True, alpha=0.3)
     return Figure("Estimates per run with 95 % intervals", figure_png(fig),
-                  "Each run fitted alone (blue: interval of an identified estimate; gray: not identified or at a "
-                  "bound, estimate only); orange: all runs together.")
+                  "Each run fitted alone (blue: interval of an estimate the run identifies; gray: not identified, "
+                  "at a bound or correlated with another parameter: estimate only); orange: all runs together.")

@@ -96,8 +96,11 @@ clock, inside the consistent segments its ``[recorded.checks]`` finds)::
     per_run = ["power.P_standby"]     # optional: parameters fitted for every run on its own (nuisance), not
                                       # shared; each must also be in [parameters]
     cross_validation = true           # leave-one-run-out: each run predicted by the set fitted without it
-    hac_lags = 6                      # optional: lags of the autocorrelation-consistent intervals (default:
-                                      # the Newey-West rule for the number of pairs)
+    intervals = "bootstrap"           # 95 % intervals: "bootstrap" (moving blocks within segments, default) or
+                                      # "hac" (Newey-West sandwich); orchestrator/calibrate/statistics.py
+    block = 20                        # bootstrap: pairs per block (a 10 Hz recording: 2 s)
+    replicates = 200                  # bootstrap replicates
+    hac_lags = 6                      # optional: lags of the HAC covariance (default: the Newey-West rule)
 
 Kind "slot_forces" (the cutting-force coefficients from the slot-milling recordings, read as
 ``milling_twin.orchestrator.validation.slot_milling`` reads them; ``[[outputs]]``, ``[segments]``,
@@ -218,6 +221,9 @@ class RunsSpec:
     per_run: tuple[Ref, ...] = ()
     cross_validation: bool = True
     hac_lags: int | None = None  # None: newey_west_lags(pairs)
+    intervals: str = "bootstrap"  # or "hac"
+    block: int = 20
+    replicates: int = 200
 
     def names(self) -> tuple[str, ...]:
         return tuple(Path(f).stem for f in self.files)
@@ -391,7 +397,8 @@ def _slot_forces(ctx: _Ctx, raw: Any) -> SlotForcesSpec:
 
 def _runs(ctx: _Ctx, raw: Any, base: Path, parameters: tuple[ParameterSpec, ...]) -> RunsSpec:
     key = "[runs]"
-    table = ctx.table(raw, key, ("folder", "files", "per_run", "cross_validation", "hac_lags"))
+    table = ctx.table(raw, key, ("folder", "files", "per_run", "cross_validation", "hac_lags", "intervals", "block",
+                                 "replicates"))
     files = table.get("files")
     if not isinstance(files, list) or not files or not all(isinstance(f, str) and f for f in files):
         ctx.fail(f"{key}.files", f"expected a non-empty list of recording file names, got {files!r}")
@@ -417,7 +424,9 @@ def _runs(ctx: _Ctx, raw: Any, base: Path, parameters: tuple[ParameterSpec, ...]
     lags = table.get("hac_lags")
     if lags is not None:
         lags = ctx.integer(table, key, "hac_lags", 0, 0)
-    return RunsSpec(base / ctx.string(table, key, "folder", "."), tuple(files), tuple(per_run), cross, lags)
+    return RunsSpec(base / ctx.string(table, key, "folder", "."), tuple(files), tuple(per_run), cross, lags,
+                    ctx.string(table, key, "intervals", "bootstrap", ("bootstrap", "hac")),
+                    ctx.integer(table, key, "block", 20, 1), ctx.integer(table, key, "replicates", 200, 20))
 
 
 def load_spec(path: str | Path) -> CalibrationSpec:

@@ -56,12 +56,20 @@ def _words(command: str) -> list[str]:
     return words
 
 
-def _workspace(tmp_path: Path, fmu_dir: Path) -> dict[str, str]:
-    """A folder where the relative paths of the docs resolve and results stay apart; the environment."""
-    (tmp_path / "scenarios").symlink_to(REPO_ROOT / "scenarios")
-    (tmp_path / "build").mkdir()
-    (tmp_path / "build" / "fmus").symlink_to(fmu_dir)
-    return {**os.environ, "MILLING_TWIN_FMU_DIR": str(fmu_dir)}
+SHARED = REPO_ROOT.parent / "shared"  # the data beside the repository (../shared in the docs' commands)
+
+
+def _workspace(tmp_path: Path, fmu_dir: Path) -> tuple[Path, dict[str, str]]:
+    """A folder where the relative paths of the docs resolve and results stay apart (with ../shared beside it
+    as beside the repository); the folder and the environment."""
+    folder = tmp_path / "repo"
+    folder.mkdir()
+    (folder / "scenarios").symlink_to(REPO_ROOT / "scenarios")
+    (folder / "build").mkdir()
+    (folder / "build" / "fmus").symlink_to(fmu_dir)
+    if SHARED.is_dir():
+        (tmp_path / "shared").symlink_to(SHARED)
+    return folder, {**os.environ, "MILLING_TWIN_FMU_DIR": str(fmu_dir)}
 
 
 PYTHON_BLOCKS = [(doc.relative_to(REPO_ROOT).as_posix(), doc.read_text()[:m.start()].count("\n") + 1, m.group(1))
@@ -71,10 +79,10 @@ PYTHON_BLOCKS = [(doc.relative_to(REPO_ROOT).as_posix(), doc.read_text()[:m.star
 @pytest.mark.parametrize("doc, line, code", PYTHON_BLOCKS, ids=[f"{d}:{n}" for d, n, _ in PYTHON_BLOCKS])
 def test_documented_python(doc: str, line: int, code: str, tmp_path: Path, fmu_dir: Path) -> None:
     """Each ```python block runs as written (after the run the docs show first, whose folder it may read)."""
-    env = _workspace(tmp_path, fmu_dir)
+    folder, env = _workspace(tmp_path, fmu_dir)
     subprocess.run([sys.executable, "-m", "milling_twin", "run", "scenarios/umich_power.toml", "--no-progress"],
-                   cwd=tmp_path, env=env, capture_output=True, timeout=600, check=True)
-    proc = subprocess.run([sys.executable, "-c", code], cwd=tmp_path, env=env, capture_output=True, text=True,
+                   cwd=folder, env=env, capture_output=True, timeout=600, check=True)
+    proc = subprocess.run([sys.executable, "-c", code], cwd=folder, env=env, capture_output=True, text=True,
                           timeout=600)
     assert proc.returncode == 0, f"{doc}:{line}:\n{proc.stderr[-3000:]}"
 
@@ -108,10 +116,12 @@ def test_documented_command(doc: str, line: int, command: str, tmp_path: Path, f
     subcommand = next((w for w in arguments if not w.startswith("-")), arguments[0] if arguments else "")
     if subcommand not in RUN or "--help" in arguments:
         return
-    env = _workspace(tmp_path, fmu_dir)  # run it as written
+    if "../shared" in command and not SHARED.is_dir():
+        pytest.skip(f"{doc}:{line}: reads the data beside the repository, and {SHARED} does not exist")
+    folder, env = _workspace(tmp_path, fmu_dir)  # run it as written
     if "--parameter-set" in arguments:  # written by the calibration the docs show before it
         subprocess.run([sys.executable, "-m", "milling_twin", "calibrate", "scenarios/calibration/umich_power.toml",
-                        "--no-progress"], cwd=tmp_path, env=env, capture_output=True, timeout=600, check=True)
-    proc = subprocess.run([sys.executable, "-m", "milling_twin", *arguments], cwd=tmp_path, env=env,
+                        "--no-progress"], cwd=folder, env=env, capture_output=True, timeout=600, check=True)
+    proc = subprocess.run([sys.executable, "-m", "milling_twin", *arguments], cwd=folder, env=env,
                           capture_output=True, text=True, timeout=600)
     assert proc.returncode == 0, f"{doc}:{line}: {command}\n{proc.stdout[-2000:]}\n{proc.stderr[-2000:]}"

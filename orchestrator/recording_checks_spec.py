@@ -103,10 +103,10 @@ def check_table(fail: Callable[[str, str], NoReturn], table: Any, data: Recorded
     if isinstance(min_segment, bool) or not isinstance(min_segment, int):
         fail(f"{KEY}.min_segment", f"expected a whole number of rows, got {min_segment!r}")
     jitter = _quantity(fail, table, "timing_jitter", "s", 1, (0.05,))
-    try:
-        limits = CheckLimits(max_axis_speed=_quantity(fail, table, "max_axis_speed", "m/s", n_axes),
-                             timing_jitter=jitter[0],
-                             resolution=_quantity(fail, table, "resolution", "m", n_axes, None),
+    speeds = _quantity(fail, table, "max_axis_speed", "m/s", n_axes)
+    resolution = _quantity(fail, table, "resolution", "m", n_axes, None)
+    try:  # what is left: relations between the values (CheckLimits says which)
+        limits = CheckLimits(max_axis_speed=speeds, timing_jitter=jitter[0], resolution=resolution,
                              significant_digits=digits, min_segment=min_segment)
     except ValueError as exc:
         fail(KEY, str(exc))

@@ -183,8 +183,10 @@ def test_mistakes_in_the_checks_table_name_the_key(tmp_path, fmu_dir, edit, key)
     broken = {'positions = ["x", "y", "z"]': 'positions = ["x", "y", "speed"]',
               'max_axis_speed = { value = 50.0, unit = "mm/s" }': 'max_axis_speed = { value = 50.0, unit = "mm" }'}
     (tmp_path / "s.toml").write_text(SCENARIO.replace(edit, broken[edit]))
-    with pytest.raises(ScenarioError, match=key.replace("[", r"\[").replace("]", r"\]").replace(".", r"\.")):
+    with pytest.raises(ScenarioError) as info:
         load_scenario(tmp_path / "s.toml", fmu_dir)
+    assert str(info.value).startswith(f"{tmp_path / 's.toml'}: {key}: "), str(info.value)
+    assert str(info.value).count(key) == 1, str(info.value)
 
 
 def test_the_run_command_reads_another_recording_and_says_what_its_check_found(tmp_path, fmu_dir, capsys):

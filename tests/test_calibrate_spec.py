@@ -164,3 +164,10 @@ def test_slot_forces_spec_errors(tmp_path: Path, fmu_dir: Path) -> None:
     spec.write_text(source.replace('scenario = "../slot_milling.toml"', f'scenario = "{REPO / "scenarios" / "slot_milling.toml"}"'))
     with pytest.raises(CalibrationSpecError, match=r"\[slot_forces\].learning_feeds: no recording at \[1500.0\] mm/min"):
         calibrate(spec, fmu_dir, tmp_path / "out", data=data, progress=False)
+
+
+def test_the_default_confidence_threshold_is_the_aligners():
+    from milling_twin.orchestrator.align.segments import DEFAULT_MIN_CONFIDENCE
+    from milling_twin.orchestrator.calibrate.spec import AlignmentSpec
+
+    assert AlignmentSpec().refuse_below == DEFAULT_MIN_CONFIDENCE

@@ -110,8 +110,8 @@ def test_calibration_refuses_an_alignment_below_the_threshold() -> None:
         path = Path("runs/experiment_07.csv")
 
     t = np.arange(20) * 0.1
-    spec = AlignmentSpec("multiscale", (), (), 0.0, 0.3)
+    spec = AlignmentSpec("multiscale", (), (), 0.0, 0.0, 0.3)
     refuse_failed_alignment(Recording(), TimeMap(t, t, np.full(20, 0.8), "multiscale"), spec)  # passes
     with pytest.raises(CalibrationError, match=r"experiment_07\.csv: segment 4 \(rows 40-59\): alignment "
-                                               r"confidence 0\.05 is below \[alignment\]\.min_confidence = 0\.3"):
+                                               r"confidence 0\.05 is below \[alignment\]\.refuse_below = 0\.3"):
         refuse_failed_alignment(Recording(), TimeMap(t, t, np.full(20, 0.05), "multiscale"), spec, 4, (40, 59))

@@ -7,8 +7,8 @@ works on delay-corrected simulated time, see orchestrator.align.trajectory). At 
 model's data columns are taken from the rows (real values linear between rows, booleans from
 the nearest row); dynamic models use the nearest row index. Samples whose simulated time falls
 outside the run, or whose alignment confidence is below ``min_confidence``, are not used; an alignment
-whose median confidence is below it has failed, and calibration stops with a CalibrationError naming the
-recording, the segment and the confidence (:func:`refuse_failed_alignment`).
+whose median confidence is below ``refuse_below`` has failed, and calibration stops with a CalibrationError
+naming the recording, the segment and the confidence (:func:`refuse_failed_alignment`).
 """
 from __future__ import annotations
 
@@ -84,14 +84,14 @@ def at_rows(results: pd.DataFrame, columns: Sequence[str], times: np.ndarray) ->
 def refuse_failed_alignment(recorded: RecordedData, time_map: TimeMap, alignment: AlignmentSpec,
                             segment: int = 0, rows: tuple[int, int] | None = None) -> None:
     """A CalibrationError when the alignment's confidence (the median over its samples, as
-    orchestrator.align.segments measures a segment) is below ``[alignment].min_confidence``: its pairs
+    orchestrator.align.segments measures a segment) is below ``[alignment].refuse_below``: its pairs
     would fit garbage. The whole recording is segment 0 unless ``segment`` and ``rows`` say otherwise."""
     confidence = segment_confidence(time_map.confidence)
-    if confidence < alignment.min_confidence:
+    if confidence < alignment.refuse_below:
         first, last = rows if rows is not None else (0, len(time_map) - 1)
         raise CalibrationError(
             f"{recorded.path}: segment {segment} (rows {first}-{last}): alignment confidence {confidence:.2f} is "
-            f"below [alignment].min_confidence = {alignment.min_confidence:g}; the alignment failed, no pairs are "
+            f"below [alignment].refuse_below = {alignment.refuse_below:g}; the alignment failed, no pairs are "
             "made from it (check the simulated run and the recording, e.g. milling-twin align temporal)")
 
 

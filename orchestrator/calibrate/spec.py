@@ -45,10 +45,11 @@ recorded data)::
     simulated = ["power.spindle_speed", "mrr.feed_velocity_x", "mrr.feed_velocity_y"]
     recorded = ["spindle_speed", "feed_x", "feed_y"]   # three of each, same units pairwise
     output_delay = 0.0                # s, see orchestrator.align.trajectory
-    min_confidence = 0.0              # pairs whose alignment confidence is lower are not used, and an alignment
-                                      # whose median confidence is lower is refused (CalibrationError naming the
-                                      # recording, segment and confidence); orchestrator.align.segments uses
-                                      # DEFAULT_MIN_CONFIDENCE = 0.3
+    min_confidence = 0.0              # pairs whose alignment confidence is lower are not used
+    refuse_below = 0.3                # an alignment whose median confidence is lower has failed: refused with a
+                                      # CalibrationError naming the recording, segment and confidence (default
+                                      # DEFAULT_MIN_CONFIDENCE of orchestrator.align.segments, as `milling-twin
+                                      # align temporal` uses it)
 
     [inputs."power.mrr"]              # optional, per input of the fitted equations (data or connection)
     floor = 1e-300                    # SI: the fit reads the input as max(value, floor) (see docs/calibration.md: a
@@ -182,6 +183,8 @@ class AlignmentSpec:
     recorded: tuple[str, ...] = ()
     output_delay: float = 0.0
     min_confidence: float = 0.0
+    refuse_below: float = 0.3  # = orchestrator.align.segments.DEFAULT_MIN_CONFIDENCE (importing align here
+    # would load it whenever a spec is read; tests/test_calibrate_spec.py checks the two agree)
 
 
 @dataclass(frozen=True)
@@ -324,20 +327,24 @@ def _outputs(ctx: _Ctx, doc: dict) -> tuple[OutputSpec, ...]:
 
 def _alignment(ctx: _Ctx, raw: Any) -> AlignmentSpec:
     key = "[alignment]"
-    table = ctx.table(raw, key, ("method", "simulated", "recorded", "output_delay", "min_confidence"))
+    table = ctx.table(raw, key, ("method", "simulated", "recorded", "output_delay", "min_confidence",
+                                 "refuse_below"))
     method = ctx.string(table, key, "method", "none", ALIGNMENT_METHODS)
     delay = ctx.number(table, key, "output_delay", 0.0, minimum=0.0)
-    confidence = ctx.number(table, key, "min_confidence", 0.0, minimum=0.0)
+    confidence = ctx.number(table, key, "min_confidence", AlignmentSpec.min_confidence, minimum=0.0)
     if confidence > 1:
         ctx.fail(f"{key}.min_confidence", f"must lie in [0, 1], got {confidence!r}")
+    refuse = ctx.number(table, key, "refuse_below", AlignmentSpec.refuse_below, minimum=0.0)
+    if refuse > 1:
+        ctx.fail(f"{key}.refuse_below", f"must lie in [0, 1], got {refuse!r}")
     if method == "none":
         for name in ("simulated", "recorded"):
             if name in table:
                 ctx.fail(f"{key}.{name}", "not used with method = \"none\"")
-        return AlignmentSpec("none", (), (), delay, confidence)
+        return AlignmentSpec("none", (), (), delay, confidence, refuse)
     simulated = tuple(Ref.parse(s, f"{key}.simulated[{i}]", ctx.fail)
                       for i, s in enumerate(ctx.strings(table, key, "simulated", 3)))
-    return AlignmentSpec(method, simulated, ctx.strings(table, key, "recorded", 3), delay, confidence)
+    return AlignmentSpec(method, simulated, ctx.strings(table, key, "recorded", 3), delay, confidence, refuse)
 
 
 def _solver(ctx: _Ctx, raw: Any) -> SolverSpec:

@@ -218,7 +218,6 @@ class _Fit:
     index: dict[str, np.ndarray]
 
 
-
 def _fit_runs(spec: CalibrationSpec, model: SampleModel, runs: Sequence[RunData], parameters: Sequence[Parameter],
               outputs: Sequence[ResolvedOutput], progress: bool) -> _Fit:
     per_run = set(spec.runs.per_run)
@@ -360,9 +359,10 @@ def calibrate_runs(spec: CalibrationSpec, fmu_dir: Path, out_dir: Path, data: st
                                  fmu_after[:, k], o.unit, o.display_unit, o.display_factor, label=run.name))
     timings["re-simulate (calibrated parameter set)"] = time.perf_counter() - t0
 
-    tables = [_runs_table(runs, outputs[0]), _cross_table(runs, cross, joint, model, theta0, outputs[0], rms_of),
+    tables = [_runs_table(runs, outputs[0]), _cross_table(runs, cross, joint, theta0, outputs[0], rms_of),
               _intervals_table(parameters, joint, alone)]
-    figures = [_cross_figure(runs, cross, joint, theta0, outputs[0], rms_of), _intervals_figure(parameters, joint, alone)]
+    figures = [_cross_figure(runs, cross, joint, theta0, outputs[0], rms_of),
+               _intervals_figure(parameters, joint, alone)]
     ident = identities(spec, template, tokens)
     ident["runs"] = {r.name: {"path": str(r.path), "sha256": sha256_of(r.path), "initial": str(r.run_dir)}
                      for r in runs}
@@ -417,7 +417,7 @@ def _runs_table(runs: Sequence[RunData], output: ResolvedOutput) -> Table:
                  "Pairs: recorded samples inside the consistent segments after each segment's first sample.")
 
 
-def _cross_table(runs, cross, joint, model, theta0, output: ResolvedOutput, rms_of) -> Table:
+def _cross_table(runs, cross, joint, theta0, output: ResolvedOutput, rms_of) -> Table:
     d, unit = output.display_factor, output.display_unit
     rows = []
     for row in _cross_rows(runs, cross, joint, theta0, rms_of):
@@ -465,7 +465,8 @@ def _intervals_table(parameters: Sequence[Parameter], joint: _Fit, alone: Mappin
                      if js else "per run", f"{both} of {pairs} ({len(identified)} runs identify it)",
                      "; ".join(shown)))
     return Table("Estimates with 95 % intervals: all runs together and each run alone",
-                 ("parameter", "unit", "all runs", "pairs of identifying runs whose intervals overlap", "each run alone"),
+                 ("parameter", "unit", "all runs", "pairs of identifying runs whose intervals overlap",
+                  "each run alone"),
                  tuple(rows), "A run identifies a parameter when its fit flags it neither not identifiable, nor at "
                               "a bound, nor correlated with another beyond [statistics].correlation (then the run "
                               "fixes a combination of the two, not each).")

@@ -6,7 +6,9 @@ on the channels the spec names. The results row time is ``s_i + output_delay`` (
 works on delay-corrected simulated time, see orchestrator.align.trajectory). At that time the
 model's data columns are taken from the rows (real values linear between rows, booleans from
 the nearest row); dynamic models use the nearest row index. Samples whose simulated time falls
-outside the run, or whose alignment confidence is below ``min_confidence``, are not used; an alignment
+outside the run, outside the consistent segments of a checked recording (``[recorded.checks]``; the first
+sample of a segment too, :meth:`RecordedData.consistent`) or whose alignment confidence is below
+``min_confidence``, are not used; an alignment
 whose median confidence is below ``refuse_below`` has failed, and calibration stops with a CalibrationError
 naming the recording, the segment and the confidence (:func:`refuse_failed_alignment`).
 """
@@ -114,7 +116,8 @@ def make_pairs(recorded: RecordedData, results: pd.DataFrame, data_columns: Sequ
     t0 = time.perf_counter()
     row_time, confidence, time_map = map_times(recorded, results, alignment)
     t = results["time"].to_numpy(dtype=float)
-    inside = (row_time >= t[0] - 1e-9) & (row_time <= t[-1] + 1e-9) & (confidence >= alignment.min_confidence)
+    inside = ((row_time >= t[0] - 1e-9) & (row_time <= t[-1] + 1e-9) & (confidence >= alignment.min_confidence)
+              & recorded.consistent(recorded.time))
     rt = np.clip(row_time[inside], t[0], t[-1])
     rec_t = recorded.time[inside]
     rec = np.column_stack([recorded.channels[c][inside].astype(float) * f for c, f in zip(channels, factors)])

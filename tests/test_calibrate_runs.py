@@ -38,21 +38,7 @@ def spliced_copy(source: Path, target: Path, every: int = 60, block: int = 8) ->
     return target
 
 
-def write_spec(folder: Path, files: list[str], extra: str = "", parameters: str | None = None) -> Path:
-    scenario = os.path.relpath(REPO / "scenarios" / "umich_power.toml", folder)
-    spec = folder / "runs.toml"
-    spec.write_text(f"""
-[calibration]
-name = "runs_test"
-kind = "runs"
-scenario = "{scenario}"
-parameter_set = "runs_test.params.toml"
-
-[runs]
-folder = "."
-files = {files!r}
-{extra}
-""" + (parameters if parameters is not None else """
+POWER_PARAMETERS = """
 [parameters."power.P_idle"]
 min = 0.0
 max = 500.0
@@ -62,12 +48,31 @@ unit = "W"
 min = 0.0
 max = 10.0
 scale = 0.1
-""") + """
+"""
+POWER_OUTPUTS = """
 [[outputs]]
 simulated = "power.P_total"
 recorded = "spindle_power"
 unit = "W"
+"""
 
+
+def write_spec(folder: Path, files: list[str], extra: str = "", parameters: str = POWER_PARAMETERS,
+               outputs: str = POWER_OUTPUTS, scenario: Path = REPO / "scenarios" / "umich_power.toml") -> Path:
+    spec = folder / "runs.toml"
+    spec.write_text(f"""
+[calibration]
+name = "runs_test"
+kind = "runs"
+scenario = "{os.path.relpath(scenario, folder)}"
+parameter_set = "runs_test.params.toml"
+
+[runs]
+folder = "."
+files = {files!r}
+{extra}
+{parameters}
+{outputs}
 [solver]
 starts = 2
 """)
@@ -148,22 +153,9 @@ def test_a_missing_folder_or_file_is_named(tmp_path, fmu_dir):
 def test_outputs_that_read_unexposed_states_are_refused(tmp_path, fmu_dir):
     (tmp_path / "impulse.csv").write_bytes((REPO / "scenarios" / "calibration" / "data" / "impulse_hammer.csv")
                                            .read_bytes())
-    scenario = os.path.relpath(REPO / "scenarios" / "calibration" / "impulse_vibration.toml", tmp_path)
-    spec = tmp_path / "vib.toml"
-    spec.write_text(f"""
-[calibration]
-name = "vib"
-kind = "runs"
-scenario = "{scenario}"
-parameter_set = "vib.params.toml"
-[runs]
-folder = "."
-files = ["impulse.csv"]
-[parameters."vib.frequency_x1"]
-[[outputs]]
-simulated = "vib.tip_acceleration_x"
-recorded = "acceleration"
-""")
+    spec = write_spec(tmp_path, ["impulse.csv"], parameters='[parameters."vib.frequency_x1"]',
+                      outputs='[[outputs]]\nsimulated = "vib.tip_acceleration_x"\nrecorded = "acceleration"',
+                      scenario=REPO / "scenarios" / "calibration" / "impulse_vibration.toml")
     with pytest.raises(CalibrationSpecError, match="does not expose as an output"):
         calibrate(spec, fmu_dir, tmp_path / "out", progress=False)
 

@@ -76,8 +76,12 @@ CORNER_ANGLE = 0.35          # rad: a turn of the commanded velocity between two
 CORNER_REACH = 1.0           # mm: how far a corner may lie from the sample taken for it
 MAX_ARC_RADIUS = 500.0       # mm: no arc of a larger radius (the machine's travel is under 500 mm; a wider
                              # "arc" is a near-straight line whose centre the samples cannot fix)
-MIN_SEGMENT_ROWS = 5         # rows: shorter consistent segments get no program
-SEGMENT_MOTION = 0.1         # mm: a segment whose path is shorter has no motion and gets no program
+MIN_SEGMENT_ROWS = 2         # rows: a shorter consistent segment (one row) gets no program
+SEGMENT_MOTION = 0.1         # mm: a segment whose path is shorter has no motion: its program stands still
+TIMING_DEVIATION = 0.05      # mm: segment programs merge samples into one move only where its constant feed
+                             # puts every merged sample at most this far along the path from its recorded place
+PREROLL = 0.5 * SAMPLE_PERIOD  # s: a segment program that starts in motion starts this long before its first
+                             # sample, on the line of the commanded velocity there
 TIMING_ITERATIONS = 6        # feed corrections against the Interpolator's schedule (segment programs)
 TIMING_TOLERANCE = 0.01      # relative: stop correcting when every move is this close to its recorded time
 MIN_FEED = 0.01              # mm/s: the slowest feed written (a move that absorbs a long pause)
@@ -105,7 +109,7 @@ class Block:
     spindle_rpm: float
     first_sample: int
     last_sample: int
-    kind: str = "line"
+    kind: str = "line"               # "line", "arc", "preroll" (before the first sample), "standing" (no move)
 
 
 @dataclass
@@ -118,6 +122,7 @@ class Reconstruction:
     stats: dict[str, float] = field(default_factory=dict)
     header: list[str] = field(default_factory=list)  # comment lines replacing the default note on N and F
     move_lines: list[int] = field(default_factory=list)  # program line (1-based) of each block's move, as written
+    preroll: float = 0.0             # s before the first sample at which the program starts (segment programs)
 
     def program(self) -> str:
         return program_text(self)
@@ -141,16 +146,27 @@ def quantum_of(values: np.ndarray) -> np.ndarray:
     return 10.0 ** (magnitude - (SIGNIFICANT_DIGITS - 1))
 
 
-def fuse_positions(quantised: np.ndarray, velocity: np.ndarray, dt: float = SAMPLE_PERIOD) -> np.ndarray:
+def fuse_positions(quantised: np.ndarray, velocity: np.ndarray, dt: float = SAMPLE_PERIOD,
+                   robust: bool = False) -> np.ndarray:
     """Least-squares positions of one axis from positions stored with three significant digits and the commanded
     velocities: minimise sum (p_k - q_k)^2 / s_q,k^2 + sum (p_k+1 - p_k - dt (v_k + v_k+1) / 2)^2 / s_v,k^2 with
-    s_q = quantum / sqrt(12) and s_v = VELOCITY_SIGMA + VELOCITY_CHANGE_SIGMA |v_k+1 - v_k| dt."""
+    s_q = quantum / sqrt(12) and s_v = VELOCITY_SIGMA + VELOCITY_CHANGE_SIGMA |v_k+1 - v_k| dt. ``robust``: where
+    the stored positions' difference and the integrated velocities disagree by more than the rounding of the two
+    positions allows (half a step each, plus s_v), the two velocity samples do not describe the interval (the
+    machine stopped between them, at the end of a block, while both samples read full speed): s_v is then that
+    disagreement, and the positions decide."""
     q = np.asarray(quantised, dtype=float)
     v = np.asarray(velocity, dtype=float)
     n = len(q)
-    wq = 12.0 / quantum_of(q) ** 2
-    wv = 1.0 / (VELOCITY_SIGMA + VELOCITY_CHANGE_SIGMA * np.abs(np.diff(v)) * dt) ** 2
+    quantum = quantum_of(q)
+    wq = 12.0 / quantum ** 2
+    s_v = VELOCITY_SIGMA + VELOCITY_CHANGE_SIGMA * np.abs(np.diff(v)) * dt
     d = dt * 0.5 * (v[1:] + v[:-1])
+    if robust and n > 1:
+        disagreement = np.abs(np.diff(q) - d)
+        allowed = 0.5 * (quantum[1:] + quantum[:-1]) + s_v
+        s_v = np.where(disagreement > allowed, np.maximum(disagreement, s_v), s_v)
+    wv = 1.0 / s_v ** 2
     diagonal = wq.copy()
     diagonal[:-1] += wv
     diagonal[1:] += wv
@@ -270,15 +286,30 @@ def _pieces(fused: np.ndarray, velocity: np.ndarray, feed: np.ndarray) -> list[t
     return [(a, b) for a, b in pieces if b > a]
 
 
-def _fit_piece(points: np.ndarray, allow_arcs: bool) -> list[tuple[str, int, np.ndarray | None]]:
+def _evenly_timed(along: np.ndarray, i: int, j: int, tolerance: float | None) -> bool:
+    """Whether one move at a constant feed from point i to point j (samples evenly spaced in time) passes every
+    sample between them within ``tolerance`` (mm along the path, ``along``: cumulative path length at the
+    points) of where it was recorded; always true without a tolerance."""
+    if tolerance is None or j <= i + 1:
+        return True
+    uniform = along[i] + (along[j] - along[i]) * np.arange(1, j - i) / (j - i)
+    return bool(np.max(np.abs(along[i + 1:j] - uniform)) <= tolerance)
+
+
+def _fit_piece(points: np.ndarray, allow_arcs: bool,
+               timing: float | None = None) -> list[tuple[str, int, np.ndarray | None]]:
     """Greedy: from each point, the line or arc (through its end points) reaching farthest within tolerance.
+    ``timing`` (mm, segment programs): also at most that far along the path from a constant-feed move's place
+    at every merged sample (:func:`_evenly_timed`), so that speed changes between samples split moves.
     Returns (kind, index of the end point, centre) per primitive."""
     out = []
     i, n = 0, len(points)
+    along = np.concatenate([[0.0], np.cumsum(np.linalg.norm(np.diff(points, axis=0), axis=1))])
     while i < n - 1:
         j_line = i + 1
         for j in range(i + 2, n):
-            if np.max(_distances_to_segment(points[i + 1:j], points[i], points[j])) <= LINE_TOLERANCE:
+            if (np.max(_distances_to_segment(points[i + 1:j], points[i], points[j])) <= LINE_TOLERANCE
+                    and _evenly_timed(along, i, j, timing)):
                 j_line = j
             else:
                 break
@@ -286,7 +317,7 @@ def _fit_piece(points: np.ndarray, allow_arcs: bool) -> list[tuple[str, int, np.
         if allow_arcs:
             for j in range(i + 3, n):
                 arc = _arc_through(points[i], points[j], points[i + 1:j])
-                if arc is not None and arc[2] <= ARC_TOLERANCE:
+                if arc is not None and arc[2] <= ARC_TOLERANCE and _evenly_timed(along, i, j, timing):
                     j_arc, centre_arc, ccw_arc = j, arc[0], arc[1]
                 elif j > j_line + 1:
                     break
@@ -304,12 +335,17 @@ def reconstruct(path: Path) -> Reconstruction:
     return _reconstruct_rows(pd.read_csv(path), Path(path))
 
 
-def _reconstruct_rows(data: pd.DataFrame, path: Path, allow_arcs: bool = True) -> Reconstruction:
+def _reconstruct_rows(data: pd.DataFrame, path: Path, allow_arcs: bool = True,
+                      timed: bool = False) -> Reconstruction:
+    """The blocks of ``data``'s rows. ``timed`` (segment programs): moves keep the recorded timing of every
+    sample (TIMING_DEVIATION), corners stay at the samples, and a recording that is in motion at its first row
+    gets a pre-roll move (PREROLL s along the commanded velocity there) before it."""
     data = data.reset_index(drop=True)
     n = len(data)
     sequence = clean_sequence(data["M1_sequence_number"].to_numpy())
     fused = np.column_stack([
-        fuse_positions(data[f"{a}1_CommandPosition"].to_numpy(), data[f"{a}1_CommandVelocity"].to_numpy())
+        fuse_positions(data[f"{a}1_CommandPosition"].to_numpy(), data[f"{a}1_CommandVelocity"].to_numpy(),
+                       robust=timed)
         for a in "XYZ"])
     velocity = np.column_stack([data[f"{a}1_CommandVelocity"].to_numpy(dtype=float) for a in "XYZ"])
     feed = data["M1_CURRENT_FEEDRATE"].to_numpy(dtype=float)
@@ -330,7 +366,7 @@ def _reconstruct_rows(data: pd.DataFrame, path: Path, allow_arcs: bool = True) -
             blocks.append(Block(int(sequence[mid]), [("G1", tuple(points[0]))], f, rapid,
                                 nominal_rpm if running[mid] else 0.0, previous_end, a, "line"))
         start = 0
-        for kind, j, centre in _fit_piece(points, allow_arcs and not rapid):
+        for kind, j, centre in _fit_piece(points, allow_arcs and not rapid, TIMING_DEVIATION if timed else None):
             mid = a + (start + j + 1) // 2
             move = (kind, tuple(points[j])) if centre is None else (kind, tuple(points[j]), tuple(centre))
             blocks.append(Block(int(sequence[min(mid, b)]), [move], f, rapid,
@@ -339,8 +375,22 @@ def _reconstruct_rows(data: pd.DataFrame, path: Path, allow_arcs: bool = True) -
             start = j
         position = points[-1]
         previous_end = b
-    _refine_corners(blocks)
-    recon = Reconstruction(path, tuple(map(float, fused[0])), blocks, fused, sequence)
+    start = tuple(map(float, fused[0]))
+    preroll = 0.0
+    if timed:
+        # a segment cut out of a moving machine: the program starts PREROLL before the first sample, on the line
+        # of the commanded velocity there, and reaches the first sample at the recorded speed (the actual
+        # position lags the commanded one, so the first samples lie before the first commanded position)
+        reach = PREROLL * velocity[0]
+        if blocks and blocks[0].first_sample == 0 and np.linalg.norm(reach) > MIN_MOTION:
+            start = tuple(map(float, fused[0] - reach))
+            preroll = PREROLL
+            blocks.insert(0, Block(int(sequence[0]), [("G1", tuple(map(float, fused[0])))],
+                                   float(np.linalg.norm(velocity[0])), False, nominal_rpm if running[0] else 0.0,
+                                   0, 0, "preroll"))
+    else:
+        _refine_corners(blocks)
+    recon = Reconstruction(path, start, blocks, fused, sequence, preroll=preroll)
     kinds = [blk.kind for blk in blocks]
     recon.stats = {"samples": float(n), "duration": n * SAMPLE_PERIOD, "moves": float(len(blocks)),
                    "lines": float(kinds.count("line")), "arcs": float(kinds.count("arc")),
@@ -474,10 +524,16 @@ class SegmentProgram:
     @property
     def motion_start(self) -> float | None:
         """Recorded time (s, rows at SAMPLE_PERIOD from row 0) at which the program starts: the segment's
-        first motion."""
+        first motion (less the pre-roll of a segment that starts in motion); the first row of a standing
+        segment."""
         if self.recon is None or not self.recon.blocks:
             return None
-        return (self.start + self.recon.blocks[0].first_sample) * SAMPLE_PERIOD
+        return (self.start + self.recon.blocks[0].first_sample) * SAMPLE_PERIOD - self.recon.preroll
+
+    @property
+    def standing(self) -> bool:
+        """Whether the segment's program has no move (the tool stands for the whole segment)."""
+        return self.recon is not None and all(b.kind == "standing" for b in self.recon.blocks)
 
     @property
     def ratio(self) -> float:
@@ -493,6 +549,11 @@ class SegmentedReconstruction:
     @property
     def programs(self) -> list[SegmentProgram]:
         return [s for s in self.segments if s.recon is not None]
+
+    @property
+    def moving(self) -> list[SegmentProgram]:
+        """The programs with motion (their duration is the recorded time)."""
+        return [s for s in self.programs if not s.standing]
 
     def index_frame(self) -> pd.DataFrame:
         rows = []
@@ -574,6 +635,7 @@ def _timed(recon: Reconstruction) -> tuple[float, float, float]:
     first = blocks[0].first_sample
     ends = np.array([b.last_sample for b in blocks])
     target = np.diff(np.concatenate([[first], ends])) * SAMPLE_PERIOD
+    target[[b.kind == "preroll" for b in blocks]] = recon.preroll
     position = np.array([float(_mm(c)) for c in recon.start])
     lengths = []
     for b in blocks:
@@ -604,10 +666,13 @@ def _timed(recon: Reconstruction) -> tuple[float, float, float]:
 
 
 def reconstruct_segments(path: Path, limits: CheckLimits = CHECK_LIMITS) -> SegmentedReconstruction:
-    """One program per consistent segment of the recording (recording_checks, policy ``segment``): each
-    starts at the segment's first (fused) position, writes every move as G1 with the feed that makes the
-    Interpolator take the recorded time over it, and is checked by the Interpolator's own parser and
-    schedule (a program it refuses is rebuilt with straight moves only)."""
+    """One program per consistent segment of the recording (recording_checks, policy ``segment``) of at
+    least MIN_SEGMENT_ROWS rows: each starts at the segment's first (fused) position (PREROLL earlier when the
+    segment starts in motion), writes every move as G1 with the feed that makes the Interpolator take the
+    recorded time over it (moves split wherever a constant feed would misplace a sample by more than
+    TIMING_DEVIATION along the path), and is checked by the Interpolator's own parser and schedule (a program
+    it refuses is rebuilt with straight moves only). A segment without motion gets a program without a move:
+    the tool stands at its position, with the spindle as recorded."""
     path = Path(path)
     data = pd.read_csv(path)
     check = recording_check(data, limits)
@@ -625,14 +690,16 @@ def reconstruct_segments(path: Path, limits: CheckLimits = CHECK_LIMITS) -> Segm
             continue
         rows = data.iloc[seg.start:seg.stop]
         for allow_arcs in (True, False):
-            recon = _reconstruct_rows(rows, path, allow_arcs)
+            recon = _reconstruct_rows(rows, path, allow_arcs, timed=True)
             travel = float(np.sum(np.linalg.norm(np.diff(recon.positions, axis=0), axis=1)))
             if not recon.blocks or travel < SEGMENT_MOTION:
-                item.reason = f"no motion (path {travel:.3g} mm)"
+                item.recon = _standing(recon, rows, index, seg, travel)
                 break
+            first = ("start_x/y/z = the first position" if not recon.preroll else
+                     f"start_x/y/z = {recon.preroll:g} s before the first position along the commanded velocity")
             recon.header = [f"(segment {index}: data rows {seg.start}-{seg.stop - 1}; N = the recorded "
                             "M1_sequence_number; every move G1 at the feed that takes the recorded time; "
-                            "start_x/y/z = the first position)"]
+                            f"{first})"]
             try:
                 item.recorded_time, item.simulated_time, item.worst_move = _timed(recon)
             except ValueError:  # ProgramError, PathError: the Interpolator refuses it
@@ -642,6 +709,22 @@ def reconstruct_segments(path: Path, limits: CheckLimits = CHECK_LIMITS) -> Segm
             item.recon = recon
             break
     return SegmentedReconstruction(path, check, out)
+
+
+def _standing(recon: Reconstruction, rows: pd.DataFrame, index: int, seg, travel: float) -> Reconstruction:
+    """The program of a segment without motion: the tool stands at the segment's first position, the spindle
+    runs at the nominal speed if it runs in most rows (a block without a move)."""
+    spindle = rows["S1_ActualVelocity"].to_numpy(dtype=float)
+    running = spindle > SPINDLE_ON
+    rpm = round(float(np.median(spindle[running])) * 60.0 / 10.0) * 10.0 if running.mean() > 0.5 else 0.0
+    recon.start = tuple(map(float, recon.positions[0]))
+    recon.preroll = 0.0
+    recon.blocks = [Block(int(recon.sequence[0]), [], 0.0, False, rpm, 0, len(rows) - 1, "standing")]
+    recon.header = [f"(segment {index}: data rows {seg.start}-{seg.stop - 1}; no motion, path {travel:.3g} mm: "
+                    "the tool stands at start_x/y/z; N = the recorded M1_sequence_number)"]
+    recon.stats["moves"] = 0.0
+    _move_times(program_text(recon), {**INTERPOLATOR_PARAMETERS, **_start(recon.start)})  # the parser accepts it
+    return recon
 
 
 def command(args: argparse.Namespace) -> int:
@@ -670,13 +753,14 @@ def command(args: argparse.Namespace) -> int:
     segmented = reconstruct_segments(args.recording)
     for line in check.summary()[:2]:
         print(line)
-    programs = segmented.programs
+    programs = segmented.moving
     skipped: dict[str, int] = {}
     for s in segmented.segments:
         if s.recon is None:
             key = s.reason.split(" (")[0]
             skipped[key] = skipped.get(key, 0) + 1
-    print(f"{len(programs)} programs; no program for {len(segmented.segments) - len(programs)} segments"
+    print(f"{len(segmented.programs)} programs ({len(segmented.programs) - len(programs)} standing); no program "
+          f"for {len(segmented.segments) - len(segmented.programs)} segments"
           + "".join(f"; {count} {reason}" for reason, count in sorted(skipped.items())))
     if programs:
         recorded = sum(s.recorded_time for s in programs)
@@ -685,5 +769,5 @@ def command(args: argparse.Namespace) -> int:
         print(f"duration simulated / recorded: total {simulated:.2f} / {recorded:.2f} s = {simulated / recorded:.4f}; "
               f"worst segment {worst.index} (rows {worst.start}-{worst.stop - 1}) {worst.ratio:.4f}")
     index = segmented.write(args.output)
-    print(f"wrote {len(programs)} programs and {index}")
+    print(f"wrote {len(segmented.programs)} programs and {index}")
     return 0

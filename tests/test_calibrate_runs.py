@@ -5,6 +5,7 @@ rows at the home position with the spindle stopped, as the logger of runs 02-12 
 from __future__ import annotations
 
 import csv
+import json
 import os
 from pathlib import Path
 
@@ -57,7 +58,7 @@ unit = "W"
 """
 
 
-def write_spec(folder: Path, files: list[str], extra: str = "", parameters: str = POWER_PARAMETERS,
+def write_spec(folder: Path, files: list[str] | str, extra: str = "", parameters: str = POWER_PARAMETERS,
                outputs: str = POWER_OUTPUTS, scenario: Path = REPO / "scenarios" / "umich_power.toml") -> Path:
     spec = folder / "runs.toml"
     spec.write_text(f"""
@@ -69,7 +70,7 @@ parameter_set = "runs_test.params.toml"
 
 [runs]
 folder = "."
-files = {files!r}
+files = {json.dumps(files)}
 {extra}
 {parameters}
 {outputs}
@@ -140,6 +141,17 @@ def test_mistakes_in_the_runs_table_name_the_key(tmp_path, extra, key, words):
     with pytest.raises(CalibrationSpecError) as info:
         load_spec(spec)
     assert f": {key}: " in str(info.value) and words in str(info.value)
+
+
+def test_runs_found_by_a_pattern(tmp_path, fmu_dir):
+    from milling_twin.orchestrator.calibrate.runs_fit import run_files
+
+    for name in ("run_b.csv", "run_a.csv", "notes.txt"):
+        (tmp_path / name).write_text("x\n")
+    spec = load_spec(write_spec(tmp_path, "run_*.csv"))
+    assert [name for name, _ in run_files(spec, None)] == ["run_a", "run_b"]
+    with pytest.raises(CalibrationSpecError, match="no file in .* matches 'nothing_\\*.csv'"):
+        run_files(load_spec(write_spec(tmp_path, "nothing_*.csv")), None)
 
 
 def test_a_missing_folder_or_file_is_named(tmp_path, fmu_dir):

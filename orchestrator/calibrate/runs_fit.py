@@ -154,12 +154,17 @@ def run_files(spec: CalibrationSpec, data: str | Path | None) -> list[tuple[str,
         from milling_twin.datasets import DataMissing
         raise DataMissing(f"the runs' folder {folder} does not exist ([runs].folder of {spec.path}; give another "
                           "with --data DIR)")
+    if spec.runs.pattern is not None:
+        paths = sorted(p for p in folder.glob(spec.runs.pattern) if p.is_file())
+        if not paths:
+            spec.fail("[runs].files", f"no file in {folder} matches {spec.runs.pattern!r}")
+        return [(p.stem, p) for p in paths]
     out = []
-    for name, file in zip(spec.runs.names(), spec.runs.files):
+    for file in spec.runs.files:
         path = folder / file
         if not path.is_file():
             spec.fail("[runs].files", f"{path} not found")
-        out.append((name, path))
+        out.append((Path(file).stem, path))
     return out
 
 

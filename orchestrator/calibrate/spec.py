@@ -93,7 +93,8 @@ clock, inside the consistent segments its ``[recorded.checks]`` finds)::
     ...
     [runs]
     folder = "../../../shared/data/umich_cnc"   # relative to this file; `--data DIR` replaces it
-    files = ["experiment_01.csv", "experiment_02.csv"]   # the runs, named by their file stems
+    files = ["experiment_01.csv", "experiment_02.csv"]   # the runs, named by their file stems, or a pattern:
+                                      # files = "experiment_*.csv" (every match in the folder, sorted)
     per_run = ["power.P_standby"]     # optional: parameters fitted for every run on its own (nuisance), not
                                       # shared; each must also be in [parameters]
     cross_validation = true           # leave-one-run-out: each run predicted by the set fitted without it
@@ -220,7 +221,7 @@ class SlotForcesSpec:
 @dataclass(frozen=True)
 class RunsSpec:
     folder: Path
-    files: tuple[str, ...]
+    files: tuple[str, ...]  # file names, or one glob pattern (see ``pattern``)
     per_run: tuple[Ref, ...] = ()
     cross_validation: bool = True
     hac_lags: int | None = None  # None: newey_west_lags(pairs)
@@ -228,8 +229,10 @@ class RunsSpec:
     block: int = 20
     replicates: int = 200
 
-    def names(self) -> tuple[str, ...]:
-        return tuple(Path(f).stem for f in self.files)
+    @property
+    def pattern(self) -> str | None:
+        """The glob pattern the runs are found by, if ``files`` is one."""
+        return self.files[0] if len(self.files) == 1 and any(c in self.files[0] for c in "*?[") else None
 
 
 @dataclass(frozen=True)
@@ -407,8 +410,11 @@ def _runs(ctx: _Ctx, raw: Any, base: Path, parameters: tuple[ParameterSpec, ...]
     table = ctx.table(raw, key, ("folder", "files", "per_run", "cross_validation", "hac_lags", "intervals", "block",
                                  "replicates"))
     files = table.get("files")
-    if not isinstance(files, list) or not files or not all(isinstance(f, str) and f for f in files):
-        ctx.fail(f"{key}.files", f"expected a non-empty list of recording file names, got {files!r}")
+    if isinstance(files, str) and files and any(c in files for c in "*?["):
+        files = [files]  # a pattern
+    elif not isinstance(files, list) or not files or not all(isinstance(f, str) and f for f in files):
+        ctx.fail(f"{key}.files", f"expected a non-empty list of recording file names or a pattern such as "
+                                 f"\"experiment_*.csv\", got {files!r}")
     stems = [Path(f).stem for f in files]
     twice = sorted({s for s in stems if stems.count(s) > 1})
     if twice:

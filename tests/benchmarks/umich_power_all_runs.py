@@ -16,6 +16,7 @@ from __future__ import annotations
 
 import argparse
 import json
+import re
 import logging
 import time
 from pathlib import Path
@@ -38,9 +39,7 @@ def single_run_spec(out: Path) -> Path:
     text = text.replace('scenario = "../umich_power.toml"', f'scenario = "{SCENARIO}"')
     text = text.replace('folder = "../../../shared/data/umich_cnc"',
                         f'folder = "{(SPEC.parent / "../../../shared/data/umich_cnc").resolve()}"')
-    start = text.index("files = [")
-    end = text.index("]", start) + 1
-    text = text[:start] + 'files = ["experiment_01.csv"]' + text[end:]
+    text = re.sub(r'^files = .*$', 'files = ["experiment_01.csv"]', text, count=1, flags=re.M)
     text = text.replace('name = "umich_power_runs"', 'name = "umich_power_run01"')
     text = text.replace("cross_validation = true", "cross_validation = false")
     out.mkdir(parents=True, exist_ok=True)

@@ -7,9 +7,11 @@ the recording is cut into consistent segments (recording_checks, policy segment)
 segment (orchestrator/gcode/reconstruct.py); each program runs on the Interpolator FMU through the orchestrator
 (a scenario per segment with reconstruct.INTERPOLATOR_PARAMETERS and the segment's first position, 5 ms steps);
 the simulated duration is the first output time with interp.finished. Each segment's recorded actual positions
-are aligned (multiscale) with its run (orchestrator/align/segments.py). Printed per run: rows, segments with a
-program / without (too short, no motion), programs the Interpolator refused, duration ratio simulated/recorded
-(total and worst segment), the share of cutting samples ('Layer' rows) whose residual after alignment is within
+are aligned with its run (orchestrator/align/segments.py: multiscale, the program's start offset and the segment
+fit, with the recorded axis velocities and the storage steps of 3 significant digits). Printed per run: rows,
+segments with a program (of which standing: no motion) / without (a single row), programs the Interpolator
+refused, duration ratio simulated/recorded over the programs with motion (total and worst segment), the share of
+cutting samples ('Layer' rows with the spindle running) whose residual after alignment is within
 1.5 storage steps on every axis (3 significant digits: 1 mm in X, 0.1 mm in Y and Z; samples of segments
 without a program or without a map count as misses), the median segment confidence and the segments below
 DEFAULT_MIN_CONFIDENCE.
@@ -59,6 +61,7 @@ def run_one(csv: Path, fmu_dir: Path) -> dict[str, object]:
     data = pd.read_csv(csv)
     segmented = rc.reconstruct_segments(csv)
     actual = data[[f"{a}1_ActualPosition" for a in "XYZ"]].to_numpy(dtype=float) * 1e-3
+    velocity = data[[f"{a}1_ActualVelocity" for a in "XYZ"]].to_numpy(dtype=float) * 1e-3
     time_s = np.arange(len(data)) * rc.SAMPLE_PERIOD
     recorded = Trajectory(time_s, actual, csv.name)
     refused, ratios, sims, rec_times = 0, [], {}, []
@@ -71,16 +74,17 @@ def run_one(csv: Path, fmu_dir: Path) -> dict[str, object]:
                 continue
             done = frame["time"][frame["interp.finished"] > 0.5]
             duration = float(done.iloc[0]) if len(done) else float(frame["time"].iloc[-1])
-            ratios.append(duration / s.recorded_time)
-            rec_times.append((s.recorded_time, duration))
+            if not s.standing:
+                ratios.append(duration / s.recorded_time)
+                rec_times.append((s.recorded_time, duration))
             sims[s.index] = Trajectory(frame["time"].to_numpy(), frame[["interp.x", "interp.y", "interp.z"]]
                                        .to_numpy(), f"{csv.name} {s.name}")
     t0 = time.perf_counter()
     pieces = [(s.index, s.start, s.stop, sims.get(s.index), s.motion_start) for s in segmented.segments]
-    piecewise = align_segments(recorded, pieces)
+    quantum = quantum_of_significant_digits(actual, rc.SIGNIFICANT_DIGITS)
+    piecewise = align_segments(recorded, pieces, velocity=velocity, step=quantum)
     align_time = time.perf_counter() - t0
     within = np.zeros(len(data), dtype=bool)
-    quantum = quantum_of_significant_digits(actual, rc.SIGNIFICANT_DIGITS)
     for seg in piecewise.segments:
         if seg.time_map is None:
             continue
@@ -96,7 +100,7 @@ def run_one(csv: Path, fmu_dir: Path) -> dict[str, object]:
     confidences = [s.confidence for s in piecewise.segments if s.time_map is not None]
     worst = max(ratios, key=lambda r: abs(r - 1.0)) if ratios else float("nan")
     return {"run": csv.stem.split("_")[-1], "rows": len(data), "segments": len(segmented.segments),
-            "used": len(segmented.programs), "dropped": len(segmented.segments) - len(segmented.programs),
+            "used": len(segmented.programs), "standing": len(segmented.programs) - len(segmented.moving), "dropped": len(segmented.segments) - len(segmented.programs),
             "refused": refused, "total": total_sim / total_rec if total_rec else float("nan"), "worst": worst,
             "cutting": int(cutting.sum()), "layer": int(layer.sum()), "within": float(within[cutting].mean()) if cutting.any() else float("nan"),
             "confidence": float(np.median(confidences)) if confidences else 0.0,
@@ -112,14 +116,14 @@ def main() -> None:
                                                                             REPO / "build" / "fmus")))
     parser.add_argument("--runs", type=int, nargs="*", default=list(range(1, 13)))
     args = parser.parse_args()
-    print("| run | rows | segments with program / without | refused | duration sim/rec total | worst segment "
+    print("| run | rows | segments with program (standing) / without | refused | duration sim/rec total | worst segment "
           "| cutting samples within 1.5 steps | median confidence | segments below "
           f"{DEFAULT_MIN_CONFIDENCE:g} |")
     print("|---|---:|---:|---:|---:|---:|---:|---:|---:|")
     start = time.perf_counter()
     for run in args.runs:
         r = run_one(args.data / f"experiment_{run:02d}.csv", args.fmu_dir)
-        print(f"| {r['run']} | {r['rows']} | {r['used']} / {r['dropped']} | {r['refused']} | {r['total']:.4f} | "
+        print(f"| {r['run']} | {r['rows']} | {r['used']} ({r['standing']}) / {r['dropped']} | {r['refused']} | {r['total']:.4f} | "
               f"{r['worst']:.4f} | {100 * r['within']:.1f} % of {r['cutting']} | {r['confidence']:.2f} | "
               f"{r['below']} |", flush=True)
     print(f"({time.perf_counter() - start:.0f} s)")

@@ -30,7 +30,7 @@ where c_v is the same measure of the velocity difference (tolerance 10 % of the 
 recording's top speed). A segment's confidence is the median of its samples' confidences. Below
 ``min_confidence`` (:data:`DEFAULT_MIN_CONFIDENCE` unless given) the alignment of that segment has failed:
 ``milling-twin align temporal`` lists such segments and calibration refuses pairs from them
-(orchestrator/calibrate/pairing.py).
+(``[alignment].refuse_below`` of a spec, the same default; orchestrator/calibrate/pairing.py).
 """
 from __future__ import annotations
 

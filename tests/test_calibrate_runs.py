@@ -206,3 +206,25 @@ def test_block_bootstrap_keeps_blocks_inside_groups_and_finds_the_spread():
     # the estimate itself: replicates centre on the least-squares solution of the data
     exact = -np.linalg.lstsq(J, r, rcond=None)[0]
     assert np.allclose(np.mean(reps, axis=0), exact, atol=4 * np.std(reps, axis=0) / np.sqrt(400) + 1e-3)
+
+
+def test_between_runs_finds_the_spread_the_runs_own_errors_do_not_explain():
+    from milling_twin.orchestrator.calibrate.statistics import between_runs
+
+    agree = between_runs([1.0, 1.1, 0.9, 1.05], [0.1, 0.1, 0.1, 0.1])
+    assert agree.tau == 0.0 and agree.i2 == 0.0 and agree.mean == pytest.approx(1.0125)
+    assert agree.standard_error == pytest.approx(0.05)  # 0.1 / sqrt(4)
+    apart = between_runs([1.0, 2.0, 3.0], [0.1, 0.1, 0.1])  # spread 1, errors 0.1: almost all between runs
+    assert apart.tau == pytest.approx(1.0, rel=0.01) and apart.i2 > 0.98 and apart.mean == pytest.approx(2.0)
+    low, high = apart.interval(1.0, 0.1)
+    assert high > 2.9 and low < -0.9  # a run's interval widened by the spread reaches the others
+    with pytest.raises(ValueError, match="at least two runs"):
+        between_runs([1.0], [0.1])
+
+
+def test_the_report_says_how_the_runs_agree(outcome):
+    agreement = outcome.extra["agreement"]["power.k_speed_loop"]
+    assert len(agreement.identifying) >= 2 and agreement.overlap[1] >= 1
+    table = next(t for t in outcome.tables if t.title.startswith("Estimates"))
+    row = next(r for r in table.rows if r[0] == "power.k_speed_loop")
+    assert "spread" in row[3] and "runs identify it" in row[4]

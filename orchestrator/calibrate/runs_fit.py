@@ -56,8 +56,8 @@ from milling_twin.orchestrator.calibrate.scenario_fit import (ResolvedOutput, ch
                                                               resolve_outputs, resolve_parameters, simulate_for_fit,
                                                               with_overrides)
 from milling_twin.orchestrator.calibrate.spec import CalibrationSpec
-from milling_twin.orchestrator.calibrate.statistics import (block_bootstrap, fit_statistics, newey_west_lags,
-                                                            with_intervals)
+from milling_twin.orchestrator.calibrate.statistics import (BetweenRuns, between_runs, block_bootstrap,
+                                                            fit_statistics, newey_west_lags, with_intervals)
 from milling_twin.orchestrator.results import sha256_of
 from milling_twin.orchestrator.scenario import Ref, Scenario, load_scenario, with_values
 
@@ -381,6 +381,7 @@ def calibrate_runs(spec: CalibrationSpec, fmu_dir: Path, out_dir: Path, data: st
                      f"{', '.join(map(str, spec.runs.per_run))}; held-out runs are predicted with their initial "
                      "values.")
     extra = {"runs": [r.name for r in runs], "cross_validation": _cross_rows(runs, cross, joint, theta0, rms_of),
+             "agreement": {q.name: agreement_of(j, alone) for j, q in enumerate(parameters)},
              "alone": {name: {"theta": f.outcome.theta.tolist(),
                               "ci": [[s.ci_low, s.ci_high] for s in f.outcome.statistics.parameters],
                               "flags": [list(s.flags) for s in f.outcome.statistics.parameters]}
@@ -392,9 +393,9 @@ def calibrate_runs(spec: CalibrationSpec, fmu_dir: Path, out_dir: Path, data: st
 def _intervals_note(spec: CalibrationSpec) -> str:
     r = spec.runs
     if r.intervals == "bootstrap":
-        return (f"Intervals: moving-block bootstrap, blocks of {r.block} pairs within each run's consistent "
-                f"segments, {r.replicates} replicates (one Gauss-Newton step each), 2.5 and 97.5 percentiles; "
-                "flags from the HAC covariance.")
+        return (f"Intervals: estimate -/+ t * the standard error of a moving-block bootstrap (blocks of {r.block} "
+                f"pairs within each run's consistent segments, {r.replicates} replicates, one Gauss-Newton step "
+                "each); flags from the HAC covariance.")
     return (f"Intervals: Newey-West (HAC) over each run's consistent segments, "
             f"{r.hac_lags if r.hac_lags is not None else 'Newey-West rule'} lags.")
 
@@ -451,30 +452,58 @@ def _overlap(intervals: Sequence[tuple[float, float]]) -> tuple[int, int]:
     return both, n * (n - 1) // 2
 
 
+@dataclass(frozen=True)
+class Agreement:
+    """How the runs fitted alone agree on one parameter (those that identify it): pairs of overlapping 95 %
+    intervals, within each run and with the spread between runs added; None where fewer than two identify it."""
+
+    identifying: tuple[str, ...]
+    overlap: tuple[int, int]
+    between: BetweenRuns | None
+    overlap_with_spread: tuple[int, int] | None
+
+
+def agreement_of(j: int, alone: Mapping[str, _Fit]) -> Agreement:
+    runs = [(name, f.outcome.statistics.parameters[j]) for name, f in alone.items()
+            if _identifies(f.outcome.statistics.parameters[j])]
+    overlap = _overlap([(st.ci_low, st.ci_high) for _, st in runs])
+    if len(runs) < 2 or not all(st.standard_error > 0 for _, st in runs):
+        return Agreement(tuple(n for n, _ in runs), overlap, None, None)
+    spread = between_runs([st.estimate for _, st in runs], [st.standard_error for _, st in runs])
+    widened = _overlap([spread.interval(st.estimate, st.standard_error) for _, st in runs])
+    return Agreement(tuple(n for n, _ in runs), overlap, spread, widened)
+
+
 def _intervals_table(parameters: Sequence[Parameter], joint: _Fit, alone: Mapping[str, _Fit]) -> Table:
     rows = []
     for j, q in enumerate(parameters):
         shown = []
-        identified = []
         for name, f in alone.items():
             st = f.outcome.statistics.parameters[j]
             shown.append(f"{name}: {q.display(st.estimate):.4g} [{q.display(st.ci_low):.4g}, "
                          f"{q.display(st.ci_high):.4g}]{' (' + '; '.join(st.flags) + ')' if st.flags else ''}")
-            if _identifies(st):
-                identified.append((st.ci_low, st.ci_high))
-        both, pairs = _overlap(identified)
-        js = next(s for s, p in zip(joint.outcome.statistics.parameters, joint.parameters) if p.name == q.name) \
-            if any(p.name == q.name for p in joint.parameters) else None
+        a = agreement_of(j, alone)
+        js = next((s for s, p in zip(joint.outcome.statistics.parameters, joint.parameters) if p.name == q.name),
+                  None)
+        b = a.between
+        between = "n/a (fewer than two runs identify it)" if b is None else (
+            f"{q.display(b.mean):.4g} [{q.display(b.mean - 1.96 * b.standard_error):.4g}, "
+            f"{q.display(b.mean + 1.96 * b.standard_error):.4g}]; spread {q.display(b.tau):.3g}, I2 {100 * b.i2:.0f} %")
         rows.append((q.name, q.display_unit or "1",
                      f"{q.display(js.estimate):.4g} [{q.display(js.ci_low):.4g}, {q.display(js.ci_high):.4g}]"
-                     if js else "per run", f"{both} of {pairs} ({len(identified)} runs identify it)",
-                     "; ".join(shown)))
+                     if js else "per run", between,
+                     f"{a.overlap[0]} of {a.overlap[1]} ({len(a.identifying)} runs identify it)",
+                     "n/a" if a.overlap_with_spread is None else
+                     f"{a.overlap_with_spread[0]} of {a.overlap_with_spread[1]}", "; ".join(shown)))
     return Table("Estimates with 95 % intervals: all runs together and each run alone",
-                 ("parameter", "unit", "all runs", "pairs of identifying runs whose intervals overlap",
-                  "each run alone"),
+                 ("parameter", "unit", "all runs (one fit)", "between runs (random effects): mean [95 %], spread",
+                  "runs whose intervals overlap (pairs)", "... with the spread between runs", "each run alone"),
                  tuple(rows), "A run identifies a parameter when its fit flags it neither not identifiable, nor at "
                               "a bound, nor correlated with another beyond [statistics].correlation (then the run "
-                              "fixes a combination of the two, not each).")
+                              "fixes a combination of the two, not each). Between runs: DerSimonian-Laird over the "
+                              "identifying runs; the spread is what one run's interval cannot see (I2: its share "
+                              "of the estimates' variance); a run's interval widened by it is what another run of "
+                              "the machine may give.")
 
 
 def _cross_figure(runs, cross, joint, theta0, output: ResolvedOutput, rms_of) -> Figure:

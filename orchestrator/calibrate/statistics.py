@@ -20,8 +20,15 @@ Where the information on a parameter sits in a few samples (a spindle's run-up: 
 recording fix its inertia) the asymptotics of the sandwich do not hold. :func:`block_bootstrap` resamples
 blocks of consecutive pairs within their groups (moving-block bootstrap: the autocorrelation inside a block
 is kept) and re-solves the weighted least-squares problem by one Gauss-Newton step from the estimate
-(exact for outputs linear in the parameters, a linearisation otherwise); percentiles of the replicates give
-the intervals.
+(exact for outputs linear in the parameters, a linearisation otherwise); the replicates' standard deviation
+is the standard error, and the interval is the estimate -/+ t * that error. Not the replicates' percentiles:
+where one or two blocks hold all the information on a parameter (one run-up), the replicates take a few
+discrete values, the estimate can sit at the edge of their 2.5-97.5 % range, and that range says little.
+
+Runs of one machine can disagree beyond their own intervals: a run-up sampled at 10 Hz fixes a spindle's
+inertia from five rows, and where the samples fall on the ramp differs from run to run. :func:`between_runs`
+estimates that spread (DerSimonian-Laird random effects) from the runs' estimates and errors, and the
+runs' common value with an error that includes it.
 
 Flags (thresholds in :class:`~orchestrator.calibrate.spec.StatisticsSpec`):
 
@@ -47,8 +54,8 @@ from scipy import stats as scipy_stats
 from milling_twin.orchestrator.calibrate.parameters import Parameter
 from milling_twin.orchestrator.calibrate.spec import StatisticsSpec
 
-__all__ = ["FitStatistics", "ParameterStatistics", "block_bootstrap", "fit_statistics", "hac_meat",
-           "newey_west_lags", "with_intervals"]
+__all__ = ["BetweenRuns", "FitStatistics", "ParameterStatistics", "between_runs", "block_bootstrap",
+           "fit_statistics", "hac_meat", "newey_west_lags", "with_intervals"]
 
 
 @dataclass(frozen=True)
@@ -141,15 +148,53 @@ def block_bootstrap(jacobian: np.ndarray, residual: np.ndarray, estimates: Seque
     return out
 
 
+@dataclass(frozen=True)
+class BetweenRuns:
+    """One parameter estimated on several runs (random effects, DerSimonian-Laird): the runs' common mean and
+    its standard error, the spread ``tau`` of the runs' own values about it (what one run's interval cannot
+    know: the run-to-run variation of the machine, its setup, or of how the sampling caught a short event), and
+    ``i2``, the share of the estimates' spread that ``tau`` explains (0: the runs agree within their errors)."""
+
+    mean: float
+    standard_error: float
+    tau: float
+    i2: float
+    runs: int
+
+    def interval(self, estimate: float, standard_error: float) -> tuple[float, float]:
+        """A run's 95 % interval widened by the spread between runs."""
+        half = 1.959963984540054 * math.sqrt(standard_error ** 2 + self.tau ** 2)
+        return estimate - half, estimate + half
+
+
+def between_runs(estimates: Sequence[float], standard_errors: Sequence[float]) -> BetweenRuns:
+    """DerSimonian-Laird random-effects estimate from per-run ``estimates`` and their ``standard_errors``
+    (at least two runs with positive finite errors)."""
+    y = np.asarray(estimates, dtype=float)
+    se = np.asarray(standard_errors, dtype=float)
+    if y.size < 2 or not np.all(np.isfinite(se) & (se > 0)):
+        raise ValueError(f"between_runs needs at least two runs with positive finite standard errors, got {se!r}")
+    w = 1.0 / se ** 2
+    fixed = float(np.sum(w * y) / np.sum(w))
+    q = float(np.sum(w * (y - fixed) ** 2))
+    dof = y.size - 1
+    c = float(np.sum(w) - np.sum(w ** 2) / np.sum(w))
+    tau2 = max(0.0, (q - dof) / c) if c > 0 else 0.0
+    w_star = 1.0 / (se ** 2 + tau2)
+    mean = float(np.sum(w_star * y) / np.sum(w_star))
+    i2 = max(0.0, (q - dof) / q) if q > 0 else 0.0
+    return BetweenRuns(mean, float(math.sqrt(1.0 / np.sum(w_star))), math.sqrt(tau2), i2, int(y.size))
+
+
 def with_intervals(statistics: FitStatistics, replicates: np.ndarray) -> FitStatistics:
-    """``statistics`` with every parameter's standard error and 95 % interval taken from bootstrap
-    ``replicates`` (standard deviation; 2.5 and 97.5 percentiles); flags are kept, and so is the infinite
-    interval of a parameter without finite variance (the minimum-norm step would look precise)."""
-    low, high = np.percentile(replicates, [2.5, 97.5], axis=0)
+    """``statistics`` with every parameter's standard error from bootstrap ``replicates`` (their standard
+    deviation) and its 95 % interval the estimate -/+ t * that error (module text); flags are kept, and so is the
+    infinite interval of a parameter without finite variance (the minimum-norm step would look precise)."""
     se = np.std(replicates, axis=0, ddof=1)
+    t = statistics.t_quantile if np.isfinite(statistics.t_quantile) else 1.959963984540054
     parameters = tuple(p if not np.isfinite(p.standard_error) else
-                       ParameterStatistics(p.name, p.estimate, float(se[j]), float(low[j]), float(high[j]),
-                                           p.at_bound, p.flags)
+                       ParameterStatistics(p.name, p.estimate, float(se[j]), p.estimate - t * float(se[j]),
+                                           p.estimate + t * float(se[j]), p.at_bound, p.flags)
                        for j, p in enumerate(statistics.parameters))
     return FitStatistics(statistics.n_residuals, statistics.n_parameters, statistics.dof, statistics.ssr,
                          statistics.sigma2, statistics.t_quantile, np.cov(replicates, rowvar=False).reshape(

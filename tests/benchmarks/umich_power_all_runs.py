@@ -9,8 +9,9 @@ run through the FMUs (``milling-twin run scenarios/umich_power.toml --recording 
 what a set calibrated on one recording predicts elsewhere). Printed per run: rows, consistent segments,
 impossible transitions found, pairs used, RMS recorded power, and the RMS error (% of RMS recorded) with the
 priors, with the run-01 set, with the set fitted without the run (leave-one-run-out) and with all runs; then
-the mean leave-one-run-out error, the runs predicted better than by the priors, and per parameter how many
-pairs of runs that identify it have overlapping 95 % (HAC) intervals. JSON with every figure in --out.
+the mean leave-one-run-out error, the runs predicted better than by the priors, and per parameter the joint
+estimate, the runs' random-effects mean and spread, and how many pairs of runs that identify it have
+overlapping 95 % intervals (block bootstrap), also with the spread between runs. JSON with every figure in --out.
 """
 from __future__ import annotations
 
@@ -93,10 +94,12 @@ def main() -> int:
     better = sum(r["without_it_pct"] < r["priors_pct"] for r in rows)
     print(f"\nleave-one-run-out: mean {mean_loro:.2f} % of RMS recorded; better than the priors on {better} of "
           f"{len(rows)} runs")
-    overlap = next(t for t in result.tables if t.title.startswith("Estimates"))
-    estimates = [{"parameter": r[0], "unit": r[1], "all_runs": r[2], "overlap": r[3]} for r in overlap.rows]
+    table = next(t for t in result.tables if t.title.startswith("Estimates"))
+    estimates = [{"parameter": r[0], "unit": r[1], "all_runs": r[2], "between_runs": r[3], "overlap": r[4],
+                  "overlap_with_spread": r[5]} for r in table.rows]
     for e in estimates:
-        print(f"{e['parameter']} [{e['unit']}]: all runs {e['all_runs']}; overlapping intervals: {e['overlap']}")
+        print(f"{e['parameter']} [{e['unit']}]: all runs {e['all_runs']}; between runs {e['between_runs']}; "
+              f"overlapping intervals {e['overlap']}, with the spread between runs {e['overlap_with_spread']}")
     print(f"wall time: all runs {wall_all:.1f} s (12 simulations, 25 fits), run 01 alone {wall_first:.1f} s")
     args.out.mkdir(parents=True, exist_ok=True)
     (args.out / "umich_power_all_runs.json").write_text(json.dumps(

@@ -20,6 +20,14 @@ def s_curve_time(dv: float, a: float, j: float) -> float:
     return 2.0 * math.sqrt(dv / j)
 
 
+def s_curve_phases(dv: float, a: float, j: float) -> tuple[float, float]:
+    """(t1, t2) of a jerk-limited velocity change dv >= 0: each jerk phase lasts t1, the constant-acceleration
+    phase between them t2 (0 when the acceleration limit is not reached)."""
+    if dv >= a * a / j:
+        return a / j, dv / a - a / j
+    return math.sqrt(dv / j), 0.0
+
+
 def s_curve_distance(v0: float, v1: float, a: float, j: float) -> float:
     return 0.5 * (v0 + v1) * s_curve_time(abs(v1 - v0), a, j)
 
@@ -81,12 +89,7 @@ def s_curve_position(v0: float, v1: float, a: float, j: float, w: float) -> floa
     dv = abs(v1 - v0)
     if dv <= 0.0:
         return 0.0
-    if dv >= a * a / j:
-        t1 = a / j
-        t2 = dv / a - a / j
-    else:
-        t1 = math.sqrt(dv / j)
-        t2 = 0.0
+    t1, t2 = s_curve_phases(dv, a, j)
     total = 2.0 * t1 + t2
     delta = abs(w - v0)
     d1 = 0.5 * j * t1 * t1
@@ -318,12 +321,7 @@ def _s_curve_pieces(pieces: list[Piece], t: float, s: float, v0: float, v1: floa
         return t, s
     sign = 1.0 if dv > 0.0 else -1.0
     dv = abs(dv)
-    if dv >= a * a / j:
-        t1 = a / j
-        t2 = dv / a - a / j
-    else:
-        t1 = math.sqrt(dv / j)
-        t2 = 0.0
+    t1, t2 = s_curve_phases(dv, a, j)
     jerk = sign * j
     am = jerk * t1
     v = v0

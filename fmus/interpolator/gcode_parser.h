@@ -24,7 +24,19 @@ typedef struct {
     /* NURBS */
     int curve;
     double u0, u1;
+    /* machine state while the move runs */
+    int tool;       /* active tool number (T.. M6), 0 before the first tool change */
+    int coolant;    /* COOLANT_OFF, COOLANT_MIST (M7), COOLANT_FLOOD (M8), COOLANT_BOTH */
+    int exact_stop; /* 1: the path stops at the end of this move (G61, G9, the last move before a dwell) */
+    double dwell;   /* MOVE_DWELL: seconds the tool stands still at `start` (== `end`) */
 } GcMove;
+
+/* One row of the tool table (SI units); `number` is the T word. */
+typedef struct {
+    int number;
+    double diameter, corner_radius, length, stick_out, helix;
+    int flutes;
+} GcTool;
 
 typedef struct {
     int degree;
@@ -49,6 +61,9 @@ typedef struct {
 typedef struct {
     double start[3];      /* machine position before the program */
     double offsets[6][3]; /* G54..G59 */
+    int dialect;          /* DIALECT_FANUC, DIALECT_LINUXCNC, DIALECT_SINUMERIK */
+    const GcTool *tools;  /* the tool table (may be NULL when n_tools is 0); not owned */
+    size_t n_tools;
 } GcSettings;
 
 /* Parses `length` bytes of `text`. Returns 0 and fills `program` (free with gc_free), or -1 with the

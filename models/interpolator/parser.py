@@ -56,7 +56,10 @@ START_POINT_TOLERANCE = 1e-6   # m: first NURBS control point vs current positio
 ARC_RADIUS_TOLERANCE = 2e-6    # m, plus ARC_RADIUS_RELATIVE * radius
 ARC_RADIUS_RELATIVE = 1e-4
 
-MOVE_RAPID, MOVE_LINE, MOVE_ARC, MOVE_NURBS = 0, 1, 2, 3
+MOVE_RAPID, MOVE_LINE, MOVE_ARC, MOVE_NURBS, MOVE_DWELL = 0, 1, 2, 3, 4
+COOLANT_OFF, COOLANT_MIST, COOLANT_FLOOD, COOLANT_BOTH = 0, 1, 2, 3
+DIALECT_FANUC, DIALECT_LINUXCNC, DIALECT_SINUMERIK = 0, 1, 2
+DIALECTS = {"fanuc": DIALECT_FANUC, "linuxcnc": DIALECT_LINUXCNC, "sinumerik": DIALECT_SINUMERIK}
 
 
 class ProgramError(ValueError):
@@ -103,6 +106,23 @@ class Move:
     curve: int = -1
     u0: float = 0.0
     u1: float = 0.0
+    # machine state while the move runs
+    tool: int = 0                  # active tool number (T.. M6), 0 before the first tool change
+    coolant: int = COOLANT_OFF     # COOLANT_MIST (M7), COOLANT_FLOOD (M8), COOLANT_BOTH
+    exact_stop: bool = False       # the path stops at the end of this move (G61, G9, before a dwell)
+    dwell: float = 0.0             # MOVE_DWELL: seconds the tool stands still at start (== end)
+
+
+@dataclass(frozen=True)
+class Tool:
+    """One row of the tool table, SI units; ``number`` is the T word."""
+    number: int
+    diameter: float
+    corner_radius: float = 0.0
+    length: float = 0.0
+    stick_out: float = 0.0
+    helix: float = 0.0             # rad
+    flutes: int = 0
 
 
 @dataclass

@@ -69,26 +69,41 @@ static void fail_at(Parser *p, size_t line, const char *format, ...)
 #endif
     ;
 
-static void fail_at(Parser *p, size_t line, const char *format, ...) {
+/* "<file> line <n>: \"<raw, clipped to 80 characters, non-printable as ?>\": <expected>" */
+static void format_line_error(const char *raw, size_t raw_length, const char *file, size_t line,
+                              const char *expected, char *error, size_t error_size) {
     char shown[96];
-    char expected[512];
-    size_t i, n = 0, length = 0;
-    const char *raw = "";
-    va_list args;
-    if (line >= 1 && line <= p->n_lines) {
-        raw = p->text + p->line_start[line - 1];
-        length = p->line_length[line - 1];
-    }
-    for (i = 0; i < length && n < 80; i++, n++) {
+    size_t i, n = 0;
+    for (i = 0; i < raw_length && n < 80; i++, n++) {
         unsigned char c = (unsigned char)raw[i];
         shown[n] = (c >= 32 && c < 127) ? (char)c : '?';
     }
-    if (length > 80) memcpy(shown + 77, "...", 3), n = 80;
+    if (raw_length > 80) memcpy(shown + 77, "...", 3), n = 80;
     shown[n] = '\0';
+    snprintf(error, error_size, "%s line %zu: \"%s\": %s", file, line, shown, expected);
+}
+
+void gc_line_error(const char *text, size_t length, const char *file, size_t line, const char *expected,
+                   char *error, size_t error_size) {
+    size_t i, start = 0, k = 1, n = 0;
+    for (i = 0; i < length && k < line; i++)
+        if (text[i] == '\n') k++, start = i + 1;
+    if (line >= 1 && k == line) {
+        while (start + n < length && text[start + n] != '\n') n++;
+        if (n > 0 && text[start + n - 1] == '\r') n--;
+    }
+    format_line_error(text + start, n, file, line, expected, error, error_size);
+}
+
+static void fail_at(Parser *p, size_t line, const char *format, ...) {
+    char expected[512];
+    int known = line >= 1 && line <= p->n_lines;
+    va_list args;
     va_start(args, format);
     vsnprintf(expected, sizeof expected, format, args);
     va_end(args);
-    snprintf(p->error, p->error_size, "%s line %zu: \"%s\": %s", p->file, line, shown, expected);
+    format_line_error(known ? p->text + p->line_start[line - 1] : "", known ? p->line_length[line - 1] : 0, p->file,
+                      line, expected, p->error, p->error_size);
 }
 
 static double length_of(const Parser *p, double value) { return p->inch ? value * 0.0254 : value / 1000.0; }

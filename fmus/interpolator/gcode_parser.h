@@ -29,11 +29,15 @@ typedef struct {
     int coolant;    /* COOLANT_OFF, COOLANT_MIST (M7), COOLANT_FLOOD (M8), COOLANT_BOTH */
     int exact_stop; /* 1: the path stops at the end of this move (G61, G9, the last move before a dwell) */
     double dwell;   /* MOVE_DWELL: seconds the tool stands still at `start` (== `end`) */
+    double tolerance; /* contour tolerance of G64 P / CYCLE832, m; 0: the chord_error parameter */
+    int comp;         /* cutter radius compensation: COMP_OFF (G40), COMP_LEFT (G41), COMP_RIGHT (G42) */
+    double comp_radius; /* m: the radius the tool path is offset by (tool table radius of D) */
 } GcMove;
 
 /* One row of the tool table (SI units); `number` is the T word. */
 typedef struct {
     int number;
+    char name[32]; /* Sinumerik T="name"; empty without */
     double diameter, corner_radius, length, stick_out, helix;
     int flutes;
 } GcTool;
@@ -71,5 +75,10 @@ typedef struct {
 int gc_parse(const char *text, size_t length, const char *file, const GcSettings *settings, GcProgram *program,
              char *error, size_t error_size);
 void gc_free(GcProgram *program);
+
+/* The parser's message format for a later stage that refuses a line of the program (cutter compensation):
+ * "<file> line <n>: \"<text of that line, at most 80 characters, non-printable shown as ?>\": <expected>". */
+void gc_line_error(const char *text, size_t length, const char *file, size_t line, const char *expected,
+                   char *error, size_t error_size);
 
 #endif

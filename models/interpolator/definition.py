@@ -131,7 +131,7 @@ def _constants() -> tuple[tuple[str, int | float | tuple[float, ...]], ...]:
     names = {parser: ("MAX_LINE_LENGTH", "MAX_SIGNIFICANT_DIGITS", "MAX_COORDINATE", "MAX_FEED_WORD", "MAX_SPEED_WORD",
                       "MAX_NURBS_POINTS", "MAX_DEGREE", "START_POINT_TOLERANCE", "ARC_RADIUS_TOLERANCE",
                       "ARC_RADIUS_RELATIVE", "MOVE_RAPID", "MOVE_LINE", "MOVE_ARC", "MOVE_NURBS", "MOVE_DWELL",
-                      "COOLANT_OFF", "COOLANT_MIST", "COOLANT_FLOOD", "COOLANT_BOTH", "DIALECT_FANUC",
+                      "COMP_OFF", "COMP_LEFT", "COMP_RIGHT", "COOLANT_OFF", "COOLANT_MIST", "COOLANT_FLOOD", "COOLANT_BOTH", "DIALECT_FANUC",
                       "DIALECT_LINUXCNC", "DIALECT_SINUMERIK"),
              nurbs: ("GL_NODES", "GL_WEIGHTS"),
              path: ("COS_TURN", "CURVATURE_VARIATION", "SIGNIFICANT_TURN", "MAX_SAMPLE_DEPTH", "MAX_SAMPLES",

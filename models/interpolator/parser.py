@@ -57,6 +57,7 @@ ARC_RADIUS_TOLERANCE = 2e-6    # m, plus ARC_RADIUS_RELATIVE * radius
 ARC_RADIUS_RELATIVE = 1e-4
 
 MOVE_RAPID, MOVE_LINE, MOVE_ARC, MOVE_NURBS, MOVE_DWELL = 0, 1, 2, 3, 4
+COMP_OFF, COMP_LEFT, COMP_RIGHT = 0, 1, 2
 COOLANT_OFF, COOLANT_MIST, COOLANT_FLOOD, COOLANT_BOTH = 0, 1, 2, 3
 DIALECT_FANUC, DIALECT_LINUXCNC, DIALECT_SINUMERIK = 0, 1, 2
 DIALECTS = {"fanuc": DIALECT_FANUC, "linuxcnc": DIALECT_LINUXCNC, "sinumerik": DIALECT_SINUMERIK}
@@ -111,6 +112,9 @@ class Move:
     coolant: int = COOLANT_OFF     # COOLANT_MIST (M7), COOLANT_FLOOD (M8), COOLANT_BOTH
     exact_stop: bool = False       # the path stops at the end of this move (G61, G9, before a dwell)
     dwell: float = 0.0             # MOVE_DWELL: seconds the tool stands still at start (== end)
+    tolerance: float = 0.0         # contour tolerance of G64 P / CYCLE832, m; 0: the chord_error parameter
+    comp: int = COMP_OFF           # cutter radius compensation: COMP_LEFT (G41), COMP_RIGHT (G42)
+    comp_radius: float = 0.0       # m: the radius the tool path is offset by
 
 
 @dataclass(frozen=True)
@@ -118,6 +122,7 @@ class Tool:
     """One row of the tool table, SI units; ``number`` is the T word."""
     number: int
     diameter: float
+    name: str = ""                  # Sinumerik T="name"
     corner_radius: float = 0.0
     length: float = 0.0
     stick_out: float = 0.0

@@ -4,9 +4,7 @@
 # FMU's generated variables (model_generated.c: the parameters' start values; model_table_fmi3.c: --param by name)
 # and constants (model_constants.h). (The parser's fuzz target, gcode, is built by tests/fuzz/CMakeLists.txt from
 # the FMU's sources minus model.c.)
-set(INTERPOLATOR_DIR ${CMAKE_CURRENT_SOURCE_DIR}/interpolator)
-set(INTERPOLATOR_ENGINE ${INTERPOLATOR_DIR}/gcode_parser.c ${INTERPOLATOR_DIR}/nurbs.c ${INTERPOLATOR_DIR}/path.c
-    ${INTERPOLATOR_DIR}/feed_schedule.c ${INTERPOLATOR_DIR}/param_update.c ${INTERPOLATOR_DIR}/interpolator.c)
+# INTERPOLATOR_DIR and the engine's sources INTERPOLATOR_ENGINE: sources.cmake (included before add_fmu).
 
 set(INTERPOLATOR_GENERATED ${CMAKE_BINARY_DIR}/generated/Interpolator)
 add_executable(interp_run ${INTERPOLATOR_DIR}/tools/interp_run.c ${INTERPOLATOR_ENGINE} ${INTERPOLATOR_DIR}/interp_settings.c

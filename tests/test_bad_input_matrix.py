@@ -288,7 +288,7 @@ def test_parameter_set_values_types_and_truncation(make_case, fmu_dir: Path, bod
 
 PROGRAM_CASES = [  # (id, program, line, the message's tail)
     ("truncated in a word", "G1 X10 F600\nG1 Y", 2, "\"G1 Y\": a number after 'Y'"),
-    ("truncated NURBS block", "G0 X1\nG6.2 P2 K0 X1 Y0 R1 F600\nK0 X2 Y1 R1\n", 3,
+    ("truncated NURBS block", "G0 X1\nG6.2 P3 K0 X1 Y0 R1 F600\nK0 X2 Y1 R1\n", 3,
      '"K0 X2 Y1 R1": at least degree + 1 = 3 control points in the NURBS block started in line 2, got 2'),
     ("huge coordinate", "G1 X99999999999999999 F600\n", 1,
      '"G1 X99999999999999999 F600": a coordinate of magnitude at most 1e+06'),

@@ -120,7 +120,7 @@ G19 G3 Y10 Z0 R5
 G17 G91 G1 X-4 Y2 Z-1 F1500
 G90 G20 G1 X0.2 Y0.4 F60
 G21 G2 X10 Y15.08 Z2 I4.92 J0 F2000
-G6.2 P3 K0 X10 Y15.08 Z2 F2400
+G6.2 P4 K0 X10 Y15.08 Z2 F2400
 K0 X15 Y12 R2
 K0 X18 Y4 R0.5
 K0 X22 Y9 Z3
@@ -345,7 +345,7 @@ def test_centripetal_acceleration_and_chord_error_hold_on_arcs(tmp_path: Path) -
 
 @pytest.mark.parametrize("method", [1, 2, 3, 4])
 def test_program_ends_at_rest_exactly_on_its_last_point(tmp_path: Path, method: int) -> None:
-    text = circle_program(5.0, 3000).replace("M30", "G1 X30 Y7 F3000\nG6.2 P2 K0 X30 Y7 F2000\nK0 X35 Y12 R3\n"
+    text = circle_program(5.0, 3000).replace("M30", "G1 X30 Y7 F3000\nG6.2 P3 K0 X30 Y7 F2000\nK0 X35 Y12 R3\n"
                                                     "K0 X40 Y7\nK1\nK1\nK1\nM30")
     rows, slave = run_fmu(text, tmp_path, {"method": method})
     slave.unload()

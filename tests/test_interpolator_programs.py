@@ -21,16 +21,16 @@ BAD = [
     ("missing coordinate", "G21\nG0 X1 Y2\nG1 X F600\n", 3, '"G1 X F600": a number after \'X\''),
     ("missing arc centre", "G1 X10 F100\nG2 X20 Y0\n", 2,
      '"G2 X20 Y0": the arc centre (I, J) or the radius R with G2'),
-    ("knots decreasing", "G0 X1\nG6.2 P2 K0 X1 Y0 R1 F600\nK0.5 X2 Y1 R1\nK0.2 X3 Y0 R1\nK1\nK1\nK1\n", 4,
+    ("knots decreasing", "G0 X1\nG6.2 P3 K0 X1 Y0 R1 F600\nK0.5 X2 Y1 R1\nK0.2 X3 Y0 R1\nK1\nK1\nK1\n", 4,
      '"K0.2 X3 Y0 R1": non-decreasing knots, got K0.2 after 0.5'),
-    ("weight zero", "G0 X1\nG6.2 P2 K0 X1 Y0 R1 F600\nK0 X2 Y1 R0\nK0 X3 Y0 R1\nK1\nK1\nK1\n", 3,
+    ("weight zero", "G0 X1\nG6.2 P3 K0 X1 Y0 R1 F600\nK0 X2 Y1 R0\nK0 X3 Y0 R1\nK1\nK1\nK1\n", 3,
      '"K0 X2 Y1 R0": a weight R > 0 (and at most 1e+06), got R0'),
-    ("weight negative", "G0 X1\nG6.2 P2 K0 X1 Y0 R1 F600\nK0 X2 Y1 R-2\nK0 X3 Y0 R1\nK1\nK1\nK1\n", 3,
+    ("weight negative", "G0 X1\nG6.2 P3 K0 X1 Y0 R1 F600\nK0 X2 Y1 R-2\nK0 X3 Y0 R1\nK1\nK1\nK1\n", 3,
      '"K0 X2 Y1 R-2": a weight R > 0 (and at most 1e+06), got R-2'),
     ("F missing on the first feed move", "(no feed)\nG21 G90\nG0 X5\nG1 X10 Y3\n", 4,
      '"G1 X10 Y3": F (feed) before the first feed move (G1, G2, G3, G6.2)'),
-    ("F missing on the first NURBS", "G6.2 P2 K0 X0 Y0 R1\nK0 X1 Y1\nK0 X2 Y0\nK1\nK1\nK1\n", 1,
-     '"G6.2 P2 K0 X0 Y0 R1": F (feed) before the first feed move (G1, G2, G3, G6.2)'),
+    ("F missing on the first NURBS", "G6.2 P3 K0 X0 Y0 R1\nK0 X1 Y1\nK0 X2 Y0\nK1\nK1\nK1\n", 1,
+     '"G6.2 P3 K0 X0 Y0 R1": F (feed) before the first feed move (G1, G2, G3, G6.2)'),
     ("unclosed comment", "G1 X10 F100 (open\n", 1, '"G1 X10 F100 (open": \')\' to close the comment'),
     ("unknown letter", "T1 M6\n", 1, '"T1 M6": a word G, M, N, X, Y, Z, I, J, K, R, F, S, P or L, got \'T\''),
     ("unsupported M code", "M8\n", 1, '"M8": a supported M code (M2 M3 M4 M5 M30), got M8'),
@@ -44,17 +44,18 @@ BAD = [
      '"G2 X20 Y0 I4 J0": the end point on the arc: its distance from the centre is 6, the start\'s 4'),
     ("radius too small", "G1 X10 F100\nG2 X30 R5\n", 2,
      '"G2 X30 R5": a radius R of at least half the distance to the end point (10)'),
-    ("first control point elsewhere", "G6.2 P2 K0 X5 Y0 R1 F600\nK0 X2 Y1\nK0 X3 Y0\nK1\nK1\nK1\n", 1,
-     '"G6.2 P2 K0 X5 Y0 R1 F600": the first control point at the current position (0, 0, 0)'),
-    ("too few closing knots", "G0 X1\nG6.2 P2 K0 X1 Y0 R1 F600\nK0 X2 Y1\nK0 X3 Y0\nK1\nK1\n", 6,
+    ("first control point elsewhere", "G6.2 P3 K0 X5 Y0 R1 F600\nK0 X2 Y1\nK0 X3 Y0\nK1\nK1\nK1\n", 1,
+     '"G6.2 P3 K0 X5 Y0 R1 F600": the first control point at the current position (0, 0, 0)'),
+    ("too few closing knots", "G0 X1\nG6.2 P3 K0 X1 Y0 R1 F600\nK0 X2 Y1\nK0 X3 Y0\nK1\nK1\n", 6,
      '"K1": degree + 1 = 3 knot-only lines (K) closing the NURBS block started in line 2, got 2'),
-    ("unclamped knots", "G6.2 P2 K0 X0 Y0 F600\nK0 X1 Y1\nK0.5 X2 Y0\nK1\nK1\nK1\n", 1,
-     '"G6.2 P2 K0 X0 Y0 F600": a clamped knot vector (the first and the last 3 knots equal) in the NURBS block '
+    ("unclamped knots", "G6.2 P3 K0 X0 Y0 F600\nK0 X1 Y1\nK0.5 X2 Y0\nK1\nK1\nK1\n", 1,
+     '"G6.2 P3 K0 X0 Y0 F600": a clamped knot vector (the first and the last 3 knots equal) in the NURBS block '
      'started here'),
-    ("degree out of range", "G6.2 P7 K0 X0 Y0 F600\n", 1, '"G6.2 P7 K0 X0 Y0 F600": a degree P of 1 to 5, got P7'),
-    ("NURBS in G91", "G91\nG6.2 P2 K0 X0 Y0 F600\n", 2,
-     '"G6.2 P2 K0 X0 Y0 F600": G90 (absolute coordinates) for a NURBS block'),
-    ("other words in a NURBS block", "G6.2 P2 K0 X0 Y0 F600\nK0 X1 Y1 F300\n", 2,
+    ("order out of range", "G6.2 P7 K0 X0 Y0 F600\n", 1,
+     '"G6.2 P7 K0 X0 Y0 F600": an order P (degree + 1) of 2 to 6, got P7'),
+    ("NURBS in G91", "G91\nG6.2 P3 K0 X0 Y0 F600\n", 2,
+     '"G6.2 P3 K0 X0 Y0 F600": G90 (absolute coordinates) for a NURBS block'),
+    ("other words in a NURBS block", "G6.2 P3 K0 X0 Y0 F600\nK0 X1 Y1 F300\n", 2,
      '"K0 X1 Y1 F300": K, X, Y, Z, R in a NURBS block (started in line 1), got F'),
     ("too many digits", "G1 X1.234567890123456789 F100\n", 1,
      '"G1 X1.234567890123456789 F100": at most 17 significant digits in the number after \'X\''),
@@ -117,7 +118,7 @@ GOOD = [
     ("inch and incremental", "G20 G91 G1 X1 F10\nG90 G21 G1 X0\n", 2),
     ("modal motion and a full circle", "G1 X10 F600\nX20\nG2 I-5 J0\n", 3),
     ("modal G2 with only a centre", "G1 X10 F600\nG3 X0 Y10 I-10\nG2 I0 J-10\n", 3),
-    ("a degree-1 NURBS (a polyline with corners)", "G6.2 P1 K0 X0 Y0 F600\nK0 X1 Y0\nK1 X1 Y1\nK2\nK2\n", 2),
+    ("a degree-1 NURBS (a polyline with corners)", "G6.2 P2 K0 X0 Y0 F600\nK0 X1 Y0\nK1 X1 Y1\nK2\nK2\n", 2),
     ("G10 and offsets", "G10 L2 P6 X10\nG59 G0 X0\nG54 G0 X0\n", 2),
     ("M2 with blank lines and comments after it", "G1 X1 F100\nM2\n\n(end)\n", 1),
     ("spindle words", "S8000 M3\nG1 X1 F100\nM4\nG1 X0\nM5\n", 2),
@@ -134,7 +135,7 @@ def test_documented_forms_parse_in_c_and_python(tmp_path: Path, name: str, text:
 
 
 def test_a_degree_1_nurbs_stops_at_its_corners(tmp_path: Path) -> None:
-    text = "G6.2 P1 K0 X0 Y0 F600\nK0 X10 Y0\nK1 X10 Y10\nK2\nK2\n"
+    text = "G6.2 P2 K0 X0 Y0 F600\nK0 X10 Y0\nK1 X10 Y10\nK2\nK2\n"
     interp = ip.Interpolator(text, {})
     assert [(m.u0, m.u1) for m in interp.program.moves] == [(0.0, 1.0), (1.0, 2.0)]
     path = interp.path

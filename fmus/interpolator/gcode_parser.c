@@ -608,12 +608,12 @@ static int nurbs(Parser *p, size_t first_line, size_t *last_line) {
     }
     if (has(p, 'P')) {
         double pv = val(p, 'P');
-        if (pv != 1.0 && pv != 2.0 && pv != 3.0 && pv != 4.0 && pv != 5.0) {
-            fail_at(p, line, "a degree P of 1 to %d, got P%.*s", MAX_DEGREE, slot(p, 'P')->text_length,
-                    slot(p, 'P')->text);
+        if (pv != 2.0 && pv != 3.0 && pv != 4.0 && pv != 5.0 && pv != 6.0) {
+            fail_at(p, line, "an order P (degree + 1) of 2 to %d, got P%.*s", MAX_DEGREE + 1,
+                    slot(p, 'P')->text_length, slot(p, 'P')->text);
             return -1;
         }
-        degree = (int)pv;
+        degree = (int)pv - 1;
     }
     if (set_feed_and_speed(p, line) != 0) return -1;
     if (p->g[G_PLANE] >= 0 || p->g[G_UNITS] >= 0 || p->g[G_DISTANCE] >= 0 || p->g[G_OFFSET] >= 0) {

@@ -19,9 +19,9 @@ G-code subset (one block per line; letters case-insensitive; ``N`` words and bla
 - Within a line: F and S, then M3/M4/M5, then G17-G19/G20/G21/G90/G91/G54-G59, then G10, then the
   motion, then M2/M30. Axis words without G10 need a motion mode (G0-G3 set one, it is modal).
 
-NURBS blocks (Fanuc style; ``P`` is the degree here, not Fanuc's order)::
+NURBS blocks (Fanuc style; ``P`` is the order = degree + 1, 2..6, default 4: a cubic)::
 
-    G6.2 P3 K0 X.. Y.. Z.. R1 [F..]   first control point: must be the current position (1 um)
+    G6.2 P4 K0 X.. Y.. Z.. R1 [F..]   first control point: must be the current position (1 um)
     K0 X.. Y.. R..                    one control point per line: knot K, axes (omitted: previous
     ...                               control point's), weight R > 0 (default 1)
     K1                                then degree+1 lines with a knot only
@@ -31,7 +31,7 @@ NURBS blocks (Fanuc style; ``P`` is the degree here, not Fanuc's order)::
 
 The block ends at the first line without K. Knots must be non-decreasing and clamped (first and last
 degree+1 equal), inner knots of multiplicity at most the degree (degree = a corner, handled as a
-block boundary); at least degree+1 control points; degree 1..5; only in G90.
+block boundary); at least degree+1 control points; degree 1..5 (P2..P6); only in G90.
 
 Every malformed line fails initialization with ``<file> line <n>: "<text>": <what was expected>``.
 """
@@ -535,9 +535,9 @@ class _Parser:
         degree = 3
         if "P" in seen:
             pv = seen["P"][0]
-            if pv not in (1.0, 2.0, 3.0, 4.0, 5.0):
-                self.fail(number, f"a degree P of 1 to {MAX_DEGREE}, got P{seen['P'][1]}")
-            degree = int(pv)
+            if pv not in (2.0, 3.0, 4.0, 5.0, 6.0):
+                self.fail(number, f"an order P (degree + 1) of 2 to {MAX_DEGREE + 1}, got P{seen['P'][1]}")
+            degree = int(pv) - 1
         self.feed_and_spindle(number, seen, ms)
         for group in ("plane", "units", "distance", "offset"):
             if group in gs:
@@ -685,11 +685,12 @@ def _g(x: float) -> str:
 
 def nurbs_block_gcode(points_mm: Sequence[Sequence[float]], weights: Sequence[float], knots: Sequence[float],
                       degree: int, feed_mm_min: float | None = None) -> list[str]:
-    """The lines of a G6.2 block (P = degree) for control points in mm (x, y[, z])."""
+    """The lines of a G6.2 block of the given degree (written as Fanuc's order P = degree + 1) for control points
+    in mm (x, y[, z])."""
     lines = []
     for i, (point, w) in enumerate(zip(points_mm, weights)):
         axes = " ".join(f"{a}{_g(float(c))}" for a, c in zip("XYZ", point))
-        head = f"G6.2 P{degree} " if i == 0 else ""
+        head = f"G6.2 P{degree + 1} " if i == 0 else ""
         tail = f" F{_g(feed_mm_min)}" if i == 0 and feed_mm_min is not None else ""
         lines.append(f"{head}K{_g(float(knots[i]))} {axes} R{_g(float(w))}{tail}")
     for k in knots[len(points_mm):]:

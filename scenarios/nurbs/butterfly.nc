@@ -1,7 +1,7 @@
 (butterfly NURBS curve of the interpolation literature, scenarios/nurbs/PROVENANCE.md)
 (F 100 mm/s; start the tool on the first control point: start_x/start_y)
 G21 G90 G17
-G6.2 P3 K0 X54.493 Y52.139 R1 F6000
+G6.2 P4 K0 X54.493 Y52.139 R1 F6000
 K0 X55.507 Y52.139 R1
 K0 X56.082 Y49.615 R1
 K0 X56.78 Y44.971 R1.2

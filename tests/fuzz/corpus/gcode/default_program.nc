@@ -5,7 +5,7 @@ S6000 M3
 G0 X0 Y0 Z2                   (rapid to the start, from wherever the tool is)
 G1 Z0 F1200                   (plunge)
 (a rational quadratic NURBS: the quarter circle of radius 10 mm around X0 Y10)
-G6.2 P2 K0 X0 Y0 Z0 R1 F6000
+G6.2 P3 K0 X0 Y0 Z0 R1 F6000
 K0 X10 Y0 R0.7071067811865476
 K0 X10 Y10 R1
 K1
@@ -16,7 +16,7 @@ G1 X-20 F3000                 (a line tangent to the arc: curvature jump)
 G2 X-30 Y10 R10               (R form, clockwise)
 G1 Y0                         (tangent line)
 G1 X-10 Z-2 F1500             (corner, 3D line)
-G6.2 P3 K0 X-10 Y0 Z-2 F4800  (a cubic NURBS arch, after a corner)
+G6.2 P4 K0 X-10 Y0 Z-2 F4800  (a cubic NURBS arch, after a corner)
 K0 X-5 Y4
 K0 X5 Y4
 K0 X10 Y0

@@ -65,6 +65,7 @@ typedef struct {
 typedef struct {
     double start[3];      /* machine position before the program */
     double offsets[6][3]; /* G54..G59 */
+    double home[3];       /* machine position of the reference point (G28) */
     int dialect;          /* DIALECT_FANUC, DIALECT_LINUXCNC, DIALECT_SINUMERIK */
     const GcTool *tools;  /* the tool table (may be NULL when n_tools is 0); not owned */
     size_t n_tools;

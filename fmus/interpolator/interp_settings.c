@@ -45,8 +45,17 @@ void interp_settings_of(const ModelVariables *v, InterpSettings *s) {
     s->update.rbf.weights[4] = v->rbf_weight_5;
     s->update.rbf.bias = v->rbf_bias;
     s->gcode.start[0] = v->start_x, s->gcode.start[1] = v->start_y, s->gcode.start[2] = v->start_z;
+    s->gcode.dialect = interp_dialect(v->dialect);
+    s->gcode.home[0] = v->home_x, s->gcode.home[1] = v->home_y, s->gcode.home[2] = v->home_z;
     for (j = 0; j < 6; j++)
         for (i = 0; i < 3; i++) s->gcode.offsets[j][i] = *offsets[j][i];
+}
+
+int interp_dialect(const char *name) {
+    if (strcmp(name, "fanuc") == 0) return DIALECT_FANUC;
+    if (strcmp(name, "linuxcnc") == 0) return DIALECT_LINUXCNC;
+    if (strcmp(name, "sinumerik") == 0) return DIALECT_SINUMERIK;
+    return -1;
 }
 
 void interp_default_settings(InterpSettings *s) {

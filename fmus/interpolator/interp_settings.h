@@ -9,6 +9,8 @@
 #include "model_generated.h"
 
 void interp_settings_of(const ModelVariables *v, InterpSettings *s);
+/* DIALECT_FANUC, DIALECT_LINUXCNC or DIALECT_SINUMERIK for the `dialect` parameter's value; -1 for another. */
+int interp_dialect(const char *name);
 /* The settings of the model definition's defaults (every parameter at its start value). */
 void interp_default_settings(InterpSettings *s);
 

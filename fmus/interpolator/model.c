@@ -13,6 +13,7 @@
 #include "fmu_instance.h"
 #include "interp_settings.h"
 #include "resource_location.h"
+#include "tool_table.h"
 
 #define MAX_PROGRAM_BYTES (64u << 20)
 #define PROGRAM_FILE_NAME "program.nc"
@@ -73,15 +74,38 @@ FmuStatus model_exit_initialization(FmuInstance *instance) {
     size_t length = 0;
     InterpPrepared prepared;
     int status;
+    GcTool *tools = NULL;
+    size_t n_tools = 0;
 
     memset(w, 0, sizeof *w);
     interp_settings_of(v, &w->settings);
+    if (w->settings.gcode.dialect < 0) {
+        fmu_log(instance, FMU_ERROR, "logStatusError", "%s: parameter 'dialect' is '%s': expected fanuc, linuxcnc or "
+                "sinumerik", function, v->dialect);
+        return FMU_ERROR;
+    }
+    if (v->tool_table[0] != '\0') {
+        char *table_text = read_file(v->tool_table, &length, error, sizeof error);
+        if (!table_text) {
+            fmu_log(instance, FMU_ERROR, "logStatusError", "%s: parameter 'tool_table': %s", function, error);
+            return FMU_ERROR;
+        }
+        status = tool_table_parse(table_text, length, v->tool_table, &tools, &n_tools, error, sizeof error);
+        free(table_text);
+        if (status != 0) {
+            fmu_log(instance, FMU_ERROR, "logStatusError", "%s: parameter 'tool_table': %s", function, error);
+            return FMU_ERROR;
+        }
+        w->settings.gcode.tools = tools;
+        w->settings.gcode.n_tools = n_tools;
+    }
     if (v->program[0] != '\0') {
         snprintf(path, sizeof path, "%s", v->program);
         file = v->program;
         owned = read_file(path, &length, error, sizeof error);
         if (!owned) {
             fmu_log(instance, FMU_ERROR, "logStatusError", "%s: parameter 'program': %s", function, error);
+            free(tools);
             return FMU_ERROR;
         }
         text = owned;
@@ -89,12 +113,14 @@ FmuStatus model_exit_initialization(FmuInstance *instance) {
         if (fmu_resource_file(instance->resource_path, PROGRAM_FILE_NAME, path, sizeof path, error,
                               sizeof error) != 0) {
             fmu_log(instance, FMU_ERROR, "logStatusError", "%s: parameter 'program' is empty and %s", function, error);
+            free(tools);
             return FMU_ERROR;
         }
         file = "resources/" PROGRAM_FILE_NAME;
         owned = read_file(path, &length, error, sizeof error);
         if (!owned) {
             fmu_log(instance, FMU_ERROR, "logStatusError", "%s: parameter 'program' is empty and %s", function, error);
+            free(tools);
             return FMU_ERROR;
         }
         text = owned;
@@ -108,6 +134,10 @@ FmuStatus model_exit_initialization(FmuInstance *instance) {
     }
     status = interp_prepare(text, length, file, &w->settings, &prepared, error, sizeof error);
     free(owned);
+    /* the parser has taken what it needs of the tool table: no pointer stays in the instance (FMU states) */
+    free(tools);
+    w->settings.gcode.tools = NULL;
+    w->settings.gcode.n_tools = 0;
     if (status != 0) {
         fmu_log(instance, FMU_ERROR, "logStatusError", "%s: part program %s", function, error);
         return FMU_ERROR;

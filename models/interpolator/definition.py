@@ -32,6 +32,14 @@ def _variables() -> tuple[Variable, ...]:
         Variable("program", "String", "parameter",
                  "Part program file (absolute path, or relative to the working directory); empty: "
                  "resources/program.nc of the FMU", start="", variability=fixed),
+        Variable("dialect", "String", "parameter",
+                 "G-code dialect of the part program: fanuc (also Haas and most post-processors' Fanuc posts), "
+                 "linuxcnc or sinumerik (Siemens 840D); docs/interpolator.md lists the differences",
+                 start="fanuc", variability=fixed),
+        Variable("tool_table", "String", "parameter",
+                 "Tool table file in LinuxCNC's format (T, D diameter mm, Z length mm; corner_radius, flutes, helix, "
+                 "stick_out, name as key=value in the comment), absolute or relative to the working directory; "
+                 "empty: no tool table (T words select tools without geometry)", start="", variability=fixed),
         Variable("period", "Float64", "parameter", "Interpolation period", unit="s", display_unit="ms",
                  start=1e-3, min=1e-5, max=0.1, variability=fixed),
         Variable("method", "Int32", "parameter",
@@ -73,6 +81,10 @@ def _variables() -> tuple[Variable, ...]:
     for axis in "xyz":
         v.append(Variable(f"start_{axis}", "Float64", "parameter",
                           f"Machine {axis.upper()} position of the tool before the program starts",
+                          unit="m", display_unit="mm", start=0.0, min=-10.0, max=10.0, variability=fixed))
+    for axis in "xyz":
+        v.append(Variable(f"home_{axis}", "Float64", "parameter",
+                          f"Machine {axis.upper()} position of the reference point that G28 returns to",
                           unit="m", display_unit="mm", start=0.0, min=-10.0, max=10.0, variability=fixed))
     for name in OFFSET_NAMES:
         for axis in "xyz":

@@ -1,6 +1,7 @@
 /* Standalone driver of the interpolator engine (the FMU's C code without the FMI wrapper):
  *
- *   interp_run [--param name=value ...] [--csv out.csv] [--repeat N] [--override x] program.nc
+ *   interp_run [--param name=value ...] [--dialect fanuc|linuxcnc|sinumerik] [--tool-table tool.tbl]
+ *              [--csv out.csv] [--repeat N] [--override x] program.nc
  *
  * Parameters take the FMU's variable names and SI values (period, method, corrector_predictor,
  * corrector_tolerance, max_feed, rapid_feed, acceleration, jerk, centripetal_acceleration, chord_error,
@@ -17,6 +18,7 @@
 #include <time.h>
 
 #include "../interp_settings.h"
+#include "../tool_table.h"
 
 /* Sets a parameter by its FMU name through the generated variable table (name, type, offset in ModelVariables),
  * as the FMU's set functions do (without their range checks). */
@@ -84,7 +86,9 @@ int main(int argc, char **argv) {
     InterpPrepared prepared;
     InterpLayout layout;
     InterpState state;
-    const char *program = NULL, *csv = NULL;
+    const char *program = NULL, *csv = NULL, *dialect = "fanuc", *table = NULL;
+    GcTool *tools = NULL;
+    size_t n_tools = 0;
     ModelVariables variables;
     int repeat = 0, k;
     double override = 1.0, *heap, *costs = NULL;
@@ -98,6 +102,10 @@ int main(int argc, char **argv) {
                 fprintf(stderr, "interp_run: bad --param %s\n", argv[k]);
                 return 2;
             }
+        } else if (strcmp(argv[k], "--dialect") == 0 && k + 1 < argc) {
+            dialect = argv[++k];
+        } else if (strcmp(argv[k], "--tool-table") == 0 && k + 1 < argc) {
+            table = argv[++k];
         } else if (strcmp(argv[k], "--csv") == 0 && k + 1 < argc) {
             csv = argv[++k];
         } else if (strcmp(argv[k], "--repeat") == 0 && k + 1 < argc) {
@@ -107,8 +115,8 @@ int main(int argc, char **argv) {
         } else if (argv[k][0] != '-' && !program) {
             program = argv[k];
         } else {
-            fprintf(stderr, "usage: interp_run [--param name=value ...] [--csv out.csv] [--repeat N] [--override x] "
-                            "program.nc\n");
+            fprintf(stderr, "usage: interp_run [--param name=value ...] [--dialect fanuc|linuxcnc|sinumerik] "
+                            "[--tool-table tool.tbl] [--csv out.csv] [--repeat N] [--override x] program.nc\n");
             return 2;
         }
     }
@@ -117,6 +125,27 @@ int main(int argc, char **argv) {
         return 2;
     }
     interp_settings_of(&variables, &settings);
+    settings.gcode.dialect = interp_dialect(dialect);
+    if (settings.gcode.dialect < 0) {
+        fprintf(stderr, "interp_run: --dialect %s: expected fanuc, linuxcnc or sinumerik\n", dialect);
+        return 2;
+    }
+    if (table) {
+        int status;
+        text = read_all(table, &length);
+        if (!text) {
+            fprintf(stderr, "interp_run: cannot read %s\n", table);
+            return 2;
+        }
+        status = tool_table_parse(text, length, table, &tools, &n_tools, error, sizeof error);
+        free(text);
+        if (status != 0) {
+            fprintf(stderr, "interp_run: %s\n", error);
+            return 1;
+        }
+        settings.gcode.tools = tools;
+        settings.gcode.n_tools = n_tools;
+    }
     text = read_all(program, &length);
     if (!text) {
         fprintf(stderr, "interp_run: cannot read %s\n", program);
@@ -125,9 +154,13 @@ int main(int argc, char **argv) {
     if (interp_prepare(text, length, program, &settings, &prepared, error, sizeof error) != 0) {
         fprintf(stderr, "interp_run: %s\n", error);
         free(text);
+        free(tools);
         return 1;
     }
     free(text);
+    free(tools);
+    settings.gcode.tools = NULL;
+    settings.gcode.n_tools = 0;
     heap = calloc(interp_heap_size(&prepared), sizeof *heap);
     if (!heap) return 3;
     interp_install(&prepared, heap, &layout);

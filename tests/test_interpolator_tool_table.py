@@ -1,0 +1,111 @@
+"""The Interpolator's tool table (LinuxCNC format): the C reader (through the standalone driver and the FMU) and
+the Python reference read the same tools and refuse the same lines with the same message."""
+from __future__ import annotations
+
+import math
+import subprocess
+from pathlib import Path
+
+import pytest
+
+from fmu_helpers import ERROR, Slave, fmu_dir, fmu_file_name, repo_root, require_fmu, status_of
+from milling_twin.models.interpolator import parser as gp
+from milling_twin.models.interpolator import tool_table as tt
+
+DRIVER = repo_root() / "build" / "tools" / "interp_run"
+
+GOOD_TABLE = """; the tools of a small job (LinuxCNC's own format)
+T1 P1 D10.000 Z+50.000 ; 10 mm end mill corner_radius=0.5 flutes=3 helix=30 stick_out=40 name=END10
+T2 P2 D6.8 Z+80.5 ;6.8 mm drill flutes=2 helix=30
+t12 p3 x0 y0 z+40 d3.175 i0 j0 q0 ;lower case and the columns LinuxCNC writes
+T99999 P99999 Z+0.100000 ;big tool number
+"""
+
+# (name, table, line, what was expected)
+BAD = [
+    ("no tool number", "P1 D10\n", 1, '"P1 D10": the tool number T'),
+    ("unknown word", "T1 D10 R3\n", 1,
+     '"T1 D10 R3": a tool table word T, P, X, Y, Z, A, B, C, U, V, W, D, I, J, Q (letter and number), got \'R3\''),
+    ("not a number", "T1 D1e2\n", 1, '"T1 D1e2": a number after \'D\', got \'D1e2\''),
+    ("tool 0", "T0 D10\n", 1, '"T0 D10": a whole tool number T of 1 to 99999'),
+    ("fractional tool", "T1.5 D10\n", 1, '"T1.5 D10": a whole tool number T of 1 to 99999'),
+    ("a tool twice", "T1 D10\nT2 D6\nT1 D8\n", 3, '"T1 D8": tool T1 once in the table'),
+    ("negative diameter", "T1 D-10\n", 1, '"T1 D-10": a diameter D >= 0'),
+    ("two D words", "T1 D10 D12\n", 1, '"T1 D10 D12": one D word per tool'),
+    ("corner radius above half the diameter", "T1 D10 ; corner_radius=6\n", 1,
+     '"T1 D10 ; corner_radius=6": a corner_radius of 0 to half the diameter (5 mm), got 6'),
+    ("fractional flutes", "T1 D10 ; flutes=2.5\n", 1, '"T1 D10 ; flutes=2.5": a whole number of flutes >= 0, got 2.5'),
+    ("helix of 90 degrees", "T1 D10 ; helix=90\n", 1,
+     '"T1 D10 ; helix=90": a helix angle of 0 to less than 90 degrees, got 90'),
+    ("bad stick-out", "T1 D10 ; stick_out=long\n", 1,
+     '"T1 D10 ; stick_out=long": a number of magnitude at most 100000 after stick_out=, got \'long\''),
+    ("a name twice", "T1 D10 ; name=A\nT2 D10 ; name=A\n", 2, '"T2 D10 ; name=A": the name A once in the table'),
+    ("too many digits", "T1 D10.1234567890123456\n", 1,
+     '"T1 D10.1234567890123456": a number after \'D\', got \'D10.1234567890123456\''),
+]
+
+
+def run_driver(tmp_path: Path, table: str, program: str = "G21 G90\nG1 X1 F600\n") -> subprocess.CompletedProcess:
+    assert DRIVER.is_file(), f"{DRIVER} not built"
+    (tmp_path / "tool.tbl").write_text(table)
+    (tmp_path / "part.nc").write_text(program)
+    return subprocess.run([str(DRIVER), "--tool-table", str(tmp_path / "tool.tbl"), str(tmp_path / "part.nc")],
+                          capture_output=True, text=True)
+
+
+def test_a_linuxcnc_tool_table_is_read_in_si() -> None:
+    tools = tt.parse_tool_table(GOOD_TABLE, "tool.tbl")
+    assert [t.number for t in tools] == [1, 2, 12, 99999]
+    end_mill = tt.find_tool(tools, 1)
+    assert end_mill == gp.Tool(number=1, name="END10", diameter=0.01, corner_radius=0.0005, length=0.05,
+                               stick_out=0.04, helix=math.radians(30.0), flutes=3)
+    assert tt.find_tool(tools, 12).diameter == pytest.approx(3.175e-3, rel=1e-15)
+    assert tt.find_tool(tools, 3) is None
+
+
+def test_the_written_table_reads_back() -> None:
+    tools = tt.parse_tool_table(GOOD_TABLE)
+    again = tt.parse_tool_table(tt.tool_table_text(tools))
+    for a, b in zip(tools, again):
+        assert a.number == b.number and a.name == b.name and a.flutes == b.flutes
+        for field in ("diameter", "corner_radius", "length", "stick_out", "helix"):
+            assert getattr(b, field) == pytest.approx(getattr(a, field), rel=1e-9, abs=1e-12)
+
+
+def test_the_c_reader_accepts_the_good_table(tmp_path: Path) -> None:
+    result = run_driver(tmp_path, GOOD_TABLE)
+    assert result.returncode == 0, result.stderr
+
+
+@pytest.mark.parametrize("name, table, line, tail", BAD, ids=[b[0] for b in BAD])
+def test_bad_tool_tables_are_refused_alike(tmp_path: Path, name: str, table: str, line: int, tail: str) -> None:
+    result = run_driver(tmp_path, table)
+    assert result.returncode == 1, result
+    assert result.stderr.strip() == f"interp_run: {tmp_path / 'tool.tbl'} line {line}: {tail}"
+    with pytest.raises(gp.ProgramError) as raised:
+        tt.parse_tool_table(table, str(tmp_path / "tool.tbl"))
+    assert str(raised.value) == f"{tmp_path / 'tool.tbl'} line {line}: {tail}"
+
+
+@pytest.mark.parametrize("version", [3, 2])
+def test_the_fmu_refuses_a_bad_tool_table_naming_the_parameter(tmp_path: Path, version: int) -> None:
+    table = tmp_path / "tool.tbl"
+    table.write_text("T1 D10\nT1 D12\n")
+    with Slave(require_fmu(fmu_dir() / fmu_file_name("Interpolator", version))) as slave:
+        slave.instantiate()
+        slave.enter_initialization()
+        slave.fmu.setString([slave.vr["tool_table"]], [str(table)])
+        assert status_of(lambda: slave.exit_initialization()) == ERROR
+        assert slave.last_error() == (f"exitInitializationMode: parameter 'tool_table': {table} line 2: "
+                                      "\"T1 D12\": tool T1 once in the table")
+
+
+@pytest.mark.parametrize("version", [3, 2])
+def test_the_fmu_refuses_an_unknown_dialect(version: int) -> None:
+    with Slave(require_fmu(fmu_dir() / fmu_file_name("Interpolator", version))) as slave:
+        slave.instantiate()
+        slave.enter_initialization()
+        slave.fmu.setString([slave.vr["dialect"]], ["heidenhain"])
+        assert status_of(lambda: slave.exit_initialization()) == ERROR
+        assert slave.last_error() == ("exitInitializationMode: parameter 'dialect' is 'heidenhain': expected fanuc, "
+                                      "linuxcnc or sinumerik")

@@ -244,7 +244,7 @@ static void step_nurbs(const double *heap, const InterpLayout *L, InterpState *s
         if (ns->u < u1) {
             double d[3][3];
             nurbs_evaluate(&curve, u1, 2, lo, hi, d);
-            nurbs_state_accept(ns, u1, (const double(*)[3])d, 0.0, 0.0);
+            nurbs_state_accept(ns, u1, (const double(*)[3])d, 0.0, 0.0, 0.0);
         }
         ns->s_done = local;
     } else {
@@ -257,7 +257,9 @@ static void step_nurbs(const double *heap, const InterpLayout *L, InterpState *s
         tangent[i] = ns->d1[i] / g;
         pos[i] = ns->point[i];
     }
-    *u = ns->u;
+    /* normalised over the curve's knot range: 1 exactly at its end */
+    g = (ns->u - curve.knots[0]) / (curve.knots[curve.n + curve.degree + 1] - curve.knots[0]);
+    *u = g < 1.0 ? g : 1.0;
 }
 
 static void update_outputs(const double *heap, const InterpLayout *L, InterpState *st, const InterpSettings *settings) {

@@ -145,3 +145,18 @@ void nurbs_arc_length_derivatives(const double d[4][3], double *g, double t[3], 
         kp[a] = d3[a] * up3 + 3.0 * d2[a] * up * upp + d1[a] * uppp;
     }
 }
+
+double nurbs_arc_length(const NurbsView *c, double ua, double ub, int lo, int hi) {
+    double a = ua, total = 0.0;
+    int span = nurbs_find_span(c->knots, c->degree, ua, lo, hi);
+    while (a < ub && span <= hi) {
+        double b = c->knots[span + 1] < ub ? c->knots[span + 1] : ub;
+        if (b > a) {
+            total += nurbs_gauss_length(c, a, b, lo, hi);
+            a = b;
+        }
+        span++;
+    }
+    if (a < ub) total += nurbs_gauss_length(c, a, ub, lo, hi);
+    return total;
+}

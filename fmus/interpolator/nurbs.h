@@ -25,6 +25,9 @@ void nurbs_evaluate(const NurbsView *c, double u, int nd, int lo, int hi, double
 /* First and last span of positive length inside [u0, u1]. */
 void nurbs_span_range(const NurbsView *c, double u0, double u1, int *lo, int *hi);
 double nurbs_gauss_length(const NurbsView *c, double ua, double ub, int lo, int hi);
+/* Arc length from ua to ub (ua <= ub): Gauss-Legendre on each knot span's part (exact to rounding for short
+ * steps, no quadrature across a knot). */
+double nurbs_arc_length(const NurbsView *c, double ua, double ub, int lo, int hi);
 /* From C, C', C'', C''': speed g, unit tangent t, d2C/ds2 k, d3C/ds3 kp. */
 void nurbs_arc_length_derivatives(const double d[4][3], double *g, double t[3], double k[3], double kp[3]);
 

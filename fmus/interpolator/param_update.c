@@ -32,6 +32,15 @@ double predict_step(const NurbsState *st, double length, int predictor, const Rb
     return base * (1.0 + rbf_output(net, raw));
 }
 
+double curvature_squared(const double d1[3], const double d2[3]) {
+    double gg = vec_dot(d1, d1), x = vec_dot(d1, d2), k2 = (vec_dot(d2, d2) * gg - x * x) / (gg * gg * gg);
+    return k2 > 0.0 ? k2 : 0.0;
+}
+
+double arc_of_chord(double chord, double k2a, double k2b) {
+    return chord + 0.5 * (k2a + k2b) * chord * chord * chord / 24.0;
+}
+
 void nurbs_state_start(NurbsState *st, int move, const NurbsView *curve, double u0, int lo, int hi) {
     double d[3][3];
     nurbs_evaluate(curve, u0, 2, lo, hi, d);
@@ -47,7 +56,7 @@ void nurbs_state_start(NurbsState *st, int move, const NurbsView *curve, double 
     st->chord_prev = 0.0;
 }
 
-void nurbs_state_accept(NurbsState *st, double u, const double d[3][3], double upp_prev, double chord) {
+void nurbs_state_accept(NurbsState *st, double u, const double d[3][3], double upp_prev, double chord, double arc) {
     st->u2 = st->u1;
     st->u1 = st->u;
     st->u = u;
@@ -56,13 +65,13 @@ void nurbs_state_accept(NurbsState *st, double u, const double d[3][3], double u
     memcpy(st->point, d[0], sizeof st->point);
     memcpy(st->d1, d[1], sizeof st->d1);
     memcpy(st->d2, d[2], sizeof st->d2);
-    st->s_actual += chord;
+    st->s_actual += arc;
     st->count++;
 }
 
 void nurbs_state_advance(NurbsState *st, const NurbsView *curve, double u0, double u1, int lo, int hi, double step,
                          const UpdateSettings *settings) {
-    double u_end = u1, du, upp_now, u, p0[3], d[3][3], e[3], chord = 0.0;
+    double u_end = u1, du, upp_now, u, p0[3], d[3][3], e[3], chord = 0.0, arc = 0.0;
     double gg = vec_dot(st->d1, st->d1);
     int k;
     du = predict_step(st, step, settings->predictor, &settings->rbf, u0, u1);
@@ -75,32 +84,33 @@ void nurbs_state_advance(NurbsState *st, const NurbsView *curve, double u0, doub
         nurbs_evaluate(curve, u, 2, lo, hi, d);
         for (k = 0; k < 3; k++) e[k] = d[0][k] - p0[k];
         chord = sqrt(vec_dot(e, e));
-        nurbs_state_accept(st, u, (const double(*)[3])d, upp_now, chord);
+        arc = arc_of_chord(chord, curvature_squared(st->d1, st->d2), curvature_squared(d[1], d[2]));
+        nurbs_state_accept(st, u, (const double(*)[3])d, upp_now, chord, arc);
         return;
     }
     {
-        double lo_u = st->u, hi_u = u_end, target = step * step, u_eval = u;
+        /* Newton on the arc length of the step (Gauss-Legendre per knot span), bracketed */
+        double lo_u = st->u, hi_u = u_end, u_eval = u;
         for (k = 0; k < MAX_NEWTON; k++) {
-            double cc, f, fp, nxt;
+            double f, g, nxt;
+            arc = nurbs_arc_length(curve, st->u, u, lo, hi);
             nurbs_evaluate(curve, u, 2, lo, hi, d);
             u_eval = u;
-            e[0] = d[0][0] - p0[0], e[1] = d[0][1] - p0[1], e[2] = d[0][2] - p0[2];
-            cc = vec_dot(e, e);
-            chord = sqrt(cc);
-            if (fabs(chord - step) <= settings->tolerance * step) break;
-            f = cc - target;
+            f = arc - step;
+            if (fabs(f) <= settings->tolerance * step) break;
             if (f < 0.0) {
                 if (u >= u_end) break;
                 lo_u = u;
             } else {
                 hi_u = u;
             }
-            fp = 2.0 * vec_dot(e, d[1]);
-            nxt = fp > 0.0 ? u - f / fp : -1.0;
+            g = sqrt(vec_dot(d[1], d[1]));
+            nxt = g > 0.0 ? u - f / g : -1.0;
             if (!(nxt > lo_u && nxt < hi_u)) nxt = 0.5 * (lo_u + hi_u);
             if (nxt == u) break;
             u = nxt;
         }
-        nurbs_state_accept(st, u_eval, (const double(*)[3])d, upp_now, chord);
+        e[0] = d[0][0] - p0[0], e[1] = d[0][1] - p0[1], e[2] = d[0][2] - p0[2];
+        nurbs_state_accept(st, u_eval, (const double(*)[3])d, upp_now, sqrt(vec_dot(e, e)), arc);
     }
 }

@@ -7,10 +7,10 @@ import math
 from typing import Mapping
 
 from milling_twin.models.interpolator.definition import default_parameters
-from milling_twin.models.interpolator.nurbs import Nurbs
+from milling_twin.models.interpolator.nurbs import Nurbs, arc_length
 from milling_twin.models.interpolator.nurbs import dot as _dot
-from milling_twin.models.interpolator.param_update import (MAX_NEWTON, METHOD_CORRECTOR, NurbsState, predict,
-                                                           rbf_of)
+from milling_twin.models.interpolator.param_update import (MAX_NEWTON, METHOD_CORRECTOR, NurbsState, arc_of_chord,
+                                                           curvature_squared, predict, rbf_of)
 from milling_twin.models.interpolator.parser import MOVE_ARC, MOVE_LINE, MOVE_RAPID, Move, parse_program
 from milling_twin.models.interpolator.path import build_path
 from milling_twin.models.interpolator.schedule import Schedule
@@ -201,7 +201,7 @@ class Interpolator:
             st.chord_prev = 0.0
         if local >= length:
             if st.u < m.u1:
-                self.nurbs_accept(st, curve, m.u1, lo, hi, 0.0, 0.0)
+                self.nurbs_accept(st, curve, m.u1, lo, hi, 0.0, 0.0, 0.0)
             st.s_done = local
         else:
             step = local - (st.s_actual if self.feedback else st.s_done)
@@ -210,17 +210,19 @@ class Interpolator:
             st.s_done = local
         g = math.sqrt(_dot(st.d1, st.d1))
         tangent = [st.d1[i] / g for i in range(3)]
-        return list(st.point), tangent, st.u
+        kn = curve.knots
+        u = (st.u - kn[0]) / (kn[-1] - kn[0])
+        return list(st.point), tangent, (u if u < 1.0 else 1.0)
 
     def nurbs_accept(self, st: NurbsState, curve: Nurbs, u: float, lo: int, hi: int, upp_prev: float,
-                     chord: float, d=None) -> None:
+                     chord: float, arc: float, d=None) -> None:
         if d is None:
             d = curve.evaluate(u, 2, lo, hi)
         st.u2, st.u1, st.u = st.u1, st.u, u
         st.upp_prev = upp_prev
         st.chord_prev = chord
         st.point, st.d1, st.d2 = d[0], d[1], d[2]
-        st.s_actual += chord
+        st.s_actual += arc
         st.count += 1
 
     def nurbs_advance(self, st: NurbsState, curve: Nurbs, m: Move, step: float, lo: int, hi: int) -> None:
@@ -238,34 +240,34 @@ class Interpolator:
             c = d[0]
             e = [c[0] - p0[0], c[1] - p0[1], c[2] - p0[2]]
             chord = math.sqrt(_dot(e, e))
-            self.nurbs_accept(st, curve, u, lo, hi, upp_now, chord, d)
+            arc = arc_of_chord(chord, curvature_squared(st.d1, st.d2), curvature_squared(d[1], d[2]))
+            self.nurbs_accept(st, curve, u, lo, hi, upp_now, chord, arc, d)
             return
+        # Newton on the arc length of the step (Gauss-Legendre per knot span), bracketed
         lo_u, hi_u = st.u, u_end
-        target = step * step
         d = None
-        chord = 0.0
+        arc = 0.0
         u_eval = u
         for _ in range(MAX_NEWTON):
+            arc = arc_length(curve, st.u, u, lo, hi)
             d = curve.evaluate(u, 2, lo, hi)
             u_eval = u
-            c = d[0]
-            e = [c[0] - p0[0], c[1] - p0[1], c[2] - p0[2]]
-            cc = _dot(e, e)
-            chord = math.sqrt(cc)
-            if abs(chord - step) <= self.tolerance * step:
+            f = arc - step
+            if abs(f) <= self.tolerance * step:
                 break
-            f = cc - target
             if f < 0.0:
                 if u >= u_end:
                     break
                 lo_u = u
             else:
                 hi_u = u
-            fp = 2.0 * _dot(e, d[1])
-            nxt = u - f / fp if fp > 0.0 else -1.0
+            g = math.sqrt(_dot(d[1], d[1]))
+            nxt = u - f / g if g > 0.0 else -1.0
             if not (nxt > lo_u and nxt < hi_u):
                 nxt = 0.5 * (lo_u + hi_u)
             if nxt == u:
                 break
             u = nxt
-        self.nurbs_accept(st, curve, u_eval, lo, hi, upp_now, chord, d)
+        c = d[0]
+        e = [c[0] - p0[0], c[1] - p0[1], c[2] - p0[2]]
+        self.nurbs_accept(st, curve, u_eval, lo, hi, upp_now, math.sqrt(_dot(e, e)), arc, d)

@@ -164,3 +164,21 @@ def gauss_length(curve: Nurbs, ua: float, ub: float, lo: int, hi: int) -> float:
         d = curve.evaluate(mid + half * node, 1, lo, hi)[1]
         total += weight * math.sqrt(dot(d, d))
     return total * half
+
+
+def arc_length(curve: Nurbs, ua: float, ub: float, lo: int, hi: int) -> float:
+    """Arc length from ua to ub (ua <= ub): Gauss-Legendre on each knot span's part (exact to rounding for short
+    steps, no quadrature across a knot). Mirrors nurbs_arc_length."""
+    kn = curve.knots
+    a = ua
+    total = 0.0
+    span = find_span(kn, curve.n, curve.p, ua, lo, hi)
+    while a < ub and span <= hi:
+        b = kn[span + 1] if kn[span + 1] < ub else ub
+        if b > a:
+            total += gauss_length(curve, a, b, lo, hi)
+            a = b
+        span += 1
+    if a < ub:
+        total += gauss_length(curve, a, ub, lo, hi)
+    return total

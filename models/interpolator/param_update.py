@@ -1,5 +1,5 @@
 """NURBS parameter update: u(i+1) for a scheduled step length by first- or second-order Taylor expansion or
-the RBF-network predictor (method 4, the predictor refined by Newton iterations on the chord length, is
+the RBF-network predictor (method 4, the predictor refined by Newton iterations on the arc length of the step, is
 ``Interpolator.nurbs_advance`` in engine.py). Mirrors ``fmus/interpolator/param_update.c`` (and
 ``param_update.h``)."""
 from __future__ import annotations
@@ -13,7 +13,7 @@ from milling_twin.models.interpolator.nurbs import dot as _dot
 METHOD_TAYLOR1, METHOD_TAYLOR2, METHOD_RBF, METHOD_CORRECTOR = 1, 2, 3, 4
 METHOD_NAMES = {1: "taylor1", 2: "taylor2", 3: "rbf", 4: "corrector"}
 RBF_HIDDEN, RBF_INPUTS = 5, 4
-MAX_NEWTON = 8   # method 4: Newton iterations on the chord length at most
+MAX_NEWTON = 8   # method 4: Newton iterations on the arc length at most
 
 @dataclass
 class Rbf:
@@ -76,6 +76,21 @@ def taylor_step(st: NurbsState, length: float, order: int) -> tuple[float, float
     if order == 1:
         return length * up, up, upp
     return length * up + 0.5 * upp * length * length, up, upp
+
+
+def curvature_squared(d1: Sequence[float], d2: Sequence[float]) -> float:
+    """kappa^2 = |C' x C''|^2 / |C'|^6 from the u-derivatives C' = d1, C'' = d2 (0 where rounding makes it
+    negative)."""
+    gg = _dot(d1, d1)
+    x = _dot(d1, d2)
+    k2 = (_dot(d2, d2) * gg - x * x) / (gg * gg * gg)
+    return k2 if k2 > 0.0 else 0.0
+
+
+def arc_of_chord(chord: float, k2a: float, k2b: float) -> float:
+    """The arc length over a chord between two points with curvature squared k2a and k2b: chord + k2m chord^3 /
+    24 with k2m their mean (which cancels the chord^4 term)."""
+    return chord + 0.5 * (k2a + k2b) * chord * chord * chord / 24.0
 
 
 def predict(st: NurbsState, length: float, predictor: int, net: Rbf, ua: float, ub: float) -> float:

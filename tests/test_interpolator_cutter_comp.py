@@ -189,15 +189,25 @@ def _point(move: Move, lam: float) -> tuple[float, float, float]:
     return tuple(move.start[i] + lam * (move.end[i] - move.start[i]) for i in range(3))
 
 
+def _arc_step(move: Move, x: float, y: float) -> float:
+    """The angle swept from an arc's start to (x, y), in [0, 2 pi)."""
+    step = (math.atan2(y - move.center[1], x - move.center[0]) - move.theta0) * (1.0 if move.sweep > 0 else -1.0)
+    return step % (2.0 * math.pi)
+
+
+def _arc_gap(move: Move, x: float, y: float, step: float) -> float:
+    """|distance from the centre - the arc's radius there| (r0 -> r1 over the sweep: the parser takes an end point
+    within its tolerance of the circle)."""
+    radius = move.r0 + step / abs(move.sweep) * (move.r1 - move.r0)
+    return abs(math.hypot(x - move.center[0], y - move.center[1]) - radius)
+
+
 def _distance_to(move: Move, x: float, y: float) -> float:
     """XY distance from (x, y) to a programmed line or XY arc."""
     if move.kind == MOVE_ARC:
-        cx, cy = move.center[0], move.center[1]
-        a = math.atan2(y - cy, x - cx)
-        step = (a - move.theta0) * (1.0 if move.sweep > 0 else -1.0)
-        step %= 2.0 * math.pi
-        if step <= abs(move.sweep) or abs(move.sweep) >= 2.0 * math.pi - 1e-12:
-            return abs(math.hypot(x - cx, y - cy) - move.r0)
+        step = _arc_step(move, x, y)
+        if step <= abs(move.sweep):
+            return _arc_gap(move, x, y, step)
         return min(math.hypot(x - move.start[0], y - move.start[1]), math.hypot(x - move.end[0], y - move.end[1]))
     ax, ay, bx, by = move.start[0], move.start[1], move.end[0], move.end[1]
     dx, dy = bx - ax, by - ay
@@ -209,7 +219,10 @@ def _distance_to(move: Move, x: float, y: float) -> float:
 def _offset_distance(move: Move, x: float, y: float) -> float:
     """XY distance from (x, y) to the whole line (or circle) a programmed line (or XY arc) lies on."""
     if move.kind == MOVE_ARC:
-        return abs(math.hypot(x - move.center[0], y - move.center[1]) - move.r0)
+        step = _arc_step(move, x, y)
+        if step > abs(move.sweep):      # beyond an end: the radius there
+            step = 0.0 if 2.0 * math.pi - step < step - abs(move.sweep) else abs(move.sweep)
+        return _arc_gap(move, x, y, step)
     dx, dy = move.end[0] - move.start[0], move.end[1] - move.start[1]
     return abs((x - move.start[0]) * dy - (y - move.start[1]) * dx) / math.hypot(dx, dy)
 
@@ -453,6 +466,26 @@ M30"""
     assert [m.kind for m in moves] == [MOVE_RAPID, MOVE_LINE, MOVE_LINE, MOVE_LINE, MOVE_ARC, MOVE_LINE,
                                        MOVE_LINE]
     assert check_path(marked(text).moves, moves, R) > 20
+
+
+def test_nearly_tangent_outside_joins_of_lines_and_arcs_meet_without_an_arc():
+    # the arc's start tangent turns right by 1e-4 rad from the line (a CAM post's rounding of a tangent join):
+    # outside for G41, the offset line and circle meet; the same arc 0.1 rad off gets its corner arc
+    text = """G21 G90 G17 F600
+G0 X-20 Y0
+G41 G1 X0 Y0 D1
+X20
+G2 X39.998 Y-20 I-0.002 J-20
+G40 G1 X60 Y-20
+M30"""
+    moves = compensated(text)
+    assert [m.kind for m in moves] == [MOVE_RAPID, MOVE_LINE, MOVE_LINE, MOVE_ARC, MOVE_LINE]
+    assert moves[2].end == moves[3].start and moves[3].r0 == pytest.approx(0.025, abs=1e-9)
+    assert check_path(marked(text).moves, moves, R) > 10
+    sharper = text.replace("G2 X39.998 Y-20 I-0.002 J-20", "G2 X37.9034 Y-21.8968 I-1.9967 J-19.9001")
+    moves = compensated(sharper)
+    assert [m.kind for m in moves] == [MOVE_RAPID, MOVE_LINE, MOVE_LINE, MOVE_ARC, MOVE_ARC, MOVE_LINE]
+    assert moves[3].r0 == R and check_path(marked(sharper).moves, moves, R) > 10
 
 
 def test_rapids_under_compensation_take_no_corner_arc():

@@ -125,25 +125,31 @@ static void element_init(Element *el, size_t index, const GcMove *m, int side, d
     }
 }
 
-/* the intersection of the line q + s t (t unit) with the circle (c, radius) nearest q; 0 if none */
-static int line_circle(const double q[2], const double t[2], const double c[2], double radius, double x[2]) {
+/* the intersections of the line q + s t (t unit) with the circle (c, radius), the one nearer q first; returns
+ * how many (0 or 2) */
+static int line_circle(const double q[2], const double t[2], const double c[2], double radius, double x[2][2]) {
     double wx = q[0] - c[0], wy = q[1] - c[1];
     double b = wx * t[0] + wy * t[1];
     double cc = wx * wx + wy * wy - radius * radius;
-    double disc = b * b - cc, sq, s1, s2, s;
+    double disc = b * b - cc, sq, s1, s2;
     if (disc < 0.0) return 0;
     sq = sqrt(disc);
     s1 = -b - sq, s2 = -b + sq;
-    s = fabs(s1) <= fabs(s2) ? s1 : s2;
-    x[0] = q[0] + s * t[0], x[1] = q[1] + s * t[1];
-    return 1;
+    if (!(fabs(s1) <= fabs(s2))) {
+        double swap = s1;
+        s1 = s2, s2 = swap;
+    }
+    x[0][0] = q[0] + s1 * t[0], x[0][1] = q[1] + s1 * t[1];
+    x[1][0] = q[0] + s2 * t[0], x[1][1] = q[1] + s2 * t[1];
+    return 2;
 }
 
-/* the intersection of the circles (c1, r1) and (c2, r2) nearest the point near; 0 if none */
+/* the intersections of the circles (c1, r1) and (c2, r2), the one nearer the point near first; how many (0, 2) */
 static int circle_circle(const double c1[2], double r1, const double c2[2], double r2, const double near[2],
-                         double x[2]) {
+                         double x[2][2]) {
     double dx = c2[0] - c1[0], dy = c2[1] - c1[1];
     double d2 = dx * dx + dy * dy, d, a, h2, h, ux, uy, bx, by, x1[2], x2[2], e1x, e1y, e2x, e2y;
+    int first;
     if (d2 <= 0.0) return 0;
     d = sqrt(d2);
     a = (r1 * r1 - r2 * r2 + d2) / (2.0 * d);
@@ -156,22 +162,22 @@ static int circle_circle(const double c1[2], double r1, const double c2[2], doub
     x2[0] = bx + h * uy, x2[1] = by - h * ux;
     e1x = x1[0] - near[0], e1y = x1[1] - near[1];
     e2x = x2[0] - near[0], e2y = x2[1] - near[1];
-    if (e1x * e1x + e1y * e1y <= e2x * e2x + e2y * e2y)
-        x[0] = x1[0], x[1] = x1[1];
-    else
-        x[0] = x2[0], x[1] = x2[1];
-    return 1;
+    first = e1x * e1x + e1y * e1y <= e2x * e2x + e2y * e2y;
+    memcpy(x[0], first ? x1 : x2, sizeof x1);
+    memcpy(x[1], first ? x2 : x1, sizeof x1);
+    return 2;
 }
 
-/* where the offset elements a (ending at the corner p) and b (starting there) intersect; 0 if they do not */
-static int meet(const Element *a, const Element *b, const double p[2], int side, double r, double x[2]) {
+/* where the offset elements a (ending at the corner p) and b (starting there) intersect, the intersection nearer
+ * the junction first; returns how many */
+static int meet(const Element *a, const Element *b, const double p[2], int side, double r, double x[2][2]) {
     if (!a->arc && !b->arc) {
         double den = 1.0 + (a->t1[0] * b->t0[0] + a->t1[1] * b->t0[1]), q, nx, ny;
         if (den <= 0.0) return 0;
         q = r / den;
         nx = -a->t1[1] * (double)side + -b->t0[1] * (double)side;
         ny = a->t1[0] * (double)side + b->t0[0] * (double)side;
-        x[0] = p[0] + q * nx, x[1] = p[1] + q * ny;
+        x[0][0] = p[0] + q * nx, x[0][1] = p[1] + q * ny;
         return 1;
     }
     if (!a->arc) return line_circle(a->e, a->t1, b->c, b->ra, x);
@@ -179,22 +185,22 @@ static int meet(const Element *a, const Element *b, const double p[2], int side,
     return circle_circle(a->c, a->rb, b->c, b->ra, a->e, x);
 }
 
-/* x shortens a at its end and b at its start, both keeping a positive length, no further than COMP_SLACK beyond
- * a's end or before b's start */
-static int inside_fits(const Element *a, const Element *b, const double x[2]) {
-    double angle, d;
+/* whether x joins a to b: both keep a positive length, and x shortens a at its end and b at its start (inside
+ * corners) or lengthens them (outside corners), allowing COMP_SLACK the other way */
+static int fits(const Element *a, const Element *b, const double x[2], int inside) {
+    double sign = inside ? 1.0 : -1.0, angle, d;
     if (a->arc) {
         d = angle_step(a, x, a->ang_e, &angle);
-        if (d * a->rb > COMP_SLACK || !(a->span + d > 0.0)) return 0;
+        if (sign * d * a->rb > COMP_SLACK || !(a->span + d > 0.0)) return 0;
     } else {
-        if ((x[0] - a->e[0]) * a->t1[0] + (x[1] - a->e[1]) * a->t1[1] > COMP_SLACK) return 0;
+        if (sign * ((x[0] - a->e[0]) * a->t1[0] + (x[1] - a->e[1]) * a->t1[1]) > COMP_SLACK) return 0;
         if (!((x[0] - a->s[0]) * a->t1[0] + (x[1] - a->s[1]) * a->t1[1] > 0.0)) return 0;
     }
     if (b->arc) {
         d = angle_step(b, x, b->ang_s, &angle);
-        if (d * b->ra < -COMP_SLACK || !(b->span - d > 0.0)) return 0;
+        if (sign * d * b->ra < -COMP_SLACK || !(b->span - d > 0.0)) return 0;
     } else {
-        if ((x[0] - b->s[0]) * b->t0[0] + (x[1] - b->s[1]) * b->t0[1] < -COMP_SLACK) return 0;
+        if (sign * ((x[0] - b->s[0]) * b->t0[0] + (x[1] - b->s[1]) * b->t0[1]) < -COMP_SLACK) return 0;
         if (!((b->e[0] - x[0]) * b->t0[0] + (b->e[1] - x[1]) * b->t0[1] > 0.0)) return 0;
     }
     return 1;
@@ -206,31 +212,35 @@ static int corner(const Context *ctx, Element *a, Element *b, const GcMove *move
     const double *ta = a->t1, *tb = b->t0, *p = b->p0;
     double cross = ta[0] * tb[1] - ta[1] * tb[0];
     double dot = ta[0] * tb[0] + ta[1] * tb[1];
-    double x[2], sweep, z, theta0;
-    int tangent = fabs(cross) <= COMP_TANGENT;
+    double x[2][2], sweep, z, theta0;
+    int tangent = fabs(cross) <= COMP_TANGENT, n, k;
     GcMove *arc;
     if (tangent && dot > 0.0) {
         set_start(b, a->e);
         return 0;
     }
     if ((double)side * cross > 0.0 && !tangent) {
-        if (!meet(a, b, p, side, r, x) || !inside_fits(a, b, x)) {
-            char expected[160];
-            snprintf(expected, sizeof expected, "the tool (radius %.6g mm) cannot follow this inside corner without "
-                     "gouging", r * 1000.0);
-            return fail(ctx, move_a->line, expected);
-        }
-        set_end(a, x);
-        set_start(b, x);
-        return 0;
+        char expected[160];
+        n = meet(a, b, p, side, r, x);
+        for (k = 0; k < n; k++)
+            if (fits(a, b, x[k], 1)) {
+                set_end(a, x[k]);
+                set_start(b, x[k]);
+                return 0;
+            }
+        snprintf(expected, sizeof expected, "the tool (radius %.6g mm) cannot follow this inside corner without "
+                 "gouging", r * 1000.0);
+        return fail(ctx, move_a->line, expected);
     }
-    if (!a->arc && !b->arc && dot > 0.0 && fabs(cross) < COMP_SMALL_TURN) {
-        meet(a, b, p, side, r, x);
-        if ((x[0] - a->s[0]) * ta[0] + (x[1] - a->s[1]) * ta[1] > 0.0 &&
-            (b->e[0] - x[0]) * tb[0] + (b->e[1] - x[1]) * tb[1] > 0.0) {
-            set_end(a, x);
-            set_start(b, x);
-            return 0;
+    if (dot > 0.0 && fabs(cross) < COMP_SMALL_TURN) {
+        n = meet(a, b, p, side, r, x);
+        for (k = 0; k < n; k++) {
+            double ex = x[k][0] - p[0], ey = x[k][1] - p[1];
+            if (ex * ex + ey * ey <= 4.0 * r * r && fits(a, b, x[k], 0)) {
+                set_end(a, x[k]);
+                set_start(b, x[k]);
+                return 0;
+            }
         }
     }
     if (b->rapid) {

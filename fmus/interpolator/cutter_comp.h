@@ -1,12 +1,12 @@
 /* Cutter radius compensation (G40/G41/G42): a stage after parsing that replaces the programmed XY contour of the
  * moves the parser marked with `comp` (COMP_LEFT/COMP_RIGHT) and `comp_radius` by the path of the tool centre, as
  * LinuxCNC does in the XY plane: a straight entry move to the first point offset perpendicular to it, lines offset
- * and arcs grown or shrunk by the radius, an arc around every outside corner (none before a rapid; two lines at a
- * turn of |sin| < COMP_SMALL_TURN meet at their offsets' intersection), inside corners at the intersection of the
- * offset elements, a straight exit move after G40 from the last compensated point. Refuses (naming the line) what
- * cannot be followed without gouging, NURBS blocks, arcs outside G17, straight entry/exit rules broken, and a
- * change of side or radius while compensation is on. The Python reference, with the full description:
- * models/interpolator/cutter_comp.py (bit-equal moves). */
+ * and arcs grown or shrunk by the radius, an arc around every outside corner (none before a rapid; at a turn of
+ * |sin| < COMP_SMALL_TURN the offset elements meet at their intersection near the corner instead), inside corners
+ * at the intersection of the offset elements, a straight exit move after G40 from the last compensated point.
+ * Refuses (naming the line) what cannot be followed without gouging, NURBS blocks, arcs outside G17, entry or exit
+ * moves that are not straight, and a change of side or radius while compensation is on. The Python reference,
+ * with the full description: models/interpolator/cutter_comp.py (bit-equal moves). */
 #ifndef CUTTER_COMP_H
 #define CUTTER_COMP_H
 
@@ -20,7 +20,7 @@
 #define COMP_TANGENT 1e-09 /* |sin| of a turn at or below which a junction is tangent */
 #endif
 #ifndef COMP_SMALL_TURN
-#define COMP_SMALL_TURN 0.01 /* |sin| of an outside line-line turn below which the offset lines meet (no arc) */
+#define COMP_SMALL_TURN 0.01 /* |sin| of an outside turn below which the offset elements meet (no arc) */
 #endif
 #ifndef COMP_SLACK
 #define COMP_SLACK 1e-09 /* m: how far an inside-corner intersection may lie beyond an element's end */

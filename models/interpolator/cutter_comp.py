@@ -20,10 +20,11 @@ behaviour documented for LinuxCNC (the NIST RS274/NGC interpreter's Appendix B a
   - tangent junctions (|sin| of the turn <= ``COMP_TANGENT``) join at the end of the first element;
   - **outside** (convex) corners: an arc of the tool radius around the programmed corner point, inserted before
     the second move and taking its line and machine state (feed, spindle, tool, ...); before a rapid (G0) no arc
-    (the rapid goes straight from the end of the previous element, as LinuxCNC does); two lines meeting at a
-    turn whose |sin| is below ``COMP_SMALL_TURN`` (LinuxCNC's 0.01 rad corner tolerance) join at the
-    intersection of their offset lines instead (no arc, so nearly straight chains of short lines keep their
-    speed; the corner point lies r / cos(turn / 2) from the contour, < 0.002 % of r beyond it);
+    (the rapid goes straight from the end of the previous element, as LinuxCNC does); where the turn's |sin| is
+    below ``COMP_SMALL_TURN`` (LinuxCNC's 0.01 rad corner tolerance) the offset elements are extended to their
+    intersection instead, when they meet within 2 radii of the corner (no arc: nearly straight chains of short
+    lines and CAM's rounded "tangent" joins keep their speed, where a tiny arc of the tool's curvature would
+    slow the feed; two lines meet r / cos(turn / 2) from the corner, < 0.002 % of r beyond the radius);
   - **inside** (concave) corners: the intersection of the two offset elements (line-line, line-circle or
     circle-circle, the intersection nearest the corner), which shortens both; refused when the offset elements
     do not meet, or meet outside either element (an inside step shorter than the tool radius): "the tool
@@ -47,7 +48,7 @@ from milling_twin.models.interpolator.parser import (COMP_LEFT, COMP_RIGHT, MOVE
                                                      MOVE_RAPID, Move, Program, ProgramError)
 
 COMP_TANGENT = 1e-9       # |sin| of a turn at or below which a junction is tangent
-COMP_SMALL_TURN = 0.01    # |sin| of an outside line-line turn below which the offset lines meet (no corner arc)
+COMP_SMALL_TURN = 0.01    # |sin| of an outside turn below which the offset elements meet (no corner arc)
 COMP_SLACK = 1e-9         # m: how far an inside-corner intersection may lie beyond an element's end (rounding)
 
 _PLANES = {(2, 0, 1): "ZX plane (G18)", (1, 2, 0): "YZ plane (G19)"}
@@ -146,31 +147,32 @@ def _dot2(a: tuple[float, float], b: tuple[float, float]) -> float:
     return a[0] * b[0] + a[1] * b[1]
 
 
-def _line_circle(q, t, c, radius) -> tuple[float, float] | None:
-    """The intersection of the line q + s t (t unit) with the circle (c, radius) nearest q, or None."""
+def _line_circle(q, t, c, radius) -> list[tuple[float, float]]:
+    """The intersections of the line q + s t (t unit) with the circle (c, radius), the one nearer q first."""
     wx, wy = q[0] - c[0], q[1] - c[1]
     b = wx * t[0] + wy * t[1]
     cc = wx * wx + wy * wy - radius * radius
     disc = b * b - cc
     if disc < 0.0:
-        return None
+        return []
     sq = math.sqrt(disc)
     s1, s2 = -b - sq, -b + sq
-    s = s1 if abs(s1) <= abs(s2) else s2
-    return (q[0] + s * t[0], q[1] + s * t[1])
+    if not abs(s1) <= abs(s2):
+        s1, s2 = s2, s1
+    return [(q[0] + s1 * t[0], q[1] + s1 * t[1]), (q[0] + s2 * t[0], q[1] + s2 * t[1])]
 
 
-def _circle_circle(c1, r1, c2, r2, near) -> tuple[float, float] | None:
-    """The intersection of the circles (c1, r1) and (c2, r2) nearest the point near, or None."""
+def _circle_circle(c1, r1, c2, r2, near) -> list[tuple[float, float]]:
+    """The intersections of the circles (c1, r1) and (c2, r2), the one nearer the point near first."""
     dx, dy = c2[0] - c1[0], c2[1] - c1[1]
     d2 = dx * dx + dy * dy
     if d2 <= 0.0:
-        return None
+        return []
     d = math.sqrt(d2)
     a = (r1 * r1 - r2 * r2 + d2) / (2.0 * d)
     h2 = r1 * r1 - a * a
     if h2 < 0.0:
-        return None
+        return []
     h = math.sqrt(h2)
     ux, uy = dx / d, dy / d
     bx, by = c1[0] + a * ux, c1[1] + a * uy
@@ -178,19 +180,20 @@ def _circle_circle(c1, r1, c2, r2, near) -> tuple[float, float] | None:
     x2 = (bx + h * uy, by - h * ux)
     e1x, e1y = x1[0] - near[0], x1[1] - near[1]
     e2x, e2y = x2[0] - near[0], x2[1] - near[1]
-    return x1 if e1x * e1x + e1y * e1y <= e2x * e2x + e2y * e2y else x2
+    return [x1, x2] if e1x * e1x + e1y * e1y <= e2x * e2x + e2y * e2y else [x2, x1]
 
 
-def _meet(a: _Element, b: _Element, p, side: int, r: float) -> tuple[float, float] | None:
-    """Where the offset elements a (ending at the corner p) and b (starting there) intersect, or None."""
+def _meet(a: _Element, b: _Element, p, side: int, r: float) -> list[tuple[float, float]]:
+    """Where the offset elements a (ending at the corner p) and b (starting there) intersect, the intersection
+    nearer the junction first."""
     if not a.arc and not b.arc:
         den = 1.0 + _dot2(a.t1, b.t0)
         if den <= 0.0:
-            return None
+            return []
         q = r / den
         nx = -a.t1[1] * side + -b.t0[1] * side
         ny = a.t1[0] * side + b.t0[0] * side
-        return (p[0] + q * nx, p[1] + q * ny)
+        return [(p[0] + q * nx, p[1] + q * ny)]
     if not a.arc:
         return _line_circle(a.e, a.t1, b.c, b.ra)
     if not b.arc:
@@ -198,24 +201,25 @@ def _meet(a: _Element, b: _Element, p, side: int, r: float) -> tuple[float, floa
     return _circle_circle(a.c, a.rb, b.c, b.ra, a.e)
 
 
-def _inside_fits(a: _Element, b: _Element, x) -> bool:
-    """x shortens a at its end and b at its start, leaving both of positive length, and lies no further than
-    COMP_SLACK beyond a's end or before b's start."""
+def _fits(a: _Element, b: _Element, x, inside: bool) -> bool:
+    """Whether x joins a to b: both keep a positive length, and x shortens a at its end and b at its start (inside
+    corners) or lengthens them (outside corners), allowing COMP_SLACK the other way (rounding)."""
+    sign = 1.0 if inside else -1.0
     if a.arc:
         _, d = a.angle_step(x, a.ang_e)
-        if d * a.rb > COMP_SLACK or not a.span + d > 0.0:
+        if sign * d * a.rb > COMP_SLACK or not a.span + d > 0.0:
             return False
     else:
-        if (x[0] - a.e[0]) * a.t1[0] + (x[1] - a.e[1]) * a.t1[1] > COMP_SLACK:
+        if sign * ((x[0] - a.e[0]) * a.t1[0] + (x[1] - a.e[1]) * a.t1[1]) > COMP_SLACK:
             return False
         if not (x[0] - a.s[0]) * a.t1[0] + (x[1] - a.s[1]) * a.t1[1] > 0.0:
             return False
     if b.arc:
         _, d = b.angle_step(x, b.ang_s)
-        if d * b.ra < -COMP_SLACK or not b.span - d > 0.0:
+        if sign * d * b.ra < -COMP_SLACK or not b.span - d > 0.0:
             return False
     else:
-        if (x[0] - b.s[0]) * b.t0[0] + (x[1] - b.s[1]) * b.t0[1] < -COMP_SLACK:
+        if sign * ((x[0] - b.s[0]) * b.t0[0] + (x[1] - b.s[1]) * b.t0[1]) < -COMP_SLACK:
             return False
         if not (b.e[0] - x[0]) * b.t0[0] + (b.e[1] - x[1]) * b.t0[1] > 0.0:
             return False
@@ -243,20 +247,20 @@ class _Compensator:
             b.set_start(a.e)
             return
         if side * cross > 0.0 and not tangent:
-            x = _meet(a, b, p, side, r)
-            if x is None or not _inside_fits(a, b, x):
-                self.fail(move_a.line, f"the tool (radius {r * 1000.0:.6g} mm) cannot follow this inside corner "
-                                       f"without gouging")
-            a.set_end(x)
-            b.set_start(x)
-            return
-        if not a.arc and not b.arc and dot > 0.0 and abs(cross) < COMP_SMALL_TURN:
-            x = _meet(a, b, p, side, r)
-            if (x[0] - a.s[0]) * ta[0] + (x[1] - a.s[1]) * ta[1] > 0.0 and \
-                    (b.e[0] - x[0]) * tb[0] + (b.e[1] - x[1]) * tb[1] > 0.0:
-                a.set_end(x)
-                b.set_start(x)
-                return
+            for x in _meet(a, b, p, side, r):
+                if _fits(a, b, x, True):
+                    a.set_end(x)
+                    b.set_start(x)
+                    return
+            self.fail(move_a.line, f"the tool (radius {r * 1000.0:.6g} mm) cannot follow this inside corner without "
+                                   f"gouging")
+        if dot > 0.0 and abs(cross) < COMP_SMALL_TURN:
+            for x in _meet(a, b, p, side, r):
+                ex, ey = x[0] - p[0], x[1] - p[1]
+                if ex * ex + ey * ey <= 4.0 * r * r and _fits(a, b, x, False):
+                    a.set_end(x)
+                    b.set_start(x)
+                    return
         if b.rapid:
             b.set_start(a.e)
             return

@@ -234,7 +234,7 @@ def check_path(original: list[Move], result: list[Move], radius: float, samples:
     from their centre, the programmed corner) and no closer than the radius to any compensated element of the
     contour (whole_contour) or to its own and the neighbouring elements (what compensation block by block
     guarantees: whether the tool's entry clears the end of a closed contour, or a narrow neck, is the program's
-    matter, as on the controls). Returns the number of points checked."""
+    matter, as on the controls). Rapids are not checked (they do not cut). Returns the number of points checked."""
     contour = [m for m in original if m.comp != COMP_OFF and m.kind in (MOVE_LINE, MOVE_ARC, MOVE_RAPID)
                and (m.kind == MOVE_ARC or m.start[:2] != m.end[:2])]
     entry = contour[0] if contour else None
@@ -244,7 +244,7 @@ def check_path(original: list[Move], result: list[Move], radius: float, samples:
         assert a.end == b.start, (a, b)
     checked = 0
     for m in result:
-        if m.comp == COMP_OFF or m.kind == MOVE_DWELL or m.start[:2] == m.end[:2] and m.kind != MOVE_ARC:
+        if m.comp == COMP_OFF or m.kind in (MOVE_DWELL, MOVE_RAPID) or m.start[:2] == m.end[:2] and m.kind != MOVE_ARC:
             continue
         if entry is not None and m.line == entry.line and m.kind != MOVE_ARC:
             continue
@@ -326,6 +326,44 @@ M30"""
                        (25.0, 50.0 - r), (25.0, 25.0)]
     assert [m.kind for m in moves] == [MOVE_RAPID, MOVE_LINE] + [MOVE_LINE] * 7   # no arcs: every corner inside
     assert check_path(marked(text).moves, moves, R) > 50
+
+
+def test_a_cam_style_outside_contour_with_tangent_lead_in_and_lead_out():
+    # as a CAM post writes a 2D contour with compensation in the control: a linear lead-in, a lead-in arc of
+    # radius 6 tangent to the edge, the 40 x 40 outline with corner fillets of radius 3 (climb, clockwise), a
+    # lead-out arc and line; every join tangent, so no corner arc; the tool (radius 5) on the left
+    text = """G21 G90 G17 F1000
+G0 X26 Y-16 Z5
+G1 Z-5
+G41 G1 X26 Y-6 D1
+G3 X20 Y0 I-6 J0
+G1 X3
+G2 X0 Y3 I0 J3
+G1 Y37
+G2 X3 Y40 I3 J0
+G1 X37
+G2 X40 Y37 I0 J-3
+G1 Y3
+G2 X37 Y0 I-3 J0
+G1 X20
+G3 X14 Y-6 I0 J-6
+G40 G1 X14 Y-16
+G0 Z5
+M30"""
+    moves = compensated(text)
+    assert [m.kind for m in moves] == [MOVE_RAPID, MOVE_LINE, MOVE_LINE, MOVE_ARC] + [MOVE_LINE, MOVE_ARC] * 4 + \
+        [MOVE_LINE, MOVE_ARC, MOVE_LINE, MOVE_RAPID]
+    radii = [round(m.r0 * 1000.0, 12) for m in moves if m.kind == MOVE_ARC]
+    assert radii == [1.0, 8.0, 8.0, 8.0, 8.0, 1.0]           # lead arcs 6 - 5 (inside), fillets 3 + 5
+    edges = [m for m in moves if m.kind == MOVE_LINE and m.line in (6, 8, 10, 12, 14)]
+    assert [tuple(round(v * 1000.0, 9) + 0.0 for v in m.start[:2] + m.end[:2]) for m in edges] == [
+        (20.0, -5.0, 3.0, -5.0), (-5.0, 3.0, -5.0, 37.0), (3.0, 45.0, 37.0, 45.0), (45.0, 37.0, 45.0, 3.0),
+        (37.0, -5.0, 20.0, -5.0)]
+    assert moves[2].end[:2] == pytest.approx((0.021, -0.006), abs=1e-15)
+    assert moves[-2].start[:2] == pytest.approx((0.019, -0.006), abs=1e-15)
+    # (the tool crosses the lead-out arc's path on the bottom edge: leads are moves in the air, not the part's
+    # edge, so the clearance is checked against the neighbouring elements)
+    assert check_path(marked(text).moves, moves, R, whole_contour=False) > 150
 
 
 @pytest.mark.parametrize("comp,grown", [("G41", True), ("G42", False)])
@@ -488,7 +526,9 @@ M30"""
     assert moves[3].r0 == R and check_path(marked(sharper).moves, moves, R) > 10
 
 
-def test_rapids_under_compensation_take_no_corner_arc():
+def test_rapids_under_compensation_cross_outside_corners_straight():
+    # as LinuxCNC: no rapid arc, a rapid straight to the rapid's offset start, then the rapid parallel to its
+    # programmed line
     text = """G21 G90 G17 F600
 G0 X-20 Y0
 G41 G1 X0 Y0 D1
@@ -498,10 +538,12 @@ G1 X0
 G40 G1 X-20 Y-30
 M30"""
     moves = compensated(text)
-    assert [m.kind for m in moves] == [MOVE_RAPID, MOVE_LINE, MOVE_LINE, MOVE_RAPID, MOVE_ARC, MOVE_LINE,
-                                       MOVE_LINE]
-    rapid = moves[3]
-    assert rapid.start == moves[2].end and rapid.start[:2] == pytest.approx((0.03, R), abs=1e-15)
+    assert [m.kind for m in moves] == [MOVE_RAPID, MOVE_LINE, MOVE_LINE, MOVE_RAPID, MOVE_RAPID, MOVE_ARC,
+                                       MOVE_LINE, MOVE_LINE]
+    chord, rapid = moves[3], moves[4]
+    assert chord.line == rapid.line == 5 and chord.feed == rapid.feed == 0.0
+    assert chord.start == moves[2].end and chord.start[:2] == pytest.approx((0.03, R), abs=1e-15)
+    assert chord.end == rapid.start and rapid.start[:2] == pytest.approx((0.03 + R, 0.0), abs=1e-15)
     assert rapid.end[:2] == pytest.approx((0.03 + R, -0.03), abs=1e-15)
 
 
@@ -633,7 +675,8 @@ def _random_contour(rng: random.Random, bulge: float = 1.0) -> str:
     """A closed contour around a random star-shaped polygon (5-10 corners, sorted angles: a simple polygon whose
     corners are inside and outside ones), some sides arcs through the side's end bulging either way (radius
     >= the chord / (2 sin(bulge / 2)): at most `bulge` rad of sweep), CAM-style coordinates (4 decimals, so joins
-    that should be tangent are not exactly), a random direction and side, and a straight entry and exit."""
+    that should be tangent are not exactly), a few rapid sides, plunges and dwells, a random direction and side,
+    and a straight entry and exit."""
     n = rng.randint(5, 10)
     angles = sorted(rng.uniform(0.0, 2.0 * math.pi) for _ in range(n))
     radii = [rng.uniform(20.0, 40.0) for _ in range(n)]
@@ -651,9 +694,11 @@ def _random_contour(rng: random.Random, bulge: float = 1.0) -> str:
             radius = chord / (2.0 * math.sin(rng.uniform(0.05, bulge) / 2.0))
             lines.append(f"{rng.choice(['G2', 'G3'])} X{x:.4f} Y{y:.4f} R{radius:.4f}")
         else:
-            lines.append(f"G1 X{x:.4f} Y{y:.4f}")
+            lines.append(f"{'G0' if rng.random() < 0.1 else 'G1'} X{x:.4f} Y{y:.4f}")
         if rng.random() < 0.1:
             lines.append(f"G1 Z{rng.uniform(-2.0, 0.0):.4f}")
+        if rng.random() < 0.05:
+            lines.append("G4 P0.2")
     lines += [f"G40 G1 X{start[0]:.4f} Y{start[1]:.4f}", "G0 Z5", "M30"]
     return "\n".join(lines)
 

@@ -24,7 +24,7 @@ typedef struct {
     double p0[2], t0[2], t1[2], s[2], e[2];
     double c[2], sigma, ra, rb, ang_s, ang_e, span; /* arcs */
     int has_corner;
-    GcMove corner; /* the arc inserted before this element's move */
+    GcMove corner; /* the arc (before a rapid: the rapid) inserted before this element's move */
 } Element;
 
 static int fail(const Context *ctx, int line, const char *expected) {
@@ -243,15 +243,19 @@ static int corner(const Context *ctx, Element *a, Element *b, const GcMove *move
             }
         }
     }
+    z = move_b->start[2];
+    arc = &b->corner;
+    *arc = *move_b;
+    b->has_corner = 1;
     if (b->rapid) {
-        set_start(b, a->e);
+        arc->start[0] = a->e[0], arc->start[1] = a->e[1], arc->start[2] = z;
+        arc->end[0] = b->s[0], arc->end[1] = b->s[1], arc->end[2] = z;
+        arc->exact_stop = 0;
+        arc->dwell = 0.0;
         return 0;
     }
     sweep = fabs(cross) > COMP_TANGENT ? atan2(cross, dot) : -(double)side * PI;
-    z = move_b->start[2];
     theta0 = atan2(a->e[1] - p[1], a->e[0] - p[0]);
-    arc = &b->corner;
-    *arc = *move_b;
     arc->kind = MOVE_ARC;
     arc->start[0] = a->e[0], arc->start[1] = a->e[1], arc->start[2] = z;
     arc->end[0] = b->s[0], arc->end[1] = b->s[1], arc->end[2] = z;
@@ -265,7 +269,6 @@ static int corner(const Context *ctx, Element *a, Element *b, const GcMove *move
     arc->u0 = 0.0, arc->u1 = 0.0;
     arc->exact_stop = 0;
     arc->dwell = 0.0;
-    b->has_corner = 1;
     return 0;
 }
 

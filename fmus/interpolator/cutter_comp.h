@@ -1,12 +1,12 @@
 /* Cutter radius compensation (G40/G41/G42): a stage after parsing that replaces the programmed XY contour of the
  * moves the parser marked with `comp` (COMP_LEFT/COMP_RIGHT) and `comp_radius` by the path of the tool centre, as
  * LinuxCNC does in the XY plane: a straight entry move to the first point offset perpendicular to it, lines offset
- * and arcs grown or shrunk by the radius, an arc around every outside corner (none before a rapid; at a turn of
- * |sin| < COMP_SMALL_TURN the offset elements meet at their intersection near the corner instead), inside corners
- * at the intersection of the offset elements, a straight exit move after G40 from the last compensated point.
- * Refuses (naming the line) what cannot be followed without gouging, NURBS blocks, arcs outside G17, entry or exit
- * moves that are not straight, and a change of side or radius while compensation is on. The Python reference,
- * with the full description: models/interpolator/cutter_comp.py (bit-equal moves). */
+ * and arcs grown or shrunk by the radius, an arc around every outside corner (before a rapid a rapid straight
+ * across it; at a turn of |sin| < COMP_SMALL_TURN the offset elements meet at their intersection near the corner
+ * instead), inside corners at the intersection of the offset elements, a straight exit move after G40 from the
+ * last compensated point. Refuses (naming the line) what cannot be followed without gouging, NURBS blocks, arcs
+ * outside G17, entry or exit moves that are not straight, and a change of side or radius while compensation is
+ * on. The Python reference, with the full description: models/interpolator/cutter_comp.py (bit-equal moves). */
 #ifndef CUTTER_COMP_H
 #define CUTTER_COMP_H
 

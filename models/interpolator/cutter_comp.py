@@ -19,8 +19,9 @@ behaviour documented for LinuxCNC (the NIST RS274/NGC interpreter's Appendix B a
 
   - tangent junctions (|sin| of the turn <= ``COMP_TANGENT``) join at the end of the first element;
   - **outside** (convex) corners: an arc of the tool radius around the programmed corner point, inserted before
-    the second move and taking its line and machine state (feed, spindle, tool, ...); before a rapid (G0) no arc
-    (the rapid goes straight from the end of the previous element, as LinuxCNC does); where the turn's |sin| is
+    the second move and taking its line and machine state (feed, spindle, tool, ...); before a rapid (G0) a
+    rapid straight across the corner to the rapid's offset start instead (there is no rapid arc; LinuxCNC does
+    the same, so that the rapid itself stays parallel to the programmed one); where the turn's |sin| is
     below ``COMP_SMALL_TURN`` (LinuxCNC's 0.01 rad corner tolerance) the offset elements are extended to their
     intersection instead, when they meet within 2 radii of the corner (no arc: nearly straight chains of short
     lines and CAM's rounded "tangent" joins keep their speed, where a tiny arc of the tool's curvature would
@@ -95,7 +96,7 @@ class _Element:
         self.arc = move.kind == MOVE_ARC
         self.rapid = move.kind == MOVE_RAPID
         self.p0 = (move.start[0], move.start[1])
-        self.corner: Move | None = None      # the arc inserted before this element's move
+        self.corner: Move | None = None      # the arc (before a rapid: the rapid) inserted before this move
         if self.arc:
             self.c = (move.center[0], move.center[1])
             self.sigma = 1.0 if move.sweep > 0.0 else -1.0
@@ -261,11 +262,12 @@ class _Compensator:
                     a.set_end(x)
                     b.set_start(x)
                     return
+        z = move_b.start[2]
         if b.rapid:
-            b.set_start(a.e)
+            b.corner = replace(move_b, start=(a.e[0], a.e[1], z), end=(b.s[0], b.s[1], z), exact_stop=False,
+                               dwell=0.0)
             return
         sweep = math.atan2(cross, dot) if abs(cross) > COMP_TANGENT else -side * math.pi
-        z = move_b.start[2]
         theta0 = math.atan2(a.e[1] - p[1], a.e[0] - p[0])
         b.corner = replace(move_b, kind=MOVE_ARC, start=(a.e[0], a.e[1], z), end=(b.s[0], b.s[1], z),
                            center=(p[0], p[1], z), axes=(0, 1, 2), theta0=theta0, sweep=sweep, r0=r, r1=r,

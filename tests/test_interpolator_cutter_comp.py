@@ -749,6 +749,84 @@ def _room_for_the_tool(original: list[Move], radius: float) -> bool:
     return True
 
 
+_TURNS = (0.0, 1e-12, -1e-12, 1e-9, -1e-9, 1e-6, -1e-6, 0.005, -0.005, 0.5, -0.5, math.pi / 2.0, -math.pi / 2.0,
+          math.pi - 1e-9, -(math.pi - 1e-9), math.pi)
+
+
+def _random_moves(rng: random.Random) -> Program:
+    """A random sequence of moves as the parser could make them (not from a program): lines and rapids turning by
+    anything from 0 to a reversal (near-tangent turns included), tiny and Z-only lines, arcs in all planes and of
+    any sweep, dwells, NURBS pieces, compensation switched on and off with radii 0, +/-1, 5, 20 mm and changes."""
+    moves: list[Move] = []
+    pos, heading = [0.0, 0.0, 0.0], rng.uniform(-math.pi, math.pi)
+    comp, radius = COMP_OFF, 0.0
+    for k in range(rng.randint(1, 30)):
+        if rng.random() < 0.2:
+            comp = rng.choice([COMP_OFF, COMP_LEFT, COMP_RIGHT])
+            radius = rng.choice([0.0, 0.001, -0.001, 0.005, 0.02])
+        state = dict(offset=(0.0, 0.0, 0.0), feed=0.01, spindle=0.0, spindle_on=False, comp=comp,
+                     comp_radius=radius if comp != COMP_OFF else 0.0)
+        kind = rng.random()
+        heading += rng.choice(_TURNS)
+        if kind < 0.45:
+            length = rng.choice([1e-9, 1e-4, 0.002, 0.03])
+            end = [pos[0] + length * math.cos(heading), pos[1] + length * math.sin(heading), pos[2]]
+            if rng.random() < 0.1:
+                end = [pos[0], pos[1], pos[2] - 0.001]
+            rapid = rng.random() < 0.15
+            moves.append(Move(MOVE_RAPID if rapid else MOVE_LINE, k + 1, tuple(pos), tuple(end),
+                              **dict(state, feed=0.0 if rapid else 0.01)))
+        elif kind < 0.85:
+            ia, ib, inormal = (0, 1, 2) if rng.random() < 0.9 else (2, 0, 1)
+            r = rng.choice([1e-4, 0.003, 0.006, 0.05])
+            sweep = rng.choice([-1.0, 1.0]) * rng.choice([1e-6, 0.3, 2.0, math.pi, 2.0 * math.pi])
+            # the centre to the side the sweep turns to: the arc starts along the heading (or off it)
+            normal = heading + (math.pi / 2.0 if sweep > 0 else -math.pi / 2.0) + rng.choice([0.0, 0.0, 0.3])
+            centre = list(pos)
+            centre[ia], centre[ib] = pos[ia] + r * math.cos(normal), pos[ib] + r * math.sin(normal)
+            theta0 = math.atan2(pos[ib] - centre[ib], pos[ia] - centre[ia])
+            end = list(pos)
+            end[ia] = centre[ia] + r * math.cos(theta0 + sweep)
+            end[ib] = centre[ib] + r * math.sin(theta0 + sweep)
+            height = rng.choice([0.0, 0.0, -0.002])
+            end[inormal] = pos[inormal] + height
+            moves.append(Move(MOVE_ARC, k + 1, tuple(pos), tuple(end), center=tuple(centre), axes=(ia, ib, inormal),
+                              theta0=theta0, sweep=sweep, r0=math.hypot(pos[ia] - centre[ia], pos[ib] - centre[ib]),
+                              r1=math.hypot(end[ia] - centre[ia], end[ib] - centre[ib]), height=height, **state))
+            if ia == 0:
+                heading = theta0 + sweep + (math.pi / 2.0 if sweep > 0 else -math.pi / 2.0)
+        elif kind < 0.93:
+            moves.append(Move(MOVE_DWELL, k + 1, tuple(pos), tuple(pos), dwell=0.5, **state))
+        else:
+            end = [pos[0] + 0.01, pos[1] - 0.01, pos[2]]
+            moves.append(Move(MOVE_NURBS, k + 1, tuple(pos), tuple(end), curve=0, u0=0.0, u1=1.0, **state))
+        pos = list(moves[-1].end)
+    return Program(FILE, moves, [], len(moves), 0, 0.0, False, (0.0, 0.0, 0.0), (0.0, 0.0, 0.0))
+
+
+@needs_driver
+def test_random_move_sequences_c_equals_python_and_nothing_breaks(tmp_path):
+    rng = random.Random(16)
+    outcomes = {"ok": 0, "refused": 0}
+    for case in range(500):
+        program = _random_moves(rng)
+        text = "\n".join(f"N{k + 1} (move {k + 1})" for k in range(len(program.moves)))
+        original = replace(program, moves=list(program.moves))
+        try:
+            compensate(program, text, FILE)
+            expected = [_words(m) for m in program.moves]
+            for m in program.moves:
+                assert all(math.isfinite(v) for v in m.start + m.end + m.center + (m.theta0, m.sweep, m.r0, m.r1))
+            for a, b in zip(program.moves, program.moves[1:]):
+                assert a.end == b.start
+        except ProgramError as error:
+            expected = str(error)
+            assert error.text == text.split("\n")[error.line - 1]
+        assert c_compensate(original, text, tmp_path) == expected, case
+        outcomes["ok" if isinstance(expected, list) else "refused"] += 1
+    assert outcomes["ok"] >= 100 and outcomes["refused"] >= 100, outcomes
+
+
 def test_random_contours_keep_the_tool_radius_from_the_contour():
     rng = random.Random(7)
     checked = compensated_programs = 0

@@ -44,9 +44,14 @@ from __future__ import annotations
 
 import math
 from dataclasses import replace
+from typing import TYPE_CHECKING
 
-from milling_twin.models.interpolator.parser import (COMP_LEFT, COMP_RIGHT, MOVE_ARC, MOVE_LINE, MOVE_NURBS,
-                                                     MOVE_RAPID, Move, Program, ProgramError)
+# the parser module itself (not its names): it calls compensate() at the end of parsing and may import this module
+# before its own names exist
+from milling_twin.models.interpolator import parser as _parser
+
+if TYPE_CHECKING:
+    from milling_twin.models.interpolator.parser import Move, Program
 
 COMP_TANGENT = 1e-9       # |sin| of a turn at or below which a junction is tangent
 COMP_SMALL_TURN = 0.01    # |sin| of an outside turn below which the offset elements meet (no corner arc)
@@ -66,9 +71,9 @@ def _wrap(a: float) -> float:
 
 def _side(move: Move) -> tuple[int, float]:
     """(+1 left / -1 right / 0 off, radius >= 0) of a move; a negative radius swaps the side."""
-    if move.comp == COMP_LEFT:
+    if move.comp == _parser.COMP_LEFT:
         side = 1
-    elif move.comp == COMP_RIGHT:
+    elif move.comp == _parser.COMP_RIGHT:
         side = -1
     else:
         return 0, 0.0
@@ -81,9 +86,9 @@ def _side(move: Move) -> tuple[int, float]:
 
 
 def _xy_motion(move: Move) -> bool:
-    if move.kind == MOVE_LINE or move.kind == MOVE_RAPID:
+    if move.kind == _parser.MOVE_LINE or move.kind == _parser.MOVE_RAPID:
         return move.end[0] != move.start[0] or move.end[1] != move.start[1]
-    return move.kind == MOVE_ARC or move.kind == MOVE_NURBS
+    return move.kind == _parser.MOVE_ARC or move.kind == _parser.MOVE_NURBS
 
 
 class _Element:
@@ -93,8 +98,8 @@ class _Element:
 
     def __init__(self, index: int, move: Move, side: int, r: float):
         self.index = index
-        self.arc = move.kind == MOVE_ARC
-        self.rapid = move.kind == MOVE_RAPID
+        self.arc = move.kind == _parser.MOVE_ARC
+        self.rapid = move.kind == _parser.MOVE_RAPID
         self.p0 = (move.start[0], move.start[1])
         self.corner: Move | None = None      # the arc (before a rapid: the rapid) inserted before this move
         if self.arc:
@@ -235,7 +240,7 @@ class _Compensator:
 
     def fail(self, line: int, expected: str):
         raw = self.lines[line - 1].rstrip("\r") if 1 <= line <= len(self.lines) else ""
-        raise ProgramError(self.file, line, raw, expected)
+        raise _parser.ProgramError(self.file, line, raw, expected)
 
     def corner(self, a: _Element, b: _Element, move_a: Move, move_b: Move, side: int, r: float) -> None:
         """Joins a (ending at the programmed corner) to b (starting there)."""
@@ -269,7 +274,7 @@ class _Compensator:
             return
         sweep = math.atan2(cross, dot) if abs(cross) > COMP_TANGENT else -side * math.pi
         theta0 = math.atan2(a.e[1] - p[1], a.e[0] - p[0])
-        b.corner = replace(move_b, kind=MOVE_ARC, start=(a.e[0], a.e[1], z), end=(b.s[0], b.s[1], z),
+        b.corner = replace(move_b, kind=_parser.MOVE_ARC, start=(a.e[0], a.e[1], z), end=(b.s[0], b.s[1], z),
                            center=(p[0], p[1], z), axes=(0, 1, 2), theta0=theta0, sweep=sweep, r0=r, r1=r,
                            height=0.0, curve=-1, u0=0.0, u1=0.0, exact_stop=False, dwell=0.0)
 
@@ -280,15 +285,15 @@ class _Compensator:
         previous: _Element | None = None
         for k in range(first, last):
             m = moves[k]
-            if m.kind == MOVE_NURBS:
+            if m.kind == _parser.MOVE_NURBS:
                 self.fail(m.line, "cutter compensation of a NURBS block is not supported (G40 before the block)")
-            if m.kind == MOVE_ARC and tuple(m.axes) != (0, 1, 2):
+            if m.kind == _parser.MOVE_ARC and tuple(m.axes) != (0, 1, 2):
                 self.fail(m.line, f"cutter compensation in the XY plane (G17) only (the tool radius offsets the path "
                                   f"within XY), this arc lies in the {_PLANES.get(tuple(m.axes), 'ZX plane (G18)')}")
             if not _xy_motion(m):
                 continue
             if previous is None:
-                if m.kind == MOVE_ARC:
+                if m.kind == _parser.MOVE_ARC:
                     self.fail(m.line, "a straight entry move (G0 or G1) as the first move in XY after G41/G42, got "
                                       "an arc")
                 dx, dy = m.end[0] - cur[0], m.end[1] - cur[1]
@@ -352,9 +357,9 @@ class _Compensator:
             if not _xy_motion(m):
                 out.append(replace(m, start=(cur[0], cur[1], m.start[2]), end=(cur[0], cur[1], m.end[2])))
             elif closing:
-                if m.kind != MOVE_LINE and m.kind != MOVE_RAPID:
+                if m.kind != _parser.MOVE_LINE and m.kind != _parser.MOVE_RAPID:
                     self.fail(m.line, "a straight exit move (G0 or G1) as the first move in XY after G40, got "
-                                      + ("an arc" if m.kind == MOVE_ARC else "a NURBS block"))
+                                      + ("an arc" if m.kind == _parser.MOVE_ARC else "a NURBS block"))
                 closing = False
                 if cur[0] != m.end[0] or cur[1] != m.end[1] or m.start[2] != m.end[2]:
                     out.append(replace(m, start=(cur[0], cur[1], m.start[2])))

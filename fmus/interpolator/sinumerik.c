@@ -202,6 +202,13 @@ static void upper_copy(const char *s, size_t i, size_t j, char *out) {
     out[j - i] = '\0';
 }
 
+static int control_free(const char *s, size_t length) {
+    size_t k;
+    for (k = 0; k < length; k++)
+        if ((unsigned char)s[k] < 32 || s[k] == 127) return 0;
+    return 1;
+}
+
 static int in_list(const char *word, const char *const *list, int n) {
     int k;
     for (k = 0; k < n; k++)
@@ -321,7 +328,7 @@ static double function(int f, double x) {
 static int primary(Ctx *c, size_t *i, int depth, const char *what, double *value) {
     const char *s = c->s;
     size_t n = c->n, start, j, k;
-    char name[SIN_MAX_WORD + 1], got[32];
+    char name[SIN_MAX_WORD + 2], got[32];
     if (*i < n && (is_digit(s[*i]) || s[*i] == '.')) return number(c, i, what, value, &start);
     if (*i < n && s[*i] == '(') {
         if (depth >= SIN_MAX_NESTING)
@@ -523,6 +530,7 @@ static int named(Ctx *c, const char *word, size_t *i) {
             if (!e) return fail(c, "a closing '\"' after T=\"");
             length = (size_t)(e - (s + j + 1));
             if (length > SIN_NAME_LENGTH) return fail(c, "a tool name of at most %d characters", SIN_NAME_LENGTH);
+            if (!control_free(s + j + 1, length)) return fail(c, "a tool name without control characters");
             k = tool_by_name(c->st, s + j + 1, length);
             if (k < 0)
                 return fail(c, "a tool named \"%.*s\" in the tool table (none has this name)", (int)length, s + j + 1);
@@ -568,7 +576,7 @@ static int cycle832(Ctx *c, size_t k, size_t *next) {
     size_t end, i, j;
     double tolerance = 0.0;
     int kind = 1;
-    char got[32], word[SIN_MAX_WORD + 1];
+    char got[32], word[SIN_MAX_WORD + 2];
     Token *t = NULL;
     if (skip_parenthesis(c, k, "CYCLE832", &end) < 0) return -1;
     i = k + 1;
@@ -615,7 +623,7 @@ static int cycle832(Ctx *c, size_t k, size_t *next) {
 
 static int proc(Ctx *c, size_t k, size_t *next) {
     size_t j, m;
-    char name[SIN_MAX_WORD + 1];
+    char name[SIN_MAX_WORD + 2];
     Token *t = NULL;
     if (word_end(c, k, &j) < 0) return -1;
     upper_copy(c->s, k, j, name);
@@ -636,7 +644,7 @@ static int proc(Ctx *c, size_t k, size_t *next) {
 static int lex(Ctx *c) {
     const char *s = c->s;
     size_t n = c->n, i = 0, j, k, start;
-    char buf[160], word[SIN_MAX_WORD + 1], what[2] = {0, 0};
+    char buf[160], word[SIN_MAX_WORD + 2], what[2] = {0, 0};
     Token *t = NULL;
     double value;
     while (i < n) {
@@ -673,7 +681,7 @@ static int lex(Ctx *c) {
             while (k < n && is_blank(s[k])) k++;
             if (j > i + 1 && k < n && s[k] == '=') {
                 int index = SIN_R_COUNT;
-                char name[SIN_MAX_WORD + 1];
+                char name[SIN_MAX_WORD + 2];
                 if (j - i > SIN_MAX_WORD) return fail(c, "a word of at most %d characters", SIN_MAX_WORD);
                 upper_copy(s, i, j, name);
                 if (letter != 'R') return fail(c, "%s= is not supported (addresses with an extension)", name);
@@ -758,6 +766,7 @@ static int lex(Ctx *c) {
                 length = (size_t)(e - (s + k + 1));
                 if (length > SIN_NAME_LENGTH)
                     return fail(c, "a subprogram name of at most %d characters", SIN_NAME_LENGTH);
+                if (!control_free(s + k + 1, length)) return fail(c, "a subprogram name without control characters");
                 if (push(c, &t) < 0) return -1;
                 t->kind = TK_CALL;
                 upper_copy(s, k + 1, k + 1 + length, t->buf);

@@ -152,6 +152,18 @@ class _Tokens(list):
         super().append(token)
 
 
+_UPPER = {code: code - 32 for code in range(ord("a"), ord("z") + 1)}
+
+
+def _upper(text: str) -> str:
+    """ASCII letters in upper case, every other character as it is (as C's byte-wise upper case)."""
+    return text.translate(_UPPER)
+
+
+def _control_free(text: str) -> bool:
+    return all(ord(c) >= 32 and ord(c) != 127 for c in text)
+
+
 def _is_letter(c: str) -> bool:
     return ("A" <= c <= "Z") or ("a" <= c <= "z")
 
@@ -187,7 +199,7 @@ def format_value(x: float) -> str:
 
 
 def _name_key(name: str) -> str:
-    return name.upper()
+    return _upper(name)
 
 
 class SinumerikTranslator:
@@ -229,9 +241,9 @@ class SinumerikTranslator:
         for raw in text.split("\n"):
             line = raw.split(";", 1)[0].strip(" \t\r")
             name = ""
-            if line[:4].upper() == "%_N_" and line[-4:].upper() == "_SPF":
+            if _upper(line[:4]) == "%_N_" and _upper(line[-4:]) == "_SPF":
                 name = line[4:-4]
-            elif line[:5].upper() == "PROC " or line[:5].upper() == "PROC\t":
+            elif _upper(line[:5]) == "PROC " or _upper(line[:5]) == "PROC\t":
                 rest = line[5:].lstrip(" \t")
                 j = 0
                 while j < len(rest) and _is_name_char(rest[j]):
@@ -351,10 +363,10 @@ class SinumerikTranslator:
             return value, i + 1
         if i < n and s[i] == "$":
             j = _word_end(s, i + 1)
-            raise SinumerikError(f"{s[i:j].upper()} is not supported (system variables: use R0 to R99)")
+            raise SinumerikError(f"{_upper(s[i:j])} is not supported (system variables: use R0 to R99)")
         if i < n and (_is_letter(s[i]) or s[i] == "_"):
             j = _word_end(s, i)
-            name = s[i:j].upper()
+            name = _upper(s[i:j])
             if name[0] == "R" and len(name) > 1 and all(_is_digit(c) for c in name[1:]):
                 index = int(name[1:]) if len(name) <= 4 else R_COUNT
                 if index >= R_COUNT:
@@ -449,11 +461,11 @@ class SinumerikTranslator:
                 continue
             if c == "$":
                 j = _word_end(s, i + 1)
-                raise SinumerikError(f"{s[i:j].upper()} is not supported (system variables: use R0 to R99)")
+                raise SinumerikError(f"{_upper(s[i:j])} is not supported (system variables: use R0 to R99)")
             if not (_is_letter(c) or c == "_"):
                 raise SinumerikError(f"a word (address and value), a keyword, a comment (;) or the end of the line, "
                                      f"got {_shown(c)}")
-            letter = c.upper()
+            letter = _upper(c)
             if i + 1 < n and (_is_digit(s[i + 1]) or s[i + 1] == "."):
                 # address letter and number: X10, G641, R1=..., L10
                 j = i + 1
@@ -465,7 +477,7 @@ class SinumerikTranslator:
                 if j > i + 1 and k < n and s[k] == "=":
                     if j - i > MAX_WORD:
                         raise SinumerikError(f"a word of at most {MAX_WORD} characters")
-                    word = s[i:j].upper()
+                    word = _upper(s[i:j])
                     if letter != "R":
                         raise SinumerikError(f"{word}= is not supported (addresses with an extension)")
                     index = int(s[i + 1:j]) if j - i - 1 <= 3 else R_COUNT
@@ -478,7 +490,7 @@ class SinumerikTranslator:
                     if j < n and _is_name_char(s[j]):
                         if j + 1 - i > MAX_WORD:
                             raise SinumerikError(f"a word of at most {MAX_WORD} characters")
-                        raise SinumerikError(f"{s[i:j + 1].upper()}... is not supported (a subprogram L<digits>)")
+                        raise SinumerikError(f"{_upper(s[i:j + 1])}... is not supported (a subprogram L<digits>)")
                     if j - i > NAME_LENGTH:
                         raise SinumerikError(f"a subprogram name of at most {NAME_LENGTH} characters")
                     tokens.append(("CALL", "L" + s[i + 1:j]))
@@ -490,7 +502,7 @@ class SinumerikTranslator:
                 tokens.append(("W", letter, value, text))
                 continue
             j = _word_end(s, i)
-            word = s[i:j].upper()
+            word = _upper(s[i:j])
             k = j
             while k < n and s[k] in " \t":
                 k += 1
@@ -520,6 +532,8 @@ class SinumerikTranslator:
                         raise SinumerikError('a closing \'"\' after CALL "')
                     if e - k - 1 > NAME_LENGTH:
                         raise SinumerikError(f"a subprogram name of at most {NAME_LENGTH} characters")
+                    if not _control_free(s[k + 1:e]):
+                        raise SinumerikError("a subprogram name without control characters")
                     tokens.append(("CALL", s[k + 1:e]))
                     i = e + 1
                     continue
@@ -566,6 +580,8 @@ class SinumerikTranslator:
                 name = s[j + 1:e]
                 if len(name) > NAME_LENGTH:
                     raise SinumerikError(f"a tool name of at most {NAME_LENGTH} characters")
+                if not _control_free(name):
+                    raise SinumerikError("a tool name without control characters")
                 if name not in self.tool_names:
                     raise SinumerikError(f'a tool named "{name}" in the tool table (none has this name)')
                 tokens.append(("W", "T", float(self.tool_names[name]), str(self.tool_names[name])))
@@ -607,7 +623,7 @@ class SinumerikTranslator:
             while s[i] in " \t":
                 i += 1
             j = _word_end(s, i)
-            word = s[i:j].upper()
+            word = _upper(s[i:j])
             if word in _CYCLE832_TYPES:
                 kind = _CYCLE832_TYPES[word]
             elif word and all(_is_digit(ch) for ch in word):
@@ -620,7 +636,7 @@ class SinumerikTranslator:
 
     def _proc(self, s: str, k: int, tokens: list) -> int:
         j = _word_end(s, k)
-        name = s[k:j].upper()
+        name = _upper(s[k:j])
         if not name or not _is_letter(name[0]):
             raise SinumerikError("a subprogram name after PROC")
         if len(name) > NAME_LENGTH:
@@ -669,8 +685,8 @@ class SinumerikTranslator:
         text = s.split(";", 1)[0].rstrip(" \t")
         if text == "%":
             return ""
-        if text[:4].upper() == "%_N_" and text[-4:].upper() in ("_MPF", "_SPF") and len(text) > 8:
-            name = text[4:-4].upper()
+        if _upper(text[:4]) == "%_N_" and _upper(text[-4:]) in ("_MPF", "_SPF") and len(text) > 8:
+            name = _upper(text[4:-4])
             if len(name) > NAME_LENGTH or not all(_is_name_char(c) for c in name) or not _is_letter(name[0]):
                 raise SinumerikError(f"a program name of at most {NAME_LENGTH} letters, digits and _ (starting with a "
                                      f"letter)")
@@ -679,7 +695,7 @@ class SinumerikTranslator:
                                      "before the next program section")
             self.spline = False
             self.after_header = ""
-            if text[-4:].upper() == "_MPF":
+            if _upper(text[-4:]) == "_MPF":
                 return ""
             index = self._register(name)
             if index < 0:

@@ -10,14 +10,16 @@ behaviour documented for LinuxCNC (the NIST RS274/NGC interpreter's Appendix B a
 - **Entry**: the first move with XY motion after G41/G42 must be straight (G0/G1). It goes from the current tool
   position C to the programmed point P offset by the radius perpendicular to the line C-P (to the left for G41,
   the right for G42). Refused when |C-P| is not greater than the radius (the tool would already cover P). Moves
-  without XY motion before it (a plunge) keep the tool's XY position.
+  without XY motion before it (a plunge) keep the tool's XY position: the offset starts with the first move in
+  the plane, as on Fanuc-style controls (LinuxCNC refuses such a first move).
 - **Lines** are offset by the radius to the left (G41) / right (G42) of their XY direction; a Z change is kept.
   **Arcs** keep their centre, sweep and height (helices): the radius grows or shrinks by the tool radius
   (refused where the compensated radius would be <= 0: gouging).
 - **Corners** between consecutive XY elements (moves without XY motion in between are skipped over and keep the
   tool's XY position):
 
-  - tangent junctions (|sin| of the turn <= ``COMP_TANGENT``) join at the end of the first element;
+  - tangent junctions (|sin| of the turn <= ``COMP_TANGENT``, same direction) join at the end of the first
+    element; a reversal (|sin| as small, opposite directions) is an outside corner of half a turn;
   - **outside** (convex) corners: an arc of the tool radius around the programmed corner point, inserted before
     the second move and taking its line and machine state (feed, spindle, tool, ...); before a rapid (G0) a
     rapid straight across the corner to the rapid's offset start instead (there is no rapid arc; LinuxCNC does
@@ -27,8 +29,9 @@ behaviour documented for LinuxCNC (the NIST RS274/NGC interpreter's Appendix B a
     lines and CAM's rounded "tangent" joins keep their speed, where a tiny arc of the tool's curvature would
     slow the feed; two lines meet r / cos(turn / 2) from the corner, < 0.002 % of r beyond the radius);
   - **inside** (concave) corners: the intersection of the two offset elements (line-line, line-circle or
-    circle-circle, the intersection nearest the corner), which shortens both; refused when the offset elements
-    do not meet, or meet outside either element (an inside step shorter than the tool radius): "the tool
+    circle-circle; of two intersections the nearer the corner, else the other, that lies on both), which
+    shortens both; refused when the offset elements do not meet, or meet outside either element (beyond
+    ``COMP_SLACK``, or leaving one of no length: an inside step shorter than the tool radius): "the tool
     (radius .. mm) cannot follow this inside corner without gouging", naming the line of the move that ends at
     the corner.
 - **Exit**: the first move with XY motion after G40 must be straight; it goes from the last compensated point to
@@ -38,7 +41,8 @@ behaviour documented for LinuxCNC (the NIST RS274/NGC interpreter's Appendix B a
 Also refused, naming the line: a NURBS block (G6.2 etc.) under compensation, an arc in the ZX/YZ plane
 (G18/G19) under compensation, and a change of the side or radius while compensation is on (G40 first). A
 negative radius compensates on the other side (LinuxCNC's nominal-path tool-table convention); radius 0 leaves
-the moves as programmed.
+the moves as programmed. G40 and G41/G42 again with no move in between leave no trace in the moves: it is one
+compensation then (a change of side or radius between them is refused as above).
 """
 from __future__ import annotations
 

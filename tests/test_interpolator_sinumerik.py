@@ -22,7 +22,7 @@ TOOLS = [Tool(1, 0.010, name="END10"), Tool(2, 0.006, name="BALL6"), Tool(7, 0.0
 PROGRAM = """%_N_POCKET_MPF
 ;$PATH=/_N_MPF_DIR
 ; part POCKET, post sinumerik_840d_3axis
-N10 G17 G90 G54 G71 G500
+N10 G17 G90 G54 G71
 N20 TRANS X100 Y50
 N30 T="END10"
 N40 M6
@@ -65,7 +65,7 @@ N30 RET
 
 PROGRAM_OUT = [
     "", "", "",
-    "N10 G17 G90 G54 G21 G500",
+    "N10 G17 G90 G54 G21",
     "N20 G52 X100 Y50 Z0",
     "N30 T1",
     "N40 M6",
@@ -84,7 +84,7 @@ PROGRAM_OUT = [
     "N170 X40 Y18",
     "N180 X45 Y10",
     "G5.3 N190 G1 X50 Y0",
-    "N200 G4 X0.5",
+    "N200 G4 P0.5",
     "N210 M98 P9001 L2",
     "N220 M98 P9002",
     "N230 G52 X100 Y50 Z-1",
@@ -133,7 +133,7 @@ FORMS = [
     ([], "CYCLE832(0.05,_SEMIFIN,1)", "G64 P0.05"), ([], "CYCLE832(0.01,112101)", "G64 P0.01"),
     ([], "CYCLE832(0,_OFF,1)", "G64"), ([], "CYCLE832(0.1,_OFF,1)", "G64"), ([], "CYCLE832()", "G64"),
     (["R5=0.02"], "CYCLE832( R5 * 2 , _ROUGH, 1)", "G64 P0.04"),
-    ([], "G4 F2.5", "G4 X2.5"),
+    ([], "G4 F2.5", "G4 P2.5"),
     ([], "TRANS X10 Y-5.5", "G52 X10 Y-5.5 Z0"), (["TRANS X10"], "ATRANS Y2 Z1", "G52 X10 Y2 Z1"),
     (["TRANS X10"], "TRANS", "G52 X0 Y0 Z0"), (["TRANS X10"], "ROT", "G52 X0 Y0 Z0"),
     (["TRANS X10"], "SCALE", "G52 X0 Y0 Z0"), (["TRANS X10"], "MIRROR", "G52 X0 Y0 Z0"),
@@ -164,7 +164,7 @@ FORMS = [
     ([], "L10", "M98 P9001"), ([], "L10 P3", "M98 P9001 L3"), ([], "CONTOUR_A", "M98 P9002"),
     ([], "CONTOUR_A P2", "M98 P9002 L2"), ([], 'CALL "contour_a"', "M98 P9002"), ([], "contour_a", "M98 P9002"),
     ([], "%_N_CONTOUR_A_SPF", "O9002"), (["%_N_CONTOUR_A_SPF"], "PROC CONTOUR_A", ""),
-    (["%_N_L10_SPF"], "PROC CONTOUR_A SAVE", "O9002"), ([], "N5 PROC NEW_ONE", "N5 O9003"),
+    (["%_N_L10_SPF"], "PROC CONTOUR_A SAVE", "O9002"), ([], "N5 PROC NEW_ONE", "O9003"),
     ([], "STOPRE", ""), ([], "SOFT G642", "G64"), ([], "G601 G60", "G61"), ([], "G450", ""),
     ([], "ADISPOS=0.5", ""), ([], "FFWON COMPCAD", ""),
 ]

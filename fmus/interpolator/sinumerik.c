@@ -959,9 +959,8 @@ static int proc_line(Ctx *c, const char *name, const char *after_header, Out *o)
     int k;
     for (k = 0; k < c->n_tokens; k++) {
         const Token *t = &c->tokens[k];
-        if (t->kind == TK_N || (t->kind == TK_W && t->letter == 'N'))
-            put_n(o, t);
-        else if (!(t->kind == TK_PROC || (t->kind == TK_K && IS_PROC_ATTRIBUTE(t->id))))
+        if (!(t->kind == TK_N || (t->kind == TK_W && t->letter == 'N') || t->kind == TK_PROC ||
+              (t->kind == TK_K && IS_PROC_ATTRIBUTE(t->id))))
             return fail(c, "PROC <name> in a line of its own");
     }
     if (st->spline_open)
@@ -1123,7 +1122,7 @@ static int line(Ctx *c, const char *after_header, Out *o) {
                 if (st->spline) return fail(c, "%c is not supported in BSPLINE mode (arc words)", letter);
                 put(o, "%c%.*s", letter, length, text);
             } else if (letter == 'F') {
-                put(o, "%c%.*s", g4 ? 'X' : 'F', length, text);
+                put(o, "%c%.*s", g4 ? 'P' : 'F', length, text);
             } else if (letter == 'S') {
                 if (g4) return fail(c, "G4 S is not supported (dwell in spindle revolutions: program G4 F<s>)");
                 put(o, "S%.*s", length, text);

@@ -16,14 +16,14 @@ Translated (Sinumerik -> core)
   it), a ``%`` line (nothing);
 - archive section headers: ``%_N_<NAME>_MPF`` (the main program: nothing), ``%_N_<NAME>_SPF`` (a subprogram:
   ``O<n>``, names numbered 9001, 9002, ... in order of appearance in the file), ``PROC <NAME>`` (nothing right after
-  its own section header, else ``O<n>``; no parameters);
+  its own section header, else ``O<n>`` alone; no parameters);
 - subprogram calls ``L10``, ``L10 P3``, ``<NAME>``, ``<NAME> P3``, ``CALL "<NAME>"`` -> ``M98 P<n> [L<count>]``;
   ``M17`` and ``RET`` -> ``M99``; ``M2``, ``M30``;
 - ``G0 G1 G2 G3 G9 G17 G18 G19 G40 G53 G54..G57 G90 G91 G94 G95 G500`` as they are; ``G153`` and ``SUPA`` -> ``G53``;
   ``G70``/``G700`` -> ``G20``, ``G71``/``G710`` -> ``G21``; ``G60`` -> ``G61``; ``G64`` -> ``G64``; ``G641`` ..
   ``G645`` -> ``G64 P<ADIS>`` (``G64`` without ADIS); ``ADIS=`` while G641.. is active -> ``G64 P<ADIS>``;
   ``CYCLE832(<tol>, <type>, ...)`` -> ``G64 P<tol>`` (tolerance 0 or omitted, or type _OFF / 0: ``G64``);
-  ``G4 F<s>`` (dwell in seconds) -> ``G4 X<s>``; ``CR=<r>`` (arc radius) -> ``R<r>``;
+  ``G4 F<s>`` (dwell in seconds) -> ``G4 P<s>`` (P in seconds in the sinumerik dialect); ``CR=<r>`` (arc radius) -> ``R<r>``;
 - frames: ``TRANS X Y Z`` (replaces the programmable frame; ``TRANS`` alone clears it), ``ATRANS X Y Z`` (adds)
   -> ``G52 X Y Z`` with the frame's totals; ``ROT``/``SCALE``/``MIRROR`` with no rotation, unit scale, no
   mirrored axis clear the frame (``G52 X0 Y0 Z0``); ``AROT``/``ASCALE``/``AMIRROR`` that change nothing: nothing;
@@ -826,7 +826,7 @@ class SinumerikTranslator:
                         raise SinumerikError(f"{letter} is not supported in BSPLINE mode (arc words)")
                     pieces.append(f"{letter}{t[3]}")
                 elif letter == "F":
-                    pieces.append(f"X{t[3]}" if g4 else f"F{t[3]}")
+                    pieces.append(f"P{t[3]}" if g4 else f"F{t[3]}")
                 elif letter == "S":
                     if g4:
                         raise SinumerikError("G4 S is not supported (dwell in spindle revolutions: program G4 F<s>)")
@@ -875,13 +875,12 @@ class SinumerikTranslator:
         return " ".join(pieces)
 
     def _proc_line(self, tokens: list[tuple], name: str, after_header: str) -> str:
+        """PROC <name>: nothing right after its own section header, else O<n> alone (the core's program number
+        line; a block number N is dropped)."""
         pieces: list[str] = []
         for t in tokens:
-            if t[0] == "N":
-                pieces.append(f"N{t[1]}")
-            elif t[0] == "W" and t[1] == "N":
-                pieces.append(f"N{t[3]}")
-            elif not (t[0] == "PROC" or (t[0] == "K" and t[1] in _PROC_ATTRIBUTES)):
+            if not (t[0] == "N" or (t[0] == "W" and t[1] == "N") or t[0] == "PROC"
+                    or (t[0] == "K" and t[1] in _PROC_ATTRIBUTES)):
                 raise SinumerikError("PROC <name> in a line of its own")
         if self.spline_open:
             raise SinumerikError("the end of the B spline (a line with G0, G1, G2, G3, M2, M30, M17 or RET) "

@@ -166,7 +166,8 @@ FORMS = [
     ([], "%_N_CONTOUR_A_SPF", "O9002"), (["%_N_CONTOUR_A_SPF"], "PROC CONTOUR_A", ""),
     (["%_N_L10_SPF"], "PROC CONTOUR_A SAVE", "O9002"), ([], "N5 PROC NEW_ONE", "O9003"),
     ([], "STOPRE", ""), ([], "SOFT G642", "G64"), ([], "G601 G60", "G61"), ([], "G450", ""),
-    ([], "ADISPOS=0.5", ""), ([], "FFWON COMPCAD", ""),
+    ([], "ADISPOS=0.5", ""), ([], "FFWON COMPCAD", ""), ([], "N10 CUT2DF G40", "N10 G40"),
+    ([], 'WORKPIECE(,"",,"BOX",112,0,-50,-80,0,0,100,100)', ""), ([], "N20 START: G1 X5", "N20 G1 X5"),
 ]
 
 
@@ -401,7 +402,8 @@ VOCABULARY = [
     "K1", "TRANS", "ATRANS", "ROT", "AROT", "SCALE", "MIRROR", "AMIRROR", "RPL=0", "RPL=30", "SUPA", "RET", "L10",
     "L10 P2", "L77", "P3", "CONTOUR_A", 'CALL "CONTOUR_A"', 'CALL "X"', "CYCLE832(0.01,_FINISH,1)",
     "CYCLE832(R1/100,_ROUGH)", "CYCLE832(0,_OFF)", "CYCLE81(10,0,2)", 'MSG("a;b(c)")', "SOFT", "BRISK", "STOPRE",
-    "COMPCAD", "GOTOF", "IF", "$P_X", "X=1/0", "X=SQRT(-1)", "X=FOO(1)", "X=AC(5)", "; comment", "PROC SUB",
+    "COMPCAD", "GOTOF", "IF", "LABEL1:", "WORKPIECE(,,,\"BOX\",0)", "CUT2D",
+    "$P_X", "X=1/0", "X=SQRT(-1)", "X=FOO(1)", "X=AC(5)", "; comment", "PROC SUB",
     "%_N_MAIN_MPF", "%_N_L10_SPF", "%_N_SUB_SPF", "%", "/", "H1", "A5", "X1=5", "X", "X=", "X=(1", "(", "#", "\t",
     "é", "\x01", "CIP", "G1X1Y2", "R1 = 2", "X=999999*R1", "X=0.1234567890123456789",
 ]

@@ -42,6 +42,9 @@ static const char *const NOTED[][2] = {
     {"STOPRE", "preprocessing stop"},
     {"ADISPOS", "rounding of rapid moves"},
     {"MSG", "operator message"},
+    {"WORKPIECE", "blank for the control's simulation"},
+    {"CUT2D", "2D radius compensation in the plane"},
+    {"CUT2DF", "2D radius compensation in the frame's plane"},
 };
 #define N_NOTED ((int)(sizeof NOTED / sizeof NOTED[0]))
 
@@ -742,10 +745,10 @@ static int lex(Ctx *c) {
         }
         if (k < n && s[k] == '(') {
             const char *reason;
-            if (strcmp(word, "MSG") == 0) {
+            if (strcmp(word, "MSG") == 0 || strcmp(word, "WORKPIECE") == 0) {
                 if (push(c, &t) < 0) return -1;
                 t->kind = TK_NOTE;
-                t->id = noted_index("MSG");
+                t->id = noted_index(word);
                 if (skip_parenthesis(c, k, word, &i) < 0) return -1;
                 continue;
             }
@@ -757,6 +760,10 @@ static int lex(Ctx *c) {
             if (reason) return fail(c, "%s is not supported (%s)", word, reason);
             return fail(c, "%s is not supported (cycles and procedures with arguments: let the CAM post write their "
                            "moves)", word);
+        }
+        if (j < n && s[j] == ':' && is_letter(word[0])) {
+            i = j + 1; /* a jump label (no GOTO is accepted: it has no effect) */
+            continue;
         }
         if (strcmp(word, "CALL") == 0) {
             if (k < n && s[k] == '"') {

@@ -23,7 +23,8 @@ Translated (Sinumerik -> core)
   ``G70``/``G700`` -> ``G20``, ``G71``/``G710`` -> ``G21``; ``G60`` -> ``G61``; ``G64`` -> ``G64``; ``G641`` ..
   ``G645`` -> ``G64 P<ADIS>`` (``G64`` without ADIS); ``ADIS=`` while G641.. is active -> ``G64 P<ADIS>``;
   ``CYCLE832(<tol>, <type>, ...)`` -> ``G64 P<tol>`` (tolerance 0 or omitted, or type _OFF / 0: ``G64``);
-  ``G4 F<s>`` (dwell in seconds) -> ``G4 P<s>`` (P in seconds in the sinumerik dialect); ``CR=<r>`` (arc radius) -> ``R<r>``;
+  ``G4 F<s>`` (dwell in seconds) -> ``G4 P<s>`` (P in seconds in the sinumerik dialect); ``CR=<r>`` (arc
+  radius) -> ``R<r>``;
 - frames: ``TRANS X Y Z`` (replaces the programmable frame; ``TRANS`` alone clears it), ``ATRANS X Y Z`` (adds)
   -> ``G52 X Y Z`` with the frame's totals; ``ROT``/``SCALE``/``MIRROR`` with no rotation, unit scale, no
   mirrored axis clear the frame (``G52 X0 Y0 Z0``); ``AROT``/``ASCALE``/``AMIRROR`` that change nothing: nothing;
@@ -94,7 +95,10 @@ NOTED = (
     ("FNORM", "feed normal"), ("CFC", "feed at the contour"), ("CFTCP", "feed at the tool centre"),
     ("CFIN", "feed at inner arcs"), ("DIAMOF", "diameter programming off"), ("TRAFOOF", "transformation off"),
     ("STOPRE", "preprocessing stop"), ("ADISPOS", "rounding of rapid moves"), ("MSG", "operator message"),
+    ("WORKPIECE", "blank for the control's simulation"), ("CUT2D", "2D radius compensation in the plane"),
+    ("CUT2DF", "2D radius compensation in the frame's plane"),
 )
+_NOTED_CALLS = ("MSG", "WORKPIECE")
 _NOTED = {word: (index, what) for index, (word, what) in enumerate(NOTED)}
 
 # refused keywords: word -> what a program using it would need
@@ -514,8 +518,8 @@ class SinumerikTranslator:
                 i = self._named(s, word, k + 1, tokens)
                 continue
             if k < n and s[k] == "(":
-                if word == "MSG":
-                    tokens.append(("NOTE", "MSG"))
+                if word in _NOTED_CALLS:
+                    tokens.append(("NOTE", word))
                     i = self._skip_parenthesis(s, k, word)
                     continue
                 if word == "CYCLE832":
@@ -525,6 +529,9 @@ class SinumerikTranslator:
                     raise SinumerikError(f"{word} is not supported ({_REFUSED[word]})")
                 raise SinumerikError(f"{word} is not supported (cycles and procedures with arguments: let the CAM "
                                      f"post write their moves)")
+            if j < n and s[j] == ":" and _is_letter(word[0]):
+                i = j + 1            # a jump label (no GOTO is accepted: it has no effect)
+                continue
             if word == "CALL":
                 if k < n and s[k] == '"':
                     e = s.find('"', k + 1)

@@ -153,7 +153,8 @@ FORMS = [
     ([], "X=TAN(45)", "X1"), ([], "X=SQRT(2)", "X1.4142135624"), ([], "X=ABS(-3)", "X3"), ([], "X=POT(3)", "X9"),
     ([], "X=TRUNC(-2.7)", "X-2"), ([], "X=1/3", "X0.3333333333"), ([], "X=-(2+3)*4", "X-20"),
     ([], "X=--2", "X2"), (["R1=4", "R2=6"], "Y=(R1+R2)/2", "Y5"), (["R2=6"], "X=-R2", "X-6"),
-    ([], "R1 = 5", ""), ([], "X=( 1 + 2 )*3", "X9"), ([], "X=123456.123456789", "X123456.1234567890"[:-1]),
+    ([], "R1 = 5", ""), (["%_N_L10_SPF", "R1=2"], "X=R1*2", "X4"), (["R1=2", "%_N_L10_SPF", "R1=3"], "X=R1", "X3"),
+    ([], "X=( 1 + 2 )*3", "X9"), ([], "X=123456.123456789", "X123456.123456789"),
     ([], "X=99999999.123456789", "X99999999.123456791"), ([], "X=0.00000000001", "X0"), ([], "X=-0.00000000001", "X0"),
     ([], "BSPLINE", ""), (["BSPLINE"], "X1 Y2", "G5.2 L4 X1 Y2"), (["BSPLINE SD=2"], "X1 Y2", "G5.2 L3 X1 Y2"),
     (["BSPLINE", "X1 Y2"], "X3 Y4 PW=0.5 PL=1.5", "X3 Y4 P0.5 K1.5"), ([], "BSPLINE X1 F500", "G5.2 L4 X1 F500"),
@@ -240,6 +241,13 @@ BAD = [
     ([], "X=FOO(1)", "the function FOO is not supported (SIN, COS, TAN, SQRT, ABS, POT, TRUNC)"),
     ([], "X=SQRT(-1)", "SQRT of a number >= 0"),
     ([], "R100=1", "an R parameter R0 to R99, got R100"),
+    (["R1=2", "%_N_CONTOUR_A_SPF"], "G1 Z=-R1", "R1 set in this program section before it is used (R parameters "
+                                              "are evaluated once, in the order of the file, not per subprogram call)"),
+    (["%_N_L10_SPF", "R1=2", "%_N_MAIN_MPF"], "X=R1", "R1 set in this program section before it is used (R "
+                                                       "parameters are evaluated once, in the order of the file, not "
+                                                       "per subprogram call)"),
+    (["R1=2", "PROC SUB2"], "R1=R1+1", "R1 set in this program section before it is used (R parameters are "
+                                      "evaluated once, in the order of the file, not per subprogram call)"),
     ([], "X=R100", "an R parameter R0 to R99, got R100"),
     ([], "X=(1+2", "')' to close the parenthesis in the expression after X"),
     ([], "X=1+", "a number, an R parameter, '(' or a function in the expression after X, got the end of the line"),

@@ -364,6 +364,9 @@ static int primary(Ctx *c, size_t *i, int depth, const char *what, double *value
             }
             if (index >= SIN_R_COUNT) return fail(c, "an R parameter R0 to R%d, got %s", SIN_R_COUNT - 1, name);
             if (!c->st->r_set[index]) return fail(c, "R%d set before it is used (R%d=...)", index, index);
+            if (c->st->r_section[index] != c->st->section)
+                return fail(c, "R%d set in this program section before it is used (R parameters are evaluated once, "
+                               "in the order of the file, not per subprogram call)", index);
             *value = c->st->r[index];
             *i = j;
             return 0;
@@ -698,6 +701,7 @@ static int lex(Ctx *c) {
                 if (eval_value(c, &i, name, &value) < 0) return -1;
                 c->st->r[index] = value;
                 c->st->r_set[index] = 1;
+                c->st->r_section[index] = c->st->section;
                 continue;
             }
             if (letter == 'L' && j > i + 1) {
@@ -977,6 +981,7 @@ static int proc_line(Ctx *c, const char *name, const char *after_header, Out *o)
     if (strcmp(name, after_header) != 0) {
         int index = register_subprogram(st, name);
         if (index < 0) return fail(c, "at most %d subprograms in one file", SIN_MAX_SUBPROGRAMS);
+        st->section = 1 + index;
         put(o, "O%d", SIN_FIRST_SUBPROGRAM + index);
     }
     return 0;
@@ -1225,10 +1230,14 @@ static int header(Ctx *c, size_t i, Out *o) {
         upper_copy(s, 4, 4 + length, name);
         st->spline = 0;
         st->after_header[0] = '\0';
-        if (main_program) return 0;
+        if (main_program) {
+            st->section = 0;
+            return 0;
+        }
         {
             int index = register_subprogram(st, name);
             if (index < 0) return fail(c, "at most %d subprograms in one file", SIN_MAX_SUBPROGRAMS);
+            st->section = 1 + index;
             copy_name(st->after_header, sizeof st->after_header, name);
             put(o, "O%d", SIN_FIRST_SUBPROGRAM + index);
         }

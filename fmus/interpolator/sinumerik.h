@@ -31,6 +31,8 @@
 typedef struct {
     double r[SIN_R_COUNT];
     unsigned char r_set[SIN_R_COUNT];
+    int r_section[SIN_R_COUNT]; /* program section of each R parameter's last assignment */
+    int section;                /* 0: the main program, 1 + index: a subprogram */
     double frame[3]; /* TRANS/ATRANS totals, program units */
     const GcTool *tools; /* not owned */
     size_t n_tools;

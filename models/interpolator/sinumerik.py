@@ -32,9 +32,11 @@ Translated (Sinumerik -> core)
   (activates the tool's length compensation) -> ``G43 H<tool>``, ``D0`` -> ``G49``; an ``M6`` while D1 is active
   also gives ``G43 H<new tool>`` (the offset follows the tool); ``G41``/``G42`` -> ``G41 D<tool>``/``G42 D<tool>``;
 - ``S``, ``F``, ``M0 M1 M3 M4 M5 M7 M8 M9 M19``;
-- R parameters ``R0``..``R99``: ``R1=5``, ``R2=R1*2+3``, several per line, evaluated left to right; any address
-  with ``=``: ``X=R1+10``, ``X=-R2``, ``Y=(R1+R2)/2``, ``F=R5``; operators ``+ - * /``, parentheses, unary
-  minus, functions ``SIN COS TAN`` (degrees) ``SQRT ABS POT`` (square) ``TRUNC``; blanks only inside
+- R parameters ``R0``..``R99``: ``R1=5``, ``R2=R1*2+3``, several per line, evaluated left to right, once, in
+  the order of the file (so a value is used only in the program section that set it: a subprogram runs per call,
+  the translation once; reading an R set in another section, e.g. by the main program before a call, is
+  refused); any address with ``=``: ``X=R1+10``, ``X=-R2``, ``Y=(R1+R2)/2``, ``F=R5``; operators ``+ - * /``,
+  parentheses, unary minus, functions ``SIN COS TAN`` (degrees) ``SQRT ABS POT`` (square) ``TRUNC``; blanks only inside
   parentheses. A computed value is written with at most 10 decimals (at most 17 significant digits, no exponent:
   as the core reads numbers), a value written as a number is passed on as written;
 - ``BSPLINE`` with ``SD=<degree>`` (2 or 3, default 3; modal), ``PW=<weight>`` and ``PL=<knot interval>`` (of the
@@ -216,6 +218,8 @@ class SinumerikTranslator:
             if name and name not in self.tool_names:
                 self.tool_names[name] = int(tool.number)
         self.r: list[float | None] = [None] * R_COUNT
+        self.r_section = [0] * R_COUNT  # the program section of each R parameter's last assignment
+        self.section = 0                # 0: the main program, 1 + index: a subprogram
         self.frame = [0.0, 0.0, 0.0]
         self.subprograms: list[str] = []
         self.spline = False          # BSPLINE is the motion mode
@@ -378,6 +382,9 @@ class SinumerikTranslator:
                 value = self.r[index]
                 if value is None:
                     raise SinumerikError(f"R{index} set before it is used (R{index}=...)")
+                if self.r_section[index] != self.section:
+                    raise SinumerikError(f"R{index} set in this program section before it is used (R parameters "
+                                         f"are evaluated once, in the order of the file, not per subprogram call)")
                 return value, j
             k = self._skip(s, j, depth + 1)
             if k < n and s[k] == "(":
@@ -489,6 +496,7 @@ class SinumerikTranslator:
                         raise SinumerikError(f"an R parameter R0 to R{R_COUNT - 1}, got {word}")
                     value, i = self._value(s, k + 1, word)
                     self.r[index] = value
+                    self.r_section[index] = self.section
                     continue
                 if letter == "L" and j > i + 1:
                     if j < n and _is_name_char(s[j]):
@@ -703,11 +711,13 @@ class SinumerikTranslator:
             self.spline = False
             self.after_header = ""
             if _upper(text[-4:]) == "_MPF":
+                self.section = 0
                 return ""
             index = self._register(name)
             if index < 0:
                 raise SinumerikError(f"at most {MAX_SUBPROGRAMS} subprograms in one file")
             self.after_header = name
+            self.section = 1 + index
             return f"O{FIRST_SUBPROGRAM + index}"
         raise SinumerikError("a section header %_N_<name>_MPF or %_N_<name>_SPF, or % alone")
 
@@ -897,6 +907,7 @@ class SinumerikTranslator:
             index = self._register(name)
             if index < 0:
                 raise SinumerikError(f"at most {MAX_SUBPROGRAMS} subprograms in one file")
+            self.section = 1 + index
             pieces.append(f"O{FIRST_SUBPROGRAM + index}")
         return " ".join(pieces)
 

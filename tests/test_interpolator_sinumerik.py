@@ -44,7 +44,7 @@ N190 G1 X50 Y0
 N200 G4 F0.5
 N210 L10 P2
 N220 CONTOUR_A
-N230 ATRANS Z-1
+N230 TRANS X100 Y50 Z-1
 N240 CALL "CONTOUR_A"
 N250 TRANS
 N260 G0 SUPA Z0 D0
@@ -140,7 +140,10 @@ FORMS = [
     (["TRANS X10"], "AROT Z0", ""), (["TRANS X10"], "N5 ASCALE X1 Y1", "N5"), ([], "ROT RPL=0", "G52 X0 Y0 Z0"),
     (["R1=3"], "TRANS X=R1*2", "G52 X6 Y0 Z0"),
     ([], "T1", "T1"), ([], "T=7", "T7"), ([], 'T="FACE20" M6', "T7 M6"), ([], "T = \"BALL6\"", "T2"),
-    (["T2 M6"], "D1", "G43 H2"), (["T2 M6", "D1"], "D0", "G49"),
+    (["T2 M6"], "D1", "G43 H2"), (["T1 M6 D1", "%_N_L10_SPF", "T2 M6"], "D1 G41", "G43 H2 G41 D2"),
+    (["TRANS X1", "%_N_L10_SPF", "TRANS X5"], "ATRANS X2", "G52 X7 Y0 Z0"),
+    (["T1 M6 D1", "%_N_L10_SPF"], "T2 M6", "T2 M6"), (["T1 M6 D1", "L10"], "T2 M6", "T2 M6"),
+    (["T2 M6", "D1"], "D0", "G49"),
     (["T2 M6", "D1", "T7"], "M6", "M6 G43 H7"), (["T2 M6"], "T7 M6 D1", "T7 M6 G43 H7"),
     (["T2 M6", "D1"], "G41 G1 X0 Y0 F300", "G41 D2 G1 X0 Y0 F300"), (["T1 M6 D1"], "G42", "G42 D1"),
     ([], "S8000 M3", "S8000 M3"), ([], "M4 S=1000*2", "M4 S2000"),
@@ -241,6 +244,18 @@ BAD = [
     ([], "X=FOO(1)", "the function FOO is not supported (SIN, COS, TAN, SQRT, ABS, POT, TRUNC)"),
     ([], "X=SQRT(-1)", "SQRT of a number >= 0"),
     ([], "R100=1", "an R parameter R0 to R99, got R100"),
+    (["TRANS X1", "L10"], "ATRANS X2", "TRANS in this program section before ATRANS, without a subprogram call between "
+                                       "(the frame here depends on the calls)"),
+    (["TRANS X1", "%_N_L10_SPF"], "ATRANS X2", "TRANS in this program section before ATRANS, without a subprogram "
+                                               "call between (the frame here depends on the calls)"),
+    (["T1 M6", "%_N_L10_SPF"], "D1", "a tool change (T<n> M6) in this program section before D1, without a "
+                                     "subprogram call between (the tool here depends on the calls)"),
+    (["T1 M6 D1", "L10"], "G41 X0", "D1 in this program section before G41, without a subprogram call between (the "
+                                    "tool here depends on the calls)"),
+    (["T1 M6 D1", "%_N_L10_SPF"], "G42 X0", "D1 in this program section before G42, without a subprogram call "
+                                            "between (the tool here depends on the calls)"),
+    (["BSPLINE", "X1"], "L10", "the end of the B spline (G0, G1, G2, G3) before a subprogram call (the called "
+                               "program's points would continue the spline)"),
     (["R1=2", "%_N_CONTOUR_A_SPF"], "G1 Z=-R1", "R1 set in this program section before it is used (R parameters "
                                               "are evaluated once, in the order of the file, not per subprogram call)"),
     (["%_N_L10_SPF", "R1=2", "%_N_MAIN_MPF"], "X=R1", "R1 set in this program section before it is used (R "

@@ -850,6 +850,9 @@ static int g_code(Ctx *c, int code, char piece[64]) {
             return 0;
         }
     if (code == 41 || code == 42) {
+        if (st->edge_section != st->section)
+            return fail(c, "D1 in this program section before G%d, without a subprogram call between (the tool here "
+                           "depends on the calls)", code);
         if (st->edge != 1) return fail(c, "G%d with an active tool offset (D1 after the tool change)", code);
         snprintf(piece, 64, "G%d D%d", code, st->active);
         return 0;
@@ -934,6 +937,9 @@ static int frame(Ctx *c, int word, Out *o) {
         }
     }
     for (a = 0; a < 3; a++) any |= present[a];
+    if (word == K_ATRANS && st->frame_section != st->section)
+        return fail(c, "TRANS in this program section before ATRANS, without a subprogram call between (the frame "
+                       "here depends on the calls)");
     if (word == K_TRANS || word == K_ATRANS) {
         for (a = 0; a < 3; a++)
             st->frame[a] = word == K_TRANS ? (present[a] ? values[a] : 0.0)
@@ -955,6 +961,7 @@ static int frame(Ctx *c, int word, Out *o) {
     }
     if (word == K_AROT || word == K_ASCALE || word == K_AMIRROR) return 0;
     if (clear) st->frame[0] = st->frame[1] = st->frame[2] = 0.0;
+    st->frame_section = st->section;
     {
         char x[32], y[32], z[32];
         if (format_value(c, st->frame[0], x) < 0 || format_value(c, st->frame[1], y) < 0 ||
@@ -1078,7 +1085,10 @@ static int line(Ctx *c, const char *after_header, Out *o) {
             st->tool = (int)t->value;
         }
     }
-    if (m6) st->active = st->tool;
+    if (m6) {
+        st->active = st->tool;
+        st->active_section = st->section;
+    }
     for (k = 0; k < c->n_tokens; k++) {
         const Token *t = &c->tokens[k];
         if (t->kind == TK_W && t->letter == 'D') {
@@ -1086,8 +1096,12 @@ static int line(Ctx *c, const char *after_header, Out *o) {
                 text = token_text(t, &length);
                 return fail(c, "D%.*s is not supported (one cutting edge per tool: D1, or D0)", length, text);
             }
+            if (t->value == 1.0 && st->active_section != st->section)
+                return fail(c, "a tool change (T<n> M6) in this program section before D1, without a subprogram call "
+                               "between (the tool here depends on the calls)");
             if (t->value == 1.0 && st->active == 0) return fail(c, "a tool change (T<n> M6) before D1");
             st->edge = (int)t->value;
+            st->edge_section = st->section;
             edge_set = 1;
         }
     }
@@ -1171,7 +1185,11 @@ static int line(Ctx *c, const char *after_header, Out *o) {
             add_note(st, t->id);
         } else if (t->kind == TK_CALL) {
             int number = 0;
+            if (st->spline)
+                return fail(c, "the end of the B spline (G0, G1, G2, G3) before a subprogram call (the called "
+                               "program's points would continue the spline)");
             if (call_number(c, t->buf, &number) < 0) return -1;
+            st->frame_section = st->active_section = st->edge_section = -1;
             if (count)
                 put(o, "M98 P%d L%d", number, count);
             else
@@ -1199,7 +1217,7 @@ static int line(Ctx *c, const char *after_header, Out *o) {
             put(o, "K%s", pl->buf);
         }
     }
-    if (m6 && st->edge == 1 && !edge_set) put(o, "G43 H%d", st->active);
+    if (m6 && st->edge == 1 && st->edge_section == st->section && !edge_set) put(o, "G43 H%d", st->active);
     return 0;
 }
 

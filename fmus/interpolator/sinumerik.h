@@ -44,6 +44,9 @@ typedef struct {
     int tool;        /* the last T */
     int active;      /* the tool of the last M6 */
     int edge;        /* the active D: 0 or 1 */
+    /* the program section where the frame, the active tool and D were last set (-1 after a subprogram call: the
+     * state then depends on the call, which the translation in file order cannot follow) */
+    int frame_section, active_section, edge_section;
     double adis;
     int blend; /* G641..G645 active */
     char after_header[SIN_NAME_LENGTH + 1]; /* subprogram whose %_N_..._SPF header was the last line with content */

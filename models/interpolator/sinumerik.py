@@ -26,11 +26,15 @@ Translated (Sinumerik -> core)
   ``G4 F<s>`` (dwell in seconds) -> ``G4 P<s>`` (P in seconds in the sinumerik dialect); ``CR=<r>`` (arc
   radius) -> ``R<r>``;
 - frames: ``TRANS X Y Z`` (replaces the programmable frame; ``TRANS`` alone clears it), ``ATRANS X Y Z`` (adds)
-  -> ``G52 X Y Z`` with the frame's totals; ``ROT``/``SCALE``/``MIRROR`` with no rotation, unit scale, no
-  mirrored axis clear the frame (``G52 X0 Y0 Z0``); ``AROT``/``ASCALE``/``AMIRROR`` that change nothing: nothing;
+  -> ``G52 X Y Z`` with the frame's totals (ATRANS only after the frame was set in the same program section
+  without a subprogram call between: the translation runs in file order, the program per call);
+  ``ROT``/``SCALE``/``MIRROR`` with no rotation, unit scale, no mirrored axis clear the frame (``G52 X0 Y0 Z0``);
+  ``AROT``/``ASCALE``/``AMIRROR`` that change nothing: nothing;
 - tools: ``T1``, ``T=1``, ``T="END10"`` (the tool of that name in the tool table) -> ``T<n>``; ``M6``; ``D1``
   (activates the tool's length compensation) -> ``G43 H<tool>``, ``D0`` -> ``G49``; an ``M6`` while D1 is active
-  also gives ``G43 H<new tool>`` (the offset follows the tool); ``G41``/``G42`` -> ``G41 D<tool>``/``G42 D<tool>``;
+  also gives ``G43 H<new tool>`` (the offset follows the tool); ``G41``/``G42`` -> ``G41 D<tool>``/``G42
+  D<tool>`` (D1 and G41/G42 only after the tool change and D1 of the same program section without a subprogram
+  call between; a call in BSPLINE mode is refused);
 - ``S``, ``F``, ``M0 M1 M3 M4 M5 M7 M8 M9 M19``;
 - R parameters ``R0``..``R99``: ``R1=5``, ``R2=R1*2+3``, several per line, evaluated left to right, once, in
   the order of the file (so a value is used only in the program section that set it: a subprogram runs per call,
@@ -228,6 +232,11 @@ class SinumerikTranslator:
         self.tool = 0                # the last T (selected)
         self.active = 0              # the tool of the last M6
         self.edge = 0                # the active D (0: none)
+        # the program section where the frame, the active tool and D were last set (-1 after a subprogram call:
+        # the state then depends on the call, which the translation in file order cannot follow)
+        self.frame_section = 0
+        self.active_section = 0
+        self.edge_section = 0
         self.adis = 0.0
         self.blend = False           # G641..G645 active
         self.after_header = ""       # the subprogram whose %_N_..._SPF header was the last line with content
@@ -794,14 +803,19 @@ class SinumerikTranslator:
                 self.tool = int(t[2])
         if 6 in ms:
             self.active = self.tool
+            self.active_section = self.section
         edge_set = False
         for t in tokens:
             if t[0] == "W" and t[1] == "D":
                 if t[2] not in (0.0, 1.0):
                     raise SinumerikError(f"D{t[3]} is not supported (one cutting edge per tool: D1, or D0)")
+                if t[2] == 1.0 and self.active_section != self.section:
+                    raise SinumerikError("a tool change (T<n> M6) in this program section before D1, without a "
+                                         "subprogram call between (the tool here depends on the calls)")
                 if t[2] == 1.0 and self.active == 0:
                     raise SinumerikError("a tool change (T<n> M6) before D1")
                 self.edge = int(t[2])
+                self.edge_section = self.section
                 edge_set = True
         if "ADIS" in named:
             if not named["ADIS"][2] >= 0.0:
@@ -873,7 +887,11 @@ class SinumerikTranslator:
             elif kind == "NOTE":
                 self._add_note(t[1], notes)
             elif kind == "CALL":
+                if self.spline:
+                    raise SinumerikError("the end of the B spline (G0, G1, G2, G3) before a subprogram call (the "
+                                         "called program's points would continue the spline)")
                 pieces.append(f"M98 P{self._call_number(t[1])}{count}")
+                self.frame_section = self.active_section = self.edge_section = -1
             elif kind == "CYCLE832":
                 pieces.append(f"G64 P{format_value(t[1])}" if t[1] > 0.0 else "G64")
                 self.blend = False
@@ -887,7 +905,7 @@ class SinumerikTranslator:
                 if not named["PL"][2] > 0.0:
                     raise SinumerikError(f"a knot interval PL > 0, got PL={named['PL'][3]}")
                 pieces.append(f"K{named['PL'][3]}")
-        if 6 in ms and self.edge == 1 and not edge_set:
+        if 6 in ms and self.edge == 1 and self.edge_section == self.section and not edge_set:
             pieces.append(f"G43 H{self.active}")
         return " ".join(pieces)
 
@@ -920,6 +938,9 @@ class SinumerikTranslator:
         if code in (0, 1, 2, 3, 4, 9, 17, 18, 19, 40, 53, 54, 55, 56, 57, 90, 91, 94, 95, 500):
             return f"G{code}"
         if code in (41, 42):
+            if self.edge_section != self.section:
+                raise SinumerikError(f"D1 in this program section before G{code}, without a subprogram call between "
+                                     f"(the tool here depends on the calls)")
             if self.edge != 1:
                 raise SinumerikError(f"G{code} with an active tool offset (D1 after the tool change)")
             return f"G{code} D{self.active}"
@@ -976,6 +997,9 @@ class SinumerikTranslator:
             elif not (t[0] == "K" and t[1] == word):
                 raise SinumerikError(f"{word} in a line of its own, with N and the axes X, Y, Z (frame instructions)")
         clear = False
+        if word == "ATRANS" and self.frame_section != self.section:
+            raise SinumerikError("TRANS in this program section before ATRANS, without a subprogram call between (the "
+                                 "frame here depends on the calls)")
         if word in ("TRANS", "ATRANS"):
             for a, letter in enumerate("XYZ"):
                 if word == "TRANS":
@@ -998,5 +1022,6 @@ class SinumerikTranslator:
             return " ".join(pieces)
         if clear:
             self.frame = [0.0, 0.0, 0.0]
+        self.frame_section = self.section
         pieces.append("G52 " + " ".join(f"{letter}{format_value(self.frame[a])}" for a, letter in enumerate("XYZ")))
         return " ".join(pieces)

@@ -230,15 +230,38 @@ static int refine(Sampler *z, double ua, const Info *ia, double ub, const Info *
     return push(z, *s_b, ib);
 }
 
+static int knot_multiplicity(const NurbsView *c, double u) {
+    int i, m = 0;
+    for (i = 0; i <= c->n + c->degree + 1; i++) m += c->knots[i] == u;
+    return m;
+}
+
+/* The junction limit at the knot u that ends the span `before` and starts `span`: the tangent and curvature vector
+ * of the span before (left-sided derivatives) against those of the span after. */
+static double knot_junction(const NurbsView *c, const Limits *lim, double u, int before, int span) {
+    double d[4][3], g, ta[3], ka[3], tb[3], kb[3], kp[3];
+    nurbs_evaluate(c, u, 3, before, before, d);
+    nurbs_arc_length_derivatives((const double(*)[3])d, &g, ta, ka, kp);
+    nurbs_evaluate(c, u, 3, span, span, d);
+    nurbs_arc_length_derivatives((const double(*)[3])d, &g, tb, kb, kp);
+    return junction_limit(lim, ta, ka, tb, kb);
+}
+
 static int nurbs_samples(Sampler *z, double u0, double u1, double end_t[2][3], double end_k[2][3]) {
     const double *kn = z->curve->knots;
     Info info0, ia, ib;
     double s = 0.0, d[4][3], g, kp[3];
-    int span, j;
+    int span, j, multiplicity;
     if (point_info(z, u0, &info0) != 0 || push(z, 0.0, &info0) != 0) return -1;
     for (span = z->lo; span <= z->hi; span++) {
         double a = max2(kn[span], u0), b = min2(kn[span + 1], u1), ua;
         if (!(b > a)) continue;
+        multiplicity = knot_multiplicity(z->curve, a);
+        if (a > u0 && multiplicity >= z->curve->degree - 1) {
+            /* an inner knot of multiplicity m with p - m < 2: the curvature jumps there, a junction */
+            double *v = &z->out->v[z->out->n - 1];
+            *v = min2(*v, knot_junction(z->curve, z->lim, a, span - multiplicity, span));
+        }
         ua = a;
         if (a == u0)
             ia = info0;

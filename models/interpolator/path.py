@@ -271,6 +271,10 @@ def _nurbs_samples(curve: Nurbs, lim: Limits, u0: float, u1: float, lo: int, hi:
         a, b = max(kn[span], u0), min(kn[span + 1], u1)
         if not b > a:
             continue
+        multiplicity = kn.count(a)
+        if a > u0 and multiplicity >= curve.p - 1:
+            # an inner knot of multiplicity m with p - m < 2: the curvature jumps there, a junction
+            vl[-1] = min(vl[-1], knot_junction(curve, lim, a, span - multiplicity, span))
         ua, ia = a, (info0 if a == u0 else point(a))
         for j in range(1, INITIAL_SUBDIVISION + 1):
             ub = a + (b - a) * j / INITIAL_SUBDIVISION if j < INITIAL_SUBDIVISION else b
@@ -285,6 +289,14 @@ def _nurbs_samples(curve: Nurbs, lim: Limits, u0: float, u1: float, lo: int, hi:
     first_geometry = Geometry(t0, k0, kp0)
     last_geometry = Geometry(t1, k1, kp1)
     return us, ss, vl, ats, jts, first_geometry, last_geometry
+
+
+def knot_junction(curve: Nurbs, lim: Limits, u: float, before: int, span: int) -> float:
+    """The junction limit at the knot u that ends the span `before` and starts `span`: the tangent and curvature
+    vector of the span before (left-sided derivatives) against those of the span after."""
+    _, ta, ka, _, _, _ = arc_length_derivatives(curve.evaluate(u, 3, before, before))
+    _, tb, kb, _, _, _ = arc_length_derivatives(curve.evaluate(u, 3, span, span))
+    return junction_limit(lim, ta, ka, tb, kb)
 
 
 def conservative_limits(ss: Sequence[float], vl: Sequence[float], lim: Limits) -> list[float]:

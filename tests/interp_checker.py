@@ -154,6 +154,25 @@ def run_engine(program: Path, params: dict[str, float] | None = None, workdir: P
         return load_csv(csv, start)
 
 
+def run_reference(text: str, params: dict[str, float] | None = None, max_ticks: int = 2_000_000) -> Trajectory:
+    """The same trajectory from the Python reference engine (``milling_twin.models.interpolator.engine``, the
+    mirror of the C engine), ticked until it finishes: the check's input only, nothing of it is used to check."""
+    from milling_twin.models.interpolator.engine import Interpolator
+    params = dict(params or {})
+    engine = Interpolator(text, params)
+    engine.set_override(1.0, 0.0)  # planned at initialization, as the C driver does
+    rows = []
+    while not engine.finished and len(rows) < max_ticks:
+        engine.tick()
+        o = engine.out
+        rows.append((engine.tick_count * engine.period, o["x"], o["y"], o["z"], o["feed"], o["path_acceleration"],
+                     o["u"], o["line_number"], engine.move))
+    data = np.array(rows, float)
+    return Trajectory(t=data[:, 0], p=data[:, 1:4].copy(), feed=data[:, 4], acc=data[:, 5], u=data[:, 6],
+                      line=data[:, 7].astype(int), move=data[:, 8].astype(int),
+                      start=np.array([params.get(f"start_{a}", 0.0) for a in "xyz"]))
+
+
 # ---------------------------------------------------------------------------------------------------- geometry
 
 def _deboor(ctrl: np.ndarray, knots: np.ndarray, degree: int, u: np.ndarray) -> np.ndarray:

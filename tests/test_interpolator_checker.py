@@ -103,3 +103,20 @@ def test_corpus_program_runs_within_the_limits(program: Path, tmp_path: Path):
     rep = ic.check(traj, lim, line_feed=ic.line_feeds(program.read_text(), lim))
     assert rep.figures["end_at_rest"]
     assert not rep.violations, ic.summary(rep)
+
+
+@pytest.mark.parametrize("seed", [1, 8, 22])
+def test_python_reference_gives_the_c_engines_checked_trajectory(seed: int, tmp_path: Path):
+    """A subset through the Python reference engine: the same positions as the C engine, the same figures."""
+    _require_engine()
+    family, curve, params, program = ic.random_case(seed)
+    path = tmp_path / "curve.nc"
+    path.write_text(program)
+    lim = ic.default_limits(**params)
+    c_traj = ic.run_engine(path, params)
+    py_traj = ic.run_reference(program, params)
+    assert py_traj.p.shape == c_traj.p.shape
+    assert np.array_equal(py_traj.p, c_traj.p)
+    c_rep, py_rep = ic.check(c_traj, lim, curve=curve), ic.check(py_traj, lim, curve=curve)
+    assert c_rep.violations == py_rep.violations
+    assert py_rep.figures["time_ratio"] == c_rep.figures["time_ratio"]

@@ -300,7 +300,7 @@ PROGRAM_CASES = [  # (id, program, line, the message's tail)
     ("nan", "G1 Xnan F600\n", 1, "\"G1 Xnan F600\": a number after 'X'"),
     ("inf", "G1 Xinf F600\n", 1, "\"G1 Xinf F600\": a number after 'X'"),
     ("exponent", "G1 X1e3 F600\n", 1,
-     "\"G1 X1e3 F600\": a word G, M, N, X, Y, Z, I, J, K, R, F, S, P or L, got 'e'"),
+     "\"G1 X1e3 F600\": a word G, M, N, O, T, X, Y, Z, I, J, K, R, F, S, P, L, H, D or Q, got 'e'"),
     ("binary", "\xff\xfe\x00\x01", 1,
      '"????": a word (letter and number), a comment or the end of the line, got a non-ASCII character'),
 ]

@@ -9,6 +9,19 @@
  * models/interpolator/ */
 #include "model_constants.h"
 
+/* The parser's limits of program structure (models/interpolator/parser.py, same names and values; to be generated
+ * into model_constants.h like the others: tests/test_interpolator_programs.py checks they agree) */
+#ifndef MAX_MOVES
+#define MAX_MOVES 1000000
+#define MAX_CALLED_LINES 1000000
+#define MAX_CALL_DEPTH 8
+#define MAX_REPEATS 9999
+#define MAX_PROGRAM_NUMBER 99999999
+#define MAX_NOTES 32
+#define NOTE_LENGTH 200
+#define PECK_CLEARANCE 0.000254
+#endif
+
 typedef struct {
     int kind;
     int line;
@@ -60,6 +73,9 @@ typedef struct {
     double final_spindle;
     int final_spindle_on;
     double start[3], start_offset[3];
+    /* accepted but not modelled words, one note per word: "<file> line <n>: \"<text>\": <what>" */
+    char notes[MAX_NOTES][NOTE_LENGTH];
+    int n_notes;
 } GcProgram;
 
 typedef struct {

@@ -38,7 +38,7 @@ Every malformed line fails initialization with ``<file> line <n>: "<text>": <wha
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from typing import Mapping, Sequence
 
 from milling_twin.models.interpolator.nurbs import dot as _dot
@@ -55,6 +55,14 @@ MAX_DEGREE = 5
 START_POINT_TOLERANCE = 1e-6   # m: first NURBS control point vs current position
 ARC_RADIUS_TOLERANCE = 2e-6    # m, plus ARC_RADIUS_RELATIVE * radius
 ARC_RADIUS_RELATIVE = 1e-4
+MAX_MOVES = 1000000            # moves of a program, subprogram repeats and canned cycles included
+MAX_CALLED_LINES = 1000000     # lines executed in subprogram calls
+MAX_CALL_DEPTH = 8             # nested M98 calls
+MAX_REPEATS = 9999             # L of M98, K/L of a canned cycle
+MAX_PROGRAM_NUMBER = 99999999  # O, P of M98, T, H, D
+MAX_NOTES = 32                 # notes of accepted but not modelled words (one per word)
+NOTE_LENGTH = 200              # characters of a note in the C program record (with its terminating NUL)
+PECK_CLEARANCE = 0.254e-3      # m: G83 stops this short of the previous depth, G73 retracts this far (0.010 in)
 
 MOVE_RAPID, MOVE_LINE, MOVE_ARC, MOVE_NURBS, MOVE_DWELL = 0, 1, 2, 3, 4
 COMP_OFF, COMP_LEFT, COMP_RIGHT = 0, 1, 2
@@ -141,9 +149,7 @@ class Program:
     final_spindle_on: bool
     start: tuple[float, float, float]
     start_offset: tuple[float, float, float]
-
-
-_LETTERS = "GMNXYZIJKRFSPL"
+    notes: list[str] = field(default_factory=list)   # accepted but not modelled words, one note per word
 
 
 def _parse_number(text: str, i: int, file: str, line: int, raw: str, letter: str) -> tuple[float, int, str]:
@@ -191,8 +197,43 @@ def _parse_number(text: str, i: int, file: str, line: int, raw: str, letter: str
     return value, i, text[start:i]
 
 
+
+_LETTERS = "GMNXYZIJKRFSPLOTHDQ"
+_LETTER_LIST = "G, M, N, O, T, X, Y, Z, I, J, K, R, F, S, P, L, H, D or Q"
+
+# G codes as 10 * number (G6.2 -> 62); the group of each (a line holds at most one code per group)
+_G_GROUPS = {0: "motion", 10: "motion", 20: "motion", 30: "motion", 52: "motion", 53: "motion",
+             62: "motion", 730: "motion", 810: "motion", 820: "motion", 830: "motion",
+             800: "cycle", 40: "non-modal", 100: "non-modal", 280: "non-modal", 520: "non-modal",
+             530: "non-modal", 90: "g9", 170: "plane", 180: "plane", 190: "plane", 200: "units", 210: "units",
+             400: "compensation", 410: "compensation", 420: "compensation", 430: "length", 440: "length",
+             490: "length", 540: "offset", 550: "offset", 560: "offset", 570: "offset", 580: "offset",
+             590: "offset", 5000: "offset", 610: "path", 611: "path", 640: "path", 900: "distance",
+             910: "distance", 940: "feed", 950: "feed", 980: "retract",
+             990: "retract", 150: "cancel", 500: "cancel", 501: "cancel", 690: "cancel"}
+_G_LIST = ("G0 G1 G2 G3 G4 G5.2 G5.3 G6.2 G9 G10 G15 G17 G18 G19 G20 G21 G28 G40 G41 G42 G43 G44 G49 G50 G50.1 "
+           "G52 G53 G54-G59 G61 G61.1 G64 G69 G73 G80 G81 G82 G83 G90 G91 G94 G95 G98 G99")
+# M codes and their groups
+_M_GROUPS = {0: "stop", 1: "stop", 2: "end", 30: "end", 3: "spindle", 4: "spindle", 5: "spindle", 19: "spindle",
+             6: "tool change", 7: "coolant", 8: "coolant", 9: "coolant", 98: "subprogram", 99: "subprogram"}
+_M_LIST = "M0 M1 M2 M3 M4 M5 M6 M7 M8 M9 M19 M30 M98 M99"
+_CYCLES = (730, 810, 820, 830)
+
+
+def _shown(text: str) -> str:
+    """A line as the messages show it (as gcode_parser.c: bytes, non-printable as '?', at most 80)."""
+    data = text.encode("utf-8", "surrogateescape")
+    shown = "".join(chr(b) if 32 <= b < 127 else "?" for b in data[:80])
+    return shown[:77] + "..." if len(data) > 80 else shown
+
+
+def _is_skipped(raw: str) -> bool:
+    """Block skip: a line whose first character (after blanks) is '/' (block delete on)."""
+    return raw.lstrip(" \t").startswith("/")
+
+
 def _tokenize(raw: str, file: str, line: int) -> list[tuple[str, float, str]]:
-    """Words of one line as (letter, value, number text); comments removed."""
+    """Words of one line as (letter, value, number text); comments removed; ':' first in a line is 'O'."""
     words: list[tuple[str, float, str]] = []
     i, n = 0, len(raw)
     while i < n:
@@ -210,65 +251,118 @@ def _tokenize(raw: str, file: str, line: int) -> list[tuple[str, float, str]]:
             i = j + 1
         elif c == ";":
             break
-        elif c.isalpha() and c.isascii():
-            letter = c.upper()
+        elif (c.isalpha() and c.isascii()) or (c == ":" and not words):
+            letter = "O" if c == ":" else c.upper()
             if letter not in _LETTERS:
-                raise ProgramError(file, line, raw, f"a word G, M, N, X, Y, Z, I, J, K, R, F, S, P or L, got '{c}'")
+                extra = " (only the axes X, Y, Z are modelled)" if letter in "ABCUVW" else ""
+                raise ProgramError(file, line, raw, f"a word {_LETTER_LIST}, got '{c}'{extra}")
             value, i, text = _parse_number(raw, i + 1, file, line, raw, letter)
             words.append((letter, value, text))
         else:
             shown = f"'{c}'" if c.isprintable() and c.isascii() else f"byte 0x{ord(c):02x}" if ord(c) < 128 \
                 else "a non-ASCII character"
+            extra = " (parameters and expressions are not supported)" if c in "#[" else ""
             raise ProgramError(file, line, raw, f"a word (letter and number), a comment or the end of the line, "
-                                                f"got {shown}")
+                                                f"got {shown}{extra}")
     return words
 
 
 def _g_code(value: float, text: str, file: str, line: int, raw: str) -> int:
-    """G code as 10 * number (G6.2 -> 62); unknown codes are an error."""
-    tenths = round(value * 10.0)
-    if abs(value * 10.0 - tenths) > 1e-9 or value < 0:
+    """G code as 10 * number (G6.2 -> 62, G500 -> 5000); unknown codes are an error."""
+    tenths = round(value * 10.0) if 0 <= value < 1e5 else -1
+    if abs(value * 10.0 - tenths) > 1e-9:
         tenths = -1
-    known = {0, 10, 20, 30, 62, 100, 170, 180, 190, 200, 210, 540, 550, 560, 570, 580, 590, 900, 910}
-    if tenths not in known:
-        raise ProgramError(file, line, raw, f"a supported G code (G0 G1 G2 G3 G6.2 G10 G17 G18 G19 G20 G21 "
-                                            f"G54-G59 G90 G91), got G{text}")
+    if tenths not in _G_GROUPS:
+        raise ProgramError(file, line, raw, f"a supported G code ({_G_LIST}), got G{text}")
     return tenths
 
 
 def _m_code(value: float, text: str, file: str, line: int, raw: str) -> int:
-    if value not in (2.0, 3.0, 4.0, 5.0, 30.0):
-        raise ProgramError(file, line, raw, f"a supported M code (M2 M3 M4 M5 M30), got M{text}")
+    if value != math.floor(value) or value not in _M_GROUPS:
+        raise ProgramError(file, line, raw, f"a supported M code ({_M_LIST}), got M{text}")
     return int(value)
 
 
+@dataclass
+class _Section:
+    number: int          # O number, -1 for the text before the first O line
+    o_line: int          # index of the O line (-1 for the text before it)
+    end: int             # index of the next O line (or the line count)
+    subprogram: bool     # holds an M99
+
+
+@dataclass
+class _Call:
+    section: int
+    return_to: int       # line index after the M98 line
+    remaining: int       # executions left, this one included
+    line: int            # the M98 line (1-based)
+
+
 class _Parser:
-    def __init__(self, text: str, file: str, p: Mapping[str, float]):
+    def __init__(self, text: str, file: str, p: Mapping[str, float], dialect: int, tools: Sequence[Tool]):
         self.file = file
         self.lines = text.split("\n")
         self.p = p
+        self.dialect = dialect
+        self.tools = {}
+        for tool in tools:
+            self.tools.setdefault(tool.number, tool)
+        self.home = [p.get("home_x", 0.0), p.get("home_y", 0.0), p.get("home_z", 0.0)]
         self.offsets = [[p[f"{name}_{a}"] for a in "xyz"] for name in OFFSET_NAMES]
         self.active_offset = 0
+        self.local = [0.0, 0.0, 0.0]        # G52, m
+        self.length_offset = 0.0            # G43/G44, m (+ tool length for G43)
         self.position = [p["start_x"], p["start_y"], p["start_z"]]   # machine
         self.unit = 1e-3          # m per program unit (G21)
         self.inch = False
         self.absolute = True
         self.plane = 17
         self.motion = -1
-        self.feed = 0.0           # m/s; 0 = not set
+        self.feed = 0.0           # m/s; 0 = not set (G94)
+        self.per_rev = False      # G95
+        self.feed_rev = 0.0       # m per revolution; 0 = not set (G95)
         self.speed = 0.0          # rpm as written
         self.spindle_dir = 0      # 1 M3, -1 M4, 0 M5
+        self.tool = 0
+        self.pending_tool = -1
+        self.coolant = COOLANT_OFF
+        self.exact_mode = False
+        self.g9 = False
+        self.tolerance = 0.0
+        self.comp = COMP_OFF
+        self.comp_radius = 0.0
+        self.retract_r = False    # G99
+        self.cycle_r: float | None = None
+        self.cycle_z: float | None = None
+        self.cycle_q = 0.0
+        self.cycle_p = 0.0
+        self.cycle_initial = 0.0
         self.moves: list[Move] = []
         self.curves: list[NurbsCurve] = []
+        self.notes: list[str] = []
+        self.noted: set[str] = set()
         self.ended = 0
         self.final_line = 0
         self.final_block = 0
         self.block = 0
         self.start = tuple(self.position)
         self.start_offset = tuple(self.offsets[0])
+        self.sections: list[_Section] = []
+        self.section_at: dict[int, int] = {}
+        self.stack: list[_Call] = []
+        self.called_lines = 0
+        self.main = -1
 
     def fail(self, line: int, expected: str):
         raise ProgramError(self.file, line, self.lines[line - 1].rstrip("\r"), expected)
+
+    def note(self, line: int, key: str, what: str) -> None:
+        """Accepted but not modelled: reported once per word."""
+        if key in self.noted or len(self.notes) >= MAX_NOTES:
+            return
+        self.noted.add(key)
+        self.notes.append(f"{self.file} line {line}: \"{_shown(self.lines[line - 1].rstrip(chr(13)))}\": {what}")
 
     def length(self, value: float) -> float:
         return value * 0.0254 if self.inch else value / 1000.0
@@ -277,23 +371,117 @@ class _Parser:
         speed = self.speed * (2.0 * math.pi / 60.0) * self.spindle_dir
         return speed, self.spindle_dir != 0
 
+    def total_offset(self) -> list[float]:
+        """Machine position of the programmed zero: work offset + G52 + tool length (Z)."""
+        off = self.offsets[self.active_offset] if self.active_offset >= 0 else [0.0, 0.0, 0.0]
+        out = [off[a] + self.local[a] if self.local[a] != 0.0 else off[a] for a in range(3)]
+        if self.length_offset != 0.0:
+            out[2] = out[2] + self.length_offset
+        return out
+
+    # ---- program structure: O sections and subprograms ----
+
+    def scan_sections(self) -> None:
+        """Splits a file with program numbers (O or ':' lines) into sections; the main program is the first
+        section without M99 (or the first section)."""
+        n = len(self.lines)
+        if not any(raw.lstrip(" \t")[:1] in ("O", "o", ":") for raw in self.lines):
+            self.sections = [_Section(-1, -1, n, False)]
+            self.main = 0
+            return
+        current = _Section(-1, -1, n, False)
+        has_words = False
+        sections = []
+        for k in range(n):
+            raw = self.lines[k].rstrip("\r")
+            if len(raw) > MAX_LINE_LENGTH:
+                raise ProgramError(self.file, k + 1, raw, f"a line of at most {MAX_LINE_LENGTH} characters")
+            if raw.strip(" \t") == "%" or _is_skipped(raw):
+                continue
+            words = _tokenize(raw, self.file, k + 1)
+            if not words:
+                continue
+            if words[0][0] == "O":
+                number = self.program_number(k + 1, words)
+                if current.o_line >= 0 or has_words:
+                    current.end = k
+                    sections.append(current)
+                current = _Section(number, k, n, False)
+                has_words = True
+                continue
+            has_words = True
+            for letter, value, _ in words:
+                if letter == "M" and value == 99.0:
+                    current.subprogram = True
+        if current.o_line >= 0 or has_words:
+            sections.append(current)
+        seen: dict[int, int] = {}
+        for index, section in enumerate(sections):
+            if section.o_line >= 0:
+                if section.number in seen:
+                    self.fail(section.o_line + 1, f"one program O{section.number} in the file (also in line "
+                                                  f"{sections[seen[section.number]].o_line + 1})")
+                seen[section.number] = index
+                self.section_at[section.o_line] = index
+        self.sections = sections
+        self.main = next((i for i, s in enumerate(sections) if not s.subprogram), 0)
+
+    def program_number(self, number: int, words) -> int:
+        if self.dialect == DIALECT_LINUXCNC:
+            self.fail(number, "G-code words (LinuxCNC's O-word subroutines and control flow are not supported)")
+        if len(words) > 1:
+            self.fail(number, "a program number O alone in its line (a comment may follow)")
+        value, text = words[0][1], words[0][2]
+        if value < 0 or value != math.floor(value) or value > MAX_PROGRAM_NUMBER:
+            self.fail(number, f"a whole program number of 0 to {MAX_PROGRAM_NUMBER} after O, got O{text}")
+        return int(value)
+
     def run(self) -> Program:
+        self.scan_sections()
         n = len(self.lines)
         k = 0
-        while k < n:
+        if self.sections and self.sections[self.main].o_line >= 0:
+            k = self.sections[self.main].o_line
+        while True:
+            if self.stack:
+                call = self.stack[-1]
+                if k >= self.sections[call.section].end:
+                    self.fail(call.line, f"M99 at the end of the subprogram O{self.sections[call.section].number}")
+                self.called_lines += 1
+                if self.called_lines > MAX_CALLED_LINES:
+                    self.fail(k + 1, f"at most {MAX_CALLED_LINES} lines executed in subprogram calls")
+            if k >= n:
+                break
             k = self.line(k)
-        return Program(self.file, self.moves, self.curves, self.final_line, self.final_block, *self.spindle_now(),
-                       self.start, self.start_offset)
+        speed, on = self.spindle_now()
+        program = Program(self.file, self.moves, self.curves, self.final_line, self.final_block, speed, on,
+                          self.start, self.start_offset)
+        program.notes = self.notes
+        return program
+
+    def o_line(self, k: int) -> int:
+        """The flow reaches a program number: the main program goes on, another program is skipped."""
+        index = self.section_at[k]
+        if index == self.main and not self.stack:
+            return k + 1
+        return self.sections[index].end
+
+    # ---- one line ----
 
     def line(self, k: int) -> int:
         number = k + 1
         raw = self.lines[k].rstrip("\r")
         if len(raw) > MAX_LINE_LENGTH:
             raise ProgramError(self.file, number, raw, f"a line of at most {MAX_LINE_LENGTH} characters")
-        if raw.strip(" \t") == "%":
+        if raw.strip(" \t") == "%" or _is_skipped(raw):
             return k + 1
         words = _tokenize(raw, self.file, number)
         if not words:
+            return k + 1
+        if words[0][0] == "O":
+            self.program_number(number, words)
+            if k in self.section_at:
+                return self.o_line(k)
             return k + 1
         if self.ended:
             self.fail(number, f"nothing after the program end (M2/M30 in line {self.ended})")
@@ -301,20 +489,17 @@ class _Parser:
         seen: dict[str, tuple[float, str]] = {}
         gs: dict[str, int] = {}
         ms: dict[str, int] = {}
-        groups = {0: "motion", 10: "motion", 20: "motion", 30: "motion", 62: "motion", 100: "g10",
-                  170: "plane", 180: "plane", 190: "plane", 200: "units", 210: "units",
-                  900: "distance", 910: "distance"}
         for letter, value, text in words:
             if letter == "G":
                 code = _g_code(value, text, self.file, number, raw)
-                group = groups.get(code, "offset")
-                if group in gs:
+                group = _G_GROUPS[code]
+                if group in gs and group != "cancel":
                     self.fail(number, f"one G code of the {group} group per line, got G{gs[group] / 10:g} "
                                       f"and G{text}")
                 gs[group] = code
             elif letter == "M":
                 code = _m_code(value, text, self.file, number, raw)
-                group = "end" if code in (2, 30) else "spindle"
+                group = _M_GROUPS[code]
                 if group in ms:
                     self.fail(number, f"one M code of the {group} group per line, got M{ms[group]} and M{text}")
                 ms[group] = code
@@ -324,68 +509,453 @@ class _Parser:
                 if value < 0 or value != math.floor(value) or value > 2147483647:
                     self.fail(number, f"a whole line number after N, got N{text}")
                 seen["N"] = (value, text)
+            elif letter == "O":
+                self.fail(number, "a program number O alone in its line (a comment may follow)")
             else:
                 if letter in seen:
                     self.fail(number, f"one {letter} word per line")
                 seen[letter] = (value, text)
         self.block = int(seen["N"][0]) if "N" in seen else 0
         self.final_block = self.block
+        self.g9 = "g9" in gs
         motion_g = gs.get("motion")
-        if motion_g == 62:
-            return self.nurbs(k, seen, gs, ms)
-        # F, S
-        self.feed_and_spindle(number, seen, ms)
-        if "plane" in gs:
-            self.plane = gs["plane"] // 10
+        if motion_g == 62 or motion_g == 52:
+            if motion_g == 62 and self.dialect != DIALECT_FANUC:
+                self.fail(number, "G6.2 is Fanuc's NURBS: set dialect = fanuc (or write the curve as G5.2 ... G5.3)")
+            if motion_g == 52 and self.dialect == DIALECT_FANUC:
+                self.fail(number, "G5.2 is LinuxCNC's NURBS: set dialect = linuxcnc (Fanuc's NURBS is G6.2)")
+            for group in ("non-modal", "cycle", "compensation", "length", "path", "feed", "retract"):
+                if group in gs:
+                    self.fail(number, f"no other G code in the G{motion_g / 10:g} line, got G{gs[group] / 10:g}")
+            for group in ("tool change", "subprogram", "stop"):
+                if group in ms:
+                    self.fail(number, f"no M{ms[group]} in the G{motion_g / 10:g} line")
+            for letter in "THDQO":
+                if letter in seen:
+                    self.fail(number, f"no {letter} word in the G{motion_g / 10:g} line")
+            if motion_g == 62:
+                return self.nurbs(k, seen, gs, ms)
+            return self.g52_nurbs(k, seen, gs, ms)
+        if motion_g == 53:
+            self.fail(number, "G5.3 after a G5.2 block (it ends the block started by G5.2)")
+        # units before F (an F in a G20 line is in inch/min); feed mode before F
         if "units" in gs:
             self.inch = gs["units"] == 200
+        if "feed" in gs:
+            per_rev = gs["feed"] == 950
+            if per_rev != self.per_rev:
+                self.per_rev = per_rev
+                self.feed, self.feed_rev = 0.0, 0.0
+        self.feed_and_spindle(number, seen, ms)
+        # tool select, tool change
+        if "T" in seen:
+            t = self.tool_number(number, "T", seen["T"])
+            if t != 0 and t not in self.tools:
+                if self.tools:
+                    self.fail(number, f"a tool of the tool table for T{seen['T'][1]} (the table has no tool {t})")
+                self.note(number, "T", f"T{seen['T'][1]}: no tool table: the tool geometry stays the model's "
+                                       f"parameters")
+            self.pending_tool = t
+        if "tool change" in ms:
+            if self.pending_tool < 0:
+                self.fail(number, "a tool T before M6 (no tool selected)")
+            self.tool = self.pending_tool
+            self.note(number, "M6", "M6: the tool change takes no time and no motion here")
+        if "coolant" in ms:
+            c = ms["coolant"]
+            if c == 9:
+                self.coolant = COOLANT_OFF
+            else:
+                bit = COOLANT_MIST if c == 7 else COOLANT_FLOOD
+                self.coolant = self.coolant | bit
+        if ms.get("spindle") == 19:
+            self.note(number, "M19", "M19: spindle orientation not modelled")
+        if "plane" in gs:
+            self.plane = gs["plane"] // 10
         if "distance" in gs:
             self.absolute = gs["distance"] == 900
         if "offset" in gs:
-            self.active_offset = (gs["offset"] - 540) // 10
-        for letter in ("P", "L"):
-            if letter in seen and "g10" not in gs:
-                self.fail(number, f"{letter} only with G10 (or P with G6.2)")
+            code = gs["offset"]
+            if code == 5000:
+                if self.dialect != DIALECT_SINUMERIK:
+                    self.fail(number, "G500 is Sinumerik's: set dialect = sinumerik (or use G54-G59)")
+                self.active_offset = -1
+            else:
+                self.active_offset = (code - 540) // 10
+        if "path" in gs:
+            code = gs["path"]
+            if code == 640:
+                self.exact_mode = False
+                tol = 0.0
+                if "P" in seen:
+                    tol = seen["P"][0]
+                    if tol < 0.0 or tol > MAX_COORDINATE:
+                        self.fail(number, f"a contour tolerance P of 0 to {MAX_COORDINATE:g}, got P{seen['P'][1]}")
+                    tol = self.length(tol)
+                self.tolerance = tol
+            else:
+                self.exact_mode = True
+        if "retract" in gs:
+            self.retract_r = gs["retract"] == 990
+        if "compensation" in gs:
+            self.compensation(number, gs["compensation"], seen)
+        elif "D" in seen:
+            self.fail(number, "D only with G41/G42 (the cutter radius of a tool)")
+        if "length" in gs:
+            code = gs["length"]
+            if code == 490:
+                if "H" in seen:
+                    self.fail(number, "no H with G49 (it cancels the tool length offset)")
+                self.length_offset = 0.0
+            else:
+                h = self.tool_number(number, "H", seen["H"]) if "H" in seen else self.tool
+                length = 0.0
+                if h != 0:
+                    if h in self.tools:
+                        length = self.tools[h].length
+                    elif self.tools:
+                        self.fail(number, f"a tool of the tool table for H{seen['H'][1] if 'H' in seen else h} "
+                                          f"(the table has no tool {h})")
+                    else:
+                        self.note(number, "H", f"G{code / 10:g} H{h}: no tool table: the tool length is 0")
+                self.length_offset = length if code == 430 else -length
+        elif "H" in seen:
+            self.fail(number, "H only with G43/G44 (a tool length offset)")
         axes = [seen.get(a) for a in "XYZ"]
-        if "g10" in gs:
-            if "L" not in seen or seen["L"][0] != 2.0:
-                self.fail(number, "L2 with G10 (set a work offset)")
-            if "P" not in seen or seen["P"][0] not in (1.0, 2.0, 3.0, 4.0, 5.0, 6.0):
-                self.fail(number, "P1 to P6 with G10 L2 (the work offset G54 to G59)")
+        non_modal = gs.get("non-modal")
+        if "cycle" in gs:
             if motion_g is not None:
-                self.fail(number, "no motion G code in a G10 line")
-            for letter in "IJKR":
-                if letter in seen:
-                    self.fail(number, f"only X, Y, Z with G10 L2, got {letter}")
-            index = int(seen["P"][0]) - 1
+                self.fail(number, f"either G80 or a motion code, got G80 and G{motion_g / 10:g}")
+            self.motion = -1
+            self.cycle_r = self.cycle_z = None
+        for letter in ("P", "L", "Q", "K"):
+            if letter in seen and not self.word_used(letter, gs, ms, motion_g, non_modal):
+                self.fail(number, {"P": "P only with G4, G10, G64, G82, M98 (or with G6.2 or G5.2)",
+                                   "L": "L only with G10, M98 or a canned cycle (repeats) (or with G5.2)",
+                                   "Q": "Q only with G73/G83 (the peck depth)",
+                                   "K": "K only with G2/G3 (or in a NURBS block)"}[letter])
+        if non_modal == 40:
+            self.dwell_line(number, seen, motion_g, axes)
+        elif non_modal == 100:
+            self.g10(number, seen, motion_g, axes)
+        elif non_modal == 520:
+            if motion_g is not None:
+                self.fail(number, "no motion G code in a G52 line")
             for a in range(3):
                 if axes[a] is not None:
                     value = axes[a][0]
                     if abs(value) > MAX_COORDINATE:
                         self.fail(number, f"a coordinate of magnitude at most {MAX_COORDINATE:g}")
-                    self.offsets[index][a] = self.length(value)
+                    self.local[a] = self.length(value)
+        elif non_modal == 280:
+            self.home_return(number, seen, motion_g, axes)
         else:
+            previous = self.motion
             if motion_g is not None:
                 self.motion = motion_g
+                if previous in _CYCLES and motion_g not in _CYCLES:
+                    self.cycle_r = self.cycle_z = None
             has_axes = any(x is not None for x in axes)
-            arc_words = [w for w in "IJKR" if w in seen]
-            if self.motion in (20, 30) and (has_axes or motion_g is not None or arc_words):
-                self.arc(number, seen, axes)
-            elif has_axes or motion_g is not None:
-                if arc_words:
+            if self.motion in _CYCLES:
+                if motion_g is not None or has_axes or "R" in seen:
+                    if non_modal == 530:
+                        self.fail(number, "no G53 in a canned cycle")
+                    self.cycle(number, seen, axes, motion_g is not None and previous not in _CYCLES)
+            else:
+                arc_words = [w for w in "IJKR" if w in seen]
+                if non_modal == 530 and self.motion not in (0, 10):
+                    self.fail(number, "G53 only with G0 or G1")
+                if self.motion in (20, 30) and (has_axes or motion_g is not None or arc_words):
+                    self.arc(number, seen, axes)
+                elif has_axes or motion_g is not None:
+                    if arc_words:
+                        self.fail(number, f"{arc_words[0]} only with G2/G3 (or in a NURBS block)")
+                    if self.motion < 0:
+                        self.fail(number, "a motion mode G0, G1, G2 or G3 before coordinates")
+                    if has_axes:
+                        self.straight(number, axes, machine=non_modal == 530)
+                elif arc_words:
                     self.fail(number, f"{arc_words[0]} only with G2/G3 (or in a NURBS block)")
-                if self.motion < 0:
-                    self.fail(number, "a motion mode G0, G1, G2 or G3 before coordinates")
-                if has_axes:
-                    self.straight(number, axes)
-            elif arc_words:
-                self.fail(number, f"{arc_words[0]} only with G2/G3 (or in a NURBS block)")
+                elif non_modal == 530:
+                    self.fail(number, "X, Y or Z (machine coordinates) with G53")
+        if "stop" in ms:
+            self.note(number, f"M{ms['stop']}", f"M{ms['stop']}: program stop not modelled (the program runs on)")
         if "end" in ms:
             self.ended = number
+        if "subprogram" in ms:
+            return self.subprogram(k, ms["subprogram"], seen)
         return k + 1
 
+    def word_used(self, letter: str, gs, ms, motion_g, non_modal) -> bool:
+        """P, L, Q, K: used by a code of the line or the motion mode (after this line's motion code)."""
+        motion = motion_g if motion_g is not None else self.motion
+        if "cycle" in gs:
+            motion = -1
+        cycle = motion in _CYCLES and non_modal not in (40, 100, 280, 520)
+        if letter == "P":
+            return non_modal in (40, 100) or gs.get("path") == 640 or ms.get("subprogram") == 98 or \
+                (cycle and motion == 820)
+        if letter == "L":
+            return non_modal == 100 or ms.get("subprogram") == 98 or cycle
+        if letter == "Q":
+            return cycle and motion in (730, 830)
+        return cycle or (non_modal not in (40, 100, 280, 520) and motion in (20, 30))
+
+    def tool_number(self, number: int, letter: str, word) -> int:
+        value, text = word
+        if value < 0 or value != math.floor(value) or value > MAX_PROGRAM_NUMBER:
+            self.fail(number, f"a whole tool number after {letter}, got {letter}{text}")
+        return int(value)
+
+    def compensation(self, number: int, code: int, seen) -> None:
+        if code == 400:
+            if "D" in seen:
+                self.fail(number, "no D with G40 (it cancels the cutter radius compensation)")
+            self.comp, self.comp_radius = COMP_OFF, 0.0
+            return
+        if self.plane != 17:
+            self.fail(number, f"G17 (the XY plane) for cutter radius compensation G{code // 10}, got G{self.plane}")
+        d = self.tool_number(number, "D", seen["D"]) if "D" in seen else self.tool
+        radius = 0.0
+        if d != 0:
+            if d not in self.tools:
+                shown = f"D{seen['D'][1]}" if "D" in seen else f"G{code // 10} (the active tool {d})"
+                if self.tools:
+                    self.fail(number, f"a tool of the tool table for {shown} (the table has no tool {d})")
+                self.fail(number, f"a tool of the tool table for {shown} (the tool table is empty: the cutter "
+                                  f"radius is unknown)")
+            radius = 0.5 * self.tools[d].diameter
+        elif "D" not in seen:
+            self.fail(number, f"D (a tool of the tool table: its radius) with G{code // 10}")
+        self.comp = COMP_LEFT if code == 410 else COMP_RIGHT
+        self.comp_radius = radius
+
+    def g10(self, number: int, seen, motion_g, axes) -> None:
+        if "L" not in seen or seen["L"][0] != 2.0:
+            self.fail(number, "L2 with G10 (set a work offset)")
+        if "P" not in seen or seen["P"][0] not in (1.0, 2.0, 3.0, 4.0, 5.0, 6.0):
+            self.fail(number, "P1 to P6 with G10 L2 (the work offset G54 to G59)")
+        if motion_g is not None:
+            self.fail(number, "no motion G code in a G10 line")
+        for letter in "IJKR":
+            if letter in seen:
+                self.fail(number, f"only X, Y, Z with G10 L2, got {letter}")
+        index = int(seen["P"][0]) - 1
+        for a in range(3):
+            if axes[a] is not None:
+                value = axes[a][0]
+                if abs(value) > MAX_COORDINATE:
+                    self.fail(number, f"a coordinate of magnitude at most {MAX_COORDINATE:g}")
+                self.offsets[index][a] = self.length(value)
+
+    def dwell_seconds(self, number: int, letter: str, word) -> float:
+        """G4/G82 dwell: seconds; Fanuc's P without a decimal point is in milliseconds."""
+        value, text = word
+        if value < 0.0 or value > MAX_COORDINATE:
+            self.fail(number, f"a dwell {letter} of 0 to {MAX_COORDINATE:g}, got {letter}{text}")
+        if letter == "P" and self.dialect == DIALECT_FANUC and "." not in text:
+            return value / 1000.0
+        return value
+
+    def dwell_line(self, number: int, seen, motion_g, axes) -> None:
+        if motion_g is not None:
+            self.fail(number, f"no motion G code in a G4 line, got G{motion_g / 10:g}")
+        if self.dialect == DIALECT_FANUC and axes[0] is not None:
+            if "P" in seen:
+                self.fail(number, "either P or X with G4 (the dwell), not both")
+            word, letter = axes[0], "X"
+        elif "P" in seen:
+            word, letter = seen["P"], "P"
+        else:
+            self.fail(number, "P (the dwell time) with G4" + (" (or X, seconds)" if self.dialect == DIALECT_FANUC
+                                                              else ""))
+        for a, name in ((1, "Y"), (2, "Z")) + (((0, "X"),) if letter == "P" else ()):
+            if axes[a] is not None:
+                self.fail(number, f"no axis word in a G4 line, got {name}")
+        self.dwell(number, self.dwell_seconds(number, letter, word))
+
+    def dwell(self, number: int, seconds: float) -> None:
+        if seconds <= 0.0:
+            return
+        if self.moves:
+            self.moves[-1].exact_stop = True
+        speed, on = self.spindle_now()
+        self.add(Move(MOVE_DWELL, number, tuple(self.position), tuple(self.position), tuple(self.total_offset()),
+                      0.0, speed, on, dwell=seconds))
+        self.moves[-1].exact_stop = True
+
+    def home_return(self, number: int, seen, motion_g, axes) -> None:
+        """G28: rapid through the intermediate point (the axis words) to the home position of those axes."""
+        if motion_g is not None:
+            self.fail(number, f"no motion G code in a G28 line, got G{motion_g / 10:g}")
+        for letter in "IJKR":
+            if letter in seen:
+                self.fail(number, f"only X, Y, Z with G28, got {letter}")
+        named = [a for a in range(3) if axes[a] is not None]
+        if not named:
+            if self.dialect == DIALECT_FANUC:
+                self.fail(number, "the axes to return (X, Y, Z: the intermediate point) with G28")
+            end = list(self.home)
+        else:
+            middle = self.target(number, axes)
+            self.rapid(number, middle)
+            end = list(self.position)
+            for a in named:
+                end[a] = self.home[a]
+        self.rapid(number, end)
+
+    def rapid(self, number: int, end, exact: bool = False) -> None:
+        dx, dy, dz = end[0] - self.position[0], end[1] - self.position[1], end[2] - self.position[2]
+        if dx * dx + dy * dy + dz * dz <= 0.0:
+            return
+        speed, on = self.spindle_now()
+        self.add(Move(MOVE_RAPID, number, tuple(self.position), tuple(end), tuple(self.total_offset()), 0.0,
+                      speed, on))
+        if exact:
+            self.moves[-1].exact_stop = True
+
+    def feed_to(self, number: int, end) -> None:
+        dx, dy, dz = end[0] - self.position[0], end[1] - self.position[1], end[2] - self.position[2]
+        if dx * dx + dy * dy + dz * dz <= 0.0:
+            return
+        speed, on = self.spindle_now()
+        self.add(Move(MOVE_LINE, number, tuple(self.position), tuple(end), tuple(self.total_offset()),
+                      self.current_feed(), speed, on))
+        self.moves[-1].exact_stop = True
+
+    def cycle(self, number: int, seen, axes, new: bool) -> None:
+        """G73/G81/G82/G83 expanded to moves as a Fanuc control runs them (G17 only)."""
+        code = self.motion
+        if self.plane != 17:
+            self.fail(number, f"G17 (the XY plane) for the canned cycle G{code // 10}, got G{self.plane}")
+        if self.comp != COMP_OFF:
+            self.fail(number, f"G40 (no cutter radius compensation) before the canned cycle G{code // 10}")
+        for letter in "IJ":
+            if letter in seen:
+                self.fail(number, f"no {letter} in a canned cycle")
+        for letter, name in (("R", "cycle_r"), ("Z", "cycle_z")):
+            if letter in seen:
+                value = seen[letter][0]
+                if abs(value) > MAX_COORDINATE:
+                    self.fail(number, f"a coordinate of magnitude at most {MAX_COORDINATE:g}")
+                setattr(self, name, value)
+        if "Q" in seen:
+            q = seen["Q"][0]
+            if not q > 0.0 or q > MAX_COORDINATE:
+                self.fail(number, f"a peck depth Q > 0 (and at most {MAX_COORDINATE:g}), got Q{seen['Q'][1]}")
+            self.cycle_q = self.length(q)
+        if "P" in seen:
+            self.cycle_p = self.dwell_seconds(number, "P", seen["P"])
+        if self.cycle_r is None:
+            self.fail(number, f"R (the retract plane) with G{code // 10}")
+        if self.cycle_z is None:
+            self.fail(number, f"Z (the hole bottom) with G{code // 10}")
+        if code in (730, 830) and not self.cycle_q > 0.0:
+            self.fail(number, f"Q (the peck depth) with G{code // 10}")
+        self.need_feed(number)
+        repeat_letter = "K" if self.dialect == DIALECT_FANUC else "L"
+        other = "L" if repeat_letter == "K" else "K"
+        if other in seen:
+            self.fail(number, f"{repeat_letter} (the repeat count) in a canned cycle of this dialect, got {other}")
+        repeats = 1
+        if repeat_letter in seen:
+            value, text = seen[repeat_letter]
+            if value < 0 or value != math.floor(value) or value > MAX_REPEATS:
+                self.fail(number, f"a whole repeat count {repeat_letter} of 0 to {MAX_REPEATS}, got "
+                                  f"{repeat_letter}{text}")
+            repeats = int(value)
+        off = self.total_offset()
+        old_z = self.position[2]
+        if new or self.dialect != DIALECT_FANUC:
+            self.cycle_initial = old_z
+        initial = self.cycle_initial
+        if self.absolute:
+            r = self.length(self.cycle_r) + off[2]
+            bottom = self.length(self.cycle_z) + off[2]
+        else:
+            r = initial + self.length(self.cycle_r)
+            bottom = r + self.length(self.cycle_z)
+        if bottom > r:
+            self.fail(number, f"the hole bottom Z below the retract plane R in G{code // 10}")
+        if self.retract_r:
+            clear = r
+        else:
+            clear = initial if self.dialect == DIALECT_FANUC or initial > r else r
+        for rep in range(repeats):
+            if rep == 0 and self.dialect != DIALECT_FANUC and self.position[2] < r:
+                self.rapid(number, [self.position[0], self.position[1], r], True)
+            hole = list(self.position)
+            for a in range(2):
+                if axes[a] is not None:
+                    value = self.length(axes[a][0])
+                    hole[a] = value + off[a] if self.absolute else self.position[a] + value
+            self.rapid(number, hole, True)
+            self.rapid(number, [hole[0], hole[1], r], True)
+            if code in (810, 820):
+                self.feed_to(number, [hole[0], hole[1], bottom])
+                if code == 820:
+                    self.dwell(number, self.cycle_p)
+            else:
+                depth = r
+                while depth > bottom:
+                    start = depth
+                    if depth < r:
+                        start = depth + PECK_CLEARANCE if code == 830 else depth
+                        if code == 830:
+                            self.rapid(number, [hole[0], hole[1], start], True)
+                    nxt = depth - self.cycle_q
+                    if nxt < bottom:
+                        nxt = bottom
+                    self.feed_to(number, [hole[0], hole[1], nxt])
+                    depth = nxt
+                    if depth > bottom:
+                        if code == 830:
+                            self.rapid(number, [hole[0], hole[1], r], True)
+                        else:
+                            self.rapid(number, [hole[0], hole[1], depth + PECK_CLEARANCE], True)
+            self.rapid(number, [hole[0], hole[1], clear], True)
+
+    def subprogram(self, k: int, code: int, seen) -> int:
+        number = k + 1
+        if code == 99:
+            if not self.stack:
+                self.note(number, "M99", "M99 in the main program: the program ends here (a control would "
+                                         "start it again)")
+                self.ended = number
+                return k + 1
+            call = self.stack[-1]
+            call.remaining -= 1
+            if call.remaining > 0:
+                return self.sections[call.section].o_line + 1
+            self.stack.pop()
+            return call.return_to
+        if "P" not in seen:
+            self.fail(number, "P (the program number) with M98")
+        value, text = seen["P"]
+        if value < 0 or value != math.floor(value) or value > MAX_PROGRAM_NUMBER:
+            self.fail(number, f"a whole program number after P, got P{text}")
+        target, count = int(value), 1
+        if "L" in seen:
+            lv, lt = seen["L"]
+            if lv < 0 or lv != math.floor(lv) or lv > MAX_REPEATS:
+                self.fail(number, f"a whole repeat count L of 0 to {MAX_REPEATS}, got L{lt}")
+            count = int(lv)
+        elif self.dialect == DIALECT_FANUC and target > 9999:
+            count, target = target // 10000, target % 10000
+        index = next((i for i, s in enumerate(self.sections) if s.o_line >= 0 and s.number == target), -1)
+        if index < 0:
+            self.fail(number, f"a program O{target} in this file for M98 (subprograms are read from the same file)")
+        if any(call.section == index for call in self.stack) or index == self.main:
+            self.fail(number, f"no recursive call: O{target} is already running")
+        if len(self.stack) >= MAX_CALL_DEPTH:
+            self.fail(number, f"subprogram calls nested at most {MAX_CALL_DEPTH} deep")
+        if count == 0:
+            return k + 1
+        self.stack.append(_Call(index, k + 1, count, number))
+        return self.sections[index].o_line + 1
+
     def target(self, number: int, axes) -> list[float]:
-        off = self.offsets[self.active_offset]
+        off = self.total_offset()
         out = []
         for a in range(3):
             if axes[a] is None:
@@ -400,17 +970,44 @@ class _Parser:
                 out.append(self.position[a] + self.length(value))
         return out
 
+    def current_feed(self) -> float:
+        if not self.per_rev:
+            return self.feed
+        return self.feed_rev * self.speed / 60.0
+
     def need_feed(self, number: int) -> None:
-        if self.feed <= 0.0:
+        if (self.feed_rev if self.per_rev else self.feed) <= 0.0:
             self.fail(number, "F (feed) before the first feed move (G1, G2, G3, G6.2)")
+        if self.per_rev and (self.spindle_dir == 0 or self.speed <= 0.0):
+            self.fail(number, "a turning spindle (S > 0 and M3/M4) for a feed move in G95 (feed per revolution)")
 
     def add(self, move: Move) -> None:
+        if len(self.moves) >= MAX_MOVES:
+            self.fail(move.line, f"at most {MAX_MOVES} moves in a program (subprogram repeats and canned cycles "
+                                 f"included)")
         move.block = self.block
+        move.tool = self.tool
+        move.coolant = self.coolant
+        move.exact_stop = self.exact_mode or self.g9
+        move.tolerance = self.tolerance
+        move.comp = self.comp
+        move.comp_radius = self.comp_radius
         self.moves.append(move)
         self.position = list(move.end)
 
-    def straight(self, number: int, axes) -> None:
-        end = self.target(number, axes)
+    def straight(self, number: int, axes, machine: bool = False) -> None:
+        if machine:
+            if not self.absolute:
+                self.fail(number, "G90 with G53 (machine coordinates are absolute)")
+            end = list(self.position)
+            for a in range(3):
+                if axes[a] is not None:
+                    value = axes[a][0]
+                    if abs(value) > MAX_COORDINATE:
+                        self.fail(number, f"a coordinate of magnitude at most {MAX_COORDINATE:g}")
+                    end[a] = self.length(value)
+        else:
+            end = self.target(number, axes)
         rapid = self.motion == 0
         if not rapid:
             self.need_feed(number)
@@ -419,7 +1016,7 @@ class _Parser:
             return
         speed, on = self.spindle_now()
         self.add(Move(MOVE_RAPID if rapid else MOVE_LINE, number, tuple(self.position), tuple(end),
-                      tuple(self.offsets[self.active_offset]), 0.0 if rapid else self.feed, speed, on))
+                      tuple(self.total_offset()), 0.0 if rapid else self.current_feed(), speed, on))
 
     def arc(self, number: int, seen, axes) -> None:
         self.need_feed(number)
@@ -493,9 +1090,10 @@ class _Parser:
         centre = [0.0, 0.0, 0.0]
         centre[ia], centre[ib], centre[inormal] = ca, cb, start[inormal]
         speed, on = self.spindle_now()
-        self.add(Move(MOVE_ARC, number, tuple(start), tuple(end), tuple(self.offsets[self.active_offset]),
-                      self.feed, speed, on, center=tuple(centre), axes=plane_axes, theta0=theta0, sweep=sweep,
+        self.add(Move(MOVE_ARC, number, tuple(start), tuple(end), tuple(self.total_offset()),
+                      self.current_feed(), speed, on, center=tuple(centre), axes=plane_axes, theta0=theta0, sweep=sweep,
                       r0=r0, r1=r1, height=height))
+
 
     def unit_factor(self) -> float:
         return 0.0254 if self.inch else 1e-3
@@ -506,13 +1104,16 @@ class _Parser:
             f = seen["F"][0]
             if not (f > 0.0) or f > MAX_FEED_WORD:
                 self.fail(number, f"a feed F > 0 and at most {MAX_FEED_WORD:g}, got F{seen['F'][1]}")
-            self.feed = self.length(f) / 60.0
+            if self.per_rev:
+                self.feed_rev = self.length(f)
+            else:
+                self.feed = self.length(f) / 60.0
         if "S" in seen:
             s = seen["S"][0]
             if s < 0.0 or s > MAX_SPEED_WORD:
                 self.fail(number, f"a spindle speed S of 0 to {MAX_SPEED_WORD:g} rpm, got S{seen['S'][1]}")
             self.speed = s
-        if "spindle" in ms:
+        if ms.get("spindle") in (3, 4, 5):
             self.spindle_dir = {3: 1, 4: -1, 5: 0}[ms["spindle"]]
 
     def nurbs(self, k: int, seen, gs, ms) -> int:
@@ -550,14 +1151,14 @@ class _Parser:
         weights: list[float] = []
         knots: list[float] = []
         trailing = 0
-        off = self.offsets[self.active_offset]
+        off = self.total_offset()
         previous = list(self.position)
         line_words = seen
         k_line = k
         while True:
             ln = k_line + 1
             if ln != first_line:
-                for letter in line_words:
+                for letter in sorted(line_words):
                     if letter not in "KXYZRN":
                         self.fail(ln, f"K, X, Y, Z, R in a NURBS block (started in line {first_line}), got {letter}")
             kv = line_words["K"][0]
@@ -610,7 +1211,7 @@ class _Parser:
                                        f"a line of at most {MAX_LINE_LENGTH} characters")
                 if raw_next.strip(" \t") == "%":
                     break
-                words = _tokenize(raw_next, self.file, nxt + 1)
+                words = [] if _is_skipped(raw_next) else _tokenize(raw_next, self.file, nxt + 1)
                 if words:
                     break
                 nxt += 1
@@ -648,11 +1249,17 @@ class _Parser:
             if multiplicity > degree:
                 self.fail(first_line, f"inner knots of multiplicity at most the degree {degree} in the NURBS block "
                                       f"started here (knot {knots[j]:.15g})")
-        curve = NurbsCurve(degree, [tuple(p) for p in points], weights, knots, first_line)
+        self.emit_curve(NurbsCurve(degree, [tuple(p) for p in points], weights, knots, first_line), first_line,
+                        end_line)
+        return end_line
+
+    def emit_curve(self, curve: NurbsCurve, first_line: int, end_line: int) -> None:
+        """Stores a NURBS curve and its moves (split at inner knots of multiplicity >= the degree)."""
+        knots, degree, n_points = curve.knots, curve.degree, len(curve.points)
         index = len(self.curves)
         self.curves.append(curve)
         speed, on = self.spindle_now()
-        # split at inner knots of multiplicity == degree (possible corners)
+        off = self.total_offset()
         breaks = [knots[degree]]
         j = degree + 1
         while j < n_points:
@@ -663,17 +1270,130 @@ class _Parser:
                 breaks.append(knots[j])
             j += m
         breaks.append(knots[n_points])
+        start = tuple(self.position)
         for b in range(len(breaks) - 1):
-            self.moves.append(Move(MOVE_NURBS, first_line, tuple(self.position), tuple(points[-1]),
-                                   tuple(off), self.feed, speed, on, block=self.block, curve=index, u0=breaks[b],
-                                   u1=breaks[b + 1]))
-        self.position = list(points[-1])
+            self.add(Move(MOVE_NURBS, first_line, start, tuple(curve.points[-1]), tuple(off), self.current_feed(),
+                          speed, on, curve=index, u0=breaks[b], u1=breaks[b + 1]))
         self.final_line = end_line
-        return end_line
+
+    def g52_nurbs(self, k: int, seen, gs, ms) -> int:
+        """G5.2 [X Y Z] [P weight] [L order] [K interval], control point lines X Y Z [P] [K], G5.3 (LinuxCNC; with
+        Z and K also the form the Sinumerik translator writes for BSPLINE)."""
+        number = k + 1
+        first_line = number
+        if not self.absolute:
+            self.fail(number, "G90 (absolute coordinates) for a NURBS block")
+        for letter in "IJRQ":
+            if letter in seen:
+                self.fail(number, f"X, Y, Z, P, L, K, F in a G5.2 line, got {letter}")
+        order = 3
+        if "L" in seen:
+            lv = seen["L"][0]
+            if lv not in (2.0, 3.0, 4.0, 5.0, 6.0):
+                self.fail(number, f"an order L (degree + 1) of 2 to {MAX_DEGREE + 1}, got L{seen['L'][1]}")
+            order = int(lv)
+        self.feed_and_spindle(number, seen, ms)
+        for group in ("plane", "units", "distance", "offset"):
+            if group in gs:
+                self.fail(number, "no other G code in the G5.2 line")
+        if "end" in ms:
+            self.fail(number, "M2/M30 after the NURBS block, not in its first line")
+        self.need_feed(number)
+        self.motion = -1
+        off = self.total_offset()
+        points = [list(self.position)]
+        weights = [1.0]
+        intervals: list[float] = []
+        line_words = seen
+        ln = number
+        while True:
+            if ln != first_line:
+                for letter in sorted(line_words):
+                    if letter not in "XYZPKN":
+                        self.fail(ln, f"X, Y, Z, P, K in a G5.2 block (started in line {first_line}), or G5.3 to "
+                                      f"end it, got {letter}")
+            has_point = any(a in line_words for a in "XYZ")
+            if "P" in line_words:
+                w = line_words["P"][0]
+                if not (w > 0.0) or w > MAX_COORDINATE:
+                    self.fail(ln, f"a weight P > 0 (and at most {MAX_COORDINATE:g}), got P{line_words['P'][1]}")
+            else:
+                w = 1.0
+            if has_point:
+                if len(points) >= MAX_NURBS_POINTS:
+                    self.fail(ln, f"at most {MAX_NURBS_POINTS} control points in a NURBS block")
+                pt = []
+                for a, letter in enumerate("XYZ"):
+                    if letter in line_words:
+                        value = line_words[letter][0]
+                        if abs(value) > MAX_COORDINATE:
+                            self.fail(ln, f"a coordinate of magnitude at most {MAX_COORDINATE:g}")
+                        pt.append(self.length(value) + off[a])
+                    else:
+                        pt.append(points[-1][a])
+                interval = 1.0
+                if "K" in line_words:
+                    interval = line_words["K"][0]
+                    if not (interval > 0.0) or interval > MAX_COORDINATE:
+                        self.fail(ln, f"a knot interval K > 0 (and at most {MAX_COORDINATE:g}), got "
+                                      f"K{line_words['K'][1]}")
+                points.append(pt)
+                weights.append(w)
+                intervals.append(interval)
+            elif ln == first_line and "K" not in line_words:
+                weights[0] = w
+            else:
+                self.fail(ln, f"X, Y or Z (a control point) in the G5.2 block started in line {first_line}")
+            # the next line: control points until G5.3
+            nxt = ln
+            words = []
+            while nxt < len(self.lines):
+                raw_next = self.lines[nxt].rstrip("\r")
+                if len(raw_next) > MAX_LINE_LENGTH:
+                    raise ProgramError(self.file, nxt + 1, raw_next, f"a line of at most {MAX_LINE_LENGTH} characters")
+                if raw_next.strip(" \t") == "%":
+                    break
+                if not _is_skipped(raw_next):
+                    words = _tokenize(raw_next, self.file, nxt + 1)
+                    if words:
+                        break
+                nxt += 1
+            if not words:
+                self.fail(first_line, "G5.3 to end the NURBS block started here")
+            ln = nxt + 1
+            if any(w[0] == "G" for w in words):
+                if len(words) - (words[0][0] == "N") != 1 or words[-1][0] != "G" or \
+                        round(words[-1][1] * 10.0) != 53 or words[-1][1] * 10.0 != 53.0:
+                    self.fail(ln, f"G5.3 alone to end the G5.2 block started in line {first_line}")
+                break
+            line_words = {}
+            for letter, value, text in words:
+                if letter in line_words:
+                    self.fail(ln, f"one {letter} word per line")
+                line_words[letter] = (value, text)
+        n_points = len(points)
+        degree = order - 1
+        if n_points < order:
+            self.fail(ln, f"at least L = {order} control points (the current position and {order - 1} more) in the "
+                          f"G5.2 block started in line {first_line}, got {n_points}")
+        # clamped knots: as LinuxCNC's knot vector (0 x order, 1, 2, ..., n - order + 2 x order) with the
+        # intervals K (default 1) between the distinct knots
+        knots = [0.0] * order
+        t = 0.0
+        for i in range(n_points - order + 1):
+            t = t + intervals[i]
+            knots.append(t)
+        knots += [t] * (order - 1)
+        self.emit_curve(NurbsCurve(degree, [tuple(p) for p in points], weights, knots, first_line), first_line, ln)
+        self.final_block = self.block
+        return ln
 
 
-def parse_program(text: str, parameters: Mapping[str, float], file: str = "program.nc") -> Program:
-    return _Parser(text, file, parameters).run()
+def parse_program(text: str, parameters: Mapping[str, float], file: str = "program.nc", *,
+                  dialect: int = DIALECT_FANUC, tools: Sequence[Tool] = ()) -> Program:
+    """The moves of a part program; ``dialect`` DIALECT_FANUC/LINUXCNC/SINUMERIK, ``tools`` the tool table;
+    the home position of G28 from the parameters ``home_x/y/z`` (machine coordinates, m; 0 without them)."""
+    return _Parser(text, file, parameters, dialect, tools).run()
 
 
 # Writing part programs (tests, benchmark, training)

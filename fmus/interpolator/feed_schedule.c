@@ -140,7 +140,7 @@ static size_t make_segments(const ScheduleView *v, double s_start, size_t first_
             soft = min2(soft, sm);
             cap = max2(cap, min2(sm, v->int_cap[i]));
             i++;
-            if (i >= n_int || v->station[i] != 0.0) break;
+            if (i >= n_int || v->station[i] != 0.0 || v->node_vh[i] == 0.0) break; /* at rest there: a station */
         }
         end = v->node_s[i];
         out[n].s0 = s0, out[n].length = end - s0, out[n].va = out[n].vp = out[n].vb = 0.0;
@@ -301,7 +301,14 @@ int schedule_plan(ScheduleView *view, double s_start, double v_start, double t_s
     for (k = 0; k < n; k++) {
         const Segment *sg = &segs[k];
         double s = sg->s0, da, db, cruise;
-        if (sg->length <= 0.0) continue;
+        if (sg->length <= 0.0) {
+            double dwell = view->dwell[(size_t)view->int_move[sg->first]];
+            if (dwell > 0.0) { /* a piece at rest (the only one with zero v, a and j before the end) */
+                put_piece(view->pieces + PIECE_DOUBLES * np++, t, s, 0.0, 0.0, 0.0);
+                t += dwell;
+            }
+            continue;
+        }
         da = s_curve_distance(sg->va, sg->vp, sg->a, sg->j);
         db = s_curve_distance(sg->vp, sg->vb, sg->a, sg->j);
         cruise = max2(sg->length - da - db, 0.0);

@@ -19,6 +19,7 @@ typedef struct {
     double *station;
     const double *int_move, *int_at, *int_jt, *int_cap;
     const double *soft; /* per move: F * override capped by max_feed, or the rapid feed */
+    const double *dwell; /* per move: seconds the tool stands in a dwell move, 0 for the others */
     double total;
     double *pieces;
     size_t piece_capacity;

@@ -77,6 +77,7 @@ void interp_install(const InterpPrepared *p, double *heap, InterpLayout *L) {
         r[MR_THETA0] = m->theta0, r[MR_SWEEP] = m->sweep, r[MR_R0] = m->r0, r[MR_R1] = m->r1, r[MR_HEIGHT] = m->height;
         r[MR_CURVE] = m->curve, r[MR_U0] = m->u0, r[MR_U1] = m->u1;
         r[MR_SPAN_LO] = path->span_lo[k], r[MR_SPAN_HI] = path->span_hi[k];
+        r[MR_TOOL] = m->tool, r[MR_COOLANT] = m->coolant, r[MR_DWELL] = m->dwell, r[MR_EXACT_STOP] = m->exact_stop;
     }
     at = L->points;
     for (k = 0; k < g->n_curves; k++) {
@@ -148,12 +149,14 @@ static void arc_of(const double *r, ArcParams *a) {
 static int plan(double *heap, const InterpLayout *L, InterpState *st, const InterpSettings *settings, double s_start,
                 double v_start, double t_start, size_t first_piece) {
     ScheduleView view;
-    double *soft = malloc((L->n_moves ? L->n_moves : 1) * sizeof *soft);
+    double *soft = malloc(2 * (L->n_moves ? L->n_moves : 1) * sizeof *soft), *dwell;
     size_t k;
     int status;
     if (!soft) return -1;
+    dwell = soft + (L->n_moves ? L->n_moves : 1);
     for (k = 0; k < L->n_moves; k++) {
         const double *r = move_record(heap, L, k);
+        dwell[k] = (int)r[MR_KIND] == MOVE_DWELL ? r[MR_DWELL] : 0.0;
         if ((int)r[MR_KIND] == MOVE_RAPID) {
             soft[k] = settings->rapid_feed;
         } else {
@@ -165,11 +168,17 @@ static int plan(double *heap, const InterpLayout *L, InterpState *st, const Inte
     view.node_s = heap + L->node_s, view.node_vh = heap + L->node_vh, view.node_left = heap + L->node_left;
     view.node_right = heap + L->node_right, view.station = heap + L->station;
     view.int_move = heap + L->int_move, view.int_at = heap + L->int_at, view.int_jt = heap + L->int_jt;
-    view.int_cap = heap + L->int_cap, view.soft = soft, view.total = L->total;
+    view.int_cap = heap + L->int_cap, view.soft = soft, view.dwell = dwell, view.total = L->total;
     view.pieces = heap + L->pieces, view.piece_capacity = L->piece_capacity;
     status = schedule_plan(&view, s_start, v_start, t_start, first_piece, &st->n_pieces, &st->hold, &st->end_time);
     free(soft);
     return status;
+}
+
+/* A piece at rest with more pieces after it: a dwell (a re-plan waits for its end). */
+static int dwell_piece(const double *pieces, size_t n_pieces, size_t k) {
+    const double *pc = pieces + PIECE_DOUBLES * k;
+    return pc[PC_V] == 0.0 && pc[PC_A] == 0.0 && pc[PC_J] == 0.0 && k + 1 < n_pieces;
 }
 
 int interp_set_override(double *heap, const InterpLayout *L, InterpState *st, const InterpSettings *settings,
@@ -190,12 +199,14 @@ int interp_set_override(double *heap, const InterpLayout *L, InterpState *st, co
     t_now = (double)st->tick * settings->limits.period;
     k = st->piece;
     pc = pieces + PIECE_DOUBLES * k;
-    if (pc[PC_A] == 0.0 && pc[PC_J] == 0.0) {
+    if (pc[PC_A] == 0.0 && pc[PC_J] == 0.0 && !dwell_piece(pieces, st->n_pieces, k)) {
         double tau = t_now - pc[PC_T];
         t_r = t_now, s_r = pc[PC_S] + pc[PC_V] * tau, v_r = pc[PC_V];
     } else {
         k++;
-        while (k < st->n_pieces && !(pieces[PIECE_DOUBLES * k + PC_A] == 0.0)) k++;
+        while (k < st->n_pieces &&
+               !(pieces[PIECE_DOUBLES * k + PC_A] == 0.0 && !dwell_piece(pieces, st->n_pieces, k)))
+            k++;
         pc = pieces + PIECE_DOUBLES * k;
         t_r = pc[PC_T], s_r = pc[PC_S], v_r = pc[PC_V];
     }
@@ -230,6 +241,8 @@ static void set_final(const double *heap, const InterpLayout *L, InterpState *st
     out->spindle_on = L->final_spindle_on;
     out->rapid = 0;
     out->finished = 1;
+    out->tool = L->n_moves ? (int)move_record(heap, L, L->n_moves - 1)[MR_TOOL] : 0;
+    out->coolant = L->n_moves ? (int)move_record(heap, L, L->n_moves - 1)[MR_COOLANT] : 0;
 }
 
 static void step_nurbs(const double *heap, const InterpLayout *L, InterpState *st, const InterpSettings *settings,
@@ -273,8 +286,12 @@ static void update_outputs(const double *heap, const InterpLayout *L, InterpStat
         return;
     }
     while (st->move + 1 < L->n_moves) {
+        double end;
         r = move_record(heap, L, st->move);
-        if (!(s > r[MR_S] + r[MR_LENGTH])) break;
+        end = r[MR_S] + r[MR_LENGTH];
+        /* into a dwell once at rest on its position, out of any move once past its end */
+        if (!(s > end || ((int)move_record(heap, L, st->move + 1)[MR_KIND] == MOVE_DWELL && s >= end && st->v == 0.0)))
+            break;
         st->move++;
     }
     if (st->finished) {
@@ -285,10 +302,13 @@ static void update_outputs(const double *heap, const InterpLayout *L, InterpStat
     kind = (int)r[MR_KIND];
     local = s - r[MR_S];
     length = r[MR_LENGTH];
-    lam = local / length;
+    lam = kind != MOVE_DWELL ? local / length : 0.0;
     if (lam > 1.0) lam = 1.0;
     if (lam < 0.0) lam = 0.0;
-    if (kind == MOVE_RAPID || kind == MOVE_LINE) {
+    if (kind == MOVE_DWELL) {
+        for (i = 0; i < 3; i++) pos[i] = r[MR_START + i], tangent[i] = 0.0;
+        u = 0.0;
+    } else if (kind == MOVE_RAPID || kind == MOVE_LINE) {
         double d[3], norm;
         for (i = 0; i < 3; i++) {
             pos[i] = lam >= 1.0 ? r[MR_END + i] : r[MR_START + i] + lam * (r[MR_END + i] - r[MR_START + i]);
@@ -320,6 +340,8 @@ static void update_outputs(const double *heap, const InterpLayout *L, InterpStat
     out->spindle_on = r[MR_SPINDLE_ON] != 0.0;
     out->rapid = kind == MOVE_RAPID;
     out->finished = 0;
+    out->tool = (int)r[MR_TOOL];
+    out->coolant = (int)r[MR_COOLANT];
 }
 
 void interp_tick(double *heap, const InterpLayout *L, InterpState *st, const InterpSettings *settings) {

@@ -40,7 +40,11 @@ enum {
     MR_SPAN_LO = 30,
     MR_SPAN_HI = 31,
     MR_BLOCK = 32,       /* N word */
-    MOVE_DOUBLES = 33
+    MR_TOOL = 33,        /* active tool number */
+    MR_COOLANT = 34,     /* COOLANT_OFF .. COOLANT_BOTH */
+    MR_DWELL = 35,       /* MOVE_DWELL: seconds at rest */
+    MR_EXACT_STOP = 36,  /* the path stops at the end of the move */
+    MOVE_DOUBLES = 37
 };
 
 /* A curve's record in the heap (its control points and knots follow the records, from `points` on). */
@@ -75,6 +79,7 @@ typedef struct {
     double x[3], program[3], velocity[3];
     double feed, acceleration, u, spindle;
     int line, block, spindle_on, rapid, finished;
+    int tool, coolant; /* of the move being executed (the last move's once finished) */
 } InterpOutputs;
 
 typedef struct {

@@ -358,6 +358,13 @@ int path_build(const GcProgram *program, const Limits *lim, const char *file, Pa
             memcpy(end_t[index][1], t, sizeof t);
             out->move_cap[index] = BIG;
             if (samples_push(x, 0.0, BIG, at, jt) != 0 || samples_push(x, length, BIG, at, jt) != 0) goto oom;
+        } else if (m->kind == MOVE_DWELL) {
+            /* no length: the path comes to rest on both of its nodes (stations), the schedule stands `dwell` there */
+            length = 0.0;
+            out->move_cap[index] = 0.0;
+            if (samples_push(x, 0.0, 0.0, lim->acceleration, lim->jerk) != 0 ||
+                samples_push(x, 0.0, 0.0, lim->acceleration, lim->jerk) != 0)
+                goto oom;
         } else if (m->kind == MOVE_ARC) {
             ArcParams a;
             double rm, omega, rw, t[3] = {0, 0, 0}, k[3] = {0, 0, 0}, kp[3] = {0, 0, 0}, at, jt, kappa, v;
@@ -444,14 +451,19 @@ int path_build(const GcProgram *program, const Limits *lim, const char *file, Pa
                 } else {
                     const double zero[3] = {0, 0, 0};
                     const GcMove *prev = &program->moves[index - 1], *cur = &program->moves[index];
-                    const double *ka = (prev->kind == MOVE_RAPID || prev->kind == MOVE_LINE) ? zero : end_k[index - 1][1];
-                    const double *kb = (cur->kind == MOVE_RAPID || cur->kind == MOVE_LINE) ? zero : end_k[index][0];
-                    double v = junction_limit(lim, end_t[index - 1][1], ka, end_t[index][0], kb);
-                    const Samples *px = &samples[index - 1];
-                    v = min2(min2(v, px->v[px->n - 1]), x->v[0]);
+                    int stop = prev->exact_stop || prev->kind == MOVE_DWELL || cur->kind == MOVE_DWELL;
+                    double v = 0.0; /* exact stop (G61, G9, before and after a dwell): at rest, a station */
+                    if (!stop) {
+                        const double *ka = (prev->kind == MOVE_RAPID || prev->kind == MOVE_LINE) ? zero
+                                                                                                 : end_k[index - 1][1];
+                        const double *kb = (cur->kind == MOVE_RAPID || cur->kind == MOVE_LINE) ? zero : end_k[index][0];
+                        const Samples *px = &samples[index - 1];
+                        v = junction_limit(lim, end_t[index - 1][1], ka, end_t[index][0], kb);
+                        v = min2(min2(v, px->v[px->n - 1]), x->v[0]);
+                    }
                     out->node_s[node] = base, out->node_vh[node] = v;
                     out->node_left[node] = (int)index - 1, out->node_right[node] = (int)index;
-                    out->station[node] = 0;
+                    out->station[node] = stop ? 1 : 0;
                 }
                 node++;
             } else if (j == count - 1) {

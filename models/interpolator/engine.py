@@ -11,7 +11,7 @@ from milling_twin.models.interpolator.nurbs import Nurbs, arc_length
 from milling_twin.models.interpolator.nurbs import dot as _dot
 from milling_twin.models.interpolator.param_update import (MAX_NEWTON, METHOD_CORRECTOR, NurbsState, arc_of_chord,
                                                            curvature_squared, predict, rbf_of)
-from milling_twin.models.interpolator.parser import MOVE_ARC, MOVE_LINE, MOVE_RAPID, Move, parse_program
+from milling_twin.models.interpolator.parser import MOVE_ARC, MOVE_DWELL, MOVE_LINE, MOVE_RAPID, Move, parse_program
 from milling_twin.models.interpolator.path import build_path
 from milling_twin.models.interpolator.schedule import Schedule
 
@@ -49,7 +49,8 @@ class Interpolator:
         return {"x": x, "y": y, "z": z, "x_program": x - p["g54_x"], "y_program": y - p["g54_y"],
                 "z_program": z - p["g54_z"], "feed_velocity_x": 0.0, "feed_velocity_y": 0.0,
                 "feed_velocity_z": 0.0, "feed": 0.0, "path_acceleration": 0.0, "u": 0.0, "line_number": 0.0,
-                "block_number": 0.0, "spindle_speed": 0.0, "spindle_on": 0.0, "rapid": 0.0, "finished": 0.0}
+                "block_number": 0.0, "spindle_speed": 0.0, "spindle_on": 0.0, "rapid": 0.0, "finished": 0.0,
+                "tool": 0.0, "coolant": 0.0}
 
     # -- schedule --
     def replan_point(self, t_now: float) -> tuple[float, float, float, int]:
@@ -57,14 +58,20 @@ class Interpolator:
         pieces = self.schedule.pieces
         k = self.piece
         pc = pieces[k]
-        if pc.a == 0.0 and pc.j == 0.0:
+        if pc.a == 0.0 and pc.j == 0.0 and not self.dwell_piece(k):
             tau = t_now - pc.t
             return t_now, pc.s + pc.v * tau, pc.v, k
         k += 1
-        while k < len(pieces) and not (pieces[k].a == 0.0):
+        while k < len(pieces) and not (pieces[k].a == 0.0 and not self.dwell_piece(k)):
             k += 1
         pc = pieces[k]
         return pc.t, pc.s, pc.v, k
+
+    def dwell_piece(self, k: int) -> bool:
+        """A piece at rest with more pieces after it: a dwell (a re-plan waits for its end)."""
+        pieces = self.schedule.pieces
+        pc = pieces[k]
+        return pc.v == 0.0 and pc.a == 0.0 and pc.j == 0.0 and k + 1 < len(pieces)
 
     def set_override(self, override: float, t_now: float) -> None:
         if self.override is not None and override == self.override:
@@ -119,7 +126,11 @@ class Interpolator:
             return
         moves = prog.moves
         s = self.s
-        while self.move + 1 < len(moves) and s > self.path.move_s[self.move] + self.path.move_length[self.move]:
+        while self.move + 1 < len(moves):
+            end = self.path.move_s[self.move] + self.path.move_length[self.move]
+            # into a dwell once at rest on its position, out of any move once past its end
+            if not (s > end or (moves[self.move + 1].kind == MOVE_DWELL and s >= end and self.v == 0.0)):
+                break
             self.move += 1
         if self.finished:
             self.set_final(out)
@@ -127,12 +138,16 @@ class Interpolator:
         m = moves[self.move]
         local = s - self.path.move_s[self.move]
         length = self.path.move_length[self.move]
-        lam = local / length
+        lam = local / length if m.kind != MOVE_DWELL else 0.0
         if lam > 1.0:
             lam = 1.0
         if lam < 0.0:
             lam = 0.0
-        if m.kind in (MOVE_RAPID, MOVE_LINE):
+        if m.kind == MOVE_DWELL:
+            pos = list(m.start)
+            tangent = [0.0, 0.0, 0.0]
+            u = 0.0
+        elif m.kind in (MOVE_RAPID, MOVE_LINE):
             if lam >= 1.0:
                 pos = list(m.end)
             else:
@@ -162,6 +177,8 @@ class Interpolator:
         out["spindle_on"] = 1.0 if m.spindle_on else 0.0
         out["rapid"] = 1.0 if m.kind == MOVE_RAPID else 0.0
         out["finished"] = 0.0
+        out["tool"] = float(m.tool)
+        out["coolant"] = float(m.coolant)
 
     def set_final(self, out: dict) -> None:
         prog = self.program
@@ -183,6 +200,8 @@ class Interpolator:
         out["spindle_on"] = 1.0 if prog.final_spindle_on else 0.0
         out["rapid"] = 0.0
         out["finished"] = 1.0
+        out["tool"] = float(prog.moves[-1].tool) if prog.moves else 0.0
+        out["coolant"] = float(prog.moves[-1].coolant) if prog.moves else 0.0
 
     def step_nurbs(self, local: float, length: float) -> tuple[list[float], list[float], float]:
         m = self.program.moves[self.move]

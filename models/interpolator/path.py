@@ -9,7 +9,8 @@ from typing import Mapping, Sequence
 
 from milling_twin.models.interpolator.nurbs import Nurbs, arc_length_derivatives, gauss_length
 from milling_twin.models.interpolator.nurbs import dot as _dot
-from milling_twin.models.interpolator.parser import MOVE_ARC, MOVE_LINE, MOVE_NURBS, MOVE_RAPID, Move, Program
+from milling_twin.models.interpolator.parser import (MOVE_ARC, MOVE_DWELL, MOVE_LINE, MOVE_NURBS, MOVE_RAPID, Move,
+                                                    Program)
 
 COS_TURN = math.cos(0.02)            # NURBS sampling: tangent turn between neighbouring samples
 CURVATURE_VARIATION = 0.02           # and relative curvature change (where the turn is significant)
@@ -338,6 +339,15 @@ def build_path(program: Program, p: Mapping[str, float]) -> Path:
             path.move_cap.append(BIG)
             path.move_span.append((0, 0))
             samples.append(([0.0, length], [BIG, BIG], [at, at], [jt, jt]))
+        elif move.kind == MOVE_DWELL:
+            # no length: the path comes to rest on both of its nodes (stations), the schedule stands `dwell` there
+            zero = [0.0, 0.0, 0.0]
+            geometry = Geometry(zero, zero, zero)
+            ends.append((geometry, geometry))
+            length = 0.0
+            path.move_cap.append(0.0)
+            path.move_span.append((0, 0))
+            samples.append(([0.0, 0.0], [0.0, 0.0], [lim.acceleration] * 2, [lim.jerk] * 2))
         elif move.kind == MOVE_ARC:
             arc = ArcShape(move)
             path.arcs[index] = arc
@@ -379,16 +389,21 @@ def build_path(program: Program, p: Mapping[str, float]) -> Path:
                     path.node_right.append(index)
                     path.station.append(1)
                 else:
-                    ga = ends[index - 1][1]
-                    gb = ends[index][0]
-                    v = junction_limit(lim, ga.t, ga.k, gb.t, gb.k)
-                    prev_cap = samples[index - 1][1][-1]
-                    v = min(v, prev_cap, vc[0])
+                    prev = program.moves[index - 1]
+                    stop = prev.exact_stop or prev.kind == MOVE_DWELL or program.moves[index].kind == MOVE_DWELL
+                    if stop:
+                        v = 0.0  # exact stop (G61, G9, before and after a dwell): at rest, a station
+                    else:
+                        ga = ends[index - 1][1]
+                        gb = ends[index][0]
+                        v = junction_limit(lim, ga.t, ga.k, gb.t, gb.k)
+                        prev_cap = samples[index - 1][1][-1]
+                        v = min(v, prev_cap, vc[0])
                     path.node_s.append(base)
                     path.node_vh.append(v)
                     path.node_left.append(index - 1)
                     path.node_right.append(index)
-                    path.station.append(0)
+                    path.station.append(1 if stop else 0)
             elif j == count - 1:
                 if index == n_moves - 1:
                     path.node_s.append(base + ss[j])

@@ -6,7 +6,7 @@ import math
 from dataclasses import dataclass
 from typing import Callable
 
-from milling_twin.models.interpolator.parser import MOVE_RAPID
+from milling_twin.models.interpolator.parser import MOVE_DWELL, MOVE_RAPID
 from milling_twin.models.interpolator.path import BIG, Path
 
 BISECTIONS = 60
@@ -151,6 +151,11 @@ class Schedule:
             return self.rapid_feed
         return min(m.feed * self.override, self.max_feed)
 
+    def dwell(self, move: int) -> float:
+        """Seconds the tool stands in a dwell move (0 for the other moves)."""
+        m = self.path.program.moves[move]
+        return m.dwell if m.kind == MOVE_DWELL else 0.0
+
     def node_cap(self, k: int) -> float:
         path = self.path
         return min(path.node_vh[k], self.soft(path.node_left[k]), self.soft(path.node_right[k]))
@@ -186,7 +191,7 @@ class Schedule:
                 soft = min(soft, sm)
                 cap = max(cap, min(sm, path.int_cap[i]))
                 i += 1
-                if i >= n_int or path.station[i]:
+                if i >= n_int or path.station[i] or path.node_vh[i] == 0.0:  # at rest there: a station
                     break
             end = path.node_s[i] if i <= n_int else path.total
             out.append(Segment(s0, end - s0, 0.0, 0.0, 0.0, a, j, cap, soft, first, i - 1))
@@ -294,6 +299,10 @@ class Schedule:
         for sg in segs:
             s = sg.s0
             if sg.length <= 0.0:
+                dwell = self.dwell(self.path.int_move[sg.first])
+                if dwell > 0.0:  # a piece at rest (the only one with zero v, a and j before the end)
+                    pieces.append(Piece(t, s, 0.0, 0.0, 0.0))
+                    t += dwell
                 continue
             da = s_curve_distance(sg.va, sg.vp, sg.a, sg.j)
             db = s_curve_distance(sg.vp, sg.vb, sg.a, sg.j)

@@ -5,7 +5,7 @@ from __future__ import annotations
 import math
 
 from milling_twin.models.definition import ModelDefinition, Variable
-from milling_twin.models.interpolator import nurbs, param_update, parser, path, schedule, tool_table
+from milling_twin.models.interpolator import cutter_comp, nurbs, param_update, parser, path, schedule, tool_table
 from milling_twin.models.interpolator.param_update import RBF_HIDDEN, RBF_INPUTS
 from milling_twin.models.interpolator.parser import OFFSET_NAMES
 
@@ -145,6 +145,7 @@ def _constants() -> tuple[tuple[str, int | float | tuple[float, ...]], ...]:
                       "ARC_RADIUS_RELATIVE", "MOVE_RAPID", "MOVE_LINE", "MOVE_ARC", "MOVE_NURBS", "MOVE_DWELL",
                       "COMP_OFF", "COMP_LEFT", "COMP_RIGHT", "COOLANT_OFF", "COOLANT_MIST", "COOLANT_FLOOD", "COOLANT_BOTH", "DIALECT_FANUC",
                       "DIALECT_LINUXCNC", "DIALECT_SINUMERIK"),
+             cutter_comp: ("COMP_TANGENT", "COMP_SMALL_TURN", "COMP_SLACK"),
              tool_table: ("MAX_TOOLS", "MAX_TOOL_NUMBER", "MAX_TOOL_NAME", "MAX_TOOL_VALUE"),
              nurbs: ("GL_NODES", "GL_WEIGHTS"),
              path: ("COS_TURN", "CURVATURE_VARIATION", "SIGNIFICANT_TURN", "MAX_SAMPLE_DEPTH", "MAX_SAMPLES",

@@ -347,7 +347,8 @@ def parser_driver(tmp_path_factory) -> Path:
     binary = folder / "driver"
     source = repo_root() / "fmus" / "interpolator" / "gcode_parser.c"
     subprocess.run([cc, "-std=c99", "-O1", "-Wall", "-Wextra", "-Werror", f"-I{source.parent}", f"-I{generated}",
-                    str(folder / "driver.c"), str(source), "-lm", "-o", str(binary)], check=True)
+                    str(folder / "driver.c"), str(source), str(source.parent / "sinumerik.c"), "-lm", "-o",
+                    str(binary)], check=True)
     return binary
 
 
@@ -390,6 +391,31 @@ def run_parser_driver(binary: Path, tmp_path: Path, text: str, dialect: int, too
     return result.stdout.replace(str(program), "part.nc")
 
 
+SINUMERIK_POST = """%_N_PART1_MPF
+;$PATH=/_N_MPF_DIR
+; Siemens 840D style, written by hand in the style of a post
+N10 G17 G90 G54 G71
+N20 T1 M6
+N30 D1
+N40 S8000 M3
+N50 G0 X0 Y0 Z5
+N60 CYCLE832(0.01, _ORI_FINISH, 1)
+N70 G1 Z-1 F1200
+N80 BSPLINE SD=3
+N90 X10 Y5 PW=1
+N100 X20 Y-5
+N110 X30 Y0
+N120 X40 Y5
+N130 G1 X50
+N140 TRANS X10
+N150 L100 P2
+N160 M30
+%_N_L100_SPF
+N10 G91 G1 X1
+N20 G90
+N30 M17
+"""
+
 # (name, program, dialect, with the tool table): the C parser and parser.py give the same moves, curves, notes
 # and messages, byte for byte
 SAME = [
@@ -415,6 +441,12 @@ SAME = [
     ("an unknown H with a tool table", "G43 H9 Z1\n", gp.DIALECT_FANUC, True),
     ("LinuxCNC O-words", "o100 sub\n", gp.DIALECT_LINUXCNC, False),
     ("M99 in the main program, notes once per word", "M0\nM0\nG1 X1 F100\nM1\nM99\n", gp.DIALECT_FANUC, False),
+    ("a Sinumerik program through the translator: D1, CYCLE832, BSPLINE (G5.2 ... G5.3 N.. G1), TRANS, L100 P2",
+     SINUMERIK_POST, gp.DIALECT_SINUMERIK, True),
+    ("a Sinumerik refusal quotes the file's line", "N10 G17 G90\nN20 CYCLE81(10, 0, 2, -5)\n", gp.DIALECT_SINUMERIK,
+     False),
+    ("a Sinumerik B spline open at the end", "G1 X0 F100\nBSPLINE\nX1 Y1\nX2 Y0\nX3 Y1\n", gp.DIALECT_SINUMERIK,
+     False),
 ]
 
 

@@ -2,6 +2,7 @@
  * same checks and the same arithmetic as that reference. Every malformed line is an error naming the line,
  * its text and what was expected; nothing is skipped. Bounded work per byte: safe on any input (fuzzed). */
 #include "gcode_parser.h"
+#include "sinumerik.h"
 
 #include <math.h>
 #include <stdarg.h>
@@ -31,18 +32,18 @@ typedef struct {
 
 enum {
     G_MOTION, G_CYCLE, G_NON_MODAL, G_G9, G_PLANE, G_UNITS, G_COMP, G_LENGTH, G_OFFSET, G_PATH, G_DISTANCE, G_FEED,
-    G_RETRACT, G_CANCEL, G_GROUPS
+    G_RETRACT, G_CANCEL, G_NURBS_END, G_GROUPS
 };
 enum { M_STOP, M_END, M_SPINDLE, M_TOOL_CHANGE, M_COOLANT, M_SUBPROGRAM, M_GROUPS };
 static const char *const G_GROUP_NAMES[G_GROUPS] = {"motion", "cycle", "non-modal", "g9", "plane", "units",
                                                     "compensation", "length", "offset", "path", "distance", "feed",
-                                                    "retract", "cancel"};
+                                                    "retract", "cancel", "nurbs end"};
 static const char *const M_GROUP_NAMES[M_GROUPS] = {"stop", "end", "spindle", "tool change", "coolant", "subprogram"};
 
 /* G codes (10 * number) and their groups, as _G_GROUPS of parser.py */
 static const int G_CODES[][2] = {
     {0, G_MOTION},      {10, G_MOTION},     {20, G_MOTION},     {30, G_MOTION},     {52, G_MOTION},
-    {53, G_MOTION},     {62, G_MOTION},     {730, G_MOTION},    {810, G_MOTION},    {820, G_MOTION},
+    {53, G_NURBS_END},  {62, G_MOTION},     {730, G_MOTION},    {810, G_MOTION},    {820, G_MOTION},
     {830, G_MOTION},    {800, G_CYCLE},     {40, G_NON_MODAL},  {100, G_NON_MODAL}, {280, G_NON_MODAL},
     {520, G_NON_MODAL}, {530, G_NON_MODAL}, {90, G_G9},         {170, G_PLANE},     {180, G_PLANE},
     {190, G_PLANE},     {200, G_UNITS},     {210, G_UNITS},     {400, G_COMP},      {410, G_COMP},
@@ -76,9 +77,14 @@ typedef struct {
 } Call;
 
 typedef struct {
-    const char *text;
+    const char *text; /* the text parsed: the file's, or its translation in the sinumerik dialect */
     size_t length;
     const char *file;
+    /* the file's lines, quoted by messages (the same as the parsed ones except in the sinumerik dialect) */
+    const char *raw_text;
+    size_t *raw_start, *raw_length;
+    char *translated;
+    size_t closing_line; /* the G5.3 line of the last G5.2 block: its other words run after the block */
     /* line index: start offset and length of each line (without '\n' and a trailing '\r') */
     size_t *line_start;
     size_t *line_length;
@@ -163,8 +169,8 @@ static void fail_at(Parser *p, size_t line, const char *format, ...) {
     va_start(args, format);
     vsnprintf(expected, sizeof expected, format, args);
     va_end(args);
-    format_line_error(known ? p->text + p->line_start[line - 1] : "", known ? p->line_length[line - 1] : 0, p->file,
-                      line, expected, p->error, p->error_size);
+    format_line_error(known ? p->raw_text + p->raw_start[line - 1] : "", known ? p->raw_length[line - 1] : 0,
+                      p->file, line, expected, p->error, p->error_size);
 }
 
 static double length_of(const Parser *p, double value) { return p->inch ? value * 0.0254 : value / 1000.0; }
@@ -400,7 +406,7 @@ static void note(Parser *p, size_t line, const char *key, const char *format, ..
     va_start(args, format);
     vsnprintf(what, sizeof what, format, args);
     va_end(args);
-    format_line_error(p->text + p->line_start[line - 1], p->line_length[line - 1], p->file, line, what,
+    format_line_error(p->raw_text + p->raw_start[line - 1], p->raw_length[line - 1], p->file, line, what,
                       g->notes[g->n_notes], NOTE_LENGTH);
     g->n_notes++;
 }
@@ -653,7 +659,7 @@ static int classify(Parser *p, size_t line) {
         } else if (w->letter == 'N') {
             int any = 0, j;
             for (j = 0; j < 26; j++) any |= p->slots[j].present;
-            for (j = 0; j < G_GROUPS; j++) any |= p->g[j] >= 0;
+            for (j = 0; j < G_GROUPS; j++) any |= p->g[j] >= 0 && j != G_NURBS_END; /* G5.3 N..: translator's */
             for (j = 0; j < M_GROUPS; j++) any |= p->m[j] >= 0;
             if (any) {
                 fail_at(p, line, "the line number N first in the line");
@@ -1459,7 +1465,7 @@ static int parse_line(Parser *p, size_t line, size_t *next) {
         }
         return g52_nurbs(p, line, next);
     }
-    if (motion_g == 53) {
+    if (p->g[G_NURBS_END] >= 0 && line != p->closing_line) {
         fail_at(p, line, "G5.3 after a G5.2 block (it ends the block started by G5.2)");
         return -1;
     }
@@ -1782,9 +1788,10 @@ static int g52_nurbs(Parser *p, size_t first_line, size_t *next_line) {
         more = 0;
         for (k = 0; k < p->n_words; k++) more |= p->words[k].letter == 'G';
         if (more) {
-            const Word *last = &p->words[p->n_words - 1];
-            if (p->n_words - (p->words[0].letter == 'N') != 1 || last->letter != 'G' || last->value * 10.0 != 53.0) {
-                fail_at(p, ln, "G5.3 alone to end the G5.2 block started in line %zu", first_line);
+            const Word *first = p->words[0].letter == 'N' && p->n_words > 1 ? &p->words[1] : &p->words[0];
+            if (first->letter != 'G' || first->value * 10.0 != 53.0) {
+                fail_at(p, ln, "G5.3 first to end the G5.2 block started in line %zu (a control point line holds X, Y, "
+                               "Z, P, K)", first_line);
                 goto error;
             }
             break;
@@ -1818,7 +1825,8 @@ static int g52_nurbs(Parser *p, size_t first_line, size_t *next_line) {
     free(intervals);
     if (emit_curve(p, &curve, first_line, ln) != 0) return -1;
     p->program->final_block = p->block;
-    *next_line = ln + 1;
+    p->closing_line = ln; /* the G5.3 line runs next: the words after G5.3 (G1 X.., M30) are executed */
+    *next_line = ln;
     return 0;
 error:
     free(intervals);
@@ -1907,6 +1915,70 @@ static int scan_sections(Parser *p) {
     return 0;
 }
 
+/* Sinumerik: every line translated into the core syntax (one line each, sinumerik.c), in file order, before
+ * parsing; the messages keep quoting the file's lines. */
+static int translate_sinumerik(Parser *p) {
+    SinState *state = malloc(sizeof *state);
+    char *out = malloc(SIN_MAX_OUTPUT + 1), expected[512];
+    size_t *start = malloc(p->n_lines * sizeof *start), *length = malloc(p->n_lines * sizeof *length);
+    size_t used = 0, cap = 0, k;
+    int status = 0;
+    if (!state || !out || !start || !length) {
+        snprintf(p->error, p->error_size, "%s: out of memory", p->file);
+        free(state), free(out), free(start), free(length);
+        return -1;
+    }
+    sin_init(state, p->tools, p->n_tools);
+    sin_prescan(state, p->text, p->length);
+    for (k = 1; k <= p->n_lines && status == 0; k++) {
+        size_t n;
+        if (sin_translate_line(state, p->raw_text + p->raw_start[k - 1], p->raw_length[k - 1], out, SIN_MAX_OUTPUT + 1,
+                               expected, sizeof expected) != 0) {
+            fail_at(p, k, "%s", expected);
+            status = -1;
+            break;
+        }
+        if (state->note[0] && p->program->n_notes < MAX_NOTES) {
+            GcProgram *g = p->program;
+            format_line_error(p->raw_text + p->raw_start[k - 1], p->raw_length[k - 1], p->file, k, state->note,
+                              g->notes[g->n_notes], NOTE_LENGTH);
+            g->n_notes++;
+        }
+        n = strlen(out);
+        if (used + n + 1 > cap) {
+            size_t c = cap ? 2 * cap : 4096;
+            char *buffer;
+            while (c < used + n + 1) c *= 2;
+            buffer = realloc(p->translated, c);
+            if (!buffer) {
+                snprintf(p->error, p->error_size, "%s: out of memory", p->file);
+                status = -1;
+                break;
+            }
+            p->translated = buffer, cap = c;
+        }
+        memcpy(p->translated + used, out, n);
+        start[k - 1] = used, length[k - 1] = n;
+        used += n;
+        p->translated[used++] = '\n';
+    }
+    if (status == 0 && sin_finish(state, expected, sizeof expected) != 0) {
+        fail_at(p, p->n_lines, "%s", expected);
+        status = -1;
+    }
+    free(state);
+    free(out);
+    if (status != 0) {
+        free(start), free(length);
+        return -1;
+    }
+    p->text = p->translated;
+    p->length = used;
+    p->line_start = start;
+    p->line_length = length;
+    return 0;
+}
+
 void gc_free(GcProgram *program) {
     size_t k;
     if (!program) return;
@@ -1974,7 +2046,11 @@ int gc_parse(const char *text, size_t length, const char *file, const GcSettings
     p->pending_tool = -1;
     memcpy(program->start, settings->start, sizeof program->start);
     memcpy(program->start_offset, settings->offsets[0], sizeof program->start_offset);
-    status = scan_sections(p);
+    p->raw_text = text;
+    p->raw_start = p->line_start;
+    p->raw_length = p->line_length;
+    if (p->dialect == DIALECT_SINUMERIK) status = translate_sinumerik(p);
+    if (status == 0) status = scan_sections(p);
     line = 1;
     if (status == 0 && p->sections[p->main_section].o_line > 0) line = p->sections[p->main_section].o_line;
     while (status == 0) {
@@ -2002,8 +2078,13 @@ int gc_parse(const char *text, size_t length, const char *file, const GcSettings
     if (status == 0) spindle_now(p, &program->final_spindle, &program->final_spindle_on);
     free(p->sections);
     free(p->section_at);
-    free(p->line_start);
-    free(p->line_length);
+    if (p->line_start != p->raw_start) {
+        free(p->line_start);
+        free(p->line_length);
+    }
+    free(p->raw_start);
+    free(p->raw_length);
+    free(p->translated);
     free(p);
     if (status != 0) gc_free(program);
     return status;

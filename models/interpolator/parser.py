@@ -202,7 +202,7 @@ _LETTERS = "GMNXYZIJKRFSPLOTHDQ"
 _LETTER_LIST = "G, M, N, O, T, X, Y, Z, I, J, K, R, F, S, P, L, H, D or Q"
 
 # G codes as 10 * number (G6.2 -> 62); the group of each (a line holds at most one code per group)
-_G_GROUPS = {0: "motion", 10: "motion", 20: "motion", 30: "motion", 52: "motion", 53: "motion",
+_G_GROUPS = {0: "motion", 10: "motion", 20: "motion", 30: "motion", 52: "motion", 53: "nurbs end",
              62: "motion", 730: "motion", 810: "motion", 820: "motion", 830: "motion",
              800: "cycle", 40: "non-modal", 100: "non-modal", 280: "non-modal", 520: "non-modal",
              530: "non-modal", 90: "g9", 170: "plane", 180: "plane", 190: "plane", 200: "units", 210: "units",
@@ -302,7 +302,8 @@ class _Call:
 class _Parser:
     def __init__(self, text: str, file: str, p: Mapping[str, float], dialect: int, tools: Sequence[Tool]):
         self.file = file
-        self.lines = text.split("\n")
+        self.raw = text.split("\n")      # the file's lines (messages quote them)
+        self.lines = self.raw             # the lines parsed (the translation in the sinumerik dialect)
         self.p = p
         self.dialect = dialect
         self.tools = {}
@@ -352,17 +353,51 @@ class _Parser:
         self.section_at: dict[int, int] = {}
         self.stack: list[_Call] = []
         self.called_lines = 0
+        self.closing_line = 0
         self.main = -1
+        if dialect == DIALECT_SINUMERIK:
+            self.translate(text, tools)
 
     def fail(self, line: int, expected: str):
-        raise ProgramError(self.file, line, self.lines[line - 1].rstrip("\r"), expected)
+        raise ProgramError(self.file, line, self.raw[line - 1].rstrip("\r"), expected)
+
+    def tokenize(self, k: int) -> list[tuple[str, float, str]]:
+        """The words of line index k (its translation in the sinumerik dialect); messages quote the file's text."""
+        try:
+            return _tokenize(self.lines[k].rstrip("\r"), self.file, k + 1)
+        except ProgramError as error:
+            raise ProgramError(self.file, k + 1, self.raw[k].rstrip("\r"), error.expected) from None
+
+    def add_note(self, line: int, what: str) -> None:
+        if len(self.notes) < MAX_NOTES:
+            text = f"{self.file} line {line}: \"{_shown(self.raw[line - 1].rstrip(chr(13)))}\": {what}"
+            self.notes.append(text[:NOTE_LENGTH - 1])
+
+    def translate(self, text: str, tools: Sequence[Tool]) -> None:
+        """Sinumerik: every line translated into the core syntax (one line each), in file order, before parsing."""
+        from milling_twin.models.interpolator.sinumerik import SinumerikError, SinumerikTranslator
+        translator = SinumerikTranslator(tools)
+        translator.prescan(text)
+        out = []
+        for k, raw in enumerate(self.raw):
+            try:
+                out.append(translator.translate(raw))
+            except SinumerikError as error:
+                self.fail(k + 1, error.expected)
+            if translator.note:
+                self.add_note(k + 1, translator.note)
+        try:
+            translator.finish()
+        except SinumerikError as error:
+            self.fail(len(self.raw), error.expected)
+        self.lines = out
 
     def note(self, line: int, key: str, what: str) -> None:
         """Accepted but not modelled: reported once per word."""
         if key in self.noted or len(self.notes) >= MAX_NOTES:
             return
         self.noted.add(key)
-        self.notes.append(f"{self.file} line {line}: \"{_shown(self.lines[line - 1].rstrip(chr(13)))}\": {what}")
+        self.add_note(line, what)
 
     def length(self, value: float) -> float:
         return value * 0.0254 if self.inch else value / 1000.0
@@ -395,10 +430,10 @@ class _Parser:
         for k in range(n):
             raw = self.lines[k].rstrip("\r")
             if len(raw) > MAX_LINE_LENGTH:
-                raise ProgramError(self.file, k + 1, raw, f"a line of at most {MAX_LINE_LENGTH} characters")
+                self.fail(k + 1, f"a line of at most {MAX_LINE_LENGTH} characters")
             if raw.strip(" \t") == "%" or _is_skipped(raw):
                 continue
-            words = _tokenize(raw, self.file, k + 1)
+            words = self.tokenize(k)
             if not words:
                 continue
             if words[0][0] == "O":
@@ -472,10 +507,10 @@ class _Parser:
         number = k + 1
         raw = self.lines[k].rstrip("\r")
         if len(raw) > MAX_LINE_LENGTH:
-            raise ProgramError(self.file, number, raw, f"a line of at most {MAX_LINE_LENGTH} characters")
+            self.fail(number, f"a line of at most {MAX_LINE_LENGTH} characters")
         if raw.strip(" \t") == "%" or _is_skipped(raw):
             return k + 1
-        words = _tokenize(raw, self.file, number)
+        words = self.tokenize(k)
         if not words:
             return k + 1
         if words[0][0] == "O":
@@ -491,20 +526,20 @@ class _Parser:
         ms: dict[str, int] = {}
         for letter, value, text in words:
             if letter == "G":
-                code = _g_code(value, text, self.file, number, raw)
+                code = _g_code(value, text, self.file, number, self.raw[k].rstrip("\r"))
                 group = _G_GROUPS[code]
                 if group in gs and group != "cancel":
                     self.fail(number, f"one G code of the {group} group per line, got G{gs[group] / 10:g} "
                                       f"and G{text}")
                 gs[group] = code
             elif letter == "M":
-                code = _m_code(value, text, self.file, number, raw)
+                code = _m_code(value, text, self.file, number, self.raw[k].rstrip("\r"))
                 group = _M_GROUPS[code]
                 if group in ms:
                     self.fail(number, f"one M code of the {group} group per line, got M{ms[group]} and M{text}")
                 ms[group] = code
             elif letter == "N":
-                if seen or gs or ms:
+                if seen or ms or (gs and list(gs) != ["nurbs end"]):   # G5.3 N..: the translator's form
                     self.fail(number, "the line number N first in the line")
                 if value < 0 or value != math.floor(value) or value > 2147483647:
                     self.fail(number, f"a whole line number after N, got N{text}")
@@ -536,7 +571,7 @@ class _Parser:
             if motion_g == 62:
                 return self.nurbs(k, seen, gs, ms)
             return self.g52_nurbs(k, seen, gs, ms)
-        if motion_g == 53:
+        if "nurbs end" in gs and number != self.closing_line:
             self.fail(number, "G5.3 after a G5.2 block (it ends the block started by G5.2)")
         # units before F (an F in a G20 line is in inch/min); feed mode before F
         if "units" in gs:
@@ -1207,11 +1242,10 @@ class _Parser:
             while nxt < len(self.lines):
                 raw_next = self.lines[nxt].rstrip("\r")
                 if len(raw_next) > MAX_LINE_LENGTH:
-                    raise ProgramError(self.file, nxt + 1, raw_next,
-                                       f"a line of at most {MAX_LINE_LENGTH} characters")
+                    self.fail(nxt + 1, f"a line of at most {MAX_LINE_LENGTH} characters")
                 if raw_next.strip(" \t") == "%":
                     break
-                words = [] if _is_skipped(raw_next) else _tokenize(raw_next, self.file, nxt + 1)
+                words = [] if _is_skipped(raw_next) else self.tokenize(nxt)
                 if words:
                     break
                 nxt += 1
@@ -1350,11 +1384,11 @@ class _Parser:
             while nxt < len(self.lines):
                 raw_next = self.lines[nxt].rstrip("\r")
                 if len(raw_next) > MAX_LINE_LENGTH:
-                    raise ProgramError(self.file, nxt + 1, raw_next, f"a line of at most {MAX_LINE_LENGTH} characters")
+                    self.fail(nxt + 1, f"a line of at most {MAX_LINE_LENGTH} characters")
                 if raw_next.strip(" \t") == "%":
                     break
                 if not _is_skipped(raw_next):
-                    words = _tokenize(raw_next, self.file, nxt + 1)
+                    words = self.tokenize(nxt)
                     if words:
                         break
                 nxt += 1
@@ -1362,9 +1396,10 @@ class _Parser:
                 self.fail(first_line, "G5.3 to end the NURBS block started here")
             ln = nxt + 1
             if any(w[0] == "G" for w in words):
-                if len(words) - (words[0][0] == "N") != 1 or words[-1][0] != "G" or \
-                        round(words[-1][1] * 10.0) != 53 or words[-1][1] * 10.0 != 53.0:
-                    self.fail(ln, f"G5.3 alone to end the G5.2 block started in line {first_line}")
+                first = words[1] if words[0][0] == "N" and len(words) > 1 else words[0]
+                if first[0] != "G" or first[1] * 10.0 != 53.0:
+                    self.fail(ln, f"G5.3 first to end the G5.2 block started in line {first_line} (a control point "
+                                  f"line holds X, Y, Z, P, K)")
                 break
             line_words = {}
             for letter, value, text in words:
@@ -1386,7 +1421,8 @@ class _Parser:
         knots += [t] * (order - 1)
         self.emit_curve(NurbsCurve(degree, [tuple(p) for p in points], weights, knots, first_line), first_line, ln)
         self.final_block = self.block
-        return ln
+        self.closing_line = ln        # the G5.3 line runs next: the words after G5.3 (G1 X.., M30) are executed
+        return ln - 1
 
 
 def parse_program(text: str, parameters: Mapping[str, float], file: str = "program.nc", *,

@@ -10,6 +10,9 @@
 #include "nurbs.h"
 
 /* CHORD_SAFETY, TANGENT_TOLERANCE, COS_TURN, ... BIG: model_constants.h (through path.h) */
+#ifndef COUPLING_SPEED_SHARE
+#define COUPLING_SPEED_SHARE 0.5 /* models/interpolator/path.py (until model_constants.h generates it) */
+#endif
 
 static double min2(double a, double b) { return b < a ? b : a; }
 static double max2(double a, double b) { return b > a ? b : a; }
@@ -45,11 +48,21 @@ double curvature_limit(const Limits *lim, double kappa, const double k[3], const
         double ki = fabs(k[i]), kpi = fabs(kp[i]);
         if (ki > 0.0) {
             v = min2(v, sqrt(0.5 * lim->axis_acceleration[i] / ki));
-            v = min2(v, lim->axis_jerk[i] / (9.0 * at * ki));
+            /* at = 0: the caller bounds the tangential acceleration instead (coupled_acceleration) */
+            if (at > 0.0) v = min2(v, lim->axis_jerk[i] / (9.0 * at * ki));
         }
         if (kpi > 0.0) v = min2(v, cbrt(lim->axis_jerk[i] / (3.0 * kpi)));
     }
     return v;
+}
+
+double coupled_acceleration(const Limits *lim, const double k[3], double v, double at) {
+    int i;
+    for (i = 0; i < 3; i++) {
+        double ki = fabs(k[i]);
+        if (ki > 0.0 && v < BIG) at = min2(at, lim->axis_jerk[i] / (9.0 * v * ki));
+    }
+    return at;
 }
 
 double junction_limit(const Limits *lim, const double ta[3], const double ka[3], const double tb[3],
@@ -191,7 +204,11 @@ static int point_info(Sampler *z, double u, Info *info) {
         return -1;
     }
     tangential_limits(z->lim, info->t, 1, &info->at, &info->jt);
-    info->v = curvature_limit(z->lim, info->kappa, k, kp, info->at);
+    /* the speed gives way to the acceleration-curvature coupling down to half the other limits, then the
+     * acceleration does (near a cusp) */
+    info->v = max2(curvature_limit(z->lim, info->kappa, k, kp, info->at),
+                   COUPLING_SPEED_SHARE * curvature_limit(z->lim, info->kappa, k, kp, 0.0));
+    info->at = coupled_acceleration(z->lim, k, info->v, info->at);
     info->p[0] = d[0][0], info->p[1] = d[0][1], info->p[2] = d[0][2];
     return 0;
 }

@@ -21,6 +21,7 @@ INITIAL_SUBDIVISION = 4
 CHORD_SAFETY = 0.95                   # the chord limit uses 95 % of chord_error (sampling margin)
 TANGENT_TOLERANCE = 1e-12             # 1 - cos(angle) below which a junction is tangent
 BIG = 1e300
+COUPLING_SPEED_SHARE = 0.5            # NURBS: the lowest share of its other limits the speed gives to 9 v a |k_i|
 
 
 @dataclass
@@ -74,10 +75,22 @@ def curvature_limit(lim: Limits, kappa: float, k: Sequence[float], kp: Sequence[
         ki, kpi = abs(k[i]), abs(kp[i])
         if ki > 0.0:
             v = min(v, math.sqrt(0.5 * lim.axis_acceleration[i] / ki))
-            v = min(v, lim.axis_jerk[i] / (9.0 * at * ki))
+            if at > 0.0:  # at = 0: the caller bounds the tangential acceleration instead (coupled_acceleration)
+                v = min(v, lim.axis_jerk[i] / (9.0 * at * ki))
         if kpi > 0.0:
             v = min(v, math.cbrt(lim.axis_jerk[i] / (3.0 * kpi)))
     return v
+
+
+def coupled_acceleration(lim: Limits, k: Sequence[float], v: float, at: float) -> float:
+    """The tangential acceleration limit lowered so that the jerk of its coupling with the curvature, 9 v a |k_i|
+    (the axis's third of its jerk), stays within each axis's jerk at the speed limit v: near a cusp the
+    curvature is huge and the speed tiny, and the acceleration, not the speed, gives way."""
+    for i in range(3):
+        ki = abs(k[i])
+        if ki > 0.0 and v < BIG:
+            at = min(at, lim.axis_jerk[i] / (9.0 * v * ki))
+    return at
 
 
 def junction_limit(lim: Limits, ta, ka, tb, kb) -> float:
@@ -235,7 +248,10 @@ def _nurbs_samples(curve: Nurbs, lim: Limits, u0: float, u1: float, lo: int, hi:
                             "(repeated control points?)")
         kappa = math.sqrt(_dot(k, k))
         at, jt = tangential_limits(lim, t, True)
-        v = curvature_limit(lim, kappa, k, kp, at)
+        # the speed gives way to the acceleration-curvature coupling down to half the other limits, then the
+        # acceleration does (near a cusp)
+        v = max(curvature_limit(lim, kappa, k, kp, at), COUPLING_SPEED_SHARE * curvature_limit(lim, kappa, k, kp, 0.0))
+        at = coupled_acceleration(lim, k, v, at)
         return t, kappa, v, at, jt, d[0]
 
     def push(u: float, s: float, info) -> None:

@@ -2,24 +2,77 @@
 Mirrors ``fmus/interpolator/gcode_parser.c`` (and ``gcode_parser.h``); ``nurbs_block_gcode`` writes G6.2 blocks
 for tests, benchmarks and training.
 
-G-code subset (one block per line; letters case-insensitive; ``N`` words and blanks ignored)
+G-code subset (one block per line; letters case-insensitive; blanks ignored)
 ------------------------------------------------------------------------------------------------
+Dialects (parameter ``dialect``: ``fanuc``, the default, ``linuxcnc``, ``sinumerik``) share this syntax; their
+differences are listed last.
+
+Program structure
 - comments ``( ... )`` (one line, not nested) and ``;`` to the end of the line; a line holding only ``%``
-  is a tape mark and ignored;
-- numbers: ``[+-]digits[.digits]`` or ``[+-].digits``, at most 17 significant digits, no exponent;
+  is a tape mark and ignored; ``N`` words first in a line (the block number, an output);
+- block skip: a line whose first character (after blanks) is ``/`` (also ``/1`` .. ``/9``) is skipped: block
+  delete is on, as an operator running a program unattended sets it;
+- program numbers ``O1001`` or ``:1001``, alone in their line (a comment may follow), start a program of the
+  file; a file with program numbers runs its main program, the first program without ``M99`` (or the first
+  program); the others are subprograms, before or after the main program, called by ``M98 P<n> [L<count>]``
+  (Fanuc also ``M98 P<count><4-digit number>``: ``P31000`` is O1000 three times) and returning at ``M99``;
+  calls nest at most 8 deep, a program running cannot be called again (no recursion), at most 1,000,000 lines
+  run in calls and 1,000,000 moves in a program; moves and messages keep the file's line numbers; ``M99`` in the
+  main program ends it (noted: a control would start it again); a subprogram reaching the next program or the end
+  of the file without ``M99`` is refused at its call;
+- numbers: ``[+-]digits[.digits]`` or ``[+-].digits``, at most 17 significant digits, no exponent; no
+  parameters or expressions (``#``, ``[``), no rotary or parallel axes (A B C U V W).
+
+Motion
 - ``G0`` rapid, ``G1`` line, ``G2``/``G3`` arc clockwise/counter-clockwise (centre ``I J K`` relative to
   the start, or radius ``R``: R > 0 the arc of at most 180 degrees, R < 0 the longer one; a full circle
-  needs I/J/K), helical with the third axis; ``G6.2`` NURBS block (below); ``G17``/``G18``/``G19`` plane
+  needs I/J/K), helical with the third axis; NURBS blocks (below); ``G17``/``G18``/``G19`` plane
   XY/ZX/YZ (centre words I,J / K,I / J,K); ``G20``/``G21`` inch/mm; ``G90``/``G91`` absolute/incremental;
-  ``G54``..``G59`` work offsets (values from the parameters ``g54_x`` ... ``g59_z`` or set by
-  ``G10 L2 P1..6 X Y Z``: the machine position of the work zero, in the current length unit);
-- ``F`` feed (mm/min or inch/min, > 0, required before the first G1/G2/G3/G6.2), ``S`` spindle speed
-  (rpm), ``M3``/``M4``/``M5`` spindle clockwise/counter-clockwise/stop, ``M2``/``M30`` program end
-  (only blank and comment lines may follow).
-- Within a line: F and S, then M3/M4/M5, then G17-G19/G20/G21/G90/G91/G54-G59, then G10, then the
-  motion, then M2/M30. Axis words without G10 need a motion mode (G0-G3 set one, it is modal).
+- ``G54``..``G59`` work offsets (values from the parameters ``g54_x`` ... ``g59_z`` or set by
+  ``G10 L2 P1..6 X Y Z``: the machine position of the work zero, in the current length unit); ``G52 X Y Z``
+  a local offset on top of the work offset (absolute values; ``G52 X0 Y0 Z0`` cancels); ``G53`` with G0/G1:
+  the axis words are machine coordinates for that line (G90 only); ``G28 X Y Z``: rapid through the
+  intermediate point (the axis words, in G90 or G91) to the home position of the named axes (machine
+  coordinates from the parameters ``home_x/y/z``, 0 without them); ``G28 G91 Z0.`` goes straight up to the home Z;
+  in G91 a changed offset (G54-G59, G52, G43/G49) takes effect at the next absolute coordinate of the axis;
+- ``G4`` dwell (a dwell move: the tool stands still, the move before it ends at rest); ``G9`` exact stop at the
+  end of the moves of its line, ``G61`` (also ``G61.1``) exact stop modal, ``G64`` continuous, ``G64 P<tol>``
+  contour tolerance (program units; the moves' ``tolerance``, 0: the ``chord_error`` parameter);
+- ``G94`` feed per minute, ``G95`` feed per revolution (F in mm/rev or inch/rev times the commanded S; a feed
+  move in G95 needs a turning spindle; switching the mode needs a new F);
+- canned cycles ``G81`` drill, ``G82`` drill with a dwell ``P`` at the bottom, ``G83`` peck (retract to R after
+  each peck ``Q``, rapid back to 0.254 mm (0.010 in) above the last depth), ``G73`` high-speed peck (retract
+  0.254 mm after each peck), ``G80`` cancels (and leaves no motion mode: the next coordinates need G0/G1), as do
+  G0-G3; ``R`` the retract plane, ``Z`` the hole bottom (below R), ``F``; modal: every following line with X, Y, Z
+  or R drills again; ``G98`` returns to the initial level (the Z before the cycle started), ``G99`` to R; in G91
+  R is the distance from the initial level and Z from R, X/Y move from hole to hole; repeats ``K`` (fanuc) or
+  ``L`` (linuxcnc, sinumerik); every cycle move ends at rest (exact stop); XY plane only (G17), without cutter
+  compensation;
+- restatements of features that are not modelled and are off: ``G15 G50 G50.1 G69`` accepted.
 
-NURBS blocks (Fanuc style; ``P`` is the order = degree + 1, 2..6, default 4: a cubic)::
+Tools and machine functions
+- ``T<n>`` selects a tool, ``M6`` changes to it (``T1 M6``, ``M6 T1`` or ``T1`` then ``M6`` later): the moves
+  after it carry ``tool = n``; the tool change takes no time and no motion (noted); with a tool table every T, H
+  and D must name one of its tools; without a tool table T and H are accepted (noted: the tool geometry stays the
+  model parameters, the tool length 0) and D is refused (the cutter radius is unknown);
+- ``G43 H<n>``/``G44 H<n>`` tool length offset from the tool table (the controlled point is the tool tip:
+  machine Z = programmed Z + length for G43, - length for G44; ``H0`` or ``G49`` cancel; without H the active
+  tool); the offset takes effect with the next Z word (no motion of its own);
+- ``G41``/``G42 D<n>`` cutter radius compensation left/right with the radius of tool n (diameter / 2; without D
+  the active tool's), ``G40`` off: the moves carry ``comp`` and ``comp_radius`` (the cutter compensation stage
+  offsets them); XY plane only;
+- ``F`` feed (mm/min or inch/min, > 0, required before the first feed move; an F in a G20 line is in inch),
+  ``S`` spindle speed (rpm), ``M3``/``M4``/``M5`` spindle clockwise/counter-clockwise/stop, ``M7``/``M8`` mist/
+  flood coolant on, ``M9`` off (the moves carry it), ``M2``/``M30`` program end (only blank and comment lines,
+  and other programs of the file, may follow);
+- accepted, not modelled, noted once per word (``Program.notes``; the FMU logs them): ``M0``/``M1`` program
+  stop/optional stop (the program runs on), ``M19`` spindle orientation, ``M6`` (no time), T and H without a
+  tool table.
+- Within a line: G20/G21, G94/G95, F and S, M3/M4/M5, T, M6, M7-M9, then plane, distance, offsets, G61/G64,
+  G98/G99, G40-G42, G43/G44/G49, then G4/G10/G52/G28 or the motion (G53 with it), then M0/M1, M2/M30,
+  M98/M99. Axis words need a motion mode (G0-G3 and the cycles set one, it is modal).
+
+NURBS blocks, Fanuc (``G6.2``; ``P`` is the order = degree + 1, 2..6, default 4: a cubic)::
 
     G6.2 P4 K0 X.. Y.. Z.. R1 [F..]   first control point: must be the current position (1 um)
     K0 X.. Y.. R..                    one control point per line: knot K, axes (omitted: previous
@@ -33,7 +86,34 @@ The block ends at the first line without K. Knots must be non-decreasing and cla
 degree+1 equal), inner knots of multiplicity at most the degree (degree = a corner, handled as a
 block boundary); at least degree+1 control points; degree 1..5 (P2..P6); only in G90.
 
-Every malformed line fails initialization with ``<file> line <n>: "<text>": <what was expected>``.
+NURBS blocks, LinuxCNC (``G5.2``/``G5.3``, as LinuxCNC's G-code reference and its knot vector
+``nurbs_G5_knot_vector_creator``)::
+
+    G5.2 [P<w0>] [L<order>]           without axes: the weight of the first control point, the current position
+    G5.2 X.. Y.. [Z..] [P..] [L..]    or with axes: the current position is the first control point, this the second
+    X.. Y.. [Z..] [P<weight>] [K<interval>]   one control point per line (omitted axes: the previous point's)
+    G5.3                              ends the block (first in its line; the rest of the line runs after the block)
+
+Order L 2..6 (default 3: quadratic); weights P > 0 (default 1); the knots are LinuxCNC's clamped uniform vector
+(0 x order, 1, 2, .., n - order + 2 x order), with ``K`` (an extension: the Sinumerik translator's PL) the
+interval between consecutive distinct knots (default 1; the K of the last order - 2 points are not used); at least
+L control points; only in G90. (LinuxCNC itself takes L only above 3 and the XY plane only; here L is taken as
+written and Z may be given.)
+
+Dialects
+- ``fanuc`` (Fanuc, Haas and the Fanuc-style posts of Fusion and Mastercam): ``G6.2`` NURBS; G4 ``P`` without a
+  decimal point in milliseconds (``P500`` = 0.5 s), with a decimal point and ``X`` in seconds; cycle repeats ``K``;
+  Fanuc's canned cycle initial level (the Z when the cycle mode started) and no preliminary move; ``M98 P31000``;
+  ``G28`` needs axis words; ``G5.2`` refused ("set dialect = linuxcnc");
+- ``linuxcnc``: ``G5.2 ... G5.3`` NURBS, ``G6.2`` refused ("set dialect = fanuc"); G4 ``P`` in seconds; cycle
+  repeats ``L``; the cycle's clear level is the higher of the Z before the block and R, and a hole below R starts
+  with a rapid up to R; ``G28`` without axes goes home on all axes; O-word subroutines (``o100 sub``) refused;
+- ``sinumerik``: every line is first translated by the Sinumerik translator (``sinumerik.py``) into one line of
+  this syntax (``G5.2`` blocks for BSPLINE, ``G500``: no settable work offset, ``G4 P`` in seconds, subprograms
+  as O numbers); messages quote the file's lines.
+
+Every malformed or unsupported line fails initialization with
+``<file> line <n>: "<text>": <what was expected>``.
 """
 from __future__ import annotations
 
@@ -225,6 +305,14 @@ def _shown(text: str) -> str:
     data = text.encode("utf-8", "surrogateescape")
     shown = "".join(chr(b) if 32 <= b < 127 else "?" for b in data[:80])
     return shown[:77] + "..." if len(data) > 80 else shown
+
+
+def line_error(text: str, file: str, line: int, expected: str) -> str:
+    """The parser's message format for a later stage that refuses a line of the program (as gc_line_error):
+    ``<file> line <n>: "<text of that line, at most 80 characters, non-printable shown as ?>": <expected>``."""
+    lines = text.split("\n")
+    shown = lines[line - 1].rstrip("\r") if 1 <= line <= len(lines) else ""
+    return f"{file} line {line}: \"{_shown(shown)}\": {expected}"
 
 
 def _is_skipped(raw: str) -> bool:

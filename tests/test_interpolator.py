@@ -540,7 +540,7 @@ def edited_interpolator(monkeypatch, text: str, edit, params: dict | None = None
 
 
 def reference_ticks(interp, overrides: dict[int, float] | None = None) -> dict[str, np.ndarray]:
-    names = ("x", "y", "feed", "line_number", "tool", "coolant", "finished")
+    names = ("x", "y", "feed", "line_number", "tool_number", "coolant", "finished")
     rows = []
     while not interp.finished:
         if overrides and interp.tick_count in overrides:
@@ -574,11 +574,11 @@ def test_a_dwell_stands_at_rest_for_its_time(monkeypatch, override_in_dwell) -> 
     data = reference_ticks(interp, overrides)
     at = data["move"] == 1
     assert at.sum() == 501 and np.all(data["x"][at] == 0.01) and np.all(data["feed"][at] == 0.0)
-    assert np.all(data["line_number"][at] == 2) and np.all(data["tool"][at] == 3)
-    assert np.all(data["coolant"][at] == COOLANT_FLOOD) and np.all(data["tool"][data["move"] == 0] == 0)
+    assert np.all(data["line_number"][at] == 2) and np.all(data["tool_number"][at] == 3)
+    assert np.all(data["coolant"][at] == COOLANT_FLOOD) and np.all(data["tool_number"][data["move"] == 0] == 0)
     before = np.where(data["move"] == 0)[0]
     assert data["x"][before[-1]] < 0.01 and data["feed"][before[-1]] > 0.0  # arriving, at rest on the first tick
-    assert data["x"][-1] == 0.02 and data["tool"][-1] == 3 and data["coolant"][-1] == COOLANT_FLOOD
+    assert data["x"][-1] == 0.02 and data["tool_number"][-1] == 3 and data["coolant"][-1] == COOLANT_FLOOD
     if override_in_dwell:
         assert np.max(data["feed"]) == pytest.approx(0.05 * 1.5)
 

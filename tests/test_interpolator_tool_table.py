@@ -109,3 +109,55 @@ def test_the_fmu_refuses_an_unknown_dialect(version: int) -> None:
         assert status_of(lambda: slave.exit_initialization()) == ERROR
         assert slave.last_error() == ("exitInitializationMode: parameter 'dialect' is 'heidenhain': expected fanuc, "
                                       "linuxcnc or sinumerik")
+
+
+TOOL_PROGRAM = """O1001 (TOOL CHANGE)
+G21 G90 G17 G40 G49 G80
+T1 M6
+S8000 M3
+G54 G0 X0 Y0
+G43 Z5. H1 M8
+G1 Z-1. F300.
+X20.
+T2 M6
+G0 Z5. M9
+G1 X30. F600.
+M30
+"""
+
+
+def test_the_active_tool_and_its_geometry_are_outputs_in_c_and_python(tmp_path: Path) -> None:
+    """The tool changes at M6 and the coolant at M8/M9; the FMU (C) and the Python reference give the same
+    outputs tick for tick, the geometry from the tool table."""
+    from milling_twin.models.interpolator.engine import Interpolator
+
+    (tmp_path / "tool.tbl").write_text(GOOD_TABLE)
+    (tmp_path / "part.nc").write_text(TOOL_PROGRAM)
+    tools = tt.read_tool_table(tmp_path / "tool.tbl")
+    ref = Interpolator(TOOL_PROGRAM, {}, str(tmp_path / "part.nc"), tools=tools)
+    names = ("x", "z", "tool_number", "tool_diameter", "tool_corner_radius", "tool_length", "tool_stick_out",
+             "tool_helix_angle", "tool_flutes", "coolant")
+    ref.set_override(1.0, 0.0)
+    expected = []
+    while not ref.out["finished"]:
+        ref.tick()
+        expected.append([ref.out[n] for n in names])
+    with Slave(require_fmu(fmu_dir() / fmu_file_name("Interpolator", 3))) as slave:
+        slave.instantiate()
+        slave.enter_initialization()
+        slave.fmu.setString([slave.vr["program"], slave.vr["tool_table"]],
+                            [str(tmp_path / "part.nc"), str(tmp_path / "tool.tbl")])
+        slave.exit_initialization()
+        got = []
+        for _ in expected:
+            assert slave.step(1e-3) == 0
+            got.append([float(x) for x in slave.get(names)])
+    assert got == expected
+    tool_column = [row[2] for row in got]
+    first_one, first_two = tool_column.index(1), tool_column.index(2)
+    assert got[first_one][3:9] == [0.01, 0.0005, 0.05, 0.04, pytest.approx(math.radians(30.0)), 3]
+    assert got[first_two][3:9] == [0.0068, 0.0, 0.0805, 0.0, pytest.approx(math.radians(30.0)), 2]
+    assert got[first_one][9] == gp.COOLANT_FLOOD and got[-1][9] == gp.COOLANT_OFF
+    # G43 H1: the tool tip at Z-1 puts the gauge line at Z-1 + 50 mm (the length of tool 1)
+    cutting = [r[1] for r in got if r[0] > 0.001 and r[2] == 1]  # along G1 X20 (tool 1)
+    assert cutting and max(cutting) == min(cutting) == pytest.approx(-0.001 + 0.05, abs=1e-12)

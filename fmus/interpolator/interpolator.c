@@ -3,6 +3,7 @@
 #include "interpolator.h"
 
 #include <math.h>
+#include <stdio.h>
 #include <stdlib.h>
 #include <string.h>
 
@@ -14,12 +15,25 @@ int interp_prepare(const char *text, size_t length, const char *file, const Inte
         gc_free(&prepared->program);
         return -1;
     }
+    if (settings->gcode.n_tools) {
+        prepared->tools = malloc(settings->gcode.n_tools * sizeof *prepared->tools);
+        if (!prepared->tools) {
+            snprintf(error, error_size, "%s: out of memory for the tool table", file);
+            interp_release(prepared);
+            return -1;
+        }
+        memcpy(prepared->tools, settings->gcode.tools, settings->gcode.n_tools * sizeof *prepared->tools);
+        prepared->n_tools = settings->gcode.n_tools;
+    }
     return 0;
 }
 
 void interp_release(InterpPrepared *prepared) {
     gc_free(&prepared->program);
     path_free(&prepared->path);
+    free(prepared->tools);
+    prepared->tools = NULL;
+    prepared->n_tools = 0;
 }
 
 static void layout_of(const InterpPrepared *p, InterpLayout *L) {
@@ -33,6 +47,7 @@ static void layout_of(const InterpPrepared *p, InterpLayout *L) {
     L->n_curves = p->program.n_curves;
     L->n_nodes = p->path.n_nodes;
     L->n_ints = p->path.n_ints;
+    L->n_tools = p->n_tools;
     L->piece_capacity = PIECES_PER_INTERVAL * L->n_ints + 8;
     at = 1; /* heap[0]: magic */
     L->moves = at, at += MOVE_DOUBLES * L->n_moves;
@@ -47,6 +62,7 @@ static void layout_of(const InterpPrepared *p, InterpLayout *L) {
     L->int_at = at, at += L->n_ints;
     L->int_jt = at, at += L->n_ints;
     L->int_cap = at, at += L->n_ints;
+    L->tools = at, at += TOOL_DOUBLES * L->n_tools;
     L->pieces = at, at += PIECE_DOUBLES * L->piece_capacity;
     L->heap_size = at;
 }
@@ -103,6 +119,12 @@ void interp_install(const InterpPrepared *p, double *heap, InterpLayout *L) {
         heap[L->int_jt + k] = path->int_jt[k];
         heap[L->int_cap + k] = path->int_cap[k];
     }
+    for (k = 0; k < p->n_tools; k++) {
+        const GcTool *t = &p->tools[k];
+        double *r = heap + L->tools + TOOL_DOUBLES * k;
+        r[TR_NUMBER] = t->number, r[TR_DIAMETER] = t->diameter, r[TR_CORNER_RADIUS] = t->corner_radius;
+        r[TR_LENGTH] = t->length, r[TR_STICK_OUT] = t->stick_out, r[TR_HELIX] = t->helix, r[TR_FLUTES] = t->flutes;
+    }
     L->total = path->total;
     L->final_line = g->final_line;
     L->final_block = g->final_block;
@@ -110,6 +132,23 @@ void interp_install(const InterpPrepared *p, double *heap, InterpLayout *L) {
     L->final_spindle_on = g->final_spindle_on;
     memcpy(L->start, g->start, sizeof L->start);
     memcpy(L->start_offset, g->start_offset, sizeof L->start_offset);
+}
+
+/* The tool `number` and its geometry from the heap's tool table, looked up only when the tool changes. */
+static void set_tool(const double *heap, const InterpLayout *L, InterpOutputs *out, int number) {
+    size_t k;
+    if (number == out->tool) return;
+    out->tool = number;
+    out->tool_diameter = out->tool_corner_radius = out->tool_length = out->tool_stick_out = out->tool_helix = 0.0;
+    out->tool_flutes = 0;
+    for (k = 0; k < L->n_tools; k++) {
+        const double *r = heap + L->tools + TOOL_DOUBLES * k;
+        if (r[TR_NUMBER] != (double)number) continue;
+        out->tool_diameter = r[TR_DIAMETER], out->tool_corner_radius = r[TR_CORNER_RADIUS];
+        out->tool_length = r[TR_LENGTH], out->tool_stick_out = r[TR_STICK_OUT], out->tool_helix = r[TR_HELIX];
+        out->tool_flutes = (int)r[TR_FLUTES];
+        break;
+    }
 }
 
 void interp_initial_outputs(const InterpSettings *settings, InterpOutputs *out) {
@@ -241,7 +280,7 @@ static void set_final(const double *heap, const InterpLayout *L, InterpState *st
     out->spindle_on = L->final_spindle_on;
     out->rapid = 0;
     out->finished = 1;
-    out->tool = L->n_moves ? (int)move_record(heap, L, L->n_moves - 1)[MR_TOOL] : 0;
+    set_tool(heap, L, out, L->n_moves ? (int)move_record(heap, L, L->n_moves - 1)[MR_TOOL] : 0);
     out->coolant = L->n_moves ? (int)move_record(heap, L, L->n_moves - 1)[MR_COOLANT] : 0;
 }
 
@@ -340,7 +379,7 @@ static void update_outputs(const double *heap, const InterpLayout *L, InterpStat
     out->spindle_on = r[MR_SPINDLE_ON] != 0.0;
     out->rapid = kind == MOVE_RAPID;
     out->finished = 0;
-    out->tool = (int)r[MR_TOOL];
+    set_tool(heap, L, out, (int)r[MR_TOOL]);
     out->coolant = (int)r[MR_COOLANT];
 }
 
@@ -383,6 +422,7 @@ int interp_holds_still(const double *heap, const InterpLayout *L, const InterpSt
 int interp_check(const double *heap, size_t heap_size, const InterpLayout *L, const InterpState *st) {
     if (!heap || heap_size != L->heap_size || heap_size < 1 || heap[0] != INTERP_MAGIC) return -1;
     if (L->pieces + PIECE_DOUBLES * L->piece_capacity != L->heap_size) return -1;
+    if (L->tools + TOOL_DOUBLES * L->n_tools != L->pieces) return -1;
     if (st->n_pieces > L->piece_capacity || st->piece >= (st->n_pieces ? st->n_pieces : 1)) return -1;
     if (L->n_moves && st->move >= L->n_moves) return -1;
     return 0;

@@ -47,6 +47,18 @@ enum {
     MOVE_DOUBLES = 37
 };
 
+/* A tool's record in the heap (the tool table, copied at interp_prepare): SI units. */
+enum {
+    TR_NUMBER = 0,
+    TR_DIAMETER = 1,
+    TR_CORNER_RADIUS = 2,
+    TR_LENGTH = 3,
+    TR_STICK_OUT = 4,
+    TR_HELIX = 5,
+    TR_FLUTES = 6,
+    TOOL_DOUBLES = 7
+};
+
 /* A curve's record in the heap (its control points and knots follow the records, from `points` on). */
 enum {
     CR_DEGREE = 0,
@@ -66,8 +78,8 @@ typedef struct {
 /* Offsets (in doubles) into the heap and counts: flat, part of the FMU state. */
 typedef struct {
     size_t heap_size;
-    size_t n_moves, n_curves, n_nodes, n_ints, piece_capacity;
-    size_t moves, curves, points, node_s, node_vh, node_left, node_right, station, int_move, int_at, int_jt, int_cap,
+    size_t n_moves, n_curves, n_nodes, n_ints, piece_capacity, n_tools;
+    size_t moves, curves, points, tools, node_s, node_vh, node_left, node_right, station, int_move, int_at, int_jt, int_cap,
         pieces;
     double total;
     int final_line, final_block, final_spindle_on;
@@ -80,6 +92,9 @@ typedef struct {
     double feed, acceleration, u, spindle;
     int line, block, spindle_on, rapid, finished;
     int tool, coolant; /* of the move being executed (the last move's once finished) */
+    /* the geometry of `tool` from the tool table (0 for tool 0 and for a tool the table does not have) */
+    double tool_diameter, tool_corner_radius, tool_length, tool_stick_out, tool_helix;
+    int tool_flutes;
 } InterpOutputs;
 
 typedef struct {
@@ -95,6 +110,8 @@ typedef struct {
 typedef struct {
     GcProgram program;
     PathBuild path;
+    GcTool *tools; /* a copy of the tool table */
+    size_t n_tools;
 } InterpPrepared;
 
 /* Parse and build the path; on error -1 with the message in `error`. Release with interp_release. */

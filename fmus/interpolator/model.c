@@ -218,6 +218,14 @@ void model_update_outputs(FmuInstance *instance) {
     v->spindle_on = out->spindle_on != 0;
     v->rapid = out->rapid != 0;
     v->finished = out->finished != 0;
+    v->tool_number = out->tool;
+    v->tool_diameter = out->tool_diameter;
+    v->tool_corner_radius = out->tool_corner_radius;
+    v->tool_length = out->tool_length;
+    v->tool_stick_out = out->tool_stick_out;
+    v->tool_helix_angle = out->tool_helix;
+    v->tool_flutes = out->tool_flutes;
+    v->coolant = out->coolant;
 }
 
 void model_free_internal(FmuInstance *instance) { memset(&instance->internal, 0, sizeof instance->internal); }

@@ -134,6 +134,19 @@ def _variables() -> tuple[Variable, ...]:
         Variable("spindle_on", "Boolean", "output", "Spindle running (M3/M4)"),
         Variable("rapid", "Boolean", "output", "A rapid move (G0) is being executed"),
         Variable("finished", "Boolean", "output", "The program has ended: the tool is at rest on its last point"),
+        Variable("tool_number", "Int32", "output", "Active tool (T of the last tool change M6; 0 before it)"),
+        Variable("tool_diameter", "Float64", "output", "Diameter of the active tool (tool table; 0 without an entry)",
+                 unit="m", display_unit="mm"),
+        Variable("tool_corner_radius", "Float64", "output", "Corner radius of the active tool (tool table)",
+                 unit="m", display_unit="mm"),
+        Variable("tool_length", "Float64", "output", "Length offset of the active tool (tool table, G43 H)",
+                 unit="m", display_unit="mm"),
+        Variable("tool_stick_out", "Float64", "output", "Stick-out of the active tool from its holder (tool table)",
+                 unit="m", display_unit="mm"),
+        Variable("tool_helix_angle", "Float64", "output", "Helix angle of the active tool's flutes (tool table)",
+                 unit="rad", display_unit="deg"),
+        Variable("tool_flutes", "Int32", "output", "Number of flutes of the active tool (tool table; 0 without)"),
+        Variable("coolant", "Int32", "output", "Coolant: 0 off (M9), 1 mist (M7), 2 flood (M8), 3 both"),
     ]
     return tuple(v)
 
@@ -168,8 +181,8 @@ INTERPOLATOR = ModelDefinition(
     native_outputs=tuple(n for n in (
         "x", "y", "z", "x_program", "y_program", "z_program", "feed_velocity_x", "feed_velocity_y",
         "feed_velocity_z", "feed", "path_acceleration", "u", "line_number", "block_number", "spindle_speed",
-        "spindle_on",
-        "rapid", "finished")),
+        "spindle_on", "rapid", "finished", "tool_number", "tool_diameter", "tool_corner_radius", "tool_length",
+        "tool_stick_out", "tool_helix_angle", "tool_flutes", "coolant")),
 )
 
 OUTPUTS = tuple(v.name for v in INTERPOLATOR.of("output"))

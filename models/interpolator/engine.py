@@ -4,24 +4,31 @@ the NURBS parameter update with its corrector, the outputs. Mirrors ``fmus/inter
 from __future__ import annotations
 
 import math
-from typing import Mapping
+from typing import Mapping, Sequence
 
 from milling_twin.models.interpolator.definition import default_parameters
 from milling_twin.models.interpolator.nurbs import Nurbs, arc_length
 from milling_twin.models.interpolator.nurbs import dot as _dot
 from milling_twin.models.interpolator.param_update import (MAX_NEWTON, METHOD_CORRECTOR, NurbsState, arc_of_chord,
                                                            curvature_squared, predict, rbf_of)
-from milling_twin.models.interpolator.parser import MOVE_ARC, MOVE_DWELL, MOVE_LINE, MOVE_RAPID, Move, parse_program
+from milling_twin.models.interpolator.parser import (DIALECT_FANUC, MOVE_ARC, MOVE_DWELL, MOVE_LINE, MOVE_RAPID, Move,
+                                                    Tool, parse_program)
 from milling_twin.models.interpolator.path import build_path
 from milling_twin.models.interpolator.schedule import Schedule
+
+TOOL_OUTPUTS = ("tool_number", "tool_diameter", "tool_corner_radius", "tool_length", "tool_stick_out",
+                "tool_helix_angle", "tool_flutes")
+
 
 class Interpolator:
     """The FMU's behaviour, tick by tick (one tick = one interpolation period)."""
 
-    def __init__(self, text: str, parameters: Mapping[str, float], file: str = "program.nc"):
+    def __init__(self, text: str, parameters: Mapping[str, float], file: str = "program.nc", *,
+                 dialect: int = DIALECT_FANUC, tools: Sequence[Tool] = ()):
         p = {**default_parameters(), **parameters}
         self.p = p
-        self.program = parse_program(text, p, file)
+        self.program = parse_program(text, p, file, dialect=dialect, tools=tools)
+        self.tools = tuple(tools)
         self.path = build_path(self.program, p)
         self.schedule = Schedule(self.path, p["max_feed"], p["rapid_feed"])
         self.period = p["period"]
@@ -50,7 +57,7 @@ class Interpolator:
                 "z_program": z - p["g54_z"], "feed_velocity_x": 0.0, "feed_velocity_y": 0.0,
                 "feed_velocity_z": 0.0, "feed": 0.0, "path_acceleration": 0.0, "u": 0.0, "line_number": 0.0,
                 "block_number": 0.0, "spindle_speed": 0.0, "spindle_on": 0.0, "rapid": 0.0, "finished": 0.0,
-                "tool": 0.0, "coolant": 0.0}
+                "coolant": 0.0, **{name: 0.0 for name in TOOL_OUTPUTS}}
 
     # -- schedule --
     def replan_point(self, t_now: float) -> tuple[float, float, float, int]:
@@ -177,8 +184,21 @@ class Interpolator:
         out["spindle_on"] = 1.0 if m.spindle_on else 0.0
         out["rapid"] = 1.0 if m.kind == MOVE_RAPID else 0.0
         out["finished"] = 0.0
-        out["tool"] = float(m.tool)
+        self.set_tool(out, m.tool)
         out["coolant"] = float(m.coolant)
+
+    def set_tool(self, out: dict, number: int) -> None:
+        """The tool number and its geometry from the tool table (0 for tool 0 and for a tool it has not)."""
+        if float(number) == out["tool_number"]:
+            return
+        tool = next((t for t in self.tools if t.number == number), None)
+        out["tool_number"] = float(number)
+        out["tool_diameter"] = tool.diameter if tool else 0.0
+        out["tool_corner_radius"] = tool.corner_radius if tool else 0.0
+        out["tool_length"] = tool.length if tool else 0.0
+        out["tool_stick_out"] = tool.stick_out if tool else 0.0
+        out["tool_helix_angle"] = tool.helix if tool else 0.0
+        out["tool_flutes"] = float(tool.flutes) if tool else 0.0
 
     def set_final(self, out: dict) -> None:
         prog = self.program
@@ -200,7 +220,7 @@ class Interpolator:
         out["spindle_on"] = 1.0 if prog.final_spindle_on else 0.0
         out["rapid"] = 0.0
         out["finished"] = 1.0
-        out["tool"] = float(prog.moves[-1].tool) if prog.moves else 0.0
+        self.set_tool(out, prog.moves[-1].tool if prog.moves else 0)
         out["coolant"] = float(prog.moves[-1].coolant) if prog.moves else 0.0
 
     def step_nurbs(self, local: float, length: float) -> tuple[list[float], list[float], float]:

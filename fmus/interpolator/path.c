@@ -429,8 +429,11 @@ int path_build(const GcProgram *program, const Limits *lim, const char *file, Pa
                 double v = min2(min2(x->v[i > 0 ? i - 1 : 0], x->v[i]), x->v[i + 1 < n ? i + 1 : n - 1]);
                 double window = min2(x->v[i], lim->max_feed) * lim->period;
                 size_t j;
-                for (j = i; j >= 2 && x->s[i] - x->s[j - 2] <= window; j--) v = min2(v, x->v[j - 2]);
-                for (j = i + 2; j < n && x->s[j] - x->s[i] <= window; j++) v = min2(v, x->v[j]);
+                /* a step spans sample j only at a speed above its distance / period */
+                for (j = i; j >= 2 && x->s[i] - x->s[j - 2] <= window; j--)
+                    v = min2(v, max2(x->v[j - 2], (x->s[i] - x->s[j - 2]) / lim->period));
+                for (j = i + 2; j < n && x->s[j] - x->s[i] <= window; j++)
+                    v = min2(v, max2(x->v[j], (x->s[j] - x->s[i]) / lim->period));
                 vc[i] = v;
             }
             free(x->v);

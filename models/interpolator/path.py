@@ -319,19 +319,21 @@ def knot_junction(curve: Nurbs, lim: Limits, u: float, before: int, span: int) -
 def conservative_limits(ss: Sequence[float], vl: Sequence[float], lim: Limits) -> list[float]:
     """Each sample's limit lowered to the lowest of its neighbours and of every sample within the step the tool
     can take there (min(limit, max feed) * period): a step spans all of them, and its chord error and
-    accelerations follow the sharpest point it spans."""
+    accelerations follow the sharpest point it spans; a sample at distance d binds only speeds above d / period
+    (slower steps do not reach it: near a cusp the tip's tiny limit does not spread over its window)."""
     n = len(vl)
     vc = []
     for i in range(n):
         v = min(vl[max(0, i - 1)], vl[i], vl[min(n - 1, i + 1)])
         window = min(vl[i], lim.max_feed) * lim.period
+        # a step spans sample j only at a speed above its distance / period: below that j does not bind
         j = i - 2
         while j >= 0 and ss[i] - ss[j] <= window:
-            v = min(v, vl[j])
+            v = min(v, max(vl[j], (ss[i] - ss[j]) / lim.period))
             j -= 1
         j = i + 2
         while j < n and ss[j] - ss[i] <= window:
-            v = min(v, vl[j])
+            v = min(v, max(vl[j], (ss[j] - ss[i]) / lim.period))
             j += 1
         vc.append(v)
     return vc

@@ -219,6 +219,7 @@ GOOD_POST = [
      "M2\n", 3),
     ("block skip lines are skipped", "G1 X1 F100\n/G1 X50\n  /1 G1 Y50\nG1 X2\n", 2),
     ("cancel codes of features not modelled", "G15 G50 G69 G50.1\nG1 X1 F100\n", 1),
+    ("the Mastercam safety line G0 G17 G40 G49 G80 G90", "G21\nG0 G17 G40 G49 G80 G90\nG0 X1\n", 1),
     ("a subprogram before the main program", "%\nO2000 (SUB)\nG91 G1 X1. F300\nG90\nM99\nO1000 (MAIN)\n"
      "M98 P2000 L3\nM30\n%\n", 3),
     ("G95 feed per revolution with the spindle turning", "S1000 M3\nG95 F0.1\nG1 X5\nG94 F300\nG1 X6\n", 2),
@@ -255,6 +256,8 @@ BAD_POST = [
      '"G1 X1 P2 F100": P only with G4, G10, G64, G82, M98 (or with G6.2 or G5.2)'),
     ("G4 without a time", "G4\n", 1, '"G4": P (the dwell time) with G4 (or X, seconds)'),
     ("a tool number not whole", "T1.5\n", 1, '"T1.5": a whole tool number after T, got T1.5'),
+    ("G80 with a canned cycle", "F100\nG80 G81 X1 Z-1 R1\n", 2,
+     '"G80 G81 X1 Z-1 R1": either G80 or a canned cycle, got G80 and G81'),
     ("nested calls too deep", "".join(f"O{k}\nM98 P{k + 1}\nM99\n" for k in range(1, 11)).replace("M99", "M30", 1),
      26, '"M98 P10": subprogram calls nested at most 8 deep'),
     ("subprogram repeats beyond the limit", "O1\nM98 P2 L9999\nM30\nO2\nM98 P3 L9999\nM99\nO3\nG4 P0\nM99\n",
@@ -561,3 +564,35 @@ def test_accepted_words_that_are_not_modelled_are_noted_once() -> None:
     assert [n.split(": ", 2)[2].split(":")[0] for n in program.notes] == [
         "M0", "T1", "M6", "G43 H1", "M19"]
     assert program.notes[0] == 'part.nc line 1: "M0": M0: program stop not modelled (the program runs on)'
+
+
+# The corpus of post-style programs (tests/fuzz/corpus/gcode/post_*, also fuzzing seeds; provenance in each
+# program's header): each runs through the whole engine (interp_run) in its dialect with a tool table, and the C
+# parser and the reference read it identically.
+CORPUS = sorted((repo_root() / "tests" / "fuzz" / "corpus" / "gcode").glob("post_*"))
+CORPUS_DIALECT = {".nc": ("fanuc", gp.DIALECT_FANUC), ".ngc": ("linuxcnc", gp.DIALECT_LINUXCNC),
+                  ".mpf": ("sinumerik", gp.DIALECT_SINUMERIK)}
+TOOL_TABLE = """T1 P1 D10.000 Z+50.000 ; 10 mm end mill flutes=3
+T2 P2 D6.000 Z+70.000 ; 6 mm drill
+T7 P7 D5.000 Z+60.000 ; spot drill
+"""
+
+
+def test_the_corpus_covers_three_dialects() -> None:
+    assert {path.suffix for path in CORPUS} == set(CORPUS_DIALECT), CORPUS
+
+
+@pytest.mark.parametrize("path", CORPUS, ids=[p.name for p in CORPUS])
+def test_corpus_programs_run_in_their_dialect(parser_driver: Path, tmp_path: Path, path: Path) -> None:
+    from milling_twin.models.interpolator.tool_table import parse_tool_table
+    name, dialect = CORPUS_DIALECT[path.suffix]
+    table = tmp_path / "tool.tbl"
+    table.write_text(TOOL_TABLE)
+    result = subprocess.run([str(DRIVER), "--dialect", name, "--tool-table", str(table), "--param", "start_z=0.2",
+                             str(path)], capture_output=True, text=True)
+    assert result.returncode == 0, result.stderr
+    text = path.read_text(encoding="latin-1")
+    tools = parse_tool_table(TOOL_TABLE)
+    expected = dump(text, dialect, tools)
+    assert not expected.startswith("error"), expected
+    assert run_parser_driver(parser_driver, tmp_path, text, dialect, tools) == expected

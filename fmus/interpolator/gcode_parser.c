@@ -1383,8 +1383,7 @@ static int subprogram(Parser *p, size_t line, int code, size_t *next) {
 
 /* P, L, Q, K: used by a code of the line or the motion mode (after this line's motion code). */
 static int word_used(const Parser *p, char letter, int motion_g, int non_modal) {
-    int motion = motion_g >= 0 ? motion_g : p->motion, cycle;
-    if (p->g[G_CYCLE] >= 0) motion = -1;
+    int motion = motion_g >= 0 ? motion_g : p->g[G_CYCLE] >= 0 ? -1 : p->motion, cycle;
     cycle = is_cycle(motion) && non_modal != 40 && non_modal != 100 && non_modal != 280 && non_modal != 520;
     if (letter == 'P')
         return non_modal == 40 || non_modal == 100 || p->g[G_PATH] == 640 || p->m[M_SUBPROGRAM] == 98 ||
@@ -1578,8 +1577,8 @@ static int parse_line(Parser *p, size_t line, size_t *next) {
     }
     non_modal = p->g[G_NON_MODAL];
     if (p->g[G_CYCLE] >= 0) {
-        if (motion_g >= 0) {
-            fail_at(p, line, "either G80 or a motion code, got G80 and G%g", (double)motion_g / 10.0);
+        if (is_cycle(motion_g)) { /* G80 with G0/G1 is fine: "G0 G17 G40 G49 G80 G90" */
+            fail_at(p, line, "either G80 or a canned cycle, got G80 and G%g", (double)motion_g / 10.0);
             return -1;
         }
         p->motion = -1;

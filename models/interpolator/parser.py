@@ -746,9 +746,9 @@ class _Parser:
             self.fail(number, "H only with G43/G44 (a tool length offset)")
         axes = [seen.get(a) for a in "XYZ"]
         non_modal = gs.get("non-modal")
-        if "cycle" in gs:
-            if motion_g is not None:
-                self.fail(number, f"either G80 or a motion code, got G80 and G{motion_g / 10:g}")
+        if "cycle" in gs:          # G80 (with G0/G1 in the line as posts write it: "G0 G17 G40 G49 G80 G90")
+            if motion_g in _CYCLES:
+                self.fail(number, f"either G80 or a canned cycle, got G80 and G{motion_g / 10:g}")
             self.motion = -1
             self.cycle_r = self.cycle_z = None
         for letter in ("P", "L", "Q", "K"):
@@ -811,9 +811,7 @@ class _Parser:
 
     def word_used(self, letter: str, gs, ms, motion_g, non_modal) -> bool:
         """P, L, Q, K: used by a code of the line or the motion mode (after this line's motion code)."""
-        motion = motion_g if motion_g is not None else self.motion
-        if "cycle" in gs:
-            motion = -1
+        motion = motion_g if motion_g is not None else -1 if "cycle" in gs else self.motion
         cycle = motion in _CYCLES and non_modal not in (40, 100, 280, 520)
         if letter == "P":
             return non_modal in (40, 100) or gs.get("path") == 640 or ms.get("subprogram") == 98 or \

@@ -161,3 +161,19 @@ def test_the_active_tool_and_its_geometry_are_outputs_in_c_and_python(tmp_path: 
     # G43 H1: the tool tip at Z-1 puts the gauge line at Z-1 + 50 mm (the length of tool 1)
     cutting = [r[1] for r in got if r[0] > 0.001 and r[2] == 1]  # along G1 X20 (tool 1)
     assert cutting and max(cutting) == min(cutting) == pytest.approx(-0.001 + 0.05, abs=1e-12)
+
+
+@pytest.mark.parametrize("version", [3, 2])
+def test_words_not_modelled_are_reported_once_each_as_warnings(tmp_path: Path, version: int) -> None:
+    program = tmp_path / "part.nc"
+    program.write_text("G21\nM0\nG1 X1 F100\nM1\nM0\nM30\n")
+    with Slave(require_fmu(fmu_dir() / fmu_file_name("Interpolator", version))) as slave:
+        slave.instantiate()
+        slave.enter_initialization()
+        slave.fmu.setString([slave.vr["program"]], [str(program)])
+        slave.exit_initialization()  # status Warning (fmpy returns normally)
+        function = "exitInitializationMode"
+        assert slave.warnings() == [
+            f'{function}: part program {program} line 2: "M0": M0: program stop not modelled (the program runs on)',
+            f'{function}: part program {program} line 4: "M1": M1: program stop not modelled (the program runs on)']
+        assert slave.step(1e-3) == 0

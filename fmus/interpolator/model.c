@@ -76,6 +76,7 @@ FmuStatus model_exit_initialization(FmuInstance *instance) {
     int status;
     GcTool *tools = NULL;
     size_t n_tools = 0;
+    int i, notes;
 
     memset(w, 0, sizeof *w);
     interp_settings_of(v, &w->settings);
@@ -142,6 +143,10 @@ FmuStatus model_exit_initialization(FmuInstance *instance) {
         fmu_log(instance, FMU_ERROR, "logStatusError", "%s: part program %s", function, error);
         return FMU_ERROR;
     }
+    /* words the program may hold that the twin does not model (M0, M19, ...): each reported once */
+    notes = prepared.program.n_notes;
+    for (i = 0; i < notes; i++)
+        fmu_log(instance, FMU_WARNING, "logStatusWarning", "%s: part program %s", function, prepared.program.notes[i]);
     if (fmu_allocate_heap(instance, function, interp_heap_size(&prepared)) != FMU_OK) {
         interp_release(&prepared);
         return FMU_ERROR;
@@ -154,7 +159,7 @@ FmuStatus model_exit_initialization(FmuInstance *instance) {
         return FMU_ERROR;
     }
     w->initialized = true;
-    return FMU_OK;
+    return notes ? FMU_WARNING : FMU_OK;
 }
 
 FmuStatus model_do_step(FmuInstance *instance, double time, double step_size) {

@@ -7,6 +7,10 @@
 #include <stdlib.h>
 #include <string.h>
 
+#ifndef LANDING_SHARE
+#define LANDING_SHARE 0.1 /* models/interpolator/param_update.py (until model_constants.h generates it) */
+#endif
+
 int interp_prepare(const char *text, size_t length, const char *file, const InterpSettings *settings,
                    InterpPrepared *prepared, char *error, size_t error_size) {
     memset(prepared, 0, sizeof *prepared);
@@ -301,7 +305,15 @@ static void step_nurbs(const double *heap, const InterpLayout *L, InterpState *s
         ns->s_done = local;
     } else {
         double step = local - (settings->update.feedback ? ns->s_actual : ns->s_done);
-        if (step > 0.0 && ns->u < u1) nurbs_state_advance(ns, &curve, u0, u1, lo, hi, step, &settings->update);
+        if (step > 0.0 && ns->u < u1) {
+            double remaining = length - ns->s_done;
+            /* open loop, landing: the steps scaled by the arc left (the block's length less the arc the steps
+             * travelled) over the schedule left, so the tool reaches the block end when the schedule does (the
+             * open loop's drift spread over the block's last tenth) */
+            if (!settings->update.feedback && remaining <= LANDING_SHARE * length)
+                step = step * (length - ns->s_actual) / remaining;
+            nurbs_state_advance(ns, &curve, u0, u1, lo, hi, step, &settings->update);
+        }
         ns->s_done = local;
     }
     g = sqrt(vec_dot(ns->d1, ns->d1));

@@ -9,8 +9,8 @@ from typing import Mapping, Sequence
 from milling_twin.models.interpolator.definition import default_parameters
 from milling_twin.models.interpolator.nurbs import Nurbs, arc_length
 from milling_twin.models.interpolator.nurbs import dot as _dot
-from milling_twin.models.interpolator.param_update import (MAX_NEWTON, METHOD_CORRECTOR, NurbsState, arc_of_chord,
-                                                           curvature_squared, predict, rbf_of)
+from milling_twin.models.interpolator.param_update import (LANDING_SHARE, MAX_NEWTON, METHOD_CORRECTOR, NurbsState,
+                                                           arc_of_chord, curvature_squared, predict, rbf_of)
 from milling_twin.models.interpolator.parser import (DIALECT_FANUC, MOVE_ARC, MOVE_DWELL, MOVE_LINE, MOVE_RAPID, Move,
                                                     Tool, parse_program)
 from milling_twin.models.interpolator.path import build_path
@@ -245,6 +245,12 @@ class Interpolator:
         else:
             step = local - (st.s_actual if self.feedback else st.s_done)
             if step > 0.0 and st.u < m.u1:
+                remaining = length - st.s_done
+                if not self.feedback and remaining <= LANDING_SHARE * length:
+                    # open loop, landing: the steps scaled by the arc left (the block's length less the arc the
+                    # steps travelled) over the schedule left, so the tool reaches the block end when the schedule
+                    # does (the open loop's drift spread over the block's last tenth)
+                    step = step * (length - st.s_actual) / remaining
                 self.nurbs_advance(st, curve, m, step, lo, hi)
             st.s_done = local
         g = math.sqrt(_dot(st.d1, st.d1))

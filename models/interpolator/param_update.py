@@ -13,6 +13,7 @@ from milling_twin.models.interpolator.nurbs import dot as _dot
 METHOD_TAYLOR1, METHOD_TAYLOR2, METHOD_RBF, METHOD_CORRECTOR = 1, 2, 3, 4
 METHOD_NAMES = {1: "taylor1", 2: "taylor2", 3: "rbf", 4: "corrector"}
 RBF_HIDDEN, RBF_INPUTS = 5, 4
+LANDING_SHARE = 0.1  # open loop: the share of a NURBS block over which the steps land on its end
 MAX_NEWTON = 8   # method 4: Newton iterations on the arc length at most
 
 @dataclass

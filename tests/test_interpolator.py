@@ -662,3 +662,24 @@ def test_open_loop_methods_land_on_the_block_end(tmp_path: Path, method: int) ->
     chord = np.linalg.norm(np.diff(pos, axis=0), axis=1)[-200:]
     scheduled = np.diff(data["s"])[-200:]
     assert np.max(np.abs(chord - scheduled)) <= 1e-6, np.max(np.abs(chord - scheduled))
+
+
+def test_a_zero_tangent_is_refused_quoting_its_line(tmp_path: Path) -> None:
+    """A cubic whose first two control points coincide (zero tangent at its start) is refused by the path builder
+    in the parser's format, the block's line quoted, the same message from C and Python (before: Python divided
+    by zero, C left the line text out)."""
+    text = "G21 G90 G17\nG6.2 P3 K0 X0 Y0 F600\nK0 X0 Y0\nK0 X10 Y5\nK0 X20 Y0\nK1\nK1\nK1\nK1\nM30\n"
+    try:
+        ip.parse_program(text, ip.default_parameters(), "part.nc")
+    except ip.ProgramError:
+        text = text.replace("P3", "P4")  # the Fanuc dialect reads P as the order
+    program = tmp_path / "part.nc"
+    program.write_text(text)
+    with pytest.raises(ip.PathError) as refused:
+        ip.Interpolator(text, ip.default_parameters(), str(program))
+    first = text.splitlines()[1]
+    expected = (f'{program} line 2: "{first}": the NURBS block has a zero tangent or a singular point near u = 0 '
+                "(repeated control points?)")
+    assert str(refused.value) == expected
+    run = subprocess.run([str(DRIVER), str(program)], capture_output=True, text=True)
+    assert run.returncode != 0 and run.stderr.strip() == f"interp_run: {expected}"

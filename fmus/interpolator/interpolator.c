@@ -15,7 +15,8 @@ int interp_prepare(const char *text, size_t length, const char *file, const Inte
                    InterpPrepared *prepared, char *error, size_t error_size) {
     memset(prepared, 0, sizeof *prepared);
     if (gc_parse(text, length, file, &settings->gcode, &prepared->program, error, error_size) != 0) return -1;
-    if (path_build(&prepared->program, &settings->limits, file, &prepared->path, error, error_size) != 0) {
+    if (path_build(&prepared->program, &settings->limits, text, length, file, &prepared->path, error, error_size) !=
+        0) {
         gc_free(&prepared->program);
         return -1;
     }

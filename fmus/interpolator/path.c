@@ -186,11 +186,17 @@ typedef struct {
     const NurbsView *curve;
     const Limits *lim;
     int lo, hi, line;
-    const char *file;
+    const char *file, *text; /* the program's text, its line quoted in a refusal */
+    size_t length;
     char *error;
     size_t error_size;
     Samples *out;
 } Sampler;
+
+/* The parser's format, quoting the block's line (gc_line_error). */
+static void refuse(const Sampler *z, const char *expected) {
+    gc_line_error(z->text, z->length, z->file, (size_t)z->line, expected, z->error, z->error_size);
+}
 
 static int point_info(Sampler *z, double u, Info *info) {
     double d[4][3], g, k[3], kp[3];
@@ -198,9 +204,10 @@ static int point_info(Sampler *z, double u, Info *info) {
     nurbs_arc_length_derivatives((const double(*)[3])d, &g, info->t, k, kp);
     info->kappa = sqrt(vec_dot(k, k));
     if (!(g > 0.0) || !isfinite(g) || !isfinite(info->kappa) || !isfinite(vec_dot(kp, kp))) {
-        snprintf(z->error, z->error_size,
-                 "%s line %d: the NURBS block has a zero tangent or a singular point near u = %.9g (repeated control "
-                 "points?)", z->file, z->line, u);
+        char expected[160];
+        snprintf(expected, sizeof expected,
+                 "the NURBS block has a zero tangent or a singular point near u = %.9g (repeated control points?)", u);
+        refuse(z, expected);
         return -1;
     }
     tangential_limits(z->lim, info->t, 1, &info->at, &info->jt);
@@ -215,8 +222,9 @@ static int point_info(Sampler *z, double u, Info *info) {
 
 static int push(Sampler *z, double s, const Info *info) {
     if (z->out->n >= MAX_SAMPLES) {
-        snprintf(z->error, z->error_size, "%s line %d: the NURBS block needs more than %d samples", z->file, z->line,
-                 MAX_SAMPLES);
+        char expected[80];
+        snprintf(expected, sizeof expected, "the NURBS block needs more than %d samples", MAX_SAMPLES);
+        refuse(z, expected);
         return -1;
     }
     if (samples_push(z->out, s, info->v, info->at, info->jt) != 0) {
@@ -323,8 +331,8 @@ void path_free(PathBuild *path) {
 
 static void *array(size_t n, size_t size) { return calloc(n ? n : 1, size); }
 
-int path_build(const GcProgram *program, const Limits *lim, const char *file, PathBuild *out, char *error,
-               size_t error_size) {
+int path_build(const GcProgram *program, const Limits *lim, const char *text, size_t text_length, const char *file,
+               PathBuild *out, char *error, size_t error_size) {
     size_t n_moves = program->n_moves, index, c, total_samples = 0, node = 0, interval = 0;
     Samples *samples = NULL;
     double (*end_t)[2][3] = NULL, (*end_k)[2][3] = NULL;
@@ -418,6 +426,7 @@ int path_build(const GcProgram *program, const Limits *lim, const char *file, Pa
             out->span_lo[index] = lo;
             out->span_hi[index] = hi;
             z.curve = &view, z.lim = lim, z.lo = lo, z.hi = hi, z.line = m->line, z.file = file;
+            z.text = text, z.length = text_length;
             z.error = error, z.error_size = error_size, z.out = x;
             if (nurbs_samples(&z, m->u0, m->u1, end_t[index], end_k[index]) != 0) goto fail;
             n = x->n;

@@ -36,8 +36,9 @@ typedef struct {
     double total;
 } PathBuild;
 
-int path_build(const GcProgram *program, const Limits *limits, const char *file, PathBuild *out, char *error,
-               size_t error_size);
+/* Refusals (a zero tangent, too many samples) in the parser's format, quoting the line of `text`. */
+int path_build(const GcProgram *program, const Limits *limits, const char *text, size_t text_length, const char *file,
+               PathBuild *out, char *error, size_t error_size);
 void path_free(PathBuild *path);
 
 void tangential_limits(const Limits *lim, const double t[3], int curved, double *at, double *jt);

@@ -29,7 +29,7 @@ class Interpolator:
         self.p = p
         self.program = parse_program(text, p, file, dialect=dialect, tools=tools)
         self.tools = tuple(tools)
-        self.path = build_path(self.program, p)
+        self.path = build_path(self.program, p, text)
         self.schedule = Schedule(self.path, p["max_feed"], p["rapid_feed"])
         self.period = p["period"]
         self.method = int(p["method"])

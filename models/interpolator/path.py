@@ -10,7 +10,7 @@ from typing import Mapping, Sequence
 from milling_twin.models.interpolator.nurbs import Nurbs, arc_length_derivatives, gauss_length
 from milling_twin.models.interpolator.nurbs import dot as _dot
 from milling_twin.models.interpolator.parser import (MOVE_ARC, MOVE_DWELL, MOVE_LINE, MOVE_NURBS, MOVE_RAPID, Move,
-                                                    Program)
+                                                    Program, line_error)
 
 COS_TURN = math.cos(0.02)            # NURBS sampling: tangent turn between neighbouring samples
 CURVATURE_VARIATION = 0.02           # and relative curvature change (where the turn is significant)
@@ -231,7 +231,8 @@ class PathError(ValueError):
     pass
 
 
-def _nurbs_samples(curve: Nurbs, lim: Limits, u0: float, u1: float, lo: int, hi: int, line: int, file: str):
+def _nurbs_samples(curve: Nurbs, lim: Limits, u0: float, u1: float, lo: int, hi: int, line: int, file: str,
+                   text: str | None = None):
     """Adaptive samples of one NURBS move: lists (u, s, vlc, at, jt, geometry at the ends)."""
     us: list[float] = []
     ss: list[float] = []
@@ -240,13 +241,21 @@ def _nurbs_samples(curve: Nurbs, lim: Limits, u0: float, u1: float, lo: int, hi:
     jts: list[float] = []
     first_geometry = last_geometry = None
 
+    def refusal(expected: str) -> str:
+        """The parser's format, quoting the block's line when the program text is known."""
+        return line_error(text, file, line, expected) if text is not None else f"{file} line {line}: {expected}"
+
     def point(u: float):
         d = curve.evaluate(u, 3, lo, hi)
-        g, t, k, kp, _, _ = arc_length_derivatives(d)
-        if not (g > 0.0) or not math.isfinite(g):
-            raise PathError(f"{file} line {line}: the NURBS block has a zero tangent near u = {u:.9g} "
-                            "(repeated control points?)")
-        kappa = math.sqrt(_dot(k, k))
+        g = math.sqrt(_dot(d[1], d[1]))
+        kappa = kpp = math.inf  # (a zero tangent: arc_length_derivatives would divide by zero)
+        if g > 0.0:
+            g, t, k, kp, _, _ = arc_length_derivatives(d)
+            kappa = math.sqrt(_dot(k, k))
+            kpp = _dot(kp, kp)
+        if not (g > 0.0) or not math.isfinite(g) or not math.isfinite(kappa) or not math.isfinite(kpp):
+            raise PathError(refusal(f"the NURBS block has a zero tangent or a singular point near u = {u:.9g} "
+                                    "(repeated control points?)"))
         at, jt = tangential_limits(lim, t, True)
         # the speed gives way to the acceleration-curvature coupling down to half the other limits, then the
         # acceleration does (near a cusp)
@@ -256,7 +265,7 @@ def _nurbs_samples(curve: Nurbs, lim: Limits, u0: float, u1: float, lo: int, hi:
 
     def push(u: float, s: float, info) -> None:
         if len(us) >= MAX_SAMPLES:
-            raise PathError(f"{file} line {line}: the NURBS block needs more than {MAX_SAMPLES} samples")
+            raise PathError(refusal(f"the NURBS block needs more than {MAX_SAMPLES} samples"))
         us.append(u)
         ss.append(s)
         vl.append(info[2])
@@ -339,7 +348,8 @@ def conservative_limits(ss: Sequence[float], vl: Sequence[float], lim: Limits) -
     return vc
 
 
-def build_path(program: Program, p: Mapping[str, float]) -> Path:
+def build_path(program: Program, p: Mapping[str, float], text: str | None = None) -> Path:
+    """The path of a parsed program; `text`, the program's text, lets a refusal quote its line."""
     lim = limits_of(p)
     curves = [Nurbs(c) for c in program.curves]
     path = Path(program, lim, [], [], [], [], curves, {})
@@ -383,7 +393,7 @@ def build_path(program: Program, p: Mapping[str, float]) -> Path:
             lo, hi = curve.span_range(move.u0, move.u1)
             path.move_span.append((lo, hi))
             us, ss, vl, ats, jts, g0, g1 = _nurbs_samples(curve, lim, move.u0, move.u1, lo, hi, move.line,
-                                                          program.file)
+                                                          program.file, text)
             length = ss[-1]
             vc = conservative_limits(ss, vl, lim)
             ends.append((g0, g1))

@@ -44,16 +44,16 @@ def _variables() -> tuple[Variable, ...]:
                  start=1e-3, min=1e-5, max=0.1, variability=fixed),
         Variable("method", "Int32", "parameter",
                  "NURBS parameter update: 1 first-order Taylor, 2 second-order Taylor, 3 RBF network, "
-                 "4 predictor-corrector (Newton on the chord length)", start=4, min=1, max=4, variability=fixed),
+                 "4 predictor-corrector (Newton on the arc length of the step)", start=4, min=1, max=4, variability=fixed),
         Variable("corrector_predictor", "Int32", "parameter",
                  "Predictor refined by method 4: 1 first-order Taylor, 2 second-order Taylor, 3 RBF network",
                  start=2, min=1, max=3, variability=fixed),
         Variable("arc_length_feedback", "Boolean", "parameter",
-                 "NURBS steps aim at the scheduled arc length from the actual position (the chords travelled in "
+                 "NURBS steps aim at the scheduled arc length from the actual position (the arcs travelled in "
                  "the block), so the error of an inexact update does not accumulate; false: the scheduled step as "
-                 "is (open loop, as in the NURBS-interpolation literature)", start=True, variability=fixed),
+                 "is (open loop, as in the NURBS-interpolation literature; the block's last tenth lands on its end)", start=True, variability=fixed),
         Variable("corrector_tolerance", "Float64", "parameter",
-                 "Method 4: relative tolerance of the chord length (|chord - step| / step)",
+                 "Method 4: relative tolerance of the step's arc length (|arc - step| / step)",
                  start=1e-6, min=1e-15, max=1e-2, variability=fixed),
         Variable("max_feed", "Float64", "parameter", "Highest feed a program may command (F is clipped)",
                  unit="m/s", display_unit="mm/min", start=1.0 / 3.0, min=1e-6, max=10.0, variability=fixed),
@@ -126,7 +126,8 @@ def _variables() -> tuple[Variable, ...]:
         Variable("feed", "Float64", "output", "Scheduled path speed", unit="m/s", display_unit="mm/min"),
         Variable("path_acceleration", "Float64", "output", "Scheduled tangential acceleration",
                  unit="m/s2", display_unit="mm/s2"),
-        Variable("u", "Float64", "output", "NURBS parameter in NURBS blocks, else the fraction of the block done"),
+        Variable("u", "Float64", "output", "NURBS parameter normalised over the curve's knot range (0..1) in NURBS "
+                 "blocks, else the fraction of the block done"),
         Variable("line_number", "Int32", "output", "Line of the part program being executed (0 before the start)"),
         Variable("block_number", "Int32", "output", "N word of the block being executed (0 without one)"),
         Variable("spindle_speed", "Float64", "output", "Commanded spindle speed (negative for M4, 0 when stopped)",
@@ -161,11 +162,12 @@ def _constants() -> tuple[tuple[str, int | float | tuple[float, ...]], ...]:
              cutter_comp: ("COMP_TANGENT", "COMP_SMALL_TURN", "COMP_SLACK"),
              tool_table: ("MAX_TOOLS", "MAX_TOOL_NUMBER", "MAX_TOOL_NAME", "MAX_TOOL_VALUE"),
              nurbs: ("GL_NODES", "GL_WEIGHTS"),
-             path: ("COS_TURN", "CURVATURE_VARIATION", "SIGNIFICANT_TURN", "MAX_SAMPLE_DEPTH", "MAX_SAMPLES",
+             path: ("COS_TURN", "COUPLING_SPEED_SHARE", "CURVATURE_VARIATION", "SIGNIFICANT_TURN", "MAX_SAMPLE_DEPTH",
+                    "MAX_SAMPLES",
                     "INITIAL_SUBDIVISION", "CHORD_SAFETY", "TANGENT_TOLERANCE", "BIG"),
              schedule: ("BISECTIONS", "VIOLATION_TOLERANCE"),
              param_update: ("METHOD_TAYLOR1", "METHOD_TAYLOR2", "METHOD_RBF", "METHOD_CORRECTOR", "RBF_HIDDEN",
-                            "RBF_INPUTS", "MAX_NEWTON")}
+                            "RBF_INPUTS", "MAX_NEWTON", "LANDING_SHARE")}
     return (("PI", math.pi),) + tuple((n, getattr(module, n)) for module, group in names.items() for n in group)
 
 

@@ -18,8 +18,9 @@ DRIVER = repo_root() / "build" / "tools" / "interp_run"
 # (name, program, line, the message's tail after 'line <n>: ')
 BAD = [
     ("unknown G code", "G21 G90\nG1 X10 F600\nG7 X1\n", 3,
-     '"G7 X1": a supported G code (G0 G1 G2 G3 G4 G5.2 G5.3 G6.2 G9 G10 G15 G17 G18 G19 G20 G21 G28 G40 G41 G42 G43 '
-     'G44 G49 G50 G50.1 G52 G53 G54-G59 G61 G61.1 G64 G69 G73 G80 G81 G82 G83 G90 G91 G94 G95 G98 G99), got G7'),
+     '"G7 X1": a supported G code (G0 G1 G2 G3 G4 G5 G5.1 G5.2 G5.3 G6.2 G9 G10 G15 G17 G18 G19 G20 G21 G28 G40 G41 '
+     'G42 G43 G44 G49 G50 G50.1 G52 G53 G54-G59 G61 G61.1 G64 G69 G73 G80 G81 G82 G83 G90 G91 G94 G95 G98 G99), got '
+     'G7'),
     ("missing coordinate", "G21\nG0 X1 Y2\nG1 X F600\n", 3, '"G1 X F600": a number after \'X\''),
     ("missing arc centre", "G1 X10 F100\nG2 X20 Y0\n", 2,
      '"G2 X20 Y0": the arc centre (I, J) or the radius R with G2'),
@@ -253,9 +254,11 @@ BAD_POST = [
      '"O1 G1 X1": a program number O alone in its line (a comment may follow)'),
     ("G28 without axes (fanuc)", "G28\n", 1, '"G28": the axes to return (X, Y, Z: the intermediate point) with G28'),
     ("P on a G1 line", "G1 X1 P2 F100\n", 1,
-     '"G1 X1 P2 F100": P only with G4, G10, G64, G82, M98 (or with G6.2 or G5.2)'),
+     '"G1 X1 P2 F100": P only with G4, G5, G10, G64, G82, M98 (or with G6.2 or G5.2)'),
     ("G4 without a time", "G4\n", 1, '"G4": P (the dwell time) with G4 (or X, seconds)'),
     ("a tool number not whole", "T1.5\n", 1, '"T1.5": a whole tool number after T, got T1.5'),
+    ("G5 in the fanuc dialect", "G1 X1 F100\nG5 X3 Y0 I1 J1 P1 Q1\n", 2,
+     '"G5 X3 Y0 I1 J1 P1 Q1": G5 is LinuxCNC\'s cubic spline: set dialect = linuxcnc'),
     ("G80 with a canned cycle", "F100\nG80 G81 X1 Z-1 R1\n", 2,
      '"G80 G81 X1 Z-1 R1": either G80 or a canned cycle, got G80 and G81'),
     ("nested calls too deep", "".join(f"O{k}\nM98 P{k + 1}\nM99\n" for k in range(1, 11)).replace("M99", "M30", 1),
@@ -439,6 +442,10 @@ SAME = [
      "G21 G90 F600\nG0 X0 Y0\nG5.2 P2 L3\nX10 Y0 P1\nX10 Y10 P3\nX0 Y10\nG5.3\nG5.2 X5 Y5 Z-1 L4\nX10 Y0 K2\n"
      "X20 Y5\nX25 Y0 K0.5\nG5.3\nM2\n", gp.DIALECT_LINUXCNC, False),
     ("G5.2 without G5.3", "G21 F600\nG5.2 X1 Y1\nX2 Y0\n", gp.DIALECT_LINUXCNC, False),
+    ("LinuxCNC G5 cubic splines (the second one reflecting the first's P Q) and G5.1 quadratic",
+     "G21 G17 F600\nG5 X10 Y0 I3 J4 P-3 Q4\nG5 X20 Y0 P-3 Q-4\nG1 X21\nG5.1 X25 Y5 I4 J0\nG5.1 I1 J1 X27 Y5\nM2\n",
+     gp.DIALECT_LINUXCNC, False),
+    ("G5 without I J after another move", "G21 F600\nG1 X1\nG5 X3 Y0 P1 Q1\n", gp.DIALECT_LINUXCNC, False),
     ("G6.2 in the linuxcnc dialect", "G6.2 P3 K0 X0 Y0 F600\n", gp.DIALECT_LINUXCNC, False),
     ("an unknown tool with a tool table", "T5 M6\n", gp.DIALECT_FANUC, True),
     ("an unknown H with a tool table", "G43 H9 Z1\n", gp.DIALECT_FANUC, True),
@@ -466,7 +473,8 @@ def random_program(rng: np.random.Generator) -> str:
              "G82 X1 Z-1 R1 P500", "G80", "X4 Y4", "G4 P250", "G4 X0.2", "G43 Z5 H1", "G49", "G41 D1 X2", "G40 X0",
              "M8", "M9", "M7", "G28 G91 Z0", "G90", "G53 G0 Z0", "G52 X1 Y1", "G52 X0 Y0", "G64 P0.01", "G61",
              "G9 G1 X2", "M98 P1001", "M98 P1001 L2", "G95 F0.1", "G94 F300", "G5.2 X1 Y1 L3", "X2 Y0 P2", "X3 Y1",
-             "G5.3", "G98", "G99", "G2 X5 Y0 R3", "G6.2 P3 K0 X0 Y0 F600", "K0 X1 Y1", "K0 X2 Y0", "K1",
+             "G5.3", "G5 X3 Y3 I1 J0 P0 Q1", "G5 X4 Y2 P1 Q1", "G5.1 X6 Y2 I1 J1", "G98", "G99", "G2 X5 Y0 R3",
+             "G6.2 P3 K0 X0 Y0 F600", "K0 X1 Y1", "K0 X2 Y0", "K1",
              "G91 G1 X1", "M0", "O1001", "M99", "M30", "%", "/G1 X9", "(c)", ""]
     words = ["G0", "G1", "G2", "G4", "G17", "G18", "G20", "G28", "G41", "G43", "G53", "G81", "G83", "G91", "G95",
              "G5.2", "M6", "M98", "T1", "T7", "H1", "D2", "F100", "P1000", "P0.5", "L2", "K2", "Q1", "R1", "X1",
@@ -557,6 +565,15 @@ def test_linuxcnc_nurbs_knots_are_linuxcncs() -> None:
     (curve,) = program.curves
     assert curve.degree == 2 and curve.knots == [0, 0, 0, 1, 2, 2, 2]
     assert curve.points[0] == (0.0, 0.0, 0.0) and len(program.moves) == 1
+
+
+def test_linuxcnc_splines_are_exact_bezier_curves() -> None:
+    program = parse("G21 F600\nG5 X10 Y0 I3 J4 P-3 Q4\nG5 X20 Y0 P-3 Q-4\nG5.1 X25 Y5 I4 J0\n", gp.DIALECT_LINUXCNC)
+    first, second, third = program.curves
+    mm = [[round(v * 1000.0, 9) for v in point[:2]] for point in first.points]
+    assert mm == [[0, 0], [3, 4], [7, 4], [10, 0]] and first.knots == [0, 0, 0, 0, 1, 1, 1, 1]
+    assert [round(v * 1000.0, 9) for v in second.points[1][:2]] == [13, -4]   # the reflection of P-3 Q4
+    assert third.degree == 2 and [round(v * 1000.0, 9) for v in third.points[1][:2]] == [24, 0]
 
 
 def test_accepted_words_that_are_not_modelled_are_noted_once() -> None:

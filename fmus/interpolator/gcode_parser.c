@@ -42,7 +42,8 @@ static const char *const M_GROUP_NAMES[M_GROUPS] = {"stop", "end", "spindle", "t
 
 /* G codes (10 * number) and their groups, as _G_GROUPS of parser.py */
 static const int G_CODES[][2] = {
-    {0, G_MOTION},      {10, G_MOTION},     {20, G_MOTION},     {30, G_MOTION},     {52, G_MOTION},
+    {0, G_MOTION},      {10, G_MOTION},     {20, G_MOTION},     {30, G_MOTION},     {50, G_MOTION},
+    {51, G_MOTION},     {52, G_MOTION},
     {53, G_NURBS_END},  {62, G_MOTION},     {730, G_MOTION},    {810, G_MOTION},    {820, G_MOTION},
     {830, G_MOTION},    {800, G_CYCLE},     {40, G_NON_MODAL},  {100, G_NON_MODAL}, {280, G_NON_MODAL},
     {520, G_NON_MODAL}, {530, G_NON_MODAL}, {90, G_G9},         {170, G_PLANE},     {180, G_PLANE},
@@ -52,9 +53,9 @@ static const int G_CODES[][2] = {
     {5000, G_OFFSET},   {610, G_PATH},      {611, G_PATH},      {640, G_PATH},      {900, G_DISTANCE},
     {910, G_DISTANCE},  {940, G_FEED},      {950, G_FEED},      {980, G_RETRACT},   {990, G_RETRACT},
     {150, G_CANCEL},    {500, G_CANCEL},    {501, G_CANCEL},    {690, G_CANCEL}};
-static const char G_LIST[] = "G0 G1 G2 G3 G4 G5.2 G5.3 G6.2 G9 G10 G15 G17 G18 G19 G20 G21 G28 G40 G41 G42 G43 G44 "
-                             "G49 G50 G50.1 G52 G53 G54-G59 G61 G61.1 G64 G69 G73 G80 G81 G82 G83 G90 G91 G94 G95 "
-                             "G98 G99";
+static const char G_LIST[] = "G0 G1 G2 G3 G4 G5 G5.1 G5.2 G5.3 G6.2 G9 G10 G15 G17 G18 G19 G20 G21 G28 G40 G41 G42 "
+                             "G43 G44 G49 G50 G50.1 G52 G53 G54-G59 G61 G61.1 G64 G69 G73 G80 G81 G82 G83 G90 G91 G94 "
+                             "G95 G98 G99";
 static const int M_CODES[][2] = {{0, M_STOP},      {1, M_STOP},        {2, M_END},         {30, M_END},
                                  {3, M_SPINDLE},   {4, M_SPINDLE},     {5, M_SPINDLE},     {19, M_SPINDLE},
                                  {6, M_TOOL_CHANGE}, {7, M_COOLANT},   {8, M_COOLANT},     {9, M_COOLANT},
@@ -120,6 +121,9 @@ typedef struct {
     Call stack[MAX_CALL_DEPTH];
     int depth;
     size_t called_lines;
+    int has_last_pq; /* after a G5: the move count then and its P, Q (m) */
+    size_t last_pq_moves;
+    double last_pq[2];
     /* the current line's words */
     Word words[MAX_WORDS];
     int n_words;
@@ -1381,15 +1385,102 @@ static int subprogram(Parser *p, size_t line, int code, size_t *next) {
     return 0;
 }
 
+/* LinuxCNC G5 (cubic) and G5.1 (quadratic) as exact Bezier NURBS in the XY plane (parser.py spline). */
+static int spline(Parser *p, size_t line) {
+    int code = p->motion, k, a, n_points, all_start = 1;
+    const char *name = code == 50 ? "G5" : "G5.1";
+    double end[3], start[3], words[4] = {0.0, 0.0, 0.0, 0.0}, pts[4][3];
+    int given[4] = {0, 0, 0, 0};
+    static const char letters[5] = {'Z', 'K', 'R', 'P', 'Q'};
+    GcCurve curve;
+    size_t cap = 0;
+    if (p->dialect != DIALECT_LINUXCNC) {
+        fail_at(p, line, "%s is LinuxCNC's %s spline: set dialect = linuxcnc", name,
+                code == 50 ? "cubic" : "quadratic");
+        return -1;
+    }
+    if (p->plane != 17) {
+        fail_at(p, line, "G17 (the XY plane) for %s, got G%d", name, p->plane);
+        return -1;
+    }
+    for (k = 0; k < (code == 51 ? 5 : 3); k++) {
+        if (has(p, letters[k])) {
+            fail_at(p, line, "no %c with %s", letters[k], name);
+            return -1;
+        }
+    }
+    if (need_feed(p, line) != 0) return -1;
+    if (target(p, line, end) != 0) return -1;
+    memcpy(start, p->position, sizeof start);
+    for (k = 0; k < 4; k++) {
+        char letter = "IJPQ"[k];
+        if (!has(p, letter)) continue;
+        if (check_coordinate(p, line, val(p, letter)) != 0) return -1;
+        words[k] = length_of(p, val(p, letter)), given[k] = 1;
+    }
+    memcpy(pts[0], start, sizeof start);
+    if (code == 50) {
+        if (given[0] || given[1]) {
+            pts[1][0] = start[0] + words[0], pts[1][1] = start[1] + words[1];
+        } else if (p->has_last_pq && p->last_pq_moves == p->program->n_moves) {
+            pts[1][0] = start[0] - p->last_pq[0], pts[1][1] = start[1] - p->last_pq[1];
+        } else {
+            fail_at(p, line, "I, J (the first control point, from the start) with G5 (or a G5 just before)");
+            return -1;
+        }
+        if (!given[2] || !given[3]) {
+            fail_at(p, line, "P and Q (the second control point, from the end point) with G5");
+            return -1;
+        }
+        pts[1][2] = start[2];
+        pts[2][0] = end[0] + words[2], pts[2][1] = end[1] + words[3], pts[2][2] = start[2];
+        memcpy(pts[3], end, sizeof end);
+        n_points = 4;
+    } else {
+        if (!given[0] && !given[1]) {
+            fail_at(p, line, "I, J (the control point, from the start) with G5.1");
+            return -1;
+        }
+        pts[1][0] = start[0] + words[0], pts[1][1] = start[1] + words[1], pts[1][2] = start[2];
+        memcpy(pts[2], end, sizeof end);
+        n_points = 3;
+    }
+    for (k = 1; k < n_points; k++)
+        for (a = 0; a < 3; a++) all_start &= pts[k][a] == start[a];
+    if (all_start) {
+        fail_at(p, line, "an end point or control points away from the start with %s", name);
+        return -1;
+    }
+    memset(&curve, 0, sizeof curve);
+    if (grow_curve(p, &curve, &cap, (size_t)n_points) != 0) {
+        free(curve.points), free(curve.weights), free(curve.knots);
+        return -1;
+    }
+    curve.degree = n_points - 1;
+    curve.n_points = n_points;
+    curve.line = (int)line;
+    for (k = 0; k < n_points; k++) {
+        memcpy(curve.points + 3 * k, pts[k], sizeof pts[k]);
+        curve.weights[k] = 1.0;
+        curve.knots[k] = 0.0, curve.knots[n_points + k] = 1.0;
+    }
+    if (emit_curve(p, &curve, line, line) != 0) return -1;
+    p->has_last_pq = code == 50;
+    p->last_pq_moves = p->program->n_moves;
+    p->last_pq[0] = words[2], p->last_pq[1] = words[3];
+    return 0;
+}
+
 /* P, L, Q, K: used by a code of the line or the motion mode (after this line's motion code). */
 static int word_used(const Parser *p, char letter, int motion_g, int non_modal) {
     int motion = motion_g >= 0 ? motion_g : p->g[G_CYCLE] >= 0 ? -1 : p->motion, cycle;
+    int spline = motion == 50 && non_modal != 40 && non_modal != 100 && non_modal != 280 && non_modal != 520;
     cycle = is_cycle(motion) && non_modal != 40 && non_modal != 100 && non_modal != 280 && non_modal != 520;
     if (letter == 'P')
         return non_modal == 40 || non_modal == 100 || p->g[G_PATH] == 640 || p->m[M_SUBPROGRAM] == 98 ||
-               (cycle && motion == 820);
+               (cycle && motion == 820) || spline;
     if (letter == 'L') return non_modal == 100 || p->m[M_SUBPROGRAM] == 98 || cycle;
-    if (letter == 'Q') return cycle && (motion == 730 || motion == 830);
+    if (letter == 'Q') return (cycle && (motion == 730 || motion == 830)) || spline;
     return cycle || (non_modal != 40 && non_modal != 100 && non_modal != 280 && non_modal != 520 &&
                      (motion == 20 || motion == 30));
 }
@@ -1587,9 +1678,9 @@ static int parse_line(Parser *p, size_t line, size_t *next) {
     {
         static const char letters[4] = {'P', 'L', 'Q', 'K'};
         static const char *const messages[4] = {
-            "P only with G4, G10, G64, G82, M98 (or with G6.2 or G5.2)",
+            "P only with G4, G5, G10, G64, G82, M98 (or with G6.2 or G5.2)",
             "L only with G10, M98 or a canned cycle (repeats) (or with G5.2)",
-            "Q only with G73/G83 (the peck depth)", "K only with G2/G3 (or in a NURBS block)"};
+            "Q only with G73/G83 (the peck depth) or G5", "K only with G2/G3 (or in a NURBS block)"};
         int k;
         for (k = 0; k < 4; k++) {
             if (has(p, letters[k]) && !word_used(p, letters[k], motion_g, non_modal)) {
@@ -1630,6 +1721,12 @@ static int parse_line(Parser *p, size_t line, size_t *next) {
                 }
                 if (cycle(p, line, motion_g >= 0 && !is_cycle(previous)) != 0) return -1;
             }
+        } else if ((p->motion == 50 || p->motion == 51) && (has_axes || motion_g >= 0)) {
+            if (non_modal == 530) {
+                fail_at(p, line, "G53 only with G0 or G1");
+                return -1;
+            }
+            if (spline(p, line) != 0) return -1;
         } else {
             char arc_word = 0;
             for (a = 0; a < 4 && !arc_word; a++)

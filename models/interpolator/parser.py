@@ -100,6 +100,12 @@ interval between consecutive distinct knots (default 1; the K of the last order 
 L control points; only in G90. (LinuxCNC itself takes L only above 3 and the XY plane only; here L is taken as
 written and Z may be given.)
 
+Splines, LinuxCNC (XY plane, G17; modal motion codes; exact Bezier NURBS, knots 0..1)::
+
+    G5 X.. Y.. [I.. J..] P.. Q..      cubic: I J from the start to the first control point, P Q from the end point
+                                      to the second; without I J right after another G5: the reflection of its P Q
+    G5.1 X.. Y.. I.. J..              quadratic: I J from the start to the control point
+
 Dialects
 - ``fanuc`` (Fanuc, Haas and the Fanuc-style posts of Fusion and Mastercam): ``G6.2`` NURBS; G4 ``P`` without a
   decimal point in milliseconds (``P500`` = 0.5 s), with a decimal point and ``X`` in seconds; cycle repeats ``K``;
@@ -282,7 +288,8 @@ _LETTERS = "GMNXYZIJKRFSPLOTHDQ"
 _LETTER_LIST = "G, M, N, O, T, X, Y, Z, I, J, K, R, F, S, P, L, H, D or Q"
 
 # G codes as 10 * number (G6.2 -> 62); the group of each (a line holds at most one code per group)
-_G_GROUPS = {0: "motion", 10: "motion", 20: "motion", 30: "motion", 52: "motion", 53: "nurbs end",
+_G_GROUPS = {0: "motion", 10: "motion", 20: "motion", 30: "motion", 50: "motion", 51: "motion", 52: "motion",
+             53: "nurbs end",
              62: "motion", 730: "motion", 810: "motion", 820: "motion", 830: "motion",
              800: "cycle", 40: "non-modal", 100: "non-modal", 280: "non-modal", 520: "non-modal",
              530: "non-modal", 90: "g9", 170: "plane", 180: "plane", 190: "plane", 200: "units", 210: "units",
@@ -291,8 +298,8 @@ _G_GROUPS = {0: "motion", 10: "motion", 20: "motion", 30: "motion", 52: "motion"
              590: "offset", 5000: "offset", 610: "path", 611: "path", 640: "path", 900: "distance",
              910: "distance", 940: "feed", 950: "feed", 980: "retract",
              990: "retract", 150: "cancel", 500: "cancel", 501: "cancel", 690: "cancel"}
-_G_LIST = ("G0 G1 G2 G3 G4 G5.2 G5.3 G6.2 G9 G10 G15 G17 G18 G19 G20 G21 G28 G40 G41 G42 G43 G44 G49 G50 G50.1 "
-           "G52 G53 G54-G59 G61 G61.1 G64 G69 G73 G80 G81 G82 G83 G90 G91 G94 G95 G98 G99")
+_G_LIST = ("G0 G1 G2 G3 G4 G5 G5.1 G5.2 G5.3 G6.2 G9 G10 G15 G17 G18 G19 G20 G21 G28 G40 G41 G42 G43 G44 G49 G50 "
+           "G50.1 G52 G53 G54-G59 G61 G61.1 G64 G69 G73 G80 G81 G82 G83 G90 G91 G94 G95 G98 G99")
 # M codes and their groups
 _M_GROUPS = {0: "stop", 1: "stop", 2: "end", 30: "end", 3: "spindle", 4: "spindle", 5: "spindle", 19: "spindle",
              6: "tool change", 7: "coolant", 8: "coolant", 9: "coolant", 98: "subprogram", 99: "subprogram"}
@@ -442,6 +449,7 @@ class _Parser:
         self.stack: list[_Call] = []
         self.called_lines = 0
         self.closing_line = 0
+        self.last_pq: tuple[int, float, float] | None = None   # after a G5: the move count and its P, Q
         self.main = -1
         if dialect == DIALECT_SINUMERIK:
             self.translate(text, tools)
@@ -753,9 +761,9 @@ class _Parser:
             self.cycle_r = self.cycle_z = None
         for letter in ("P", "L", "Q", "K"):
             if letter in seen and not self.word_used(letter, gs, ms, motion_g, non_modal):
-                self.fail(number, {"P": "P only with G4, G10, G64, G82, M98 (or with G6.2 or G5.2)",
+                self.fail(number, {"P": "P only with G4, G5, G10, G64, G82, M98 (or with G6.2 or G5.2)",
                                    "L": "L only with G10, M98 or a canned cycle (repeats) (or with G5.2)",
-                                   "Q": "Q only with G73/G83 (the peck depth)",
+                                   "Q": "Q only with G73/G83 (the peck depth) or G5",
                                    "K": "K only with G2/G3 (or in a NURBS block)"}[letter])
         if non_modal == 40:
             self.dwell_line(number, seen, motion_g, axes)
@@ -784,6 +792,10 @@ class _Parser:
                     if non_modal == 530:
                         self.fail(number, "no G53 in a canned cycle")
                     self.cycle(number, seen, axes, motion_g is not None and previous not in _CYCLES)
+            elif self.motion in (50, 51) and (has_axes or motion_g is not None):
+                if non_modal == 530:
+                    self.fail(number, "G53 only with G0 or G1")
+                self.spline(number, seen, axes)
             else:
                 arc_words = [w for w in "IJKR" if w in seen]
                 if non_modal == 530 and self.motion not in (0, 10):
@@ -813,13 +825,14 @@ class _Parser:
         """P, L, Q, K: used by a code of the line or the motion mode (after this line's motion code)."""
         motion = motion_g if motion_g is not None else -1 if "cycle" in gs else self.motion
         cycle = motion in _CYCLES and non_modal not in (40, 100, 280, 520)
+        spline = motion == 50 and non_modal not in (40, 100, 280, 520)
         if letter == "P":
             return non_modal in (40, 100) or gs.get("path") == 640 or ms.get("subprogram") == 98 or \
-                (cycle and motion == 820)
+                (cycle and motion == 820) or spline
         if letter == "L":
             return non_modal == 100 or ms.get("subprogram") == 98 or cycle
         if letter == "Q":
-            return cycle and motion in (730, 830)
+            return (cycle and motion in (730, 830)) or spline
         return cycle or (non_modal not in (40, 100, 280, 520) and motion in (20, 30))
 
     def tool_number(self, number: int, letter: str, word) -> int:
@@ -1372,6 +1385,53 @@ class _Parser:
         self.emit_curve(NurbsCurve(degree, [tuple(p) for p in points], weights, knots, first_line), first_line,
                         end_line)
         return end_line
+
+    def spline(self, number: int, seen, axes) -> None:
+        """LinuxCNC G5 (cubic: I J from the start to the first control point, P Q from the end to the second; without
+        I J right after a G5 the reflection of its P Q) and G5.1 (quadratic: I J from the start), as exact
+        Bezier NURBS in the XY plane."""
+        code = self.motion
+        name = "G5" if code == 50 else "G5.1"
+        if self.dialect != DIALECT_LINUXCNC:
+            self.fail(number, f"{name} is LinuxCNC's {'cubic' if code == 50 else 'quadratic'} spline: set dialect = "
+                              f"linuxcnc")
+        if self.plane != 17:
+            self.fail(number, f"G17 (the XY plane) for {name}, got G{self.plane}")
+        for letter in ("Z", "K", "R") + (("P", "Q") if code == 51 else ()):
+            if letter in seen:
+                self.fail(number, f"no {letter} with {name}")
+        self.need_feed(number)
+        end = self.target(number, axes)
+        start = list(self.position)
+        words = {}
+        for letter in "IJPQ":
+            if letter in seen:
+                value = seen[letter][0]
+                if abs(value) > MAX_COORDINATE:
+                    self.fail(number, f"a coordinate of magnitude at most {MAX_COORDINATE:g}")
+                words[letter] = self.length(value)
+        if code == 50:
+            if "I" in words or "J" in words:
+                c1 = [start[0] + words.get("I", 0.0), start[1] + words.get("J", 0.0), start[2]]
+            elif self.last_pq is not None and self.last_pq[0] == len(self.moves):
+                c1 = [start[0] - self.last_pq[1], start[1] - self.last_pq[2], start[2]]
+            else:
+                self.fail(number, "I, J (the first control point, from the start) with G5 (or a G5 just before)")
+            if "P" not in words or "Q" not in words:
+                self.fail(number, "P and Q (the second control point, from the end point) with G5")
+            c2 = [end[0] + words["P"], end[1] + words["Q"], start[2]]
+            points = [start, c1, c2, end]
+        else:
+            if "I" not in words and "J" not in words:
+                self.fail(number, "I, J (the control point, from the start) with G5.1")
+            points = [start, [start[0] + words.get("I", 0.0), start[1] + words.get("J", 0.0), start[2]], end]
+        if all(p == start for p in points):
+            self.fail(number, f"an end point or control points away from the start with {name}")
+        degree = len(points) - 1
+        knots = [0.0] * (degree + 1) + [1.0] * (degree + 1)
+        self.emit_curve(NurbsCurve(degree, [tuple(p) for p in points], [1.0] * len(points), knots, number), number,
+                        number)
+        self.last_pq = (len(self.moves), words["P"], words["Q"]) if code == 50 else None
 
     def emit_curve(self, curve: NurbsCurve, first_line: int, end_line: int) -> None:
         """Stores a NURBS curve and its moves (split at inner knots of multiplicity >= the degree)."""

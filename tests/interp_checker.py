@@ -336,9 +336,9 @@ def _pass_time(s: np.ndarray, vlc: np.ndarray, acc: float) -> float:
     ds = np.diff(s)
     vs = v[1:] + v[:-1]
     moving = ds > 0
-    if np.any(moving & (vs <= 0)):
-        return math.inf
-    return float(np.sum(2 * ds[moving] / vs[moving]))
+    rest = moving & (vs <= 0)            # a stop at both ends: rest to rest at A, 2 sqrt(ds / A)
+    cruise = moving & ~rest
+    return float(np.sum(2 * ds[cruise] / vs[cruise]) + np.sum(2 * np.sqrt(ds[rest] / acc)))
 
 
 def _vlc(kappa: np.ndarray, feed: np.ndarray, lim: dict[str, float], chord: float) -> np.ndarray:
@@ -605,11 +605,21 @@ def line_feeds(text: str, lim: dict[str, float]) -> dict[int, float]:
     feed = 0.0
     spindle = 0.0
     rapid_mode = True
+    r_values: dict[str, float] = {}
     inch = per_rev = False
     out = {}
     for number, raw in enumerate(text.splitlines(), start=1):
         code = re.sub(r"\([^)]*\)", " ", raw.upper())
         code = code.split(";", 1)[0]
+        # Sinumerik R parameters and address=expression (R1=5 R2=R1*2, F=R5*20): evaluated here in a simple way
+        for name, expr in re.findall(r"\b(R\d+)=(\S+)", code):
+            value = _arith(expr, r_values)
+            if value is not None:
+                r_values[name] = value
+        feed_expr = re.search(r"\bF=(\S+)", code)
+        if feed_expr:
+            value = _arith(feed_expr.group(1), r_values)
+            code = code.replace(feed_expr.group(0), f" F{value} " if value is not None else " ")
         words = _WORD.findall(code.replace("G00", "G0").replace("G01", "G1"))
         gs = {float(v) for letter, v in words if letter == "G"}
         for letter, value in words:
@@ -638,6 +648,18 @@ def line_feeds(text: str, lim: dict[str, float]) -> dict[int, float]:
         else:
             out[number] = lim["rapid_feed"] if rapid_mode else (f_ms if feed > 0 else lim["max_feed"])
     return out
+
+
+def _arith(expr: str, r_values: dict[str, float]) -> float | None:
+    """An arithmetic expression of numbers, R parameters, + - * / and parentheses; None if it is anything else."""
+    text = re.sub(r"\bR\d+\b", lambda m: repr(r_values.get(m.group(0), math.nan)), expr)
+    if not re.fullmatch(r"[0-9.+\-*/()e ]*(nan)?[0-9.+\-*/()e ]*", text) or not text.strip():
+        return None
+    try:
+        value = float(eval(text, {"__builtins__": {}}, {"nan": math.nan}))  # digits and operators only
+    except (SyntaxError, ZeroDivisionError, TypeError):
+        return None
+    return value if math.isfinite(value) else None
 
 
 def summary(rep: Report) -> str:

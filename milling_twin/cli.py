@@ -265,6 +265,15 @@ def _reconstruct(p: argparse.ArgumentParser) -> None:
                         "has no program)")
 
 
+def _program(p: argparse.ArgumentParser) -> None:
+    p.add_argument("program", type=Path, help="part program (G-code) as a CAM post-processor writes it")
+    p.add_argument("--dialect", choices=("fanuc", "linuxcnc", "sinumerik"), default="fanuc",
+                   help="G-code dialect (the Interpolator's dialect parameter; default fanuc)")
+    p.add_argument("--tool-table", type=Path, help="tool table in LinuxCNC's format (the tool_table parameter)")
+    p.add_argument("--param", action="append", metavar="NAME=VALUE",
+                   help="an Interpolator parameter in SI units (e.g. acceleration=2, max_feed=0.5); repeatable")
+
+
 @dataclass(frozen=True)
 class Subcommand:
     name: str
@@ -308,6 +317,8 @@ COMMANDS: tuple[Subcommand | Group, ...] = (
                    "milling_twin.training.rbf:command"))),
     Subcommand("info", "an FMU's variables: causality, type, units and display units, start, range", _info,
                "milling_twin.orchestrator.fmu_info:command"),
+    Subcommand("program", "read a part program as the Interpolator does: moves, machining time, tools, words not "
+               "modelled, or the line it refuses", _program, "milling_twin.orchestrator.gcode.program_summary:command"),
     Subcommand("reconstruct", "rebuild a part program (G-code) from a UMich recording, one per consistent segment",
                _reconstruct,
                "milling_twin.orchestrator.gcode.reconstruct:command"),

@@ -58,3 +58,20 @@ def test_a_refused_program_exits_2_with_file_line_and_text(tmp_path: Path) -> No
 def test_a_bad_param_is_a_usage_error(tmp_path: Path) -> None:
     result = run(str(CORPUS / "fanuc" / "o1002_drill.nc"), "--param", "acceleration")
     assert result.returncode == 2 and "--param 'acceleration': expected NAME=VALUE" in result.stderr
+
+
+def test_the_cam_scenario_runs_the_program_with_its_tools_and_coolant(tmp_path: Path) -> None:
+    import milling_twin
+
+    result = subprocess.run([sys.executable, "-m", "milling_twin", "run", "scenarios/cam_pocket.toml", "--out",
+                             str(tmp_path)], capture_output=True, text=True, cwd=REPO)
+    assert result.returncode == 0, result.stderr
+    assert "M1: program stop not modelled" in result.stderr  # the FMU's warning reaches the user
+    data = milling_twin.load_results(tmp_path / "cam_pocket")
+    assert sorted(data["interp.tool_number"].unique()) == [0, 1, 5]
+    assert set(data["interp.tool_diameter"][data["interp.tool_number"] == 5].unique()) == {0.012}
+    assert set(data["interp.coolant"].unique()) == {0, 2} and data["interp.finished"].iloc[-1]
+    # the tool length of G43 H1/H5 lies between the machine Z and the programmed Z of the tip
+    cutting = data[data["interp.tool_number"] == 1]
+    offset = (cutting["interp.z"] - cutting["interp.z_program"]).round(9).unique()
+    assert 0.05 in offset

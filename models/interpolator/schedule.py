@@ -216,7 +216,11 @@ class Schedule:
         for k in range(1, n + 1):
             sg = segs[k - 1]
             vk = min(b[k], reach_up(v[k - 1], sg.length, sg.a, sg.j))
-            if vk < v[k - 1] and s_curve_distance(vk, v[k - 1], sg.a, sg.j) > sg.length:
+            # (within the rounding of reach_up: the distance of a jerk-limited slow-down without reaching the
+            # acceleration limit is not monotonic in its end velocity, so a stop the backward pass found to fit
+            # exactly, rejected by an ulp, would be raised to the far side of that hump, e.g. a block ending at 12
+            # mm/s instead of at rest)
+            if vk < v[k - 1] and s_curve_distance(vk, v[k - 1], sg.a, sg.j) > sg.length * (1.0 + VIOLATION_TOLERANCE):
                 vk = lowest_feasible(v[k - 1], vk, sg.length, sg.a, sg.j)
             v[k] = vk
         for k in range(n):

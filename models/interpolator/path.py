@@ -263,12 +263,12 @@ def _nurbs_samples(curve: Nurbs, lim: Limits, u0: float, u1: float, lo: int, hi:
         at = coupled_acceleration(lim, k, v, at)
         return t, kappa, v, at, jt, d[0]
 
-    def push(u: float, s: float, info) -> None:
+    def push(u: float, s: float, info, v: float) -> None:
         if len(us) >= MAX_SAMPLES:
             raise PathError(refusal(f"the NURBS block needs more than {MAX_SAMPLES} samples"))
         us.append(u)
         ss.append(s)
-        vl.append(info[2])
+        vl.append(v)
         ats.append(info[3])
         jts.append(info[4])
 
@@ -286,12 +286,12 @@ def _nurbs_samples(curve: Nurbs, lim: Limits, u0: float, u1: float, lo: int, hi:
             s_m = refine(ua, ia, um, im, s_a, depth + 1)
             return refine(um, im, ub, ib, s_m, depth + 1)
         s_b = s_a + gauss_length(curve, ua, ub, lo, hi)
-        push(ub, s_b, ib)
+        push(ub, s_b, ib, interior_limit(ia[2], im[2], ib[2]))
         return s_b
 
     kn = curve.knots
     info0 = point(u0)
-    push(u0, 0.0, info0)
+    push(u0, 0.0, info0, info0[2])
     s = 0.0
     for span in range(lo, hi + 1):
         a, b = max(kn[span], u0), min(kn[span + 1], u1)
@@ -315,6 +315,20 @@ def _nurbs_samples(curve: Nurbs, lim: Limits, u0: float, u1: float, lo: int, hi:
     first_geometry = Geometry(t0, k0, kp0)
     last_geometry = Geometry(t1, k1, kp1)
     return us, ss, vl, ats, jts, first_geometry, last_geometry
+
+
+def interior_limit(va: float, vm: float, vb: float) -> float:
+    """The speed limit of a sample (limit vb) ending an interval from a sample with limit va whose midpoint's limit
+    is vm: where vm is below both ends (a curvature peak between the samples) and the three differ by at most
+    CURVATURE_VARIATION of vm (a resolved peak, between samples that the sampling left unsplit), the vertex of the
+    parabola through them (it lies within the middle half; its dip below vm is at most 1/8 of the larger
+    difference), else vb. The samples' limits alone missed such peaks: 1 % more curvature between two samples, +0.68
+    % centripetal acceleration on a random quintic. Unresolved variations (a near cusp's tip, where the turn between
+    samples is insignificant) keep their samples' limits: the midpoint there would slow a hairpin by 2 %."""
+    if vm < va and vm < vb and va - vm <= CURVATURE_VARIATION * vm and vb - vm <= CURVATURE_VARIATION * vm:
+        c = va + vb - 2.0 * vm
+        return vm - (vb - va) * (vb - va) / (8.0 * c)
+    return vb
 
 
 def knot_junction(curve: Nurbs, lim: Limits, u: float, before: int, span: int) -> float:

@@ -619,10 +619,11 @@ def test_the_fmu_engine_runs_g4_dwells_as_the_reference(tmp_path: Path) -> None:
 @pytest.mark.parametrize("offset", [1.0, 0.1, 0.01])
 def test_a_near_cusp_is_passed_at_its_curvature_and_finishes(tmp_path: Path, offset: float) -> None:
     """A cubic Bezier hairpin `offset` mm from a true cusp: near the tip the tangential acceleration gives way to
-    the coupling 9 v a |k_i| <= axis jerk, and the tip's tiny limit binds only the steps that reach it, so the
-    program ends within 17 % of the acceleration-limited bound of the independent checker (measured: 1 mm
-    +12.5 %, 0.1 mm +16 %, 0.01 mm +10.7 %; before: 0.01 mm took 922 s against 0.383 s), every step within
-    the feed, the axis limits held, no jump."""
+    the coupling 3 v a |k_i| within what the axis jerk leaves over the tangential jerk and the curvature change
+    v^3 |k'_i| (before: a fixed third, 9 v a |k_i| <= axis jerk), and the tip's tiny limit binds only the steps that
+    reach it, so the program ends within 12 % of the acceleration-limited bound of the independent checker
+    (measured: 1 mm +11.5 %, 0.1 mm +10.4 %, 0.01 mm +10.7 %; with the fixed third +12.5, +16.4, +10.7 %; before:
+    0.01 mm took 922 s against 0.383 s), every step within the feed, the axis limits held, no jump."""
     import interp_checker
 
     text = (f"G21 G90 G17\nG6.2 P3 K0 X0 Y0 F6000\nK0 X10 Y10\nK0 X{offset:g} Y10\nK0 X10 Y0\nK1\nK1\nK1\nK1\n"
@@ -635,13 +636,46 @@ def test_a_near_cusp_is_passed_at_its_curvature_and_finishes(tmp_path: Path, off
     curve = interp_checker.curve_from_rounded(3, [(0, 0, 0), (10, 10, 0), (offset, 10, 0), (10, 0, 0)], [1] * 4,
                                               [0, 0, 0, 0, 1, 1, 1, 1], 6000)
     bound = interp_checker.nurbs_time_bound(curve, interp_checker.default_limits())
-    assert data["t"][-1] <= 1.17 * bound, (data["t"][-1], bound)
+    assert data["t"][-1] <= 1.12 * bound, (data["t"][-1], bound)
     pos = np.column_stack([np.concatenate([[0.0] * 3, data[a], [data[a][-1]] * 3]) for a in "xyz"])
     step = np.linalg.norm(np.diff(pos, axis=0), axis=1)
     assert np.max(step) <= 0.1 * 1e-3 * (1 + 1e-9)
     assert np.max(np.abs(np.diff(pos, 2, axis=0))) / 1e-6 <= 2.0 * 1.001
     assert np.max(np.abs(np.diff(pos, 3, axis=0))) / 1e-9 <= 300.0 * 1.001
     assert (data["x"][-1], data["y"][-1]) == (0.01, 0.0)
+
+
+@pytest.mark.parametrize("seed", [93, 7, 33])
+def test_random_curves_that_broke_a_limit_hold_every_limit(tmp_path: Path, seed: int) -> None:
+    """Random curves of the independent checker (tests/interp_checker.py) that broke a limit by more than 0.1 %:
+    seed 93 (a spiral quintic) +0.38 % tangential jerk from the corrector's tolerance (1e-6 of a step) left in the
+    positions, now polished by one more Newton step; seed 7 (a quintic) +0.68 % centripetal acceleration at a
+    curvature peak between two samples, now bounded by the parabola through the limits of the samples and their
+    midpoint; seed 33 (a tight quintic) ended at 12 mm/s and jumped onto its end once its samples' limits changed,
+    the forward pass rejecting by an ulp a stop the backward pass had found to fit. Every limit within 0.1 %."""
+    import interp_checker
+
+    family, curve, rep = interp_checker.check_random(seed, tmp_path)
+    assert not rep.violations, interp_checker.summary(rep)
+    assert rep.figures["end_at_rest"]
+
+
+def test_the_coupling_gets_what_the_axis_jerk_leaves() -> None:
+    """coupled_acceleration: at the speed limit of the curvature change (v^3 |k'_i| = a third of the axis jerk) and
+    the tangential jerk at its third, the coupling 3 v a |k_i| keeps the last third (a = J_i / (9 v |k_i|)); at half
+    that speed the curvature change takes an eighth of its third and the coupling the rest."""
+    from milling_twin.models.interpolator import path as ipath
+
+    lim = ipath.limits_of(ip.default_parameters())
+    jx = lim.axis_jerk[0]
+    t, k, kp = [1.0, 0.0, 0.0], [2.0e3, 0.0, 0.0], [5.0e6, 0.0, 0.0]
+    jt = jx / 3.0
+    v = math.cbrt(jx / (3.0 * kp[0]))
+    assert ipath.coupled_acceleration(lim, t, jt, k, kp, v, 1e9) == pytest.approx(jx / (9.0 * v * k[0]), rel=1e-12)
+    half = 0.5 * v
+    expected = (jx - jx / 3.0 - jx / 24.0) / (3.0 * half * k[0])
+    assert ipath.coupled_acceleration(lim, t, jt, k, kp, half, 1e9) == pytest.approx(expected, rel=1e-12)
+    assert ipath.coupled_acceleration(lim, t, jt, k, kp, half, 0.5) == 0.5
 
 
 @pytest.mark.parametrize("method", [1, 2])

@@ -56,11 +56,15 @@ double curvature_limit(const Limits *lim, double kappa, const double k[3], const
     return v;
 }
 
-double coupled_acceleration(const Limits *lim, const double k[3], double v, double at) {
+double coupled_acceleration(const Limits *lim, const double t[3], double jt, const double k[3], const double kp[3],
+                            double v, double at) {
     int i;
     for (i = 0; i < 3; i++) {
         double ki = fabs(k[i]);
-        if (ki > 0.0 && v < BIG) at = min2(at, lim->axis_jerk[i] / (9.0 * v * ki));
+        if (ki > 0.0 && v < BIG) {
+            double budget = lim->axis_jerk[i] - fabs(t[i]) * jt - v * v * v * fabs(kp[i]);
+            at = min2(at, budget / (3.0 * v * ki));
+        }
     }
     return at;
 }
@@ -215,7 +219,7 @@ static int point_info(Sampler *z, double u, Info *info) {
      * acceleration does (near a cusp) */
     info->v = max2(curvature_limit(z->lim, info->kappa, k, kp, info->at),
                    COUPLING_SPEED_SHARE * curvature_limit(z->lim, info->kappa, k, kp, 0.0));
-    info->at = coupled_acceleration(z->lim, k, info->v, info->at);
+    info->at = coupled_acceleration(z->lim, info->t, info->jt, k, kp, info->v, info->at);
     info->p[0] = d[0][0], info->p[1] = d[0][1], info->p[2] = d[0][2];
     return 0;
 }

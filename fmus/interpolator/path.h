@@ -43,9 +43,10 @@ void path_free(PathBuild *path);
 
 void tangential_limits(const Limits *lim, const double t[3], int curved, double *at, double *jt);
 double curvature_limit(const Limits *lim, double kappa, const double k[3], const double kp[3], double at);
-/* The tangential acceleration limit lowered so that 9 v a |k_i| stays within each axis's jerk at the speed limit v
- * (near a cusp the acceleration, not the speed, gives way). */
-double coupled_acceleration(const Limits *lim, const double k[3], double v, double at);
+/* The tangential acceleration limit lowered so that the coupling 3 v a |k_i| stays within what each axis's jerk leaves
+ * over |t_i| jt and v^3 |k'_i| at the speed limit v (near a cusp the acceleration, not the speed, gives way). */
+double coupled_acceleration(const Limits *lim, const double t[3], double jt, const double k[3], const double kp[3],
+                            double v, double at);
 double junction_limit(const Limits *lim, const double ta[3], const double ka[3], const double tb[3],
                       const double kb[3]);
 

@@ -82,14 +82,18 @@ def curvature_limit(lim: Limits, kappa: float, k: Sequence[float], kp: Sequence[
     return v
 
 
-def coupled_acceleration(lim: Limits, k: Sequence[float], v: float, at: float) -> float:
-    """The tangential acceleration limit lowered so that the jerk of its coupling with the curvature, 9 v a |k_i|
-    (the axis's third of its jerk), stays within each axis's jerk at the speed limit v: near a cusp the
-    curvature is huge and the speed tiny, and the acceleration, not the speed, gives way."""
+def coupled_acceleration(lim: Limits, t: Sequence[float], jt: float, k: Sequence[float], kp: Sequence[float], v: float,
+                         at: float) -> float:
+    """The tangential acceleration limit lowered so that the jerk of its coupling with the curvature, 3 v a |k_i|,
+    stays within what each axis's jerk leaves over the tangential jerk's |t_i| jt and the curvature change's
+    v^3 |k'_i| at the speed limit v (the axis jerk is t_i j + 3 k_i v a + k'_i v^3; at least the third that the
+    speed limit leaves it, more where v is below the k' limit): near a cusp the curvature is huge and the speed
+    tiny, and the acceleration, not the speed, gives way."""
     for i in range(3):
         ki = abs(k[i])
         if ki > 0.0 and v < BIG:
-            at = min(at, lim.axis_jerk[i] / (9.0 * v * ki))
+            budget = lim.axis_jerk[i] - abs(t[i]) * jt - v * v * v * abs(kp[i])
+            at = min(at, budget / (3.0 * v * ki))
     return at
 
 
@@ -260,7 +264,7 @@ def _nurbs_samples(curve: Nurbs, lim: Limits, u0: float, u1: float, lo: int, hi:
         # the speed gives way to the acceleration-curvature coupling down to half the other limits, then the
         # acceleration does (near a cusp)
         v = max(curvature_limit(lim, kappa, k, kp, at), COUPLING_SPEED_SHARE * curvature_limit(lim, kappa, k, kp, 0.0))
-        at = coupled_acceleration(lim, k, v, at)
+        at = coupled_acceleration(lim, t, jt, k, kp, v, at)
         return t, kappa, v, at, jt, d[0]
 
     def push(u: float, s: float, info, v: float) -> None:

@@ -620,10 +620,11 @@ def test_the_fmu_engine_runs_g4_dwells_as_the_reference(tmp_path: Path) -> None:
 def test_a_near_cusp_is_passed_at_its_curvature_and_finishes(tmp_path: Path, offset: float) -> None:
     """A cubic Bezier hairpin `offset` mm from a true cusp: near the tip the tangential acceleration gives way to
     the coupling 3 v a |k_i| within what the axis jerk leaves over the tangential jerk and the curvature change
-    v^3 |k'_i| (before: a fixed third, 9 v a |k_i| <= axis jerk), and the tip's tiny limit binds only the steps that
-    reach it, so the program ends within 12 % of the acceleration-limited bound of the independent checker
-    (measured: 1 mm +11.5 %, 0.1 mm +10.4 %, 0.01 mm +10.7 %; with the fixed third +12.5, +16.4, +10.7 %; before:
-    0.01 mm took 922 s against 0.383 s), every step within the feed, the axis limits held, no jump."""
+    v^3 |k'_i| (before: a fixed third, 9 v a |k_i| <= axis jerk), the speed giving way down to 3/4 of its other
+    limits, and the tip's tiny limit binds only the steps that reach it, so the program ends within 10 % of the
+    acceleration-limited bound of the independent checker (measured: 1 mm +9.7 %, 0.1 mm +9.1 %, 0.01 mm +9.9 %;
+    with the fixed third and 1/2 +12.5, +16.4, +10.7 %; before: 0.01 mm took 922 s against 0.383 s), every step
+    within the feed, the axis limits held, no jump."""
     import interp_checker
 
     text = (f"G21 G90 G17\nG6.2 P3 K0 X0 Y0 F6000\nK0 X10 Y10\nK0 X{offset:g} Y10\nK0 X10 Y0\nK1\nK1\nK1\nK1\n"
@@ -636,7 +637,7 @@ def test_a_near_cusp_is_passed_at_its_curvature_and_finishes(tmp_path: Path, off
     curve = interp_checker.curve_from_rounded(3, [(0, 0, 0), (10, 10, 0), (offset, 10, 0), (10, 0, 0)], [1] * 4,
                                               [0, 0, 0, 0, 1, 1, 1, 1], 6000)
     bound = interp_checker.nurbs_time_bound(curve, interp_checker.default_limits())
-    assert data["t"][-1] <= 1.12 * bound, (data["t"][-1], bound)
+    assert data["t"][-1] <= 1.10 * bound, (data["t"][-1], bound)
     pos = np.column_stack([np.concatenate([[0.0] * 3, data[a], [data[a][-1]] * 3]) for a in "xyz"])
     step = np.linalg.norm(np.diff(pos, axis=0), axis=1)
     assert np.max(step) <= 0.1 * 1e-3 * (1 + 1e-9)

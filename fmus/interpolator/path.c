@@ -11,7 +11,7 @@
 
 /* CHORD_SAFETY, TANGENT_TOLERANCE, COS_TURN, ... BIG: model_constants.h (through path.h) */
 #ifndef COUPLING_SPEED_SHARE
-#define COUPLING_SPEED_SHARE 0.5 /* models/interpolator/path.py (until model_constants.h generates it) */
+#define COUPLING_SPEED_SHARE 0.75 /* models/interpolator/path.py (until model_constants.h generates it) */
 #endif
 
 static double min2(double a, double b) { return b < a ? b : a; }

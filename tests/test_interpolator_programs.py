@@ -353,7 +353,8 @@ def parser_driver(tmp_path_factory) -> Path:
     binary = folder / "driver"
     source = repo_root() / "fmus" / "interpolator" / "gcode_parser.c"
     subprocess.run([cc, "-std=c99", "-O1", "-Wall", "-Wextra", "-Werror", f"-I{source.parent}", f"-I{generated}",
-                    str(folder / "driver.c"), str(source), str(source.parent / "sinumerik.c"), "-lm", "-o",
+                    str(folder / "driver.c"), str(source), str(source.parent / "sinumerik.c"),
+                    str(source.parent / "gcode_number.c"), str(source.parent / "cutter_comp.c"), "-lm", "-o",
                     str(binary)], check=True)
     return binary
 

@@ -2,6 +2,9 @@
  * same checks and the same arithmetic as that reference. Every malformed line is an error naming the line,
  * its text and what was expected; nothing is skipped. Bounded work per byte: safe on any input (fuzzed). */
 #include "gcode_parser.h"
+
+#include "cutter_comp.h"
+#include "gcode_number.h"
 #include "sinumerik.h"
 
 #include <math.h>
@@ -12,8 +15,6 @@
 
 #define MAX_WORDS 512
 
-static const double POW10[23] = {1e0,  1e1,  1e2,  1e3,  1e4,  1e5,  1e6,  1e7,  1e8,  1e9,  1e10, 1e11,
-                                 1e12, 1e13, 1e14, 1e15, 1e16, 1e17, 1e18, 1e19, 1e20, 1e21, 1e22};
 
 typedef struct {
     char letter;
@@ -181,56 +182,21 @@ static double length_of(const Parser *p, double value) { return p->inch ? value 
 static double unit_factor(const Parser *p) { return p->inch ? 0.0254 : 1e-3; }
 
 static int is_letter(char c) { return (c >= 'A' && c <= 'Z') || (c >= 'a' && c <= 'z'); }
-static int is_digit(char c) { return c >= '0' && c <= '9'; }
 
 /* The number after a letter (spaces allowed before it); -1 on error (reported). */
 static int parse_number(Parser *p, size_t line, const char *s, size_t n, size_t *i, char letter, double *value,
                         const char **text, int *text_length) {
     size_t start;
-    int negative = 0, digits = 0, scale = 0, seen_point = 0, any_digit = 0;
-    unsigned long long mantissa = 0;
+    NumberStatus status;
     while (*i < n && (s[*i] == ' ' || s[*i] == '\t')) (*i)++;
     start = *i;
-    if (*i < n && (s[*i] == '+' || s[*i] == '-')) {
-        negative = s[*i] == '-';
-        (*i)++;
-    }
-    while (*i < n && (is_digit(s[*i]) || (s[*i] == '.' && !seen_point))) {
-        if (s[*i] == '.') {
-            seen_point = 1;
-        } else {
-            int d = s[*i] - '0';
-            any_digit = 1;
-            if (mantissa == 0 && d == 0) {
-                if (seen_point) scale++;
-            } else {
-                digits++;
-                if (digits > MAX_SIGNIFICANT_DIGITS) {
-                    fail_at(p, line, "at most %d significant digits in the number after '%c'", MAX_SIGNIFICANT_DIGITS,
-                            letter);
-                    return -1;
-                }
-                mantissa = mantissa * 10u + (unsigned)d;
-                if (seen_point) scale++;
-            }
-        }
-        (*i)++;
-    }
-    if (!any_digit) {
-        fail_at(p, line, "a number after '%c'", letter);
+    status = gc_read_number(s, n, i, value);
+    if (status != NUMBER_OK) {
+        char what[4] = {'\'', letter, '\'', '\0'}, expected[128];
+        gc_number_expected(status, what, expected, sizeof expected);
+        fail_at(p, line, "%s", expected);
         return -1;
     }
-    while (scale > 0 && mantissa % 10u == 0 && mantissa != 0) {
-        mantissa /= 10u;
-        scale--;
-    }
-    if (mantissa == 0) scale = 0;
-    if (scale > 22) {
-        fail_at(p, line, "at most 22 decimals in the number after '%c'", letter);
-        return -1;
-    }
-    *value = scale ? (double)mantissa / POW10[scale] : (double)mantissa;
-    if (negative) *value = -*value;
     *text = s + start;
     *text_length = (int)(*i - start);
     return 0;
@@ -2172,6 +2138,8 @@ int gc_parse(const char *text, size_t length, const char *file, const GcSettings
         line = next;
     }
     if (status == 0) spindle_now(p, &program->final_spindle, &program->final_spindle_on);
+    /* G41/G42: the moves carry side and radius; the compensation stage offsets them (or refuses a line) */
+    if (status == 0) status = cutter_compensate(program, text, length, file, error, error_size);
     free(p->sections);
     free(p->section_at);
     if (p->line_start != p->raw_start) {

@@ -4,12 +4,14 @@
  * deeper than SIN_MAX_NESTING, at most SIN_MAX_TOKENS words a line); no state outside SinState. */
 #include "sinumerik.h"
 
+#include "gcode_number.h"
+
 #include <math.h>
 #include <stdarg.h>
 #include <stdio.h>
 #include <string.h>
 
-#define MAX_SIGNIFICANT 17
+#define MAX_SIGNIFICANT MAX_SIGNIFICANT_DIGITS
 #define VALUE_LIMIT 1e9
 
 static const double POW10[23] = {1e0,  1e1,  1e2,  1e3,  1e4,  1e5,  1e6,  1e7,  1e8,  1e9,  1e10, 1e11,
@@ -267,44 +269,16 @@ static int word_end(Ctx *c, size_t i, size_t *end) {
     return 0;
 }
 
-/* A plain number at s[i]: [+-]digits[.digits]; the core's arithmetic. */
+/* A plain number at s[i]: [+-]digits[.digits]; the core's arithmetic (gc_read_number). */
 static int number(Ctx *c, size_t *i, const char *what, double *value, size_t *start) {
-    const char *s = c->s;
-    size_t n = c->n;
-    int negative = 0, digits = 0, scale = 0, seen_point = 0, any_digit = 0;
-    unsigned long long mantissa = 0;
+    NumberStatus status;
     *start = *i;
-    if (*i < n && (s[*i] == '+' || s[*i] == '-')) {
-        negative = s[*i] == '-';
-        (*i)++;
+    status = gc_read_number(c->s, c->n, i, value);
+    if (status != NUMBER_OK) {
+        char expected[160];
+        gc_number_expected(status, what, expected, sizeof expected);
+        return fail(c, "%s", expected);
     }
-    while (*i < n && (is_digit(s[*i]) || (s[*i] == '.' && !seen_point))) {
-        if (s[*i] == '.') {
-            seen_point = 1;
-        } else {
-            int d = s[*i] - '0';
-            any_digit = 1;
-            if (mantissa == 0 && d == 0) {
-                if (seen_point) scale++;
-            } else {
-                digits++;
-                if (digits > MAX_SIGNIFICANT)
-                    return fail(c, "at most %d significant digits in the number after %s", MAX_SIGNIFICANT, what);
-                mantissa = mantissa * 10u + (unsigned)d;
-                if (seen_point) scale++;
-            }
-        }
-        (*i)++;
-    }
-    if (!any_digit) return fail(c, "a number after %s", what);
-    while (scale > 0 && mantissa % 10u == 0 && mantissa != 0) {
-        mantissa /= 10u;
-        scale--;
-    }
-    if (mantissa == 0) scale = 0;
-    if (scale > 22) return fail(c, "at most 22 decimals in the number after %s", what);
-    *value = scale ? (double)mantissa / POW10[scale] : (double)mantissa;
-    if (negative) *value = -*value;
     return 0;
 }
 

@@ -1,40 +1,19 @@
 /* Tool table reader: LinuxCNC's format, one tool per line, with the geometry LinuxCNC has no column for as
  * key=value in the comment; the same checks and messages as models/interpolator/tool_table.py. Numbers are read
- * without strtod (whose decimal point follows the host application's locale). */
+ * as the part program's (gc_read_number), not by strtod, whose decimal point follows the host's locale. */
 #include "tool_table.h"
+
+#include "gcode_number.h"
 
 #include <math.h>
 #include <stdio.h>
 #include <stdlib.h>
 #include <string.h>
 
-static const double TEN_POWERS[16] = {1e0, 1e1, 1e2, 1e3, 1e4, 1e5, 1e6, 1e7, 1e8, 1e9, 1e10, 1e11, 1e12, 1e13, 1e14,
-                                      1e15};
-
-/* A plain decimal number ([+-]digits[.digits] or [+-].digits) of at most 15 significant digits and 15 decimals:
- * then mantissa / 10^decimals is the correctly rounded value (both exact doubles), as Python's float(text). */
+/* The whole of s[0..n) as a plain decimal number (the part program's reader); -1 otherwise. */
 static int read_number(const char *s, size_t n, double *value) {
     size_t i = 0;
-    int negative = 0, digits = 0, decimals = 0, point = 0, any = 0;
-    double mantissa = 0.0;
-    if (i < n && (s[i] == '+' || s[i] == '-')) negative = s[i++] == '-';
-    for (; i < n; i++) {
-        if (s[i] == '.' && !point) {
-            point = 1;
-        } else if (s[i] >= '0' && s[i] <= '9') {
-            any = 1;
-            if (mantissa > 0.0 || s[i] != '0') digits++;
-            if (point) decimals++;
-            if (digits > 15 || decimals > 15) return -1;
-            mantissa = mantissa * 10.0 + (double)(s[i] - '0');
-        } else {
-            return -1;
-        }
-    }
-    if (!any) return -1;
-    *value = mantissa / TEN_POWERS[decimals];
-    if (negative) *value = -*value;
-    return 0;
+    return gc_read_number(s, n, &i, value) == NUMBER_OK && i == n ? 0 : -1;
 }
 
 typedef struct {

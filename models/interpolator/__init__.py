@@ -33,9 +33,10 @@ from milling_twin.models.interpolator.param_update import (MAX_NEWTON, METHOD_CO
                                                            METHOD_TAYLOR1, METHOD_TAYLOR2, RBF_HIDDEN, RBF_INPUTS,
                                                            NurbsState, Rbf, predict, rbf_features, rbf_of,
                                                            rbf_output, taylor_step)
+from milling_twin.models.interpolator.numbers import MAX_SIGNIFICANT_DIGITS
 from milling_twin.models.interpolator.parser import (ARC_RADIUS_RELATIVE, ARC_RADIUS_TOLERANCE, MAX_COORDINATE,
                                                      MAX_DEGREE, MAX_FEED_WORD, MAX_LINE_LENGTH, MAX_NURBS_POINTS,
-                                                     MAX_SIGNIFICANT_DIGITS, MAX_SPEED_WORD, MOVE_ARC, MOVE_LINE,
+                                                     MAX_SPEED_WORD, MOVE_ARC, MOVE_LINE,
                                                      MOVE_NURBS, MOVE_RAPID, OFFSET_NAMES, START_POINT_TOLERANCE,
                                                      Move, NurbsCurve, Program, ProgramError, nurbs_block_gcode,
                                                      parse_program)

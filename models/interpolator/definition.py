@@ -5,7 +5,8 @@ from __future__ import annotations
 import math
 
 from milling_twin.models.definition import ModelDefinition, Variable
-from milling_twin.models.interpolator import cutter_comp, nurbs, param_update, parser, path, schedule, tool_table
+from milling_twin.models.interpolator import (cutter_comp, numbers, nurbs, param_update, parser, path, schedule,
+                                             tool_table)
 from milling_twin.models.interpolator.param_update import RBF_HIDDEN, RBF_INPUTS
 from milling_twin.models.interpolator.parser import OFFSET_NAMES
 
@@ -156,7 +157,8 @@ def _variables() -> tuple[Variable, ...]:
 
 def _constants() -> tuple[tuple[str, int | float | tuple[float, ...]], ...]:
     """The constants fmus/interpolator/*.c share with the modules here, under the same names (model_constants.h)."""
-    names = {parser: ("MAX_LINE_LENGTH", "MAX_SIGNIFICANT_DIGITS", "MAX_COORDINATE", "MAX_FEED_WORD", "MAX_SPEED_WORD",
+    names = {numbers: ("MAX_SIGNIFICANT_DIGITS",),
+             parser: ("MAX_LINE_LENGTH", "MAX_COORDINATE", "MAX_FEED_WORD", "MAX_SPEED_WORD",
                       "MAX_NURBS_POINTS", "MAX_DEGREE", "START_POINT_TOLERANCE", "ARC_RADIUS_TOLERANCE",
                       "ARC_RADIUS_RELATIVE", "MOVE_RAPID", "MOVE_LINE", "MOVE_ARC", "MOVE_NURBS", "MOVE_DWELL",
                       "COMP_OFF", "COMP_LEFT", "COMP_RIGHT", "COOLANT_OFF", "COOLANT_MIST", "COOLANT_FLOOD",

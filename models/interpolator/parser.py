@@ -127,12 +127,13 @@ import math
 from dataclasses import dataclass, field
 from typing import Mapping, Sequence
 
+from milling_twin.models.interpolator import cutter_comp
 from milling_twin.models.interpolator.nurbs import dot as _dot
+from milling_twin.models.interpolator.numbers import NumberError, read_number
 
 OFFSET_NAMES = ("g54", "g55", "g56", "g57", "g58", "g59")
 
 MAX_LINE_LENGTH = 1000
-MAX_SIGNIFICANT_DIGITS = 17
 MAX_COORDINATE = 1e6        # |value| in program units (mm or inch)
 MAX_FEED_WORD = 1e7         # mm/min
 MAX_SPEED_WORD = 1e6        # rpm
@@ -243,44 +244,11 @@ def _parse_number(text: str, i: int, file: str, line: int, raw: str, letter: str
     n = len(text)
     while i < n and text[i] in " \t":
         i += 1
-    start = i
-    negative = False
-    if i < n and text[i] in "+-":
-        negative = text[i] == "-"
-        i += 1
-    mantissa, digits, scale, seen_point, any_digit = 0, 0, 0, False, False
-    while i < n and (text[i].isdigit() and text[i] in "0123456789" or (text[i] == "." and not seen_point)):
-        if text[i] == ".":
-            seen_point = True
-        else:
-            any_digit = True
-            d = ord(text[i]) - 48
-            if mantissa == 0 and d == 0:
-                if seen_point:
-                    scale += 1
-            else:
-                digits += 1
-                if digits > MAX_SIGNIFICANT_DIGITS:
-                    raise ProgramError(file, line, raw, f"at most {MAX_SIGNIFICANT_DIGITS} significant digits "
-                                                        f"in the number after '{letter}'")
-                mantissa = mantissa * 10 + d
-                if seen_point:
-                    scale += 1
-        i += 1
-    if not any_digit:
-        raise ProgramError(file, line, raw, f"a number after '{letter}'")
-    # strip trailing zeros of the fraction: same value, and keeps 10^scale exact
-    while scale > 0 and mantissa % 10 == 0 and mantissa != 0:
-        mantissa //= 10
-        scale -= 1
-    if mantissa == 0:
-        scale = 0
-    if scale > 22:
-        raise ProgramError(file, line, raw, f"at most 22 decimals in the number after '{letter}'")
-    value = float(mantissa) / (10.0 ** scale) if scale else float(mantissa)
-    if negative:
-        value = -value
-    return value, i, text[start:i]
+    try:
+        value, end = read_number(text, i, f"'{letter}'")
+    except NumberError as error:
+        raise ProgramError(file, line, raw, error.expected) from None
+    return value, end, text[i:end]
 
 
 
@@ -1575,7 +1543,10 @@ def parse_program(text: str, parameters: Mapping[str, float], file: str = "progr
                   dialect: int = DIALECT_FANUC, tools: Sequence[Tool] = ()) -> Program:
     """The moves of a part program; ``dialect`` DIALECT_FANUC/LINUXCNC/SINUMERIK, ``tools`` the tool table;
     the home position of G28 from the parameters ``home_x/y/z`` (machine coordinates, m; 0 without them)."""
-    return _Parser(text, file, parameters, dialect, tools).run()
+    program = _Parser(text, file, parameters, dialect, tools).run()
+    # G41/G42: the moves carry side and radius; the compensation stage offsets them (or refuses a line)
+    cutter_comp.compensate(program, text, file)
+    return program
 
 
 # Writing part programs (tests, benchmark, training)

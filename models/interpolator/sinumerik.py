@@ -73,6 +73,8 @@ from __future__ import annotations
 import math
 from typing import Sequence
 
+from milling_twin.models.interpolator.numbers import MAX_SIGNIFICANT_DIGITS, NumberError, read_number
+
 R_COUNT = 100
 MAX_SUBPROGRAMS = 64
 NAME_LENGTH = 31             # characters of a subprogram or tool name
@@ -82,7 +84,6 @@ MAX_WORD = 64                # characters of a keyword or name
 MAX_TOKENS = 256             # words of one line
 FIRST_SUBPROGRAM = 9001
 VALUE_LIMIT = 1e9            # |computed value|
-MAX_SIGNIFICANT_DIGITS = 17
 DEGREE = math.pi / 180.0
 
 _POW10 = [1e0, 1e1, 1e2, 1e3, 1e4, 1e5, 1e6, 1e7, 1e8, 1e9, 1e10, 1e11, 1e12, 1e13, 1e14, 1e15, 1e16, 1e17,
@@ -284,42 +285,11 @@ class SinumerikTranslator:
     # lexing ---------------------------------------------------------------------------------------------------
     def _number(self, s: str, i: int, what: str) -> tuple[float, int, str]:
         """A plain number at s[i:] ([+-]digits[.digits]); (value, next index, text as written)."""
-        n = len(s)
-        start = i
-        negative = False
-        if i < n and s[i] in "+-":
-            negative = s[i] == "-"
-            i += 1
-        mantissa, digits, scale, seen_point, any_digit = 0, 0, 0, False, False
-        while i < n and (_is_digit(s[i]) or (s[i] == "." and not seen_point)):
-            if s[i] == ".":
-                seen_point = True
-            else:
-                any_digit = True
-                d = ord(s[i]) - 48
-                if mantissa == 0 and d == 0:
-                    if seen_point:
-                        scale += 1
-                else:
-                    digits += 1
-                    if digits > MAX_SIGNIFICANT_DIGITS:
-                        raise SinumerikError(f"at most {MAX_SIGNIFICANT_DIGITS} significant digits in the number "
-                                             f"after {what}")
-                    mantissa = mantissa * 10 + d
-                    if seen_point:
-                        scale += 1
-            i += 1
-        if not any_digit:
-            raise SinumerikError(f"a number after {what}")
-        while scale > 0 and mantissa % 10 == 0 and mantissa != 0:
-            mantissa //= 10
-            scale -= 1
-        if mantissa == 0:
-            scale = 0
-        if scale > 22:
-            raise SinumerikError(f"at most 22 decimals in the number after {what}")
-        value = float(mantissa) / _POW10[scale] if scale else float(mantissa)
-        return (-value if negative else value), i, s[start:i]
+        try:
+            value, end = read_number(s, i, what)
+        except NumberError as error:
+            raise SinumerikError(error.expected) from None
+        return value, end, s[i:end]
 
     def _expression(self, s: str, i: int, depth: int, what: str) -> tuple[float, int]:
         value, i = self._term(s, i, depth, what)

@@ -24,6 +24,7 @@ import re
 from pathlib import Path
 from typing import Sequence
 
+from milling_twin.models.interpolator.numbers import NumberError, read_number
 from milling_twin.models.interpolator.parser import ProgramError, Tool
 
 MAX_TOOLS = 1000
@@ -35,25 +36,12 @@ TOOL_COMMENT_KEYS = ("corner_radius", "flutes", "helix", "stick_out", "name")
 
 
 def _number(text: str) -> float | None:
-    """A plain decimal number ([+-]digits[.digits] or [+-].digits) of at most 15 significant digits and 15
-    decimals, as the C reader accepts it (its value is then the correctly rounded one in both); else None."""
-    body = text[1:] if text[:1] in ("+", "-") else text
-    digits = decimals = 0
-    point = any_digit = False
-    for c in body:
-        if c == "." and not point:
-            point = True
-        elif c in "0123456789":
-            any_digit = True
-            if digits or c != "0":
-                digits += 1
-            if point:
-                decimals += 1
-            if digits > 15 or decimals > 15:
-                return None
-        else:
-            return None
-    return float(text) if any_digit else None
+    """The whole of ``text`` as a plain decimal number (the part program's reader); else None."""
+    try:
+        value, end = read_number(text, 0, "")
+    except NumberError:
+        return None
+    return value if end == len(text) else None
 
 
 def _split(text: str) -> list[str]:

@@ -845,3 +845,29 @@ def test_random_contours_keep_the_tool_radius_from_the_contour():
         checked += check_path(original, program.moves, abs(radius), samples=8, whole_contour=False)
         compensated_programs += 1
     assert compensated_programs >= 60 and checked > 5000, (compensated_programs, checked)
+
+
+def test_the_parser_runs_the_compensation_in_c_and_python(tmp_path) -> None:
+    """A G41 square through parse_program and through the C engine (interp_run): the cut runs on the offset
+    square, the tool radius (5 mm) outside the programmed 20 mm square, in both."""
+    from milling_twin.models.interpolator import default_parameters
+    from milling_twin.models.interpolator.parser import parse_program
+    from milling_twin.models.interpolator.tool_table import parse_tool_table
+
+    table = "T1 D10 Z50\n"
+    text = ("G21 G90 G17\nT1 M6\nG0 X-20 Y-20\nG1 Z-1 F300\nG41 D1 G1 X0 Y0\nY20\nX20\nY0\nX0\n"
+            "G40 G1 X-20 Y-20\nM30\n")
+    program = parse_program(text, default_parameters(), "square.nc", tools=parse_tool_table(table))
+    cut = [m for m in program.moves if m.line == 6]  # Y20: the left side, 5 mm left of X0 (climb: G41)
+    assert len(cut) == 1 and cut[0].start[0] == pytest.approx(-0.005, abs=1e-12)
+    assert cut[0].end[0] == pytest.approx(-0.005, abs=1e-12) and cut[0].end[1] == pytest.approx(0.02, abs=1e-12)
+    (tmp_path / "square.nc").write_text(text)
+    (tmp_path / "tool.tbl").write_text(table)
+    csv = tmp_path / "out.csv"
+    driver = REPO / "build" / "tools" / "interp_run"
+    run = subprocess.run([str(driver), "--tool-table", str(tmp_path / "tool.tbl"), "--csv", str(csv),
+                          str(tmp_path / "square.nc")], capture_output=True, text=True)
+    assert run.returncode == 0, run.stderr
+    rows = [line.split(",") for line in csv.read_text().splitlines()[1:]]
+    on_left_side = [float(r[2]) for r in rows if r[8] == "6"]
+    assert on_left_side and max(abs(x + 0.005) for x in on_left_side) < 1e-9

@@ -407,6 +407,23 @@ static int target(Parser *p, size_t line, double end[3]) {
     return 0;
 }
 
+/* A NURBS control point from the line's X, Y, Z (absolute, program units, plus the offset `off`); an axis not
+ * written keeps the previous control point's coordinate. -1 on error (reported). */
+static int control_point(Parser *p, size_t line, const double off[3], const double previous[3], double pt[3]) {
+    static const char axes[3] = {'X', 'Y', 'Z'};
+    int a;
+    for (a = 0; a < 3; a++) {
+        if (has(p, axes[a])) {
+            double value = val(p, axes[a]);
+            if (check_coordinate(p, line, value) != 0) return -1;
+            pt[a] = length_of(p, value) + off[a];
+        } else {
+            pt[a] = previous[a];
+        }
+    }
+    return 0;
+}
+
 static int need_feed(Parser *p, size_t line) {
     if ((p->per_rev ? p->feed_rev : p->feed) <= 0.0) {
         fail_at(p, line, "F (feed) before the first feed move (G1, G2, G3, G6.2)");
@@ -831,7 +848,6 @@ static int nurbs(Parser *p, size_t first_line, size_t *last_line) {
         }
         has_point = has(p, 'X') || has(p, 'Y') || has(p, 'Z') || has(p, 'R');
         if (has_point) {
-            static const char axes[3] = {'X', 'Y', 'Z'};
             double pt[3], w;
             int a;
             if (trailing) {
@@ -843,15 +859,7 @@ static int nurbs(Parser *p, size_t first_line, size_t *last_line) {
                 fail_at(p, line, "at most %d control points in a NURBS block", MAX_NURBS_POINTS);
                 goto error;
             }
-            for (a = 0; a < 3; a++) {
-                if (has(p, axes[a])) {
-                    double value = val(p, axes[a]);
-                    if (check_coordinate(p, line, value) != 0) goto error;
-                    pt[a] = length_of(p, value) + off[a];
-                } else {
-                    pt[a] = previous[a];
-                }
-            }
+            if (control_point(p, line, off, previous, pt) != 0) goto error;
             w = has(p, 'R') ? val(p, 'R') : 1.0;
             if (!(w > 0.0) || w > MAX_COORDINATE) {
                 fail_at(p, line, "a weight R > 0 (and at most %g), got R%.*s", MAX_COORDINATE,
@@ -1734,10 +1742,9 @@ static int parse_line(Parser *p, size_t line, size_t *next) {
 
 /* G5.2 [X Y Z] [P weight] [L order] [K interval], control point lines X Y Z [P] [K], G5.3 (parser.py g52_nurbs). */
 static int g52_nurbs(Parser *p, size_t first_line, size_t *next_line) {
-    static const char axes[3] = {'X', 'Y', 'Z'};
     GcCurve curve;
     size_t cap = 0, ln = first_line, n_points, i, cap_intervals = 0;
-    int order = 3, k, a;
+    int order = 3, k;
     double off[3], *intervals = NULL, t;
     memset(&curve, 0, sizeof curve);
     if (!p->absolute) {
@@ -1804,15 +1811,7 @@ static int g52_nurbs(Parser *p, size_t first_line, size_t *next_line) {
                 goto error;
             }
             prev = curve.points + 3 * (size_t)(curve.n_points - 1);
-            for (a = 0; a < 3; a++) {
-                if (has(p, axes[a])) {
-                    double value = val(p, axes[a]);
-                    if (check_coordinate(p, ln, value) != 0) goto error;
-                    pt[a] = length_of(p, value) + off[a];
-                } else {
-                    pt[a] = prev[a];
-                }
-            }
+            if (control_point(p, ln, off, prev, pt) != 0) goto error;
             if (has(p, 'K')) {
                 interval = val(p, 'K');
                 if (!(interval > 0.0) || interval > MAX_COORDINATE) {

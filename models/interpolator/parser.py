@@ -1077,6 +1077,20 @@ class _Parser:
             return self.feed
         return self.feed_rev * self.speed / 60.0
 
+    def control_point(self, ln: int, line_words: dict, off, previous) -> list[float]:
+        """A NURBS control point from the line's X, Y, Z (absolute, program units, plus the offset ``off``); an
+        axis not written keeps the previous control point's coordinate (gcode_parser.c control_point)."""
+        pt = []
+        for a, letter in enumerate("XYZ"):
+            if letter in line_words:
+                value = line_words[letter][0]
+                if abs(value) > MAX_COORDINATE:
+                    self.fail(ln, f"a coordinate of magnitude at most {MAX_COORDINATE:g}")
+                pt.append(self.length(value) + off[a])
+            else:
+                pt.append(previous[a])
+        return pt
+
     def need_feed(self, number: int) -> None:
         if (self.feed_rev if self.per_rev else self.feed) <= 0.0:
             self.fail(number, "F (feed) before the first feed move (G1, G2, G3, G6.2)")
@@ -1273,15 +1287,7 @@ class _Parser:
                                   f"in line {first_line}")
                 if len(points) >= MAX_NURBS_POINTS:
                     self.fail(ln, f"at most {MAX_NURBS_POINTS} control points in a NURBS block")
-                pt = []
-                for a, letter in enumerate("XYZ"):
-                    if letter in line_words:
-                        value = line_words[letter][0]
-                        if abs(value) > MAX_COORDINATE:
-                            self.fail(ln, f"a coordinate of magnitude at most {MAX_COORDINATE:g}")
-                        pt.append(self.length(value) + off[a])
-                    else:
-                        pt.append(previous[a])
+                pt = self.control_point(ln, line_words, off, previous)
                 w = line_words["R"][0] if "R" in line_words else 1.0
                 if not (w > 0.0) or w > MAX_COORDINATE:
                     self.fail(ln, f"a weight R > 0 (and at most {MAX_COORDINATE:g}), got R{line_words['R'][1]}")
@@ -1470,15 +1476,7 @@ class _Parser:
             if has_point:
                 if len(points) >= MAX_NURBS_POINTS:
                     self.fail(ln, f"at most {MAX_NURBS_POINTS} control points in a NURBS block")
-                pt = []
-                for a, letter in enumerate("XYZ"):
-                    if letter in line_words:
-                        value = line_words[letter][0]
-                        if abs(value) > MAX_COORDINATE:
-                            self.fail(ln, f"a coordinate of magnitude at most {MAX_COORDINATE:g}")
-                        pt.append(self.length(value) + off[a])
-                    else:
-                        pt.append(points[-1][a])
+                pt = self.control_point(ln, line_words, off, points[-1])
                 interval = 1.0
                 if "K" in line_words:
                     interval = line_words["K"][0]

@@ -718,3 +718,25 @@ def test_a_zero_tangent_is_refused_quoting_its_line(tmp_path: Path) -> None:
     assert str(refused.value) == expected
     run = subprocess.run([str(DRIVER), str(program)], capture_output=True, text=True)
     assert run.returncode != 0 and run.stderr.strip() == f"interp_run: {expected}"
+
+
+def test_the_contour_tolerance_of_g64_p_is_the_chord_error_of_its_moves(tmp_path: Path) -> None:
+    """G64 P0.02 (CYCLE832's tolerance in Sinumerik programs) allows 20 um between path and chords on its moves:
+    small arcs run faster than under the 1 um chord_error parameter (a machine whose centripetal and axis limits
+    leave the chord error binding), and still within the new tolerance; the C engine and the Python reference
+    give the same positions."""
+    fast = {"centripetal_acceleration": 50.0, "acceleration": 50.0, "jerk": 1e5,
+            **{f"axis_acceleration_{a}": 100.0 for a in "xyz"}, **{f"axis_jerk_{a}": 1e6 for a in "xyz"}}
+    arcs = "G1 X1 F6000\n" + "".join(f"G{2 + k % 2} X{2 + k} Y0 R0.5\n" for k in range(6)) + "M30\n"
+    plain = driver("G21 G90\n" + arcs, tmp_path, fast)
+    tolerant_text = "G21 G90 G64 P0.02\n" + arcs
+    tolerant = driver(tolerant_text, tmp_path, fast)
+    assert tolerant["t"][-1] < 0.9 * plain["t"][-1]
+    reference = run_reference(tolerant_text, fast)
+    assert np.array_equal(positions(reference)[:len(tolerant["t"])], np.column_stack([tolerant[a] for a in "xyz"]))
+    # the chord error on the arcs (radius 0.5 mm): sagitta of each period's chord, within 20 um
+    p = np.column_stack([tolerant[a] for a in "xyz"])
+    chord = np.linalg.norm(np.diff(p, axis=0), axis=1)
+    sagitta = 0.5e-3 - np.sqrt(np.maximum(0.5e-3 ** 2 - (chord / 2) ** 2, 0.0))
+    on_arcs = tolerant["line"][1:] >= 2
+    assert 1e-6 < sagitta[on_arcs].max() <= 0.02e-3

@@ -390,6 +390,9 @@ int path_build(const GcProgram *program, const Limits *lim, const char *text, si
         const GcMove *m = &program->moves[index];
         Samples *x = &samples[index];
         double length;
+        /* the program's contour tolerance (G64 P, CYCLE832) is the chord error allowed on its moves */
+        Limits move_lim = *lim;
+        if (m->tolerance > 0.0) move_lim.chord = m->tolerance;
         out->move_s[index] = s;
         if (m->kind == MOVE_RAPID || m->kind == MOVE_LINE) {
             double t[3], at, jt;
@@ -425,7 +428,7 @@ int path_build(const GcProgram *program, const Limits *lim, const char *text, si
             t[in] = fabs(a.height) / length;
             tangential_limits(lim, t, 1, &at, &jt);
             kappa = rm * omega * omega;
-            v = curvature_limit(lim, kappa, k, kp, at);
+            v = curvature_limit(&move_lim, kappa, k, kp, at);
             arc_end_geometry(&a, 0.0, end_t[index][0], end_k[index][0]);
             arc_end_geometry(&a, 1.0, end_t[index][1], end_k[index][1]);
             out->move_cap[index] = v;
@@ -444,7 +447,7 @@ int path_build(const GcProgram *program, const Limits *lim, const char *text, si
             nurbs_span_range(&view, m->u0, m->u1, &lo, &hi);
             out->span_lo[index] = lo;
             out->span_hi[index] = hi;
-            z.curve = &view, z.lim = lim, z.lo = lo, z.hi = hi, z.line = m->line, z.file = file;
+            z.curve = &view, z.lim = &move_lim, z.lo = lo, z.hi = hi, z.line = m->line, z.file = file;
             z.text = text, z.length = text_length;
             z.error = error, z.error_size = error_size, z.out = x;
             if (nurbs_samples(&z, m->u0, m->u1, end_t[index], end_k[index]) != 0) goto fail;

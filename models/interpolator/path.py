@@ -4,7 +4,7 @@ NURBS samples, nodes with their hard speed caps, intervals with their tangential
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from typing import Mapping, Sequence
 
 from milling_twin.models.interpolator.nurbs import Nurbs, arc_length_derivatives, gauss_length
@@ -381,6 +381,8 @@ def build_path(program: Program, p: Mapping[str, float], text: str | None = None
     samples = []  # per move: list of (local s, vlc) for NURBS; None else
     for index, move in enumerate(program.moves):
         path.move_s.append(s)
+        # the program's contour tolerance (G64 P, CYCLE832) is the chord error allowed on its moves
+        move_lim = replace(lim, chord=move.tolerance) if move.tolerance > 0.0 else lim
         if move.kind in (MOVE_RAPID, MOVE_LINE):
             t, length = line_geometry(move)
             at, jt = tangential_limits(lim, t, False)
@@ -406,7 +408,7 @@ def build_path(program: Program, p: Mapping[str, float], text: str | None = None
             bound = arc.geometry_bound()
             at, jt = tangential_limits(lim, bound.t, True)
             kappa = arc.rm * arc.omega * arc.omega
-            v = curvature_limit(lim, kappa, bound.k, bound.kp, at)
+            v = curvature_limit(move_lim, kappa, bound.k, bound.kp, at)
             ends.append((arc.end_geometry(0.0), arc.end_geometry(1.0)))
             path.move_cap.append(v)
             path.move_span.append((0, 0))
@@ -415,7 +417,7 @@ def build_path(program: Program, p: Mapping[str, float], text: str | None = None
             curve = curves[move.curve]
             lo, hi = curve.span_range(move.u0, move.u1)
             path.move_span.append((lo, hi))
-            us, ss, vl, ats, jts, g0, g1 = _nurbs_samples(curve, lim, move.u0, move.u1, lo, hi, move.line,
+            us, ss, vl, ats, jts, g0, g1 = _nurbs_samples(curve, move_lim, move.u0, move.u1, lo, hi, move.line,
                                                           program.file, text)
             length = ss[-1]
             vc = conservative_limits(ss, vl, lim)

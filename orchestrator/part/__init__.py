@@ -1,0 +1,1 @@
+"""The whole-part scenario: ``[part]`` read and expanded, its checks and its process report."""

@@ -1,0 +1,59 @@
+"""What a whole-part scenario describes, in SI units: the program, the stock, the tool, the material, the
+machine and the stepping. ``[part]`` in a scenario file is read into a :class:`Part` (``orchestrator/part/spec.py``)
+and expanded into the explicit instances and connections (``orchestrator/part/expand.py``); the process report
+(``orchestrator/part/report.py``) reads the same :class:`Part` to know the tool, the modes and the stock.
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from pathlib import Path
+
+from milling_twin.models.interpolator.parser import Tool
+from milling_twin.models.stability import Mode
+
+# The five instances a part expands to; the report and the benchmarks read their columns by these names.
+INTERPOLATOR, WORKPIECE, FORCE, VIBRATION, POWER = "interp", "workpiece", "force", "vibration", "power"
+
+
+@dataclass(frozen=True)
+class Stock:
+    """A block: the corner with the smallest coordinates, its size, and the Z-map cell size (m)."""
+    origin: tuple[float, float, float]
+    size: tuple[float, float, float]
+    resolution: float
+
+    @property
+    def top(self) -> float:
+        return self.origin[2] + self.size[2]
+
+    @property
+    def volume(self) -> float:
+        return self.size[0] * self.size[1] * self.size[2]
+
+
+@dataclass(frozen=True)
+class Material:
+    """Cutting-force coefficients of the linear edge/shear law (N/m^2 and N/m), with where they come from."""
+    name: str
+    coefficients: dict[str, float]       # Ktc, Krc, Kac, Kte, Kre, Kae
+    source: str = ""
+
+
+@dataclass(frozen=True)
+class Part:
+    """A whole-part scenario's ``[part]`` section, resolved: paths absolute, values SI."""
+    program: Path
+    dialect: str
+    tool_table: Path | None
+    tool: Tool                            # the tool that cuts (from the tool table)
+    stock: Stock
+    material: Material
+    modes_x: tuple[Mode, ...]
+    modes_y: tuple[Mode, ...]
+    force_model: str = "CuttingForce"    # or "ForceNet"
+    cutting_power: str = "force"         # "force": torque x omega of the force model; "mrr": the MRR term
+    fine_step: float = 1e-5              # s: force and vibration in and near material
+    coarse_step: float = 1e-3            # s: the interpolation period, also force and vibration in air
+    lookahead: float = 2e-3              # m: step finely this close to material (the Workpiece's clearance)
+    machine: dict[str, float] = field(default_factory=dict)   # Interpolator parameters (limits, start), SI
+    spindle: dict[str, float] = field(default_factory=dict)   # SpindlePower parameters, SI

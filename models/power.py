@@ -2,7 +2,8 @@
 
     P_total   = P_standby + P_spindle + P_cutting + P_dynamic
     P_spindle = on * (P_idle + c1*|n|)
-    P_cutting = on * c2*(MRR/MRR_ref)^c3
+    P_cutting = on * c2*(MRR/MRR_ref)^c3                    (cutting_power_from_force false, the default)
+    P_cutting = on * cutting_power / drive_efficiency       (cutting_power_from_force true)
     P_dynamic = on * (J_spindle * n * dn/dt + k_speed_loop * (n_cmd - n) * |n|)
 
 ``P_standby`` is drawn whenever the machine is on; the spindle terms (idle power, the
@@ -11,6 +12,13 @@ speed-proportional term, the cutting term and the dynamic term) only while the s
 (``spindle_speed``, rad/s) enters the static terms as its magnitude, so M4 (reverse) costs the same as
 M3. The cutting term uses MRR relative to MRR_ref = 1 cm^3/s: that keeps ``c2`` in watts (the cutting
 power at 1 cm^3/s) whatever the exponent ``c3``, and keeps both of order one for the optimiser.
+
+The cutting term comes from one of two models, chosen by the parameter ``cutting_power_from_force``: the
+material-removal term above (an empirical law fitted to a machine's power recordings), or the mechanical
+cutting power a force model computes (CuttingForce's or ForceNet's ``power`` = torque x spindle speed, the
+input ``cutting_power``) divided by the efficiency of the spindle motor and drive, so the electrical power
+follows the forces the whole-part scenario predicts (``drive_efficiency`` 0.85 is a typical value for a
+spindle motor and its drive, not a measured one: calibrate it against a power recording).
 
 The dynamic term has two parts, both 0 at their default parameters (the model is then the static one):
 
@@ -41,7 +49,9 @@ def equations(v: Mapping[str, ca.SX]) -> dict[str, ca.SX]:
     running = v["spindle_on"]
     n = v["spindle_speed"]
     spindle = running * (v["P_idle"] + v["c1"] * ca.fabs(n))
-    cutting = running * v["c2"] * (v["mrr"] / MRR_REFERENCE) ** v["c3"]
+    from_mrr = v["c2"] * (v["mrr"] / MRR_REFERENCE) ** v["c3"]
+    from_force = v["cutting_power"] / v["drive_efficiency"]
+    cutting = running * ca.if_else(v["cutting_power_from_force"], from_force, from_mrr)
     rate = v["spindle_speed_rate"]
     dynamic = running * (v["J_spindle"] * n * rate
                          + v["k_speed_loop"] * (v["spindle_speed_command"] - n) * ca.fabs(n))
@@ -116,5 +126,14 @@ POWER = ModelDefinition(
         Variable("P_dynamic", "Float64", "output",
                  "Spindle inertia and speed-loop power (J*n*dn/dt + k*(n_command - n)*|n|, while the spindle runs)",
                  unit="W", display_unit="kW"),
+        Variable("cutting_power_from_force", "Boolean", "parameter",
+                 "Cutting term from the input cutting_power (a force model's torque x speed) / drive_efficiency "
+                 "instead of the material-removal term c2*(MRR/MRR_ref)^c3", start=False),
+        Variable("cutting_power", "Float64", "input",
+                 "Mechanical cutting power at the tool (a force model's power output); used when "
+                 "cutting_power_from_force is true", unit="W", display_unit="kW", start=0.0, min=-1e6, max=1e6),
+        Variable("drive_efficiency", "Float64", "parameter",
+                 "Efficiency of the spindle motor and drive: electrical cutting power = cutting_power / it",
+                 unit="", start=0.85, min=0.05, max=1.0),
     ),
 )

@@ -34,6 +34,7 @@ def test_without_dynamics_the_outputs_are_the_static_model() -> None:
     v = random_points(500, np.random.default_rng(5))
     v["J_spindle"][:] = 0.0
     v["k_speed_loop"][:] = 0.0
+    v["cutting_power_from_force"][:] = 0.0
     out = POWER.evaluate(**v)
     on, n = v["spindle_on"], v["spindle_speed"]
     spindle = on * (v["P_idle"] + v["c1"] * np.abs(n))
@@ -43,6 +44,19 @@ def test_without_dynamics_the_outputs_are_the_static_model() -> None:
     np.testing.assert_allclose(out["P_total"], v["P_standby"] + spindle + cutting, rtol=1e-14)
     assert np.all(out["P_dynamic"] == 0.0)
     np.testing.assert_array_equal(out["spindle_acceleration"], v["spindle_speed_rate"])
+
+
+def test_cutting_power_from_force_replaces_the_mrr_term() -> None:
+    """cutting_power_from_force: P_cutting = on * cutting_power / drive_efficiency, whatever the MRR; off: the MRR
+    term, whatever cutting_power."""
+    v = random_points(500, np.random.default_rng(7))
+    from_force = v["cutting_power_from_force"] == 1.0
+    out = POWER.evaluate(**v)
+    on = v["spindle_on"]
+    expected = np.where(from_force, on * v["cutting_power"] / v["drive_efficiency"],
+                        on * v["c2"] * (v["mrr"] / MRR_REFERENCE) ** v["c3"])
+    assert from_force.any() and (~from_force).any()
+    np.testing.assert_allclose(out["P_cutting"], expected, rtol=1e-14)
 
 
 def test_dynamic_power_is_inertia_plus_speed_loop_while_the_spindle_runs() -> None:
@@ -125,10 +139,11 @@ def test_dynamic_graph_steps_like_the_model(power_case) -> None:
     expected_states = {s.name: s.start for s in POWER.states}
     for n in speeds:
         row = {"power.spindle_speed": n, "power.spindle_on": 1.0, "power.mrr": 0.0,
-               "power.spindle_speed_command": 335.0}
+               "power.spindle_speed_command": 335.0, "power.cutting_power": 0.0}
         x, y = graph.dynamic.step(x, theta, [row[c] for c in columns])
         values = dict(P_standby=100.0, P_idle=170.0, c1=0.5, c2=1000.0, c3=1.0, J_spindle=1.5e-3, k_speed_loop=0.076,
-                      spindle_speed=n, spindle_on=1.0, mrr=0.0, spindle_speed_command=335.0)
+                      spindle_speed=n, spindle_on=1.0, mrr=0.0, spindle_speed_command=335.0,
+                      cutting_power=0.0, cutting_power_from_force=0.0, drive_efficiency=0.85)
         expected_states = {k: float(v) for k, v in POWER.step(h, **values, **expected_states).items()}
         expected = float(POWER.evaluate(**values, **expected_states)["P_total"])
         assert float(y) == pytest.approx(expected, rel=1e-13)

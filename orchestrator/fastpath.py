@@ -18,6 +18,10 @@ call, so the two paths give bit-identical results:
   converted as ctypes converts them (FMI 2: ``int``, FMI 3: ``bool``).
 * Rows (time, then the recorded variables as float64) go into a numpy buffer; the master appends
   them to the results in one block per chunk.
+* The variable communication step (``[stepping]``): the plan holds the conditions (the address of each gate
+  output with its threshold and sense), each instance's ``variable`` flag, and the coarse intervals' state
+  (current interval fine or coarse, whether a condition held at the latest evaluation, the counts), which
+  ``stp_run`` carries from one chunk to the next, so a chunk may end anywhere inside an interval.
 
 Chunks are sized to take about :data:`CHUNK_SECONDS` of wall time (they start small and adapt),
 so the progress bar moves and Ctrl-C, which Python can only act on between chunks, stops the run
@@ -50,7 +54,7 @@ __all__ = ["LIBRARY_ENV", "LIBRARY_NAME", "Choice", "FastPathUnavailable", "Step
 
 LIBRARY_ENV = "MILLING_TWIN_STEPPER"
 LIBRARY_NAME = "libmilling_stepper.so"
-ABI_VERSION = 4
+ABI_VERSION = 5
 CHUNK_SECONDS = 0.1  # wall time a chunk should take: the Ctrl-C latency and progress-bar period
 FIRST_CHUNK_TICKS = 256
 MAX_CHUNK_TICKS = 1 << 18  # bounds a chunk where ticks cost next to nothing (and rows are rare)
@@ -75,6 +79,13 @@ class _Recorded(ctypes.Structure):
     _fields_ = [("values", _vp), ("factor", _f64), ("hint", _i64), ("linear", _i32), ("reserved", _i32)]
 
 
+class _Gate(ctypes.Structure):
+    _fields_ = [("source", _vp), ("threshold", _f64), ("kind", _i32), ("sense", _i32)]
+
+
+_SENSES = {"above": 0, "below": 1, "is": 2}  # stp_gate.sense
+
+
 class _Column(ctypes.Structure):
     _fields_ = [("source", _vp), ("kind", _i32), ("reserved", _i32)]
 
@@ -92,7 +103,7 @@ class _Instance(ctypes.Structure):
                 ("n_real_in", _i64), ("n_bool_in", _i64), ("n_rec_real", _i64), ("n_rec_bool", _i64),
                 ("n_real_links", _i64), ("n_bool_links", _i64), ("n_real_out", _i64), ("n_bool_out", _i64),
                 ("fmi_version", _i32), ("ticks_per_step", _i32), ("get_after_step", _i32),
-                ("snapshot", _i32), ("get_at_rows", _i32), ("reserved", _i32),
+                ("snapshot", _i32), ("get_at_rows", _i32), ("variable", _i32),
                 ("fmi2_get_integer", _vp), ("fmi3_get_int32", _vp), ("vr_int_out", _vp), ("int_out", _vp),
                 ("n_int_out", _i64), ("n_vr_real_in", _i64), ("n_vr_bool_in", _i64), ("n_vr_real_out", _i64),
                 ("n_vr_bool_out", _i64), ("n_vr_int_out", _i64)]
@@ -102,7 +113,10 @@ class _Plan(ctypes.Structure):
     _fields_ = [("start", _f64), ("base", _f64), ("n_ticks", _i64), ("ticks_per_output", _i64),
                 ("n_instances", _i64), ("n_columns", _i64), ("instances", ctypes.POINTER(_Instance)),
                 ("columns", ctypes.POINTER(_Column)), ("should_stop", STOP_CALLBACK),
-                ("recorded_time", _vp), ("recorded_samples", _i64), ("recorded_tolerance", _f64)]
+                ("recorded_time", _vp), ("recorded_samples", _i64), ("recorded_tolerance", _f64),
+                ("gates", ctypes.POINTER(_Gate)), ("n_gates", _i64), ("ticks_per_interval", _i64),
+                ("first_variable", _i64), ("fine_intervals", _i64), ("coarse_intervals", _i64),
+                ("variable_steps", _i64), ("fine", _i32), ("held", _i32)]
 
 
 class _Outcome(ctypes.Structure):
@@ -152,7 +166,7 @@ def load_library(path: Path) -> ctypes.CDLL:
     lib.stp_run.argtypes = [ctypes.POINTER(_Plan), _i64, _i64, _vp, ctypes.POINTER(_Outcome)]
     if lib.stp_abi_version() != ABI_VERSION:
         raise OSError(f"{path}: ABI version {lib.stp_abi_version()}, expected {ABI_VERSION}: rebuild it")
-    for which, struct in enumerate((_Link, _Column, _Instance, _Plan, _Outcome, _Recorded)):
+    for which, struct in enumerate((_Link, _Column, _Instance, _Plan, _Outcome, _Recorded, _Gate)):
         if lib.stp_struct_size(which) != ctypes.sizeof(struct):
             raise OSError(f"{path}: {struct.__name__.lstrip('_')} has {lib.stp_struct_size(which)} bytes, "
                           f"expected {ctypes.sizeof(struct)}: rebuild it")
@@ -240,6 +254,8 @@ class Stepper:
         self.n_ticks, self.tpo = n_ticks, scenario.ticks_per_output
         by_name = {s.name: s for s in self.slaves}
         delayed = {c.source.instance for c in scenario.connections if c.delay}
+        stepping = getattr(scenario, "stepping", None)  # [stepping] (test doubles of a scenario may lack it)
+        variable = set(stepping.variable) if stepping is not None else set()
         self._keep: list[Any] = []  # everything C points to
         self._instances = (_Instance * len(self.slaves))()
         rec = scenario.recorded
@@ -286,6 +302,7 @@ class Stepper:
             inst.get_after_step = int(s.feeds_connections)
             inst.snapshot = int(s.name in delayed)
             inst.get_at_rows = int(bool(s.out_index))
+            inst.variable = int(s.name in variable)
             for kind, conns, offset in (("real", s.conn_real, s.n_rec_real), ("bool", s.conn_bool, s.n_rec_bool)):
                 links = (_Link * max(1, len(conns)))()
                 for link, (pos, c) in zip(links, enumerate(conns, start=offset)):
@@ -311,6 +328,18 @@ class Stepper:
                            instances=self._instances, columns=self._columns)
         if self._callback is not None:  # else NULL: C never calls back
             self._plan.should_stop = self._callback
+        self._plan.fine = 1
+        if stepping is not None:
+            gates = (_Gate * len(stepping.fine_when))()
+            for gate, g in zip(gates, stepping.fine_when):
+                kind, j = by_name[g.output.instance].out_index[g.output.variable]
+                buf = getattr(by_name[g.output.instance], f"{kind}_out")
+                gate.source, gate.kind = _address(buf, j), _kind(buf)
+                gate.threshold, gate.sense = g.threshold, _SENSES[g.sense]
+            self._keep.append(gates)
+            self._plan.gates, self._plan.n_gates = gates, len(gates)
+            self._plan.ticks_per_interval = stepping.ticks_per_interval
+            self._plan.first_variable = next(i for i, s in enumerate(self.slaves) if s.name in variable)
         if rec is not None:
             time = np.ascontiguousarray(rec.time, dtype=np.float64)
             self._keep += [time, channels]
@@ -325,6 +354,11 @@ class Stepper:
         except BaseException as exc:  # noqa: BLE001 - re-raised by run_chunk after the rows are saved
             self.pending = exc
             return 1
+
+    def interval_counts(self) -> tuple[int, int, int]:
+        """[stepping]: the intervals evaluated fine and coarse, and the doSteps of the variable instances."""
+        plan = self._plan
+        return plan.fine_intervals, plan.coarse_intervals, plan.variable_steps
 
     def max_ticks(self) -> int:
         """The largest chunk the buffers allow."""

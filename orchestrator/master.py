@@ -25,6 +25,21 @@ Semantics of :func:`run` (``base`` = the scenario's base step, ``t_k = start + k
   at the beginning of the tick, i.e. the source's value at its previous
   communication point. Unit factors are applied on the way. Outputs are read
   right after the step only where connections need them.
+* Variable communication step (``[stepping]``, :class:`~milling_twin.orchestrator.scenario.Stepping`; without
+  it every interval is fine and nothing below applies). The ticks are cut into coarse intervals
+  ``[cM, (c+1)M)`` of ``M = coarse_step / base`` ticks (the last one cut at ``N``). At the first tick ``cM`` of
+  each interval, at the point of the execution order where the first variable instance would step (after the
+  other instances before it, among them every gate instance, which steps at exactly ``coarse_step`` and so has
+  already stepped to ``t_min((c+1)M, N)``: Gauss-Seidel), the master evaluates the ``fine_when`` conditions on
+  the gate outputs as last read (Real: ``value > threshold`` or ``value < threshold`` in the output's unit;
+  Boolean: ``value == is``). The interval is fine if a condition holds now or held at the previous interval's
+  evaluation (before the first interval none held): the condition now speaks of the interval's end, the
+  previous one of its start, so the interval in which the tool enters or leaves material is fine. Every
+  interval counts as fine or coarse once, when evaluated. In a fine interval the variable instances step on
+  their own step size, as without ``[stepping]``. In a coarse interval each variable instance is due once, at
+  ``cM``, and makes one ``doStep(t_cM, t_min((c+1)M, N) - t_cM)``, its inputs set at that tick as above;
+  recorded rows inside the interval hold its outputs from that step (the step covering that time, as for a
+  slower instance). Delayed connections still pass the copy taken at the start of the tick, every tick.
 * Recording. The first row is at ``start`` after initialization; then one row
   after each tick that reaches a multiple of ``output_interval``, holding every
   recorded variable as left by its instance's latest step (for a slower instance:
@@ -125,6 +140,8 @@ class RunResult:
     steps_per_second: float  # steps / loop_wall_time
     stepping: str = "python"  # "fast" (compiled loop) or "python"
     stepping_reason: str = ""  # why the Python path was used ("" on the fast path)
+    fine_intervals: int = 0  # [stepping]: coarse intervals evaluated fine (0 without [stepping])
+    coarse_intervals: int = 0  # [stepping]: coarse intervals evaluated coarse (0 without [stepping])
 
 
 class _Slave:
@@ -179,6 +196,11 @@ class _Slave:
         bool_in = [x.target.variable for x in self.rec_bool + self.conn_bool]
         # Outputs: what connections read and what is recorded (Int32 outputs: recorded only).
         wanted = [c.source.variable for c in scenario.connections if c.source.instance == inst.name]
+        stepping = scenario.stepping
+        # [stepping]: gate outputs are read after each step, as connection sources are
+        wanted += [g.output.variable for g in (stepping.fine_when if stepping else ())
+                   if g.output.instance == inst.name]
+        self.variable = stepping is not None and inst.name in stepping.variable
         self.feeds_connections = bool(wanted)
         wanted += [r.variable for r in scenario.outputs if r.instance == inst.name]
         wanted = _whole_arrays(inst, list(dict.fromkeys(wanted)))
@@ -356,6 +378,40 @@ def _run_info(scenario: Scenario, fmu_hashes: dict[Path, str]) -> dict[str, Any]
     }
 
 
+def _stepping_settings(scenario: Scenario) -> dict[str, Any]:
+    """``[stepping]`` as run.json records it (without the counts); {} without it."""
+    st = scenario.stepping
+    if st is None:
+        return {}
+    return {"coarse_step": st.coarse_step, "ticks_per_interval": st.ticks_per_interval,
+            "variable": list(st.variable),
+            "fine_when": [{"output": str(g.output), g.sense: bool(g.threshold) if g.sense == "is" else g.threshold}
+                          for g in st.fine_when]}
+
+
+class _Intervals:
+    """The variable communication step's state from tick to tick on the Python path (the fast path keeps the
+    same in its plan): whether the current coarse interval is fine, whether a condition held at the latest
+    evaluation, the counts, and the doSteps of the variable instances."""
+
+    def __init__(self, scenario: Scenario, slaves: dict[str, _Slave]) -> None:
+        st = scenario.stepping
+        assert st is not None
+        self.m = st.ticks_per_interval
+        self.first = slaves[st.variable[0]]  # variable names are in execution order
+        self.gates = [(slaves[g.output.instance].column(g.output.variable), g) for g in st.fine_when]
+        self.fine, self.held = True, False
+        self.fine_count = self.coarse_count = self.steps = 0
+
+    def evaluate(self) -> None:
+        now = any(g.holds(buf[j]) for (buf, j), g in self.gates)
+        self.fine, self.held = now or self.held, now
+        if self.fine:
+            self.fine_count += 1
+        else:
+            self.coarse_count += 1
+
+
 class _Writer(RunWriter):
     """RunWriter with, for the fast path, block appends (the same buffer and flush rules as append)
     and chunk files written by a worker thread (:meth:`in_background`): Parquet encoding and fsync
@@ -452,6 +508,8 @@ class _Run:
         self.t = self.start
         self.status = "completed"
         self.loop_wall = 0.0
+        self.intervals: _Intervals | None = None  # [stepping] (the Python path's state)
+        self.counts = (0, 0, 0)  # [stepping]: fine intervals, coarse intervals, doSteps of variable instances
 
     def grid(self, k: Any) -> Any:
         return self.start + k * self.base  # exact multiples: no drift over long runs
@@ -466,6 +524,8 @@ class _Run:
                                           self.fmi_call_logger)
             self.slaves[inst.name].set_parameters()
         _wire(self.slaves, scenario)
+        if scenario.stepping is not None:
+            self.intervals = _Intervals(scenario, self.slaves)
         order = list(self.slaves.values())
         for s in order:
             self.current = s.name
@@ -494,6 +554,8 @@ class _Run:
         record = [self.slaves[r.instance].column(r.variable) for r in scenario.outputs]
         append = self.writer.append
         append([self.start] + [buf[j] for buf, j in record])
+        iv = self.intervals
+        gate_point, coarse = (iv.first, iv.m) if iv is not None else (None, 0)
 
         tick = 0
         try:
@@ -508,13 +570,18 @@ class _Run:
                 for s in delayed:
                     s.snapshot()
                 for s in order:
-                    if tick % s.m:
+                    if s is gate_point and tick % coarse == 0:
+                        iv.evaluate()
+                    m = coarse if s.variable and not iv.fine else s.m
+                    if tick % m:
                         continue
                     self.current = s.name
                     _feed(s, row)
-                    if s.do_step(t, grid(min(tick + s.m, n_ticks)) - t):
+                    if s.do_step(t, grid(min(tick + m, n_ticks)) - t):
                         self.status = f"terminated: instance {s.name!r} asked to terminate at t = {t!r} s"
                         stop.set = True
+                    if s.variable:
+                        iv.steps += 1
                     if s.feeds_connections:
                         s.get_outputs()
                 tick += 1
@@ -528,6 +595,8 @@ class _Run:
                         stop.set = True
         finally:
             self.tick = tick
+            if iv is not None:
+                self.counts = (iv.fine_count, iv.coarse_count, iv.steps)
             bar.update(tick - bar.n)
         if stop.set and self.status == "completed":
             self.status = "interrupted"
@@ -569,9 +638,14 @@ class _Run:
                 chunk = max(1, min(chunk, stepper.max_ticks()))
         finally:
             self.tick = tick
+            self.counts = stepper.interval_counts()
             bar.update(tick - bar.n)
         if stop.set and self.status == "completed":
             self.status = "interrupted"
+
+    def fmu_steps(self) -> int:
+        """doStep calls so far: each instance's due ticks, except the counted steps of variable instances."""
+        return sum(-(-self.tick // s.m) for s in self.slaves.values() if not s.variable) + self.counts[2]
 
     def close(self) -> None:
         for s in self.slaves.values():
@@ -617,6 +691,8 @@ def run(scenario: Scenario, out_dir: str | Path, *, progress: bool = True,
     info = {**_run_info(scenario, fmu_hashes), "stepping": {
         "path": choice.path, "library": None if choice.library is None else str(choice.library),
         "reason": choice.reason}}
+    if scenario.stepping is not None:  # the counts are added when the run ends
+        info["stepping"]["variable_step"] = _stepping_settings(scenario)
     writer = _Writer(Path(out_dir) / scenario.name, columns, bools, info,
                      flush_rows=flush_rows, flush_seconds=flush_seconds, int_columns=ints, units=units)
     state = _Run(scenario, writer, fmu_hashes, fmi_call_logger)
@@ -643,14 +719,18 @@ def run(scenario: Scenario, out_dir: str | Path, *, progress: bool = True,
         state.status = "interrupted" if isinstance(exc, KeyboardInterrupt) else f"failed: {exc}"
         raise
     finally:
-        fmu_steps = sum(-(-state.tick // s.m) for s in state.slaves.values())
+        fmu_steps = state.fmu_steps()
         rate = state.tick / state.loop_wall if state.loop_wall > 0 else 0.0
         wall = time.perf_counter() - t0_wall
+        variable_step = {} if scenario.stepping is None else {"variable_step": {
+            **_stepping_settings(scenario), "fine_intervals": state.counts[0], "coarse_intervals": state.counts[1]}}
         try:
             writer.finish(state.status, steps=state.tick, fmu_steps=fmu_steps,
                           end_time=state.grid(state.tick), wall_time=wall,
-                          loop_wall_time=state.loop_wall, steps_per_second=rate)
+                          loop_wall_time=state.loop_wall, steps_per_second=rate,
+                          stepping={**info["stepping"], **variable_step})
         finally:
             state.close()
     return RunResult(state.status, writer.run_dir, state.tick, fmu_steps, writer.rows_written,
-                     state.grid(state.tick), wall, state.loop_wall, rate, choice.path, choice.reason)
+                     state.grid(state.tick), wall, state.loop_wall, rate, choice.path, choice.reason,
+                     state.counts[0], state.counts[1])

@@ -62,6 +62,14 @@ Format (all times in seconds; paths are relative to the scenario file's folder):
     recorded = "spindle_power"
     unit = "kW"                 # optional display unit of the plot
 
+    [stepping]                  # optional: the engagement-driven variable communication step
+    coarse_step = 1e-3          # s; the length of a coarse interval
+    variable = ["force", "vibration"]      # instances that make one step per interval while no condition holds
+    fine_when = [               # any one true -> the interval is fine (the variable instances take their own steps)
+      { output = "workpiece.axial_depth", above = 0.0 },                        # Real: above / below a threshold
+      { output = "workpiece.clearance", below = { value = 2.0, unit = "mm" } }, # (its unit, or { value, unit })
+    ]                           # Boolean: { output = "...", is = true }
+
 Parameter sets (``[scenario].parameter_sets``, and ``load_scenario(..., parameter_sets=...)``
 after those) are TOML files of parameter values by instance, applied in order after the
 instances' own ``parameters`` (a later value wins); ``orchestrator calibrate`` writes them::
@@ -92,6 +100,15 @@ largest step; ``output_interval`` must be a multiple of it. Connections with
 ``delay = false`` must not form a cycle between instances (an algebraic loop; the
 check is per instance, not per variable dependency). The execution order is the
 topological order of instances along those connections, ties broken by file order.
+
+``[stepping]`` (the master's loop in ``orchestrator/master.py`` states what it does): ``coarse_step`` is an integer
+multiple of the base step and of the step of every ``variable`` instance (listed once each, at least one; their
+FMUs declare canHandleVariableCommunicationStepSize="true"); it need not relate to ``output_interval`` (rows inside
+a coarse interval hold the outputs of the step covering them). ``fine_when`` lists at least one condition, each
+on a Real/Float64 output (``above`` or ``below``, strict, a number in the output's unit or ``{ value, unit }`` of
+the same dimension) or a Boolean output (``is = true`` or ``false``) of an instance that steps at exactly
+``coarse_step`` and precedes every variable instance in the execution order (so the condition reads the value at
+the coarse interval's end).
 """
 from __future__ import annotations
 
@@ -114,8 +131,8 @@ from milling_twin.orchestrator.recording_checks_spec import check_table
 from milling_twin.models.units import UnitError, conversion_factor
 
 __all__ = [
-    "Compare", "Connection", "FmuInstance", "Ref", "RecordedInput", "Scenario",
-    "ScenarioError", "Variable", "load_scenario", "with_values",
+    "Compare", "Connection", "FineWhen", "FmuInstance", "Ref", "RecordedInput", "Scenario",
+    "ScenarioError", "Stepping", "Variable", "load_scenario", "with_values",
 ]
 
 BUILD_HINT = ("build the FMUs first: `make build` (or `cmake -S . -B build && cmake --build build`), "
@@ -225,6 +242,35 @@ class Compare:
 
 
 @dataclass(frozen=True)
+class FineWhen:
+    """A condition of ``[stepping].fine_when``: ``output`` (Real) ``above``/``below`` ``threshold`` (strictly, in
+    the output's unit), or (Boolean) ``is`` the truth of ``threshold`` (1.0 true, 0.0 false)."""
+
+    output: Ref
+    sense: str  # "above", "below" or "is"
+    threshold: float
+
+    def holds(self, value: float | bool | int) -> bool:
+        """Whether the output's ``value`` (as read from its buffer: a float, an int or a bool) meets it."""
+        if self.sense == "above":
+            return value > self.threshold
+        if self.sense == "below":
+            return value < self.threshold
+        return (value != 0) == (self.threshold != 0.0)
+
+
+@dataclass(frozen=True)
+class Stepping:
+    """``[stepping]``: coarse intervals of ``ticks_per_interval`` base steps (``coarse_step``), in which the
+    ``variable`` instances (execution order) make one step unless a ``fine_when`` condition holds."""
+
+    coarse_step: float
+    ticks_per_interval: int
+    variable: tuple[str, ...]
+    fine_when: tuple[FineWhen, ...]
+
+
+@dataclass(frozen=True)
 class Scenario:
     path: Path
     name: str
@@ -243,6 +289,7 @@ class Scenario:
     # the parameter-set files applied, in order: the file's own [scenario].parameter_sets (resolved against
     # its folder), then those load_scenario(..., parameter_sets=...) was given
     parameter_sets: tuple[Path, ...] = ()
+    stepping: Stepping | None = None  # [stepping]: the variable communication step (None: every step fine)
 
     @property
     def execution_order(self) -> tuple[str, ...]:
@@ -609,7 +656,8 @@ def load_scenario(path: str | Path, fmu_dir: str | Path, parameter_sets: Sequenc
     path, fmu_dir = Path(path), Path(fmu_dir)
     ctx = _Ctx(path)
     _, doc = ctx.document("scenario")
-    ctx.table(doc, "", ("scenario", "fmus", "recorded", "inputs", "connections", "outputs", "compare"))
+    ctx.table(doc, "", ("scenario", "fmus", "recorded", "inputs", "connections", "outputs", "compare",
+                        "stepping"))
 
     sc = ctx.table(doc.get("scenario"), "[scenario]", (
         "name", "description", "start_time", "stop_time", "output_interval", "parameter_sets"))
@@ -752,14 +800,87 @@ def load_scenario(path: str | Path, fmu_dir: str | Path, parameter_sets: Sequenc
         compares.append(Compare(ref, channel, display))
 
     order = _execution_order(ctx, list(instances), conns)
+    stepping = _stepping(ctx, doc["stepping"], [instances[n] for n in order], base,
+                         {n: v[2] for n, v in loaded.items()}) if "stepping" in doc else None
     return Scenario(
         path=path, name=name, description=ctx.string(sc, "[scenario]", "description", ""),
         start_time=start, stop_time=stop, output_interval=output_interval, base_step=base,
         ticks_per_output=ticks_per_output, instances=tuple(instances[n] for n in order),
         recorded=recorded, inputs=tuple(inputs), connections=tuple(c for _, c in conns),
         outputs=tuple(dict.fromkeys(outputs)), compare=tuple(compares),
-        parameter_sets=tuple(set_path for _, set_path in applied_sets),
+        parameter_sets=tuple(set_path for _, set_path in applied_sets), stepping=stepping,
     )
+
+
+def _stepping(ctx: _Ctx, table: Any, order: Sequence[FmuInstance], base: float,
+              model_descriptions: Mapping[str, Any]) -> Stepping:
+    """``[stepping]``, checked against the instances (in execution order) and the base step."""
+    key = "[stepping]"
+    ctx.table(table, key, ("coarse_step", "variable", "fine_when"))
+    coarse = ctx.number(table, key, "coarse_step", positive=True)
+    ticks = round(coarse / base)
+    if ticks < 1 or abs(coarse / base - ticks) > 1e-6 * ticks:
+        ctx.fail(f"{key}.coarse_step", f"{coarse!r} s is not an integer multiple of the base step {base!r} s")
+    by_name = {inst.name: inst for inst in order}
+    position = {inst.name: i for i, inst in enumerate(order)}
+    names = table.get("variable")
+    if not isinstance(names, list) or not names:
+        ctx.fail(f"{key}.variable", f"expected a non-empty list of instance names, got {names!r}")
+    for i, name in enumerate(names):
+        k = f"{key}.variable[{i}]"
+        if not isinstance(name, str) or name not in by_name:
+            ctx.fail(k, f"unknown instance {name!r}; instances: {', '.join(by_name)}")
+        if name in names[:i]:
+            ctx.fail(k, f"instance {name!r} is listed twice")
+        inst = by_name[name]
+        if ticks % inst.ticks_per_step:
+            ctx.fail(k, f"instance {name!r} steps at {inst.step_size!r} s, which does not divide coarse_step "
+                        f"{coarse!r} s")
+        if not model_descriptions[name].coSimulation.canHandleVariableCommunicationStepSize:
+            ctx.fail(k, f"instance {name!r}: {inst.path.name} declares canHandleVariableCommunicationStepSize="
+                        f"\"false\" in its model description, so it cannot take a coarse step")
+    first = min(names, key=position.__getitem__)
+    conditions = table.get("fine_when")
+    if not isinstance(conditions, list) or not conditions:
+        ctx.fail(f"{key}.fine_when", f"expected a non-empty list of conditions "
+                                     f"({{ output = \"instance.variable\", above = ... }}), got {conditions!r}")
+    gates = []
+    for i, item in enumerate(conditions):
+        k = f"{key}.fine_when[{i}]"
+        ctx.table(item, k, ("output", "above", "below", "is"))
+        ref, var = _resolve(ctx, f"{k}.output", item.get("output"), by_name, "output")
+        inst = by_name[ref.instance]
+        if inst.ticks_per_step != ticks:
+            ctx.fail(f"{k}.output", f"instance {ref.instance!r} steps at {inst.step_size!r} s, not at coarse_step "
+                                    f"{coarse!r} s: a condition reads an instance that steps once per interval")
+        if position[ref.instance] >= position[first]:
+            ctx.fail(f"{k}.output", f"instance {ref.instance!r} does not precede the variable instance {first!r} "
+                                    f"in the execution order ({', '.join(position)})")
+        senses = [s for s in ("above", "below", "is") if s in item]
+        if len(senses) != 1:
+            ctx.fail(k, f"give exactly one of above, below (Real outputs) and is (Boolean outputs), got "
+                        f"{', '.join(senses) or 'none'}")
+        sense, raw = senses[0], item[senses[0]]
+        if var.type == "bool":
+            if sense != "is" or not isinstance(raw, bool):
+                ctx.fail(f"{k}.{sense}", f"{ref} is Boolean: give is = true or is = false")
+            gates.append(FineWhen(ref, sense, 1.0 if raw else 0.0))
+            continue
+        if sense == "is":
+            ctx.fail(f"{k}.is", f"{ref} is Real: give above or below a threshold")
+        unit = None
+        if isinstance(raw, dict):
+            ctx.table(raw, f"{k}.{sense}", ("value", "unit"))
+            unit = ctx.string(raw, f"{k}.{sense}", "unit")
+            raw = raw.get("value")
+        if isinstance(raw, bool) or not isinstance(raw, (int, float)) or not math.isfinite(raw):
+            ctx.fail(f"{k}.{sense}", f"expected a finite number or {{ value, unit }}, got {raw!r}")
+        try:
+            threshold = float(raw) * (1.0 if unit is None else _factor(unit, var.unit))
+        except UnitError as exc:
+            ctx.fail(f"{k}.{sense}", f"unit {unit!r} does not fit {ref} ({var.unit or 'no unit'}): {exc}")
+        gates.append(FineWhen(ref, sense, threshold))
+    return Stepping(coarse, ticks, tuple(sorted(names, key=position.__getitem__)), tuple(gates))
 
 
 def with_values(scenario: Scenario, values: Mapping[str | Ref, Any], *, name: str | None = None) -> Scenario:

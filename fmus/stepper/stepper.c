@@ -22,6 +22,7 @@ size_t stp_struct_size(int which) {
     case 3: return sizeof(stp_plan);
     case 4: return sizeof(stp_outcome);
     case 5: return sizeof(stp_recorded);
+    case 6: return sizeof(stp_gate);
     default: return 0;
     }
 }
@@ -45,6 +46,34 @@ static void write_bool(stp_instance *s, int64_t position, int value) {
         ((fmi3Boolean *)s->bool_in)[position] = value != 0;
     } else {
         ((fmi2Boolean *)s->bool_in)[position] = value;
+    }
+}
+
+/* FineWhen.holds of orchestrator/scenario.py on the gate's output. */
+static int gate_holds(const stp_gate *g) {
+    if (g->sense == STP_IS) {
+        return (read_bool(g->source, g->kind) != 0) == (g->threshold != 0.0);
+    }
+    if (g->kind != STP_REAL) {
+        return 0; /* the scenario allows above/below on Real outputs only */
+    }
+    return g->sense == STP_ABOVE ? *(const double *)g->source > g->threshold
+                                 : *(const double *)g->source < g->threshold;
+}
+
+/* The start of a coarse interval: fine if a gate holds now or held at the previous evaluation. */
+static void evaluate_gates(stp_plan *plan) {
+    int64_t i;
+    int now = 0;
+    for (i = 0; i < plan->n_gates && !now; ++i) {
+        now = gate_holds(&plan->gates[i]);
+    }
+    plan->fine = now || plan->held;
+    plan->held = now;
+    if (plan->fine) {
+        ++plan->fine_intervals;
+    } else {
+        ++plan->coarse_intervals;
     }
 }
 
@@ -190,16 +219,22 @@ void stp_run(stp_plan *plan, int64_t first_tick, int64_t last_tick, double *rows
         }
         for (i = 0; i < n_instances; ++i) {
             stp_instance *s = &plan->instances[i];
-            const int64_t m = s->ticks_per_step;
-            int64_t next;
-            int terminate = 0;
+            int64_t m, next;
+            int terminate = 0, stepped;
+            if (plan->n_gates > 0 && i == plan->first_variable && k % plan->ticks_per_interval == 0) {
+                evaluate_gates(plan);
+            }
+            m = s->variable && !plan->fine ? plan->ticks_per_interval : s->ticks_per_step;
             if (k % m != 0) {
                 continue;
             }
             next = k + m < n_ticks ? k + m : n_ticks;
-            if (feed(plan, s, t, o) || set_inputs(s, o) ||
-                do_step(s, t, (plan->start + (double)next * plan->base) - t, &terminate, o) ||
-                (s->get_after_step && get_outputs(s, o))) {
+            stepped = !(feed(plan, s, t, o) || set_inputs(s, o) ||
+                        do_step(s, t, (plan->start + (double)next * plan->base) - t, &terminate, o));
+            if (stepped && s->variable) {
+                ++plan->variable_steps;
+            }
+            if (!stepped || (s->get_after_step && get_outputs(s, o))) {
                 o->instance = (int32_t)i;
                 o->time = t;
                 o->tick = k;

@@ -7,7 +7,9 @@
  * sampled here as orchestrator.recorded does with numpy, see recorded_sample.h) and its links
  * (connections); and the recorded columns. stp_run() then performs ticks
  * [first_tick, last_tick) of the fixed grid exactly as orchestrator/master.py's Python loop does
- * (same FMI calls in the same order, same arithmetic), writing one row per output interval.
+ * (same FMI calls in the same order, same arithmetic), writing one row per output interval. With a
+ * variable communication step ([stepping]) the plan also holds the conditions (gates), which instances are
+ * variable, and the state of the coarse intervals, carried from one call to the next.
  *
  * No global state: everything lives in the caller's structures. The library calls nothing but
  * the FMI functions it is given and, when set, the should_stop callback.
@@ -21,7 +23,7 @@
 #include "fmi2FunctionTypes.h"
 #include "fmi3FunctionTypes.h"
 
-#define STP_ABI_VERSION 4
+#define STP_ABI_VERSION 5
 
 #if defined(__GNUC__)
 #define STP_EXPORT __attribute__((visibility("default")))
@@ -31,6 +33,13 @@
 
 /* Element type of a buffer a link or column reads (STP_BOOL_FMI2: an int, also that of Int32 columns). */
 enum { STP_REAL = 0, STP_BOOL_FMI2 = 1, STP_BOOL_FMI3 = 2 };
+
+/* stp_gate.sense: the output's value v against the threshold */
+enum {
+    STP_ABOVE = 0, /* v > threshold (Real) */
+    STP_BELOW = 1, /* v < threshold (Real) */
+    STP_IS = 2     /* (v != 0) == (threshold != 0) (Boolean) */
+};
 
 /* stp_outcome.code */
 enum {
@@ -65,6 +74,14 @@ typedef struct {
     int32_t linear;       /* 1: linear interpolation, 0: hold (booleans: 1 = a threshold channel's crossing) */
     int32_t reserved;
 } stp_recorded;
+
+/* One condition of the variable communication step: a gate instance's output against a threshold. */
+typedef struct {
+    const void *source; /* an element of the gate instance's output buffer (read after each of its steps) */
+    double threshold;   /* in the output's unit; STP_IS: nonzero = true */
+    int32_t kind;       /* STP_REAL, STP_BOOL_FMI2, STP_BOOL_FMI3 */
+    int32_t sense;      /* STP_ABOVE, STP_BELOW, STP_IS */
+} stp_gate;
 
 /* One recorded column (after "time"). */
 typedef struct {
@@ -119,7 +136,7 @@ typedef struct {
     int32_t get_after_step;   /* outputs feed connections: read right after each step */
     int32_t snapshot;         /* source of a delayed connection: copy outputs at each tick's start */
     int32_t get_at_rows;      /* has outputs: read them at each output row */
-    int32_t reserved;
+    int32_t variable;         /* a variable instance of [stepping]: one step per coarse interval while coarse */
 
     /* Int32 outputs (recorded only; fmi2Integer or fmi3Int32 elements, both int32) */
     fmi2GetIntegerTYPE *fmi2_get_integer;
@@ -150,6 +167,19 @@ typedef struct {
     const double *recorded_time;
     int64_t recorded_samples;
     double recorded_tolerance;
+    /* The variable communication step ([stepping]; n_gates 0: none, nothing below is used). At each tick
+     * k % ticks_per_interval == 0, before instance first_variable, the gates are evaluated: the interval
+     * [k, k + ticks_per_interval) is fine if one holds now or held at the previous evaluation. */
+    const stp_gate *gates;
+    int64_t n_gates;
+    int64_t ticks_per_interval; /* M = coarse_step / base */
+    int64_t first_variable;     /* index of the first variable instance in execution order */
+    /* State carried from call to call (start with fine = 1, held = 0, counts 0); stp_run updates it. */
+    int64_t fine_intervals;     /* intervals evaluated fine */
+    int64_t coarse_intervals;   /* intervals evaluated coarse */
+    int64_t variable_steps;     /* doSteps of the variable instances */
+    int32_t fine;               /* the current interval is fine */
+    int32_t held;               /* a condition held at the latest evaluation */
 } stp_plan;
 
 typedef struct {
@@ -165,8 +195,8 @@ typedef struct {
 /* STP_ABI_VERSION of the library. */
 STP_EXPORT int stp_abi_version(void);
 
-/* sizeof of stp_link (0), stp_column (1), stp_instance (2), stp_plan (3), stp_outcome (4), stp_recorded (5);
- * 0 otherwise. */
+/* sizeof of stp_link (0), stp_column (1), stp_instance (2), stp_plan (3), stp_outcome (4), stp_recorded (5),
+ * stp_gate (6); 0 otherwise. */
 STP_EXPORT size_t stp_struct_size(int which);
 
 /* Ticks [first_tick, last_tick) (last_tick <= plan->n_ticks). rows: room for one row of

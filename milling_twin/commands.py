@@ -23,6 +23,10 @@ def run_summary(results: api.Results) -> str:
              f"({result.fmu_steps} FMU steps) in {result.wall_time:.3g} s, "
              f"{result.steps_per_second:,.0f} steps/s; {result.rows} rows; "
              + ("fast path" if result.stepping == "fast" else f"python path ({result.stepping_reason})")]
+    intervals = result.fine_intervals + result.coarse_intervals  # [stepping]: the variable step's intervals
+    if intervals:
+        lines.append(f"variable step: {result.fine_intervals} of {intervals} coarse intervals fine "
+                     f"({100 * result.fine_intervals / intervals:.1f} %)")
     check = results.scenario.recorded.check if results.scenario.recorded is not None else None
     if check is not None:
         lines.extend(f"recording check: {line}" for line in check.summary()[:2])

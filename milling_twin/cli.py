@@ -274,6 +274,14 @@ def _program(p: argparse.ArgumentParser) -> None:
                    help="an Interpolator parameter in SI units (e.g. acceleration=2, max_feed=0.5); repeatable")
 
 
+def _expand(p: argparse.ArgumentParser) -> None:
+    p.add_argument("part", type=Path, help="whole-part scenario (TOML with a [part] table, docs/part.md)")
+    p.add_argument("-o", "--output", type=Path, default=None,
+                   help="explicit scenario (TOML) to write, paths relative to it; default: stdout, paths relative "
+                        "to the current directory")
+    _add_fmu_dir(p)
+
+
 @dataclass(frozen=True)
 class Subcommand:
     name: str
@@ -319,6 +327,8 @@ COMMANDS: tuple[Subcommand | Group, ...] = (
                "milling_twin.orchestrator.fmu_info:command"),
     Subcommand("program", "read a part program as the Interpolator does: moves, machining time, tools, words not "
                "modelled, or the line it refuses", _program, "milling_twin.orchestrator.gcode.program_summary:command"),
+    Subcommand("expand", "write a whole-part scenario ([part]) as the explicit scenario it runs: instances, "
+               "parameters, connections, stepping", _expand, "milling_twin.orchestrator.part.expand:command"),
     Subcommand("reconstruct", "rebuild a part program (G-code) from a UMich recording, one per consistent segment",
                _reconstruct,
                "milling_twin.orchestrator.gcode.reconstruct:command"),

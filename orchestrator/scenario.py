@@ -126,6 +126,7 @@ import fmpy
 from fmpy import read_model_description
 
 from milling_twin.orchestrator.toml_access import TomlAccess
+from milling_twin.orchestrator.part.model import Part
 from milling_twin.orchestrator.recorded import ChannelSpec, RecordedData, RecordedDataError, load_recorded
 from milling_twin.orchestrator.recording_checks_spec import check_table
 from milling_twin.models.units import UnitError, conversion_factor
@@ -290,6 +291,7 @@ class Scenario:
     # its folder), then those load_scenario(..., parameter_sets=...) was given
     parameter_sets: tuple[Path, ...] = ()
     stepping: Stepping | None = None  # [stepping]: the variable communication step (None: every step fine)
+    part: Part | None = None  # a whole-part scenario's [part], read (orchestrator/part/spec.py)
 
     @property
     def execution_order(self) -> tuple[str, ...]:
@@ -656,6 +658,10 @@ def load_scenario(path: str | Path, fmu_dir: str | Path, parameter_sets: Sequenc
     path, fmu_dir = Path(path), Path(fmu_dir)
     ctx = _Ctx(path)
     _, doc = ctx.document("scenario")
+    part = None
+    if "part" in doc:  # a whole-part scenario: [part] expanded into the explicit instances (docs/part.md)
+        from milling_twin.orchestrator.part.expand import expand_document
+        doc, part = expand_document(ctx, doc, fmu_dir)
     ctx.table(doc, "", ("scenario", "fmus", "recorded", "inputs", "connections", "outputs", "compare",
                         "stepping"))
 
@@ -808,7 +814,7 @@ def load_scenario(path: str | Path, fmu_dir: str | Path, parameter_sets: Sequenc
         ticks_per_output=ticks_per_output, instances=tuple(instances[n] for n in order),
         recorded=recorded, inputs=tuple(inputs), connections=tuple(c for _, c in conns),
         outputs=tuple(dict.fromkeys(outputs)), compare=tuple(compares),
-        parameter_sets=tuple(set_path for _, set_path in applied_sets), stepping=stepping,
+        parameter_sets=tuple(set_path for _, set_path in applied_sets), stepping=stepping, part=part,
     )
 
 

@@ -57,3 +57,7 @@ class Part:
     lookahead: float = 2e-3              # m: step finely this close to material (the Workpiece's clearance)
     machine: dict[str, float] = field(default_factory=dict)   # Interpolator parameters (limits, start), SI
     spindle: dict[str, float] = field(default_factory=dict)   # SpindlePower parameters, SI
+    feed_override: float = 1.0           # the Interpolator's feed override (1: 100 %)
+    flute_length: float = 0.0            # m: the tool's cutting length (stick_out of its tool table entry)
+    machining_time: float = 0.0          # s: the program's duration at 100 % feed override (program summary)
+    warnings: tuple[str, ...] = ()       # what the checks before the run found (orchestrator/part/checks.py)

@@ -1,0 +1,193 @@
+"""The checks of a whole-part scenario's program against its stock and tool, before anything runs.
+
+The program is parsed once, as the Interpolator FMU parses it (the Python reference of its parser, with the
+dialect, the tool table and the machine parameters of the part), and every feed move (G1, G2/G3, NURBS; not G0)
+is followed as the path of the tool tip, sampled at most ``SAMPLE_SPACING`` apart (machine coordinates). At each
+sample the tool, of the radius its tool table entry gives, is
+
+- *over the stock* when its circle overlaps the stock's rectangle in x-y (the distance from the tip's x-y to the
+  rectangle is below the radius), and
+- *in the stock* when it is over the stock with the tip below the stock top.
+
+Errors (:class:`ScenarioError`, naming the scenario file, the key and the program file and line):
+
+- the program selects a tool the tool table does not hold (the parser's refusal, naming the line and T);
+- the program cuts (is in the stock) with more than one tool: the Workpiece and the force model take one tool's
+  geometry per run, so a program with a tool change is split into one part scenario per tool;
+- it cuts with no tool selected (no ``T.. M6``) while the tool table holds more than one tool;
+- the tip goes below the stock bottom while over the stock (the depth below the bottom, mm).
+
+Warnings (logged on the logger ``milling_twin.part`` and returned, so a run summary or report can list them):
+
+- no feed move is ever in the stock (the stock is never touched: wrong origin, or a program for another setup);
+- the tip goes deeper below the stock top than the tool's flute length while over the stock (line and tool);
+- a feed move is in the stock with the spindle stopped (line).
+"""
+from __future__ import annotations
+
+import logging
+import math
+from dataclasses import dataclass
+from pathlib import Path
+from collections.abc import Callable, Mapping, Sequence
+from typing import NoReturn
+
+import numpy as np
+
+from milling_twin.models.interpolator.definition import default_parameters
+from milling_twin.models.interpolator.nurbs import Nurbs
+from milling_twin.models.interpolator.parser import (DIALECTS, MOVE_ARC, MOVE_LINE, MOVE_NURBS, Program,
+                                                    Tool, parse_program)
+from milling_twin.models.interpolator.path import ArcShape
+from milling_twin.models.interpolator.tool_table import find_tool
+from milling_twin.orchestrator.part.model import Stock
+
+SAMPLE_SPACING = 0.5e-3   # m: the longest distance between two samples of a feed move
+ARC_STEP = math.pi / 36   # rad: the largest angle between two samples of an arc
+TOLERANCE = 1e-6          # m: a tip this close to the stock top or bottom counts as on it
+_log = logging.getLogger("milling_twin.part")
+
+
+@dataclass(frozen=True)
+class FeedPath:
+    """The feed moves of a program as samples of the tool tip: position (m, machine coordinates), and for each
+    sample its program line, its tool number (0: none selected) and whether the spindle runs."""
+    file: str
+    points: np.ndarray      # (n, 3)
+    lines: np.ndarray       # (n,) int
+    tools: np.ndarray       # (n,) int
+    spindle_on: np.ndarray  # (n,) bool
+
+
+def parse(program: Path, dialect: str, tools: Sequence[Tool], machine: Mapping[str, float]) -> Program:
+    """The program as the Interpolator reads it; a ProgramError (file, line, text, expected) for a refusal."""
+    parameters = {**default_parameters(), **machine}
+    return parse_program(program.read_text(encoding="latin-1"), parameters, str(program),
+                         dialect=DIALECTS[dialect], tools=tools)
+
+
+def feed_path(program: Program) -> FeedPath:
+    """The tool tip along every feed move, sampled at most SAMPLE_SPACING (and ARC_STEP on arcs) apart."""
+    points: list[list[float]] = []
+    lines: list[int] = []
+    tools: list[int] = []
+    spindle: list[bool] = []
+    curves: dict[int, Nurbs] = {}
+    for move in program.moves:
+        if move.kind == MOVE_LINE:
+            length = math.dist(move.start, move.end)
+            n = max(1, math.ceil(length / SAMPLE_SPACING))
+            a, b = np.asarray(move.start), np.asarray(move.end)
+            samples = [list(a + (b - a) * (k / n)) for k in range(n + 1)]
+        elif move.kind == MOVE_ARC:
+            arc = ArcShape(move)
+            n = max(1, math.ceil(arc.length / SAMPLE_SPACING), math.ceil(abs(move.sweep) / ARC_STEP))
+            samples = [arc.point(k / n) for k in range(n + 1)]
+        elif move.kind == MOVE_NURBS:
+            curve = curves.setdefault(move.curve, Nurbs(program.curves[move.curve]))
+            lo, hi = curve.span_range(move.u0, move.u1)
+            coarse = [curve.evaluate(move.u0 + (move.u1 - move.u0) * k / 16, 0, lo, hi)[0] for k in range(17)]
+            length = sum(math.dist(p, q) for p, q in zip(coarse, coarse[1:]))
+            n = max(16, math.ceil(length / SAMPLE_SPACING))
+            samples = [curve.evaluate(move.u0 + (move.u1 - move.u0) * k / n, 0, lo, hi)[0] for k in range(n + 1)]
+        else:
+            continue  # rapid moves do not cut (a rapid into the stock is not checked), dwells do not move
+        points.extend(samples)
+        lines.extend([move.line] * len(samples))
+        tools.extend([move.tool] * len(samples))
+        spindle.extend([move.spindle_on] * len(samples))
+    return FeedPath(program.file, np.asarray(points, dtype=float).reshape(-1, 3), np.asarray(lines, dtype=int),
+                    np.asarray(tools, dtype=int), np.asarray(spindle, dtype=bool))
+
+
+def _effective_tools(path: FeedPath, tools: Sequence[Tool]) -> np.ndarray:
+    """Each sample's tool; tool 0 (none selected) is the table's only tool when it holds exactly one."""
+    if len(tools) == 1:
+        return np.where(path.tools == 0, tools[0].number, path.tools)
+    return path.tools
+
+
+def _over(path: FeedPath, stock: Stock, radius: np.ndarray | float) -> np.ndarray:
+    """Per sample: the tool's circle overlaps the stock's x-y rectangle."""
+    x, y = path.points[:, 0], path.points[:, 1]
+    x0, y0 = stock.origin[0], stock.origin[1]
+    dx = np.maximum(np.maximum(x0 - x, x - (x0 + stock.size[0])), 0.0)
+    dy = np.maximum(np.maximum(y0 - y, y - (y0 + stock.size[1])), 0.0)
+    return np.hypot(dx, dy) < radius
+
+
+def _radii(numbers: np.ndarray, tools: Sequence[Tool]) -> np.ndarray:
+    table = {t.number: 0.5 * t.diameter for t in tools}
+    return np.array([table.get(int(n), 0.0) for n in numbers], dtype=float)
+
+
+def cutting_tool(path: FeedPath, tools: Sequence[Tool], stock: Stock,
+                 fail: Callable[[str], NoReturn]) -> Tool:
+    """The one tool the program cuts the stock with. ``fail(message)`` raises the caller's error when it cuts
+    with more than one, with none selected among several, or has no tool to cut with at all."""
+    if not tools:
+        fail("the tool table holds no tool")
+    numbers = _effective_tools(path, tools)
+    inside = _over(path, stock, _radii(numbers, tools)) & (path.points[:, 2] < stock.top - TOLERANCE)
+    cutting = numbers[inside]
+    lines = path.lines[inside]
+    used = list(dict.fromkeys(int(n) for n in cutting))
+    if not used:  # the stock is never touched (a warning of check_part): the tool of the first feed move
+        used = list(dict.fromkeys(int(n) for n in numbers))[:1] or [tools[0].number]
+        lines = path.lines
+        cutting = np.full(len(lines), used[0])
+    first_line = {n: int(lines[np.argmax(cutting == n)]) for n in used}
+    if 0 in used:
+        fail(f"{path.file} line {first_line[0]}: cuts the stock with no tool selected (no T.. M6 before it) while "
+             f"the tool table holds {len(tools)} tools: select the tool with T<n> M6")
+    if len(used) > 1:
+        listing = " and ".join(f"T{n} (from line {first_line[n]})" for n in used)
+        fail(f"{path.file}: the program cuts the stock with {len(used)} tools, {listing}; the Workpiece and the "
+             f"force model take one tool's geometry per run: split the program into one part per tool")
+    tool = find_tool(tools, used[0])
+    assert tool is not None  # the parser refuses a T the table does not hold
+    return tool
+
+
+def check_part(path: FeedPath, tool: Tool, stock: Stock, flute_length: float,
+               fail: Callable[[str], NoReturn]) -> list[str]:
+    """The checks of the module's docstring for the program's one tool; returns (and logs) the warnings,
+    ``fail(message)`` raises the caller's error."""
+    z = path.points[:, 2]
+    over = _over(path, stock, 0.5 * tool.diameter)
+    inside = over & (z < stock.top - TOLERANCE)
+    warnings: list[str] = []
+    if not inside.any():
+        warnings.append(f"{path.file}: no feed move reaches the stock (x {_mm(stock.origin[0])} .. "
+                        f"{_mm(stock.origin[0] + stock.size[0])}, y {_mm(stock.origin[1])} .. "
+                        f"{_mm(stock.origin[1] + stock.size[1])}, z {_mm(stock.origin[2])} .. {_mm(stock.top)} mm): "
+                        f"the program never cuts it")
+    bottom = stock.origin[2]
+    below = over & (z < bottom - TOLERANCE)
+    if below.any():
+        k = int(np.argmax(below))
+        line = int(path.lines[k])
+        lowest = float(z[below & (path.lines == line)].min())
+        fail(f"{path.file} line {line}: the tool tip goes down to z = {_mm(lowest)} mm over the stock, "
+             f"{_mm(bottom - lowest)} mm below the stock bottom (z = {_mm(bottom)} mm)")
+    deep = over & (stock.top - z > flute_length + TOLERANCE)
+    if deep.any():
+        deep_lines = list(dict.fromkeys(int(n) for n in path.lines[deep]))
+        depth = stock.top - float(z[deep].min())
+        more = f" (and {len(deep_lines) - 1} more lines)" if len(deep_lines) > 1 else ""
+        warnings.append(f"{path.file} line {deep_lines[0]}{more}: T{tool.number} cuts {_mm(depth)} mm below the "
+                        f"stock top, deeper than its flute length {_mm(flute_length)} mm")
+    stopped = inside & ~path.spindle_on
+    if stopped.any():
+        stopped_lines = list(dict.fromkeys(int(n) for n in path.lines[stopped]))
+        more = f" (and {len(stopped_lines) - 1} more lines)" if len(stopped_lines) > 1 else ""
+        warnings.append(f"{path.file} line {stopped_lines[0]}{more}: a feed move in the stock with the spindle "
+                        f"stopped")
+    for text in warnings:
+        _log.warning("%s", text)
+    return warnings
+
+
+def _mm(value: float) -> str:
+    text = f"{value * 1000.0:.3f}"
+    return "0.000" if text == "-0.000" else text

@@ -1,0 +1,236 @@
+"""A whole-part scenario (``[part]``) expanded into the explicit scenario: the five instances, their parameters,
+the connections, ``[stepping]`` and the default record list, as the document :func:`load_scenario` reads.
+
+:func:`expand_document` is what ``load_scenario`` calls on a file with ``[part]``; :func:`explicit_scenario` is
+the expansion itself (a :class:`Part` and the FMUs' variables to a dict); ``milling-twin expand PART.toml
+[-o FILE]`` (:func:`command`) writes the explicit scenario as TOML, paths relative to the written file.
+What it expands to is described in ``docs/part.md``.
+"""
+from __future__ import annotations
+
+import argparse
+import copy
+import os
+import sys
+from collections.abc import Mapping
+from dataclasses import replace
+from pathlib import Path
+from typing import Any
+
+import tomli_w
+
+from milling_twin.orchestrator.gcode.program_summary import summarize
+from milling_twin.models.interpolator.tool_table import read_tool_table
+from milling_twin.orchestrator.part.model import FORCE, INTERPOLATOR, POWER, VIBRATION, WORKPIECE, Part
+from milling_twin.orchestrator.part.spec import read_part
+from milling_twin.orchestrator.scenario import ScenarioError, Variable, _Ctx, _load_fmu, _variables
+from milling_twin.orchestrator.toml_access import TomlAccess
+
+INSTANCES = (INTERPOLATOR, WORKPIECE, FORCE, VIBRATION, POWER)
+# Tables that may stand beside [part] (kept as they are; [fmus.<instance>] overrides single parameters)
+BESIDE_PART = ("scenario", "part", "fmus", "recorded", "inputs", "outputs", "compare")
+DEFAULT_OUTPUT_INTERVAL = 1e-4      # s
+STOP_MARGIN = 0.05                  # s after the program's machining time
+CLEARANCE_MARGIN = 1.5              # the Workpiece looks for material this many lookaheads around the tool
+RECORD = {
+    INTERPOLATOR: ("x", "y", "z", "feed", "spindle_speed", "line_number", "tool_number"),
+    WORKPIECE: ("axial_depth", "radial_depth", "entry_angle", "exit_angle", "mrr", "removed_volume", "clearance"),
+    FORCE: ("Fx", "Fy", "Fz", "torque", "power"),
+    VIBRATION: ("tip_displacement_x", "tip_displacement_y"),
+    POWER: ("P_total", "P_cutting"),
+}
+MODELS = {INTERPOLATOR: "Interpolator", WORKPIECE: "Workpiece", VIBRATION: "ToolVibration", POWER: "SpindlePower"}
+
+
+def models_of(part_table: Any) -> dict[str, str]:
+    """The FMU (model name) of each instance; the force model from ``[part].force_model``."""
+    force = part_table.get("force_model", "CuttingForce") if isinstance(part_table, dict) else "CuttingForce"
+    return {**MODELS, FORCE: force if force in ("CuttingForce", "ForceNet") else "CuttingForce"}
+
+
+def fmu_variables(ctx: TomlAccess, models: Mapping[str, str], fmu_dir: Path) -> dict[str, dict[str, Variable]]:
+    """The variables of each instance's FMU (FMI 3, in ``fmu_dir``), by instance name."""
+    out = {}
+    for inst, model in models.items():
+        try:
+            _, _, md = _load_fmu(ctx, inst, {"fmu": model}, fmu_dir)
+        except ScenarioError as exc:
+            ctx.fail("[part]", f"the part's instance {inst!r}: {exc.detail}")
+        out[inst] = _variables(md)
+    return out
+
+
+def expand_document(ctx: TomlAccess, doc: dict[str, Any], fmu_dir: Path) -> tuple[dict[str, Any], Part]:
+    """The explicit scenario document of a file with ``[part]`` (paths absolute), and its Part."""
+    ctx.table(doc, "", BESIDE_PART)
+    variables = fmu_variables(ctx, models_of(doc["part"]), fmu_dir)
+    part = read_part(ctx, doc["part"], {"Interpolator": variables[INTERPOLATOR], "SpindlePower": variables[POWER]})
+    scenario = dict(ctx.table(doc.get("scenario"), "[scenario]", (
+        "name", "description", "start_time", "stop_time", "output_interval", "parameter_sets")))
+    scenario.setdefault("output_interval", DEFAULT_OUTPUT_INTERVAL)
+    if "stop_time" not in scenario and "recorded" not in doc:
+        tools = read_tool_table(part.tool_table) if part.tool_table else ()
+        try:
+            summary = summarize(part.program, part.dialect, tools, part.machine)
+        except ValueError as exc:  # the path or the schedule refuses the program (the FMU would too)
+            ctx.fail("[part].program", str(exc))
+        part = replace(part, machining_time=summary.time)
+        scenario["stop_time"] = round(summary.time + STOP_MARGIN, 9)
+    explicit = explicit_scenario(part, variables, scenario, doc)
+    _overrides(ctx, explicit, doc.get("fmus", {}))
+    return explicit, part
+
+
+def explicit_scenario(part: Part, variables: Mapping[str, Mapping[str, Variable]], scenario: Mapping[str, Any],
+                      beside: Mapping[str, Any] | None = None) -> dict[str, Any]:
+    """The explicit scenario of ``part``: ``variables`` the FMU variables by instance (the expansion uses an
+    optional variable only where the FMU has it: the Workpiece's clearance, SpindlePower's cutting_power),
+    ``scenario`` the ``[scenario]`` table, ``beside`` the tables standing beside ``[part]`` (kept)."""
+    beside = beside or {}
+    tool = part.tool
+    has = {inst: set(v) for inst, v in variables.items()}
+    fed_inputs = {item.get("to") for item in beside.get("inputs", []) if isinstance(item, dict)}
+    interp: dict[str, Any] = {
+        "program": {"path": str(part.program)}, "dialect": part.dialect,
+        **({"tool_table": {"path": str(part.tool_table)}} if part.tool_table else {}), **part.machine}
+    workpiece: dict[str, Any] = {
+        "stock_x_min": part.stock.origin[0], "stock_y_min": part.stock.origin[1], "stock_z_min": part.stock.origin[2],
+        "stock_length": part.stock.size[0], "stock_width": part.stock.size[1], "stock_height": part.stock.size[2],
+        "resolution": part.stock.resolution, "tool_diameter": tool.diameter, "corner_radius": tool.corner_radius,
+        "flute_count": tool.flutes, "helix_angle": tool.helix, "flute_length": part.flute_length}
+    if "clearance_range" in has[WORKPIECE]:
+        workpiece["clearance_range"] = CLEARANCE_MARGIN * part.lookahead
+    fastest = max(part.machine.get("rapid_feed", 0.0), part.machine.get("max_feed", 0.0))
+    if fastest * 1.5 > 2.0:  # the Workpiece's default max_tool_speed (2 m/s) refuses faster jumps
+        workpiece["max_tool_speed"] = 1.5 * fastest
+    force: dict[str, Any] = {"n_flutes": tool.flutes, "tool_diameter": tool.diameter, "helix_angle": tool.helix}
+    if part.force_model == "CuttingForce":
+        force.update(part.material.coefficients)
+    vibration: dict[str, Any] = {"n_modes_x": len(part.modes_x), "n_modes_y": len(part.modes_y)}
+    for axis, modes in (("x", part.modes_x), ("y", part.modes_y)):
+        for i, mode in enumerate(modes, start=1):
+            vibration.update({f"frequency_{axis}{i}": mode.frequency, f"damping_{axis}{i}": mode.damping,
+                              f"stiffness_{axis}{i}": mode.stiffness})
+    power: dict[str, Any] = dict(part.spindle)
+    from_force = part.cutting_power == "force"
+    if "cutting_power_from_force" in has[POWER]:
+        power["cutting_power_from_force"] = from_force
+
+    fmus = {
+        INTERPOLATOR: _instance("Interpolator", part.coarse_step, interp,
+                                {} if f"{INTERPOLATOR}.feed_override" in fed_inputs
+                                else {"feed_override": part.feed_override}),
+        WORKPIECE: _instance("Workpiece", part.coarse_step, workpiece),
+        FORCE: _instance(part.force_model, part.fine_step, force),
+        VIBRATION: _instance("ToolVibration", part.fine_step, vibration),
+        POWER: _instance("SpindlePower", part.coarse_step, power),
+    }
+    links = [(f"{INTERPOLATOR}.{a}", f"{WORKPIECE}.{b}") for a, b in (
+        ("x", "tool_x"), ("y", "tool_y"), ("z", "tool_z"), ("spindle_speed", "spindle_speed"))]
+    links += [(f"{INTERPOLATOR}.{v}", f"{FORCE}.{v}") for v in ("spindle_speed", "feed_velocity_x", "feed_velocity_y")]
+    links += [(f"{WORKPIECE}.{v}", f"{FORCE}.{v}") for v in ("axial_depth", "entry_angle", "exit_angle")]
+    if part.force_model == "ForceNet":
+        links.append((f"{WORKPIECE}.engagement", f"{FORCE}.engagement"))  # the whole 8 x 24 map
+    links += [(f"{FORCE}.Fx", f"{VIBRATION}.force_x"), (f"{FORCE}.Fy", f"{VIBRATION}.force_y")]
+    links += [(f"{INTERPOLATOR}.{v}", f"{POWER}.{v}") for v in ("spindle_on", "spindle_speed")]
+    if "spindle_speed_command" in has[POWER]:
+        links.append((f"{INTERPOLATOR}.spindle_speed", f"{POWER}.spindle_speed_command"))
+    links.append((f"{WORKPIECE}.mrr", f"{POWER}.mrr"))
+    if from_force and "cutting_power" in has[POWER]:
+        links.append((f"{FORCE}.power", f"{POWER}.cutting_power"))
+    connections = [{"from": a, "to": b} for a, b in links]
+    connections += [{"from": f"{VIBRATION}.tip_displacement_{axis}", "to": f"{FORCE}.displacement_{axis}",
+                     "delay": True} for axis in "xy"]  # the tool's vibration comes back one fine step late
+
+    fine_when: list[dict[str, Any]] = [{"output": f"{WORKPIECE}.axial_depth", "above": 0.0}]
+    if "clearance" in has[WORKPIECE]:
+        fine_when.append({"output": f"{WORKPIECE}.clearance", "below": part.lookahead})
+    doc: dict[str, Any] = {"scenario": dict(scenario), "fmus": fmus, "connections": connections,
+                           "stepping": {"coarse_step": part.coarse_step, "variable": [FORCE, VIBRATION],
+                                        "fine_when": fine_when}}
+    for name in ("recorded", "inputs", "compare"):
+        if name in beside:
+            doc[name] = copy.deepcopy(beside[name])
+    doc["outputs"] = copy.deepcopy(beside["outputs"]) if "outputs" in beside else {"record": [
+        f"{inst}.{v}" for inst, names in RECORD.items() for v in names if v in has[inst]]}
+    return doc
+
+
+def _instance(model: str, step: float, parameters: dict[str, Any], inputs: dict[str, Any] | None = None) -> dict:
+    table: dict[str, Any] = {"fmu": model, "step_size": step, "parameters": parameters}
+    if inputs:
+        table["inputs"] = inputs
+    return table
+
+
+def _overrides(ctx: TomlAccess, explicit: dict[str, Any], fmus: Any) -> None:
+    """``[fmus.<instance>]`` beside ``[part]``: single parameters (and constant inputs) of the expanded instances."""
+    if not isinstance(fmus, dict):
+        ctx.fail("[fmus]", f"expected a table of [fmus.<instance>] overrides, got {fmus!r}")
+    for inst, table in fmus.items():
+        key = f"[fmus.{inst}]"
+        if inst not in explicit["fmus"]:
+            ctx.fail(key, f"beside [part], [fmus] only overrides parameters of the part's instances "
+                          f"{', '.join(INSTANCES)}; {inst!r} is not one of them")
+        ctx.table(table, key, ("parameters", "inputs"))
+        for section in ("parameters", "inputs"):
+            values = table.get(section, {})
+            if not isinstance(values, dict):
+                ctx.fail(f"{key}.{section}", f"expected a table, got {values!r}")
+            if values:
+                target = explicit["fmus"][inst].setdefault(section, {})
+                target.update({name: _absolute(ctx, value) for name, value in values.items()})
+
+
+def _absolute(ctx: TomlAccess, value: Any) -> Any:
+    """A ``{ path = ... }`` of an override, relative to the part file, made absolute."""
+    if isinstance(value, dict) and set(value) == {"path"} and isinstance(value["path"], str):
+        return {"path": str((ctx.path.parent / value["path"]).resolve())}
+    return value
+
+
+def relocate(doc: dict[str, Any], source: Path, target: Path) -> dict[str, Any]:
+    """``doc`` (paths absolute or relative to ``source``, a folder) with every path relative to ``target``."""
+    def moved(text: str) -> str:
+        return Path(os.path.relpath((source / text).resolve(), target.resolve())).as_posix()
+
+    out = copy.deepcopy(doc)
+    for inst in out.get("fmus", {}).values():
+        for values in (inst.get("parameters", {}), inst.get("inputs", {})):
+            for name, value in values.items():
+                if isinstance(value, dict) and set(value) == {"path"}:
+                    values[name] = {"path": moved(value["path"])}
+    if "recorded" in out and isinstance(out["recorded"].get("file"), str):
+        out["recorded"]["file"] = moved(out["recorded"]["file"])
+    sets = out["scenario"].get("parameter_sets")
+    if isinstance(sets, list):
+        out["scenario"]["parameter_sets"] = [moved(s) if isinstance(s, str) else s for s in sets]
+    return out
+
+
+def explicit_text(part_file: Path, fmu_dir: Path, target_dir: Path) -> tuple[str, Part]:
+    """The explicit scenario of ``part_file`` as TOML, paths relative to ``target_dir``, and its Part."""
+    ctx = _Ctx(part_file)
+    _, doc = ctx.document("scenario")
+    if "part" not in doc:
+        ctx.fail("[part]", "missing required table: this is not a whole-part scenario (see docs/part.md)")
+    explicit, part = expand_document(ctx, doc, fmu_dir)
+    header = (f"# The explicit scenario of {part_file.name} (its [part] expanded by `milling-twin expand`): the same "
+              f"run as the part file.\n# Values in SI units; paths relative to this file.\n")
+    warnings = "".join(f"# check: {w}\n" for w in part.warnings)
+    return header + warnings + "\n" + tomli_w.dumps(relocate(explicit, part_file.parent, target_dir)), part
+
+
+def command(args: argparse.Namespace) -> int:
+    """``milling-twin expand PART.toml [-o FILE] [--fmu-dir DIR]``: without -o, to stdout (paths relative to the
+    current directory)."""
+    target = args.output.parent if args.output else Path.cwd()
+    text, part = explicit_text(args.part, args.fmu_dir, target)
+    if args.output:
+        args.output.parent.mkdir(parents=True, exist_ok=True)
+        args.output.write_text(text, encoding="utf-8")
+        print(f"{args.output}: {', '.join(INSTANCES)} ({part.force_model}; T{part.tool.number}, "
+              f"D {part.tool.diameter * 1000:g} mm)")
+    else:
+        sys.stdout.write(text)
+    return 0

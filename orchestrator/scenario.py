@@ -858,7 +858,8 @@ def _stepping(ctx: _Ctx, table: Any, order: Sequence[FmuInstance], base: float,
         inst = by_name[ref.instance]
         if inst.ticks_per_step != ticks:
             ctx.fail(f"{k}.output", f"instance {ref.instance!r} steps at {inst.step_size!r} s, not at coarse_step "
-                                    f"{coarse!r} s: a condition reads an instance that steps once per interval")
+                                    f"{coarse!r} s: a condition's output must come from an instance stepping once "
+                                    "per coarse interval")
         if position[ref.instance] >= position[first]:
             ctx.fail(f"{k}.output", f"instance {ref.instance!r} does not precede the variable instance {first!r} "
                                     f"in the execution order ({', '.join(position)})")

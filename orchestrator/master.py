@@ -55,7 +55,8 @@ Semantics of :func:`run` (``base`` = the scenario's base step, ``t_k = start + k
 Two implementations of this loop give bit-identical results (same FMI calls in the same order,
 same arithmetic): the Python loop below, the reference, and the compiled fast path
 (:mod:`milling_twin.orchestrator.fastpath`, the C library in ``fmus/stepper/``), which runs chunks of ticks
-without returning to Python. ``run(stepping="auto")`` takes the fast path when its library is found
+without returning to Python (keeping the coarse intervals' state in its plan, so a chunk may end inside
+one). ``run(stepping="auto")`` takes the fast path when its library is found
 and the scenario is supported, else the Python path; the choice and its reason are in
 :class:`RunResult` and ``run.json``. On the fast path Ctrl-C ends the run after the current chunk
 (chunks last about 0.1 s) instead of the current tick; ``should_stop`` is still asked after

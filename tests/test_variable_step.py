@@ -173,16 +173,34 @@ def test_rows_in_a_coarse_interval_hold_the_coarse_step_and_the_entry_is_fine(ru
 
 
 def test_a_condition_that_never_holds_leaves_every_interval_coarse(fmu_dir, tmp_path):
+    """Every interval coarse: force and vibration make one doStep per interval, as interp and workpiece; the
+    run ends 0.5 ms into its last interval (0.1505 s), whose steps end there."""
     stepping = table('output = "workpiece.axial_depth", above = { value = 1.0, unit = "m" }')
-    both = run_both(load_scenario(write(tmp_path, stepping), fmu_dir), tmp_path / "runs")
+    scenario = dataclasses.replace(load_scenario(write(tmp_path, stepping), fmu_dir), stop_time=0.1505)
+    both = run_both(scenario, tmp_path / "runs")
     assert_identical(both)
-    result = both["fast"][0]
-    assert (result.fine_intervals, result.coarse_intervals) == (0, INTERVALS)
-    assert result.fmu_steps == 4 * INTERVALS  # force and vibration: one doStep per interval, as interp
+    result, intervals = both["fast"][0], INTERVALS + 1
+    assert result.steps == N_TICKS + M // 2 and result.end_time == pytest.approx(0.1505)
+    assert (result.fine_intervals, result.coarse_intervals) == (0, intervals)
+    assert result.fmu_steps == 4 * intervals
     info = read_run_info(result.run_dir)["stepping"]["variable_step"]
     assert info == {"coarse_step": 0.001, "ticks_per_interval": M, "variable": ["force", "vibration"],
                     "fine_when": [{"output": "workpiece.axial_depth", "above": 1.0}],
-                    "fine_intervals": 0, "coarse_intervals": INTERVALS}
+                    "fine_intervals": 0, "coarse_intervals": intervals}
+
+
+def test_should_stop_inside_a_coarse_interval_same_on_both_paths(fmu_dir, tmp_path):
+    """should_stop at a row inside a coarse interval ends the run after that tick on both paths alike."""
+    scenario = load_scenario(SCENARIO, fmu_dir)
+    results = {}
+    for path in ("python", "fast"):
+        result = run(scenario, tmp_path / path, progress=False, stepping=path, should_stop=lambda t: t > 0.0303)
+        results[path] = result, load_results(result.run_dir)
+    (rp, fp), (rf, ff) = results["python"], results["fast"]
+    assert rp.status == rf.status == "interrupted" and rp.steps == rf.steps == 3030
+    np.testing.assert_array_equal(bits(fp), bits(ff))
+    assert (rp.fmu_steps, rp.fine_intervals, rp.coarse_intervals) == (rf.fmu_steps, 0, 31)
+    assert rf.fmu_steps == 2 * 31 + 2 * 31  # interp, workpiece, force, vibration: one step each per interval
 
 
 def test_the_interval_after_the_condition_stops_holding_is_fine(runs, fmu_dir, tmp_path):

@@ -2,7 +2,9 @@
 
 The program is parsed once, as the Interpolator FMU parses it (the Python reference of its parser, with the
 dialect, the tool table and the machine parameters of the part), and every feed move (G1, G2/G3, NURBS; not G0)
-is followed as the path of the tool tip, sampled at most ``SAMPLE_SPACING`` apart (machine coordinates). At each
+is followed as the path of the tool tip, sampled at most ``SAMPLE_SPACING`` apart, in the program's coordinates
+(the Interpolator's ``x_program``, ``y_program``, ``z_program``: the work offset and the tool length of G43
+taken off; the stock is given in them). At each
 sample the tool, of the radius its tool table entry gives, is
 
 - *over the stock* when its circle overlaps the stock's rectangle in x-y (the distance from the tip's x-y to the
@@ -15,7 +17,9 @@ Errors (:class:`ScenarioError`, naming the scenario file, the key and the progra
 - the program cuts (is in the stock) with more than one tool: the Workpiece and the force model take one tool's
   geometry per run, so a program with a tool change is split into one part scenario per tool;
 - it cuts with no tool selected (no ``T.. M6``) while the tool table holds more than one tool;
-- the tip goes below the stock bottom while over the stock (the depth below the bottom, mm).
+- the tip goes below the stock bottom while over the stock (the depth below the bottom, mm);
+- the program zero moves between cutting moves (another work offset, G52 or G43 tool length): the Workpiece is fed
+  the machine position, continuous through such changes, and holds the stock at the program zero of the cut.
 
 Warnings (logged on the logger ``milling_twin.part`` and returned, so a run summary or report can list them):
 
@@ -50,13 +54,15 @@ _log = logging.getLogger("milling_twin.part")
 
 @dataclass(frozen=True)
 class FeedPath:
-    """The feed moves of a program as samples of the tool tip: position (m, machine coordinates), and for each
+    """The feed moves of a program as samples of the tool tip: position (m, program coordinates: the work
+    coordinates of G54..G59 and G52, the tip with G43), and for each
     sample its program line, its tool number (0: none selected) and whether the spindle runs."""
     file: str
     points: np.ndarray      # (n, 3)
     lines: np.ndarray       # (n,) int
     tools: np.ndarray       # (n,) int
     spindle_on: np.ndarray  # (n,) bool
+    offsets: np.ndarray     # (n, 3): the machine position of the program zero (work offset, G52, G43 tool length)
 
 
 def parse(program: Path, dialect: str, tools: Sequence[Tool], machine: Mapping[str, float]) -> Program:
@@ -72,6 +78,7 @@ def feed_path(program: Program) -> FeedPath:
     lines: list[int] = []
     tools: list[int] = []
     spindle: list[bool] = []
+    offsets: list[tuple[float, float, float]] = []
     curves: dict[int, Nurbs] = {}
     for move in program.moves:
         if move.kind == MOVE_LINE:
@@ -92,12 +99,15 @@ def feed_path(program: Program) -> FeedPath:
             samples = [curve.evaluate(move.u0 + (move.u1 - move.u0) * k / n, 0, lo, hi)[0] for k in range(n + 1)]
         else:
             continue  # rapid moves do not cut (a rapid into the stock is not checked), dwells do not move
-        points.extend(samples)
+        offset = move.offset  # the work offset, G52 and the tool length (G43): the samples in program coordinates
+        points.extend([[q[0] - offset[0], q[1] - offset[1], q[2] - offset[2]] for q in samples])
         lines.extend([move.line] * len(samples))
         tools.extend([move.tool] * len(samples))
         spindle.extend([move.spindle_on] * len(samples))
+        offsets.extend([tuple(offset)] * len(samples))
     return FeedPath(program.file, np.asarray(points, dtype=float).reshape(-1, 3), np.asarray(lines, dtype=int),
-                    np.asarray(tools, dtype=int), np.asarray(spindle, dtype=bool))
+                    np.asarray(tools, dtype=int), np.asarray(spindle, dtype=bool),
+                    np.asarray(offsets, dtype=float).reshape(-1, 3))
 
 
 def _effective_tools(path: FeedPath, tools: Sequence[Tool]) -> np.ndarray:
@@ -147,6 +157,26 @@ def cutting_tool(path: FeedPath, tools: Sequence[Tool], stock: Stock,
     tool = find_tool(tools, used[0])
     assert tool is not None  # the parser refuses a T the table does not hold
     return tool
+
+
+def cutting_offset(path: FeedPath, tool: Tool, stock: Stock,
+                   fail: Callable[[str], NoReturn]) -> tuple[float, float, float]:
+    """The machine position of the program zero while the tool cuts the stock (work offset, G52 and the G43 tool
+    length: the Workpiece, fed with the machine position, holds the stock there); the first feed move's without a
+    cut; ``fail(message)`` when the cutting moves have two (the stock would have to move)."""
+    if not len(path.points):
+        return (0.0, 0.0, 0.0)
+    inside = _over(path, stock, 0.5 * tool.diameter) & (path.points[:, 2] < stock.top - TOLERANCE)
+    offsets = path.offsets[inside] if inside.any() else path.offsets[:1]
+    lines = path.lines[inside] if inside.any() else path.lines[:1]
+    differ = np.any(np.abs(offsets - offsets[0]) > TOLERANCE, axis=1)
+    if differ.any():
+        other = int(np.argmax(differ))
+        fail(f"{path.file} lines {int(lines[0])} and {int(lines[other])}: the program cuts the stock with two "
+             f"positions of its zero, x y z = {' '.join(_mm(v) for v in offsets[0])} and "
+             f"{' '.join(_mm(v) for v in offsets[other])} mm in machine coordinates (work offset G54..G59, G52, "
+             f"G43 tool length): the stock is placed with one")
+    return tuple(float(v) for v in offsets[0])  # type: ignore[return-value]
 
 
 def check_part(path: FeedPath, tool: Tool, stock: Stock, flute_length: float,

@@ -33,7 +33,8 @@ DEFAULT_OUTPUT_INTERVAL = 1e-4      # s
 STOP_MARGIN = 0.05                  # s after the program's machining time
 CLEARANCE_MARGIN = 1.5              # the Workpiece looks for material this many lookaheads around the tool
 RECORD = {
-    INTERPOLATOR: ("x", "y", "z", "feed", "spindle_speed", "line_number", "tool_number"),
+    INTERPOLATOR: ("x", "y", "z", "x_program", "y_program", "z_program", "feed", "spindle_speed", "line_number",
+                   "tool_number"),
     WORKPIECE: ("axial_depth", "radial_depth", "entry_angle", "exit_angle", "mrr", "removed_volume", "clearance"),
     FORCE: ("Fx", "Fy", "Fz", "torque", "power"),
     VIBRATION: ("tip_displacement_x", "tip_displacement_y"),
@@ -93,8 +94,10 @@ def explicit_scenario(part: Part, variables: Mapping[str, Mapping[str, Variable]
     interp: dict[str, Any] = {
         "program": {"path": str(part.program)}, "dialect": part.dialect,
         **({"tool_table": {"path": str(part.tool_table)}} if part.tool_table else {}), **part.machine}
+    # the Workpiece follows the machine position: the stock (program coordinates) at the program zero of the cut
+    x0, y0, z0 = (o + zero for o, zero in zip(part.stock.origin, part.program_zero))
     workpiece: dict[str, Any] = {
-        "stock_x_min": part.stock.origin[0], "stock_y_min": part.stock.origin[1], "stock_z_min": part.stock.origin[2],
+        "stock_x_min": x0, "stock_y_min": y0, "stock_z_min": z0,
         "stock_length": part.stock.size[0], "stock_width": part.stock.size[1], "stock_height": part.stock.size[2],
         "resolution": part.stock.resolution, "tool_diameter": tool.diameter, "corner_radius": tool.corner_radius,
         "flute_count": tool.flutes, "helix_angle": tool.helix, "flute_length": part.flute_length}

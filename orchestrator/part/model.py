@@ -59,5 +59,8 @@ class Part:
     spindle: dict[str, float] = field(default_factory=dict)   # SpindlePower parameters, SI
     feed_override: float = 1.0           # the Interpolator's feed override (1: 100 %)
     flute_length: float = 0.0            # m: the tool's cutting length (stick_out of its tool table entry)
+    # m: the machine position of the program zero while the tool cuts (work offset, G52, G43 tool length): the stock
+    # is given in program coordinates, the Workpiece (fed with the machine position) holds it at stock + this
+    program_zero: tuple[float, float, float] = (0.0, 0.0, 0.0)
     machining_time: float = 0.0          # s: the program's duration at 100 % feed override (program summary)
     warnings: tuple[str, ...] = ()       # what the checks before the run found (orchestrator/part/checks.py)

@@ -196,6 +196,7 @@ def read_part(ctx: TomlAccess, raw: Any, variables: Mapping[str, Mapping[str, Va
 
     tool = checks.cutting_tool(path, tools, stock, fail)
     _tool_geometry(ctx, tool, tool_table)
+    zero = checks.cutting_offset(path, tool, stock, fail)
     flute_length = quantity(ctx, table, "[part]", "flute_length", "m", tool.stick_out)
     if flute_length <= 0.0:
         ctx.fail("[part].flute_length", f"T{tool.number} of {tool_table} gives no stick_out= (the flute length of "
@@ -209,7 +210,7 @@ def read_part(ctx: TomlAccess, raw: Any, variables: Mapping[str, Mapping[str, Va
     return Part(program=program, dialect=dialect, tool_table=tool_table, tool=tool, stock=stock, material=material,
                 modes_x=modes_x, modes_y=modes_y, force_model=force_model, cutting_power=cutting_power,
                 fine_step=fine, coarse_step=coarse, lookahead=lookahead, machine=machine, spindle=spindle,
-                feed_override=feed_override, flute_length=flute_length, warnings=tuple(warnings))
+                feed_override=feed_override, flute_length=flute_length, program_zero=zero, warnings=tuple(warnings))
 
 
 def _tool_geometry(ctx: TomlAccess, tool: Tool, tool_table: Path) -> None:

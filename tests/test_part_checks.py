@@ -1,0 +1,151 @@
+"""The checks of a whole-part scenario's program against its stock and tool, before anything runs: each check with
+its message (the program line and the tool named)."""
+from __future__ import annotations
+
+import logging
+import time
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from cases.part_case import PROGRAM, write_part
+from milling_twin.api import simulate
+from milling_twin.models.interpolator.tool_table import read_tool_table
+from milling_twin.orchestrator.part import checks
+from milling_twin.orchestrator.part.model import Stock
+from milling_twin.orchestrator.scenario import ScenarioError, load_scenario
+
+REPO_ROOT = Path(__file__).resolve().parents[1]
+
+
+def _error(tmp_path: Path, fmu_dir: Path, program: str, tools: str | None = None) -> tuple[Path, str]:
+    path = write_part(tmp_path, program=program, **({"tools": tools} if tools else {}))
+    with pytest.raises(ScenarioError) as info:
+        load_scenario(path, fmu_dir)
+    assert info.value.key == "[part].program"
+    return path, str(info.value)
+
+
+def _warnings(tmp_path: Path, fmu_dir: Path, program: str, tools: str | None = None) -> tuple[str, ...]:
+    path = write_part(tmp_path, program=program, **({"tools": tools} if tools else {}))
+    return load_scenario(path, fmu_dir).part.warnings
+
+
+def test_a_tool_the_tool_table_does_not_hold_is_refused(tmp_path: Path, fmu_dir: Path) -> None:
+    path, message = _error(tmp_path, fmu_dir, PROGRAM.replace("T1 M6", "T7 M6"))
+    assert message == (f"{path}: [part].program: {tmp_path / 'prog.nc'} line 2: \"T7 M6\": a tool of the tool table "
+                       f"for T7 (the table has no tool 7)")
+
+
+def test_a_program_cutting_with_two_tools_is_refused(tmp_path: Path, fmu_dir: Path) -> None:
+    program = PROGRAM.replace("M5\n", "T2 M6\nG0 X-10 Y5\nG1 Z-1 F300\nG1 X60\nG0 Z5\nM5\n")
+    path, message = _error(tmp_path, fmu_dir, program)
+    assert message == (f"{path}: [part].program: {tmp_path / 'prog.nc'}: the program cuts the stock with 2 tools, "
+                       f"T1 (from line 6) and T2 (from line 11); the Workpiece and the force model take one tool's "
+                       f"geometry per run: split the program into one part per tool")
+
+
+def test_a_second_tool_that_never_reaches_the_stock_is_accepted(tmp_path: Path, fmu_dir: Path) -> None:
+    program = PROGRAM.replace("M5\n", "T2 M6\nG0 X-10 Y5\nG1 Z1 F300\nG1 X60\nG0 Z5\nM5\n")  # 1 mm above the top
+    assert _warnings(tmp_path, fmu_dir, program) == ()
+
+
+def test_cutting_with_no_tool_selected_is_refused_among_several(tmp_path: Path, fmu_dir: Path) -> None:
+    path, message = _error(tmp_path, fmu_dir, PROGRAM.replace("T1 M6\n", ""))
+    assert message == (f"{path}: [part].program: {tmp_path / 'prog.nc'} line 4: cuts the stock with no tool selected "
+                       f"(no T.. M6 before it) while the tool table holds 2 tools: select the tool with T<n> M6")
+
+
+def test_no_tool_selected_means_the_only_tool_of_the_table(tmp_path: Path, fmu_dir: Path) -> None:
+    path = write_part(tmp_path, program=PROGRAM.replace("T1 M6\n", ""),
+                      tools="T4 P4 D8 ; flutes=2 helix=30 stick_out=20\n")
+    scenario = load_scenario(path, fmu_dir)
+    assert scenario.part.tool.number == 4 and scenario.instance("workpiece").parameters["tool_diameter"] == 0.008
+
+
+def test_a_stock_the_program_never_touches_warns(tmp_path: Path, fmu_dir: Path,
+                                                 caplog: pytest.LogCaptureFixture) -> None:
+    with caplog.at_level(logging.WARNING, logger="milling_twin.part"):
+        warnings = _warnings(tmp_path, fmu_dir, PROGRAM.replace("Y10 Z5", "Y40 Z5"))  # 10 mm beside the block
+    assert warnings == (f"{tmp_path / 'prog.nc'}: no feed move reaches the stock (x 0.000 .. 50.000, y 0.000 .. "
+                        f"20.000, z -10.000 .. 0.000 mm): the program never cuts it",)
+    assert warnings[0] in caplog.messages
+
+
+def test_a_plunge_below_the_stock_bottom_is_refused(tmp_path: Path, fmu_dir: Path) -> None:
+    path, message = _error(tmp_path, fmu_dir, PROGRAM.replace("G1 X60 F600", "G1 X20 F600\nG1 Z-12.5"))
+    assert message == (f"{path}: [part].program: {tmp_path / 'prog.nc'} line 7: the tool tip goes down to "
+                       f"z = -12.500 mm over the stock, 2.500 mm below the stock bottom (z = -10.000 mm)")
+
+
+def test_a_cut_deeper_than_the_flute_length_warns(tmp_path: Path, fmu_dir: Path) -> None:
+    program = PROGRAM.replace("G1 X60 F600", "G1 X60 F600\nG1 Z-8\nG1 X-10")
+    warnings = _warnings(tmp_path, fmu_dir, program, tools="T1 P1 D10 ; flutes=3 helix=30 stick_out=6\n")
+    assert warnings == (f"{tmp_path / 'prog.nc'} line 8: T1 cuts 8.000 mm below the stock top, deeper than its flute "
+                        f"length 6.000 mm",)  # the plunge of line 7 lies beside the block
+
+
+def test_a_feed_move_in_the_stock_with_the_spindle_stopped_warns(tmp_path: Path, fmu_dir: Path) -> None:
+    warnings = _warnings(tmp_path, fmu_dir, PROGRAM.replace("S6000 M3\n", ""))
+    assert warnings == (f"{tmp_path / 'prog.nc'} line 5: a feed move in the stock with the spindle stopped",)
+
+
+def test_arcs_are_followed_along_their_sweep(tmp_path: Path, fmu_dir: Path) -> None:
+    # a half circle from the left of the block, bulging into it: only its middle is over the stock
+    program = PROGRAM.replace("G0 X-10 Y10 Z5\nG1 Z-2 F300\nG1 X60 F600",
+                              "G0 X-10 Y-20 Z5\nG1 Z-12 F300\nG3 X-10 Y40 I0 J30 F600")
+    path, message = _error(tmp_path, fmu_dir, program)
+    assert message.endswith("line 6: the tool tip goes down to z = -12.000 mm over the stock, 2.000 mm below the "
+                            "stock bottom (z = -10.000 mm)")
+    assert _warnings(tmp_path / "cw", fmu_dir, program.replace("G3", "G2").replace("Z-12", "Z-5")) == (
+        f"{tmp_path / 'cw' / 'prog.nc'}: no feed move reaches the stock (x 0.000 .. 50.000, y 0.000 .. 20.000, "
+        f"z -10.000 .. 0.000 mm): the program never cuts it",)  # the clockwise arc bulges away from the block
+
+
+def test_the_stock_is_in_program_coordinates_with_the_tool_length_and_the_work_offset(tmp_path: Path,
+                                                                                      fmu_dir: Path) -> None:
+    """G43 H1 puts the spindle 50 mm (the tool length) above the programmed tip and G55 shifts the work zero: the
+    checks and the Workpiece see the tip in the program's coordinates, and the run cuts the 2 mm slot."""
+    program = PROGRAM.replace("G0 X-10 Y10 Z5", "G55\nG0 X-10 Y10\nG43 Z5 H1")
+    edits = [("[part.machine]\n", '[part.machine]\ng55_x = 0.1\ng55_z = { value = -300, unit = "mm" }\n'),
+             ("start_z = { value = 5, unit = \"mm\" }", "start_z = { value = -245, unit = \"mm\" }"),
+             ("start_x = { value = -10, unit = \"mm\" }", "start_x = { value = 90, unit = \"mm\" }"),
+             ('description = "one slot through a small block"', "stop_time = 3.0")]
+    scenario = load_scenario(write_part(tmp_path, *edits, program=program), fmu_dir)
+    assert scenario.part.warnings == ()
+    frame = simulate(scenario).frame
+    cutting = frame[(frame["time"] > 1.0) & (frame["interp.x_program"] > 0.003)]
+    assert len(cutting) > 1000  # 0.3 s of the slot at 1e-4 s
+    assert np.allclose(cutting["workpiece.axial_depth"], 0.002, atol=1e-4)
+    assert np.allclose(cutting["interp.z"], -0.3 + 0.05 - 0.002)  # machine z: offset + tool length + tip
+    assert cutting["force.Fy"].abs().mean() > 10.0
+
+
+def test_the_checks_take_milliseconds_on_the_largest_program(tmp_path: Path) -> None:
+    """The reconstructed UMich program (118 moves, the largest committed) with a 6 mm tool over its pocket."""
+    tools = read_tool_table(REPO_ROOT / "scenarios" / "programs" / "corpus" / "tool.tbl")
+    program = REPO_ROOT / "scenarios" / "programs" / "umich_01.nc"
+    stock = Stock((0.13, 0.06, 0.0), (0.04, 0.05, 0.030), 5e-4)
+    start = time.perf_counter()
+    path = checks.feed_path(checks.parse(program, "fanuc", (tools[3],), {}))
+
+    def fail(message: str) -> None:
+        raise AssertionError(message)
+
+    tool = checks.cutting_tool(path, (tools[3],), stock, fail)
+    warnings = checks.check_part(path, tool, stock, 0.035, fail)
+    elapsed = time.perf_counter() - start
+    assert tool.number == 4 and warnings == [] and len(path.points) > 1000
+    assert elapsed < 0.5, elapsed
+
+
+def test_cutting_with_two_program_zeros_is_refused(tmp_path: Path, fmu_dir: Path) -> None:
+    program = PROGRAM.replace("M5\n", "G55\nG0 X-10 Y5\nG1 Z-1 F300\nG1 X60\nG0 Z5\nM5\n")
+    path = write_part(tmp_path, ("[part.machine]\n", "[part.machine]\ng55_x = 0.1\n"), program=program)
+    with pytest.raises(ScenarioError) as info:
+        load_scenario(path, fmu_dir)
+    assert str(info.value) == (
+        f"{path}: [part].program: {tmp_path / 'prog.nc'} lines 6 and 11: the program cuts the stock with two "
+        f"positions of its zero, x y z = 0.000 0.000 0.000 and 100.000 0.000 0.000 mm in machine coordinates (work "
+        f"offset G54..G59, G52, G43 tool length): the stock is placed with one")

@@ -108,6 +108,7 @@ _MOMENT_OF_INERTIA: Final = _d(kg=1, m=2)
 _STIFFNESS: Final = _d(kg=1, s=-2)
 _PRESSURE: Final = _d(kg=1, m=-1, s=-2)
 _VOLUME_FLOW: Final = _d(m=3, s=-1)
+_VOLUME: Final = _d(m=3)
 _CURRENT: Final = _d(a=1)
 _VOLTAGE: Final = _d(kg=1, m=2, s=-3, a=-1)
 _FREQUENCY: Final = _d(s=-1)
@@ -132,6 +133,7 @@ _DIMENSION_NAMES: Final[dict[tuple[int, ...], str]] = {
     _STIFFNESS: "stiffness",
     _PRESSURE: "pressure",
     _VOLUME_FLOW: "volume flow rate",
+    _VOLUME: "volume",
     _CURRENT: "electric current",
     _VOLTAGE: "voltage",
     _FREQUENCY: "frequency",
@@ -157,6 +159,7 @@ SI_UNITS: Final[dict[tuple[int, ...], str]] = {
     _STIFFNESS: "N/m",
     _PRESSURE: "N/m2",
     _VOLUME_FLOW: "m3/s",
+    _VOLUME: "m3",
     _CURRENT: "A",
     _VOLTAGE: "V",
     _FREQUENCY: "Hz",
@@ -185,6 +188,7 @@ def _table() -> dict[str, Unit]:
         ("N/m", _STIFFNESS, 1.0),
         ("N/m2", _PRESSURE, 1.0),
         ("m3/s", _VOLUME_FLOW, 1.0),
+        ("m3", _VOLUME, 1.0),
         ("1", _DIMENSIONLESS, 1.0),
         ("A", _CURRENT, 1.0),
         ("V", _VOLTAGE, 1.0),
@@ -212,6 +216,8 @@ def _table() -> dict[str, Unit]:
         ("cm3/s", _VOLUME_FLOW, 1e-6),
         ("cm3/min", _VOLUME_FLOW, 1e-6 / 60.0),
         ("mm3/min", _VOLUME_FLOW, 1e-9 / 60.0),
+        ("mm3", _VOLUME, 1e-9),
+        ("cm3", _VOLUME, 1e-6),
         ("kHz", _FREQUENCY, 1e3),
         ("W/rpm", _POWER_PER_ANGULAR_VELOCITY, 60.0 / _TWO_PI),
         ("N/um", _STIFFNESS, 1e6),

@@ -58,6 +58,42 @@ algorithm in numpy, do:
      ``(j + 1/2) 2 pi / N_THETA``; columns of the back half are 0. (The reference below names the
      elements ``engagement_z{i}_a{jj}``, 0-based, in the same row-major order.)
 
+3. **Clearance** at the new position, against the stock after the removal: the distance from the tool,
+   taken as a cylinder of radius ``R`` with a flat end at the tip (the corner radius is ignored: for a
+   bull-nose or ball end mill the distance is the one to that cylinder, at most ``r_c (1 - 1/sqrt(2))``
+   short below the corner), to the material of the cells, each cell's material a vertical segment at its
+   centre c from the bottom of the block up to its height h(c). Per cell not cut to the bottom
+   (h(c) > ``stock_z_min``: an empty cell has no material), with the tool tip at (x, y, z):
+   the horizontal gap ``gh = max(0, |c - (x, y)| - R)``, the vertical gap ``gv = max(0, z - h(c))`` and the
+   distance ``sqrt(gh^2 + gv^2)``; ``clearance`` is the smallest of these and ``clearance_range``, so
+   ``clearance_range`` when no material is that near and 0 when the tool is in material (a cell under the
+   tool reaches up to the tip or above; every cell the step cut does). Only the cells whose centre lies
+   within ``R + clearance_range`` (plus ``delta/16``) of the axis in x and in y are searched (the others
+   are farther than ``clearance_range``), and the FMU leaves out the rows and cells that cannot be
+   nearer than the nearest found so far: a few thousand cells at most per step at the default 5 mm,
+   none when the tip is ``clearance_range`` or more above the stock.
+
+4. **Removed volume**: ``removed_volume`` is the sum of all height drops since the start times
+   ``dx*dy`` (exact for the Z-map: the sum of ``mrr * h`` over the steps up to rounding).
+
+Warnings (the FMU's log, once per run each; the reference lists them in ``ZMap.warnings``): material
+removed while the spindle stands still (``spindle``), an engaged height above ``flute_length``
+(``shank``), and the tool tip at the end of a step below the stock bottom ``stock_z_min`` while the
+tool's footprint (the disc of radius R about its axis) overlaps the block seen from above: the program
+plunges through the part, into the fixture (``bottom``).
+
+**The final Z-map** (``zmap_file``, a String parameter; empty: none): in fmi2Terminate /
+fmi3Terminate the FMU writes the heights to that file (a relative path is relative to the process's
+working directory), as an ESRI ASCII grid, the heightmap format GIS tools and GDAL read: the lines
+``ncols``, ``nrows``, ``xllcorner``, ``yllcorner`` (the block's corner), ``cellsize`` when ``dx == dy``
+or else ``dx`` and ``dy`` (GDAL's extension for cells that are not square), ``NODATA_value -9999`` (never
+used), then ``nrows`` lines of ``ncols`` heights in m from north (largest y) to south, each cell's
+material top printed with ``%.17g`` (read back, the same double); a cell cut to the bottom has the height
+``stock_z_min``. It is written to ``<zmap_file>.tmp`` and renamed, so a failed write never leaves a
+truncated file under the final name; a failure (missing folder, disk full, ...) makes Terminate return
+Error with a message naming ``zmap_file``, the path and the system's reason. :func:`read_zmap` reads
+such a file back.
+
 The map is in the feed frame and does not rotate with the spindle, so the spindle angle is not
 needed: the force model places the flutes (``flute_count``, ``helix_angle``: carried here so that the
 tool is described in one place) on it. ``spindle_speed`` is used only to warn (once) when material
@@ -69,6 +105,7 @@ All outputs are those of the last step: zero in initialization mode and until th
 from __future__ import annotations
 
 import math
+from pathlib import Path
 from typing import Mapping, Sequence
 
 import numpy as np
@@ -92,7 +129,7 @@ def map_name(i: int, j: int) -> str:
 
 
 MAP_NAMES = tuple(map_name(i, j) for i in range(N_Z) for j in range(N_THETA))
-SCALAR_OUTPUTS = ("axial_depth", "radial_depth", "entry_angle", "exit_angle", "mrr")
+SCALAR_OUTPUTS = ("axial_depth", "radial_depth", "entry_angle", "exit_angle", "mrr", "clearance", "removed_volume")
 OUTPUTS = SCALAR_OUTPUTS + MAP_NAMES
 
 
@@ -120,6 +157,11 @@ def _variables() -> tuple[Variable, ...]:
                  variability="fixed"),
         length("flute_length", "Cutting length of the flutes: deeper engagement warns (the shank rubs)",
                0.022, 1e-4, 0.3),
+        length("clearance_range", "How far clearance searches for material: clearance is at most this", 5e-3, 0.0,
+               0.1),
+        Variable("zmap_file", "String", "parameter",
+                 "File the final Z-map is written to at terminate (ESRI ASCII grid, heights in m; a relative path is "
+                 "relative to the working directory); empty: none", start="", variability="fixed"),
         Variable("max_tool_speed", "Float64", "parameter",
                  "Fastest plausible tool motion: a faster jump between steps is an error (glitch or wrong units)",
                  unit="m/s", display_unit="mm/min", start=2.0, min=1e-3, max=100.0),
@@ -140,6 +182,11 @@ def _variables() -> tuple[Variable, ...]:
                  unit="rad", display_unit="deg"),
         Variable("mrr", "Float64", "output", "Material removal rate: volume removed in the last step / step size",
                  unit="m3/s", display_unit="cm3/min"),
+        Variable("clearance", "Float64", "output",
+                 "Distance from the tool to the nearest material (0: in material; at most clearance_range)",
+                 unit="m", display_unit=_MM),
+        Variable("removed_volume", "Float64", "output", "Volume removed since the start", unit="m3",
+                 display_unit="cm3"),
     ]
     variables.append(Variable(
         "engagement", "Float64", "output",
@@ -164,7 +211,7 @@ WORKPIECE = ModelDefinition(
                ("PI", math.pi)),
 )
 
-PARAMETERS = tuple(v.name for v in WORKPIECE.of("parameter"))
+PARAMETERS = tuple(v.name for v in WORKPIECE.of("parameter") if v.type != "String")  # zmap_file: the FMU's only
 INPUTS = tuple(v.name for v in WORKPIECE.of("input"))
 
 
@@ -255,9 +302,10 @@ class ZMap:
         self.map_sin = np.array([math.sin((j + 0.5) * column) for j in front])
         self.position = tuple(float(c) for c in position)
         self.feed = (1.0, 0.0)
+        self.removed_height = 0.0  # the sum of all height drops so far [m]
         self.removed_volume = 0.0
         self.warnings: list[str] = []
-        self._warned_spindle = self._warned_shank = False
+        self._warned_spindle = self._warned_shank = self._warned_bottom = False
         self.outputs = dict.fromkeys(OUTPUTS, 0.0)
 
     # ---- removal ----
@@ -417,6 +465,37 @@ class ZMap:
         rise = self.corner - height
         return self.flat + math.sqrt(max(self.corner * self.corner - rise * rise, 0.0))
 
+    # ---- clearance ----
+
+    def _clearance(self) -> float:
+        """Distance from the tool at its position to the nearest material (module docstring, step 3)."""
+        x, y, z = self.position
+        reach = self.radius + self.p["clearance_range"]
+        limit = self.p["clearance_range"]
+        if z - self.top >= limit:
+            return limit
+        margin = self.delta / 16.0
+        i_lo = max(math.floor((x - reach - margin - self.x0) / self.dx - 0.5), 0)
+        i_hi = min(math.ceil((x + reach + margin - self.x0) / self.dx - 0.5), self.nx - 1)
+        j_lo = max(math.floor((y - reach - margin - self.y0) / self.dy - 0.5), 0)
+        j_hi = min(math.ceil((y + reach + margin - self.y0) / self.dy - 0.5), self.ny - 1)
+        if i_lo > i_hi or j_lo > j_hi:
+            return limit
+        ex = self.x0 + (np.arange(i_lo, i_hi + 1, dtype=float) + 0.5) * self.dx - x
+        ey = self.y0 + (np.arange(j_lo, j_hi + 1, dtype=float) + 0.5) * self.dy - y
+        heights = self.heights[j_lo:j_hi + 1, i_lo:i_hi + 1]
+        gh = np.maximum(np.sqrt(ex[None, :] * ex[None, :] + ey[:, None] * ey[:, None]) - self.radius, 0.0)
+        gv = np.maximum(z - heights, 0.0)
+        distance = np.where(heights > self.z0, np.sqrt(gh * gh + gv * gv), math.inf)
+        return min(limit, float(distance.min()))
+
+    def _over_the_stock(self) -> bool:
+        """The tool's footprint (the disc of radius R about its axis) overlaps the block seen from above."""
+        x, y, _ = self.position
+        gap_x = max(self.x0 - x, 0.0, x - (self.x0 + self.p["stock_length"]))
+        gap_y = max(self.y0 - y, 0.0, y - (self.y0 + self.p["stock_width"]))
+        return gap_x * gap_x + gap_y * gap_y < self.radius * self.radius
+
     # ---- one step ----
 
     def step(self, position: Sequence[float], step_size: float, spindle_speed: float = 0.0,
@@ -436,17 +515,125 @@ class ZMap:
         if horizontal > FEED_DIRECTION_MIN_TRAVEL * self.delta:
             self.feed = (sx / horizontal, sy / horizontal)
         self.position = end
-        self.removed_volume += volume * (self.dx * self.dy)
+        self.removed_height += volume
+        self.removed_volume = self.removed_height * (self.dx * self.dy)
         out = self._engagement()
         out["mrr"] = volume * (self.dx * self.dy) / step_size
+        out["clearance"] = self._clearance()
+        out["removed_volume"] = self.removed_volume
         if volume > 0.0 and abs(spindle_speed) < SPINDLE_STOPPED and not self._warned_spindle:
             self._warned_spindle = True
             self.warnings.append("spindle")
         if out["axial_depth"] > self.p["flute_length"] and not self._warned_shank:
             self._warned_shank = True
             self.warnings.append("shank")
+        if end[2] < self.z0 and self._over_the_stock() and not self._warned_bottom:
+            self._warned_bottom = True
+            self.warnings.append("bottom")
         self.outputs = out
         return out
+
+
+# ---- the final Z-map as a file ----
+
+NODATA = -9999.0
+
+
+class ZMapFileError(ValueError):
+    """A Z-map file that is not an ESRI ASCII grid; the message names the file and the line."""
+
+
+def read_zmap(path: str | Path) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """An ESRI ASCII grid (the FMU's ``zmap_file``): the x of the cell centres (nx), the y of the cell
+    centres (ny, increasing) and the heights [ny, nx] (row 0 the southmost, as ``ZMap.heights``; NaN
+    for NODATA). Accepts ``xllcorner``/``xllcenter``, ``cellsize`` or ``dx`` and ``dy``, an optional
+    ``NODATA_value``; header keys in any case. Raises :class:`ZMapFileError` naming the file and line."""
+    path = Path(path)
+    try:
+        lines = path.read_text(encoding="ascii").splitlines()
+    except (OSError, UnicodeDecodeError) as exc:
+        raise ZMapFileError(f"{path}: cannot read the Z-map: {exc}") from exc
+    header: dict[str, float] = {}
+    number = 0
+    keys = ("ncols", "nrows", "xllcorner", "yllcorner", "xllcenter", "yllcenter", "cellsize", "dx", "dy",
+            "nodata_value")
+    while number < len(lines):
+        words = lines[number].split()
+        if not words or words[0].lower() not in keys:
+            break
+        if len(words) != 2:
+            raise ZMapFileError(f"{path} line {number + 1}: '{lines[number]}': a header line is a key and a number")
+        key = words[0].lower()
+        if key in header:
+            raise ZMapFileError(f"{path} line {number + 1}: '{words[0]}' given twice")
+        header[key] = _header_number(path, number, words[1])
+        number += 1
+    for required in ("ncols", "nrows"):
+        if required not in header:
+            raise ZMapFileError(f"{path} line {number + 1}: the header has no '{required}' (an ESRI ASCII grid?)")
+    nx, ny = header["ncols"], header["nrows"]
+    if nx != int(nx) or ny != int(ny) or nx < 1 or ny < 1:
+        raise ZMapFileError(f"{path}: ncols = {nx:g} and nrows = {ny:g} must be whole numbers >= 1")
+    nx, ny = int(nx), int(ny)
+    if "cellsize" in header:
+        if "dx" in header or "dy" in header:
+            raise ZMapFileError(f"{path}: the header has both 'cellsize' and 'dx'/'dy'")
+        dx = dy = header["cellsize"]
+    elif "dx" in header and "dy" in header:
+        dx, dy = header["dx"], header["dy"]
+    else:
+        raise ZMapFileError(f"{path} line {number + 1}: the header has neither 'cellsize' nor 'dx' and 'dy'")
+    if not (dx > 0 and dy > 0):
+        raise ZMapFileError(f"{path}: the cell size must be positive (dx = {dx:g}, dy = {dy:g})")
+    x_centres = _centres(path, header, "x", nx, dx)
+    y_centres = _centres(path, header, "y", ny, dy)
+    rows = []
+    for k in range(ny):
+        line = number + k
+        if line >= len(lines):
+            raise ZMapFileError(f"{path} line {line + 1}: the file ends after {k} of nrows = {ny} rows")
+        words = lines[line].split()
+        if len(words) != nx:
+            raise ZMapFileError(f"{path} line {line + 1}: {len(words)} values, ncols = {nx}")
+        try:
+            rows.append([float(w) for w in words])
+        except ValueError:
+            bad = next(w for w in words if not _is_number(w))
+            raise ZMapFileError(f"{path} line {line + 1}: '{bad}' is not a number") from None
+    extra = [n for n in range(number + ny, len(lines)) if lines[n].strip()]
+    if extra:
+        raise ZMapFileError(f"{path} line {extra[0] + 1}: more than nrows = {ny} rows")
+    heights = np.array(rows[::-1], dtype=float).reshape(ny, nx)
+    if "nodata_value" in header:
+        heights[heights == header["nodata_value"]] = np.nan
+    return x_centres, y_centres, heights
+
+
+def _is_number(word: str) -> bool:
+    try:
+        float(word)
+    except ValueError:
+        return False
+    return True
+
+
+def _header_number(path: Path, index: int, word: str) -> float:
+    try:
+        value = float(word)
+    except ValueError:
+        raise ZMapFileError(f"{path} line {index + 1}: '{word}' is not a number") from None
+    if not math.isfinite(value):
+        raise ZMapFileError(f"{path} line {index + 1}: '{word}' is not a finite number")
+    return value
+
+
+def _centres(path: Path, header: Mapping[str, float], axis: str, count: int, size: float) -> np.ndarray:
+    corner, centre = header.get(f"{axis}llcorner"), header.get(f"{axis}llcenter")
+    if (corner is None) == (centre is None):
+        raise ZMapFileError(f"{path}: the header needs one of '{axis}llcorner' and '{axis}llcenter'")
+    if corner is not None:
+        return corner + (np.arange(count, dtype=float) + 0.5) * size
+    return centre + np.arange(count, dtype=float) * size
 
 
 # ---- what the generic FMU tests (tests/fmu_helpers.py) use for this model ----
@@ -478,7 +665,10 @@ def random_arguments(count: int, rng: np.random.Generator) -> dict[str, np.ndarr
     A random small block, tool (flat, ball or bull-nose) and depth; the tool ramps into the block
     from its -x side, then slots back and forth inside it in passes 1.1 tool diameters apart, with a
     random feed of 0.05 .. 0.4 mm per point (at most 0.4 m/s at 1 ms steps). Fixed parameters are
-    constant columns."""
+    constant columns. The ramp starts 2 mm beside the block, so the first 5 points are in air with a
+    clearance that is not 0: a test that holds the tool at one of them (fmpy's master interpolates
+    the inputs, which may move it by an ulp) sees a clearance varying by ulps, not 0 turning into 1e-18 m
+    (the ulp a tool at rest in the material is lifted by)."""
     diameter = rng.uniform(4e-3, 8e-3)
     parameters = {
         "stock_x_min": rng.uniform(-0.05, 0.05), "stock_y_min": rng.uniform(-0.05, 0.05),
@@ -487,14 +677,14 @@ def random_arguments(count: int, rng: np.random.Generator) -> dict[str, np.ndarr
         "resolution": rng.uniform(0.4e-3, 0.8e-3), "tool_diameter": diameter,
         "corner_radius": float(rng.choice([0.0, 0.5 * diameter, rng.uniform(0.0, 0.5 * diameter)])),
         "flute_count": float(rng.integers(2, 5)), "helix_angle": rng.uniform(0.0, 0.8),
-        "flute_length": 3 * diameter,
+        "flute_length": 3 * diameter, "clearance_range": rng.uniform(0.5e-3, 8e-3),
     }
     radius = 0.5 * diameter
     top = parameters["stock_z_min"] + parameters["stock_height"]
     depth = rng.uniform(0.2, 0.9) * min(diameter, parameters["stock_height"])
     x_lo = parameters["stock_x_min"] + radius + 0.5e-3
     x_hi = parameters["stock_x_min"] + parameters["stock_length"] - radius - 0.5e-3
-    x, y = x_lo - diameter, parameters["stock_y_min"] + rng.uniform(0.7, 1.5) * radius
+    x, y = parameters["stock_x_min"] - radius - 2e-3, parameters["stock_y_min"] + rng.uniform(0.7, 1.5) * radius
     z, direction, phase, target = top, 1.0, "ramp", 0.0
     path = []
     for _ in range(count):

@@ -14,8 +14,8 @@ import numpy as np
 import pytest
 
 from fmu_helpers import ERROR, OK, WARNING, Slave, fmu_dir, fmu_id, require_fmu, status_of
-from milling_twin.models.workpiece import (MAP_NAMES, N_THETA, N_Z, OUTPUTS, WORKPIECE, WorkpieceError, ZMap, map_name,
-                              validate)
+from milling_twin.models.workpiece import (MAP_NAMES, N_THETA, N_Z, OUTPUTS, WORKPIECE, WorkpieceError, ZMap,
+                                          ZMapFileError, map_name, read_zmap, validate)
 
 FMUS = [fmu_dir() / "Workpiece.fmu", fmu_dir() / "Workpiece_fmi2.fmu"]
 MM = 1e-3
@@ -62,6 +62,8 @@ def arc(center: Sequence[float], radius: float, start: float, end: float, z: flo
 # The FMU's outputs: the scalars and the array "engagement" (FMI 3: one array variable, FMI 2: its
 # elements); read through Slave.get they are the reference's OUTPUTS, in the same order.
 FMU_OUTPUTS = [v.name for v in WORKPIECE.of("output")]
+# the outputs of the engagement and the removal in the last step (not the clearance nor the running volume)
+STEP_OUTPUTS = [k for k, name in enumerate(OUTPUTS) if name not in ("clearance", "removed_volume")]
 
 
 def run_fmu(path: Path, parameters: dict, points: Sequence[Sequence[float]], spindle: float = SPINDLE,
@@ -116,6 +118,14 @@ PATHS = {
                    "stock_width": 0.02, "stock_height": 0.006},
                   polyline([(-0.013, 0.03, 0.0015), (0.005, 0.03, -0.005), (0.005, 0.045, -0.002),
                             (0.005, 0.035, 0.001), (0.025, 0.025, 0.0005)], 0.25 * MM)),
+    # clearance (range 3 mm) against a slot, the block's faces and its top: a slot, out of it upwards, over
+    # the block in air 1.5 mm above it, down beside its -x face and towards it, into it, up and diagonally
+    # 0.8 mm above the top, down into a ramp
+    "clearance tour": ({"clearance_range": 3 * MM}, polyline(
+        [(-8 * MM, 30 * MM, 27 * MM), (50 * MM, 30 * MM, 27 * MM), (50 * MM, 30 * MM, 31.5 * MM),
+         (-3 * MM, 12 * MM, 31.5 * MM), (-8 * MM, 12 * MM, 31.5 * MM), (-8 * MM, 12.1 * MM, 26 * MM),
+         (-6.5 * MM, 12.1 * MM, 26 * MM), (10 * MM, 12.1 * MM, 26 * MM), (10 * MM, 12.1 * MM, 30.8 * MM),
+         (70 * MM, 45 * MM, 30.8 * MM), (90 * MM, 50 * MM, 29 * MM)], 0.3 * MM)),
 }
 
 
@@ -131,11 +141,21 @@ def test_fmu_equals_the_numpy_reference_bit_for_bit(fmu: Path, name: str) -> Non
         first = tuple(differ[0])
         pytest.fail(f"{len(differ)} values differ, first at step {first[0]} output {OUTPUTS[first[1]]}: "
                     f"{actual[first]!r} != {expected[first]!r}")
-    assert not slave.messages
+    # the bull-nose path goes through the bottom of the block: both warn of it, nothing else
+    assert zmap.warnings == (["bottom"] if name == "bull nose" else [])
+    assert [m.status for m in slave.messages] == [WARNING] * len(zmap.warnings)
     # the paths exercise what they should: cutting, every engagement output, partial engagement
     mrr = expected[:, OUTPUTS.index("mrr")]
     assert np.count_nonzero(mrr) > len(points) // 3
     assert removed_volume(expected) == pytest.approx(zmap.removed_volume, rel=1e-12)
+    cumulative = expected[:, OUTPUTS.index("removed_volume")]
+    assert np.all(np.diff(cumulative) >= 0) and cumulative[-1] == zmap.removed_volume
+    assert cumulative == pytest.approx(np.cumsum(expected[:, OUTPUTS.index("mrr")]) * H, rel=1e-9, abs=1e-18)
+    # clearance: in material (0), near it (between 0 and the range) and away from it (the range)
+    clearance = expected[:, OUTPUTS.index("clearance")]
+    limit = zmap.p["clearance_range"]
+    assert np.all((clearance >= 0) & (clearance <= limit))
+    assert np.any(clearance == 0) and np.any((clearance > 0) & (clearance < limit))
     for output in ("axial_depth", "radial_depth", "exit_angle"):
         assert np.max(expected[:, OUTPUTS.index(output)]) > 0, output
     entry = expected[:, OUTPUTS.index("entry_angle")]
@@ -195,6 +215,218 @@ def test_ball_path_cuts_in_several_sub_segments_and_through_the_bottom() -> None
     assert np.count_nonzero(zmap.heights == zmap.z0) > 100
 
 
+# ---- clearance ----
+
+
+def brute_clearance(zmap: ZMap, position: Sequence[float]) -> float:
+    """The clearance by its definition (models/workpiece.py, step 3) over every cell of the grid."""
+    x, y, z = position
+    ex = zmap.x0 + (np.arange(zmap.nx) + 0.5) * zmap.dx - x
+    ey = zmap.y0 + (np.arange(zmap.ny) + 0.5) * zmap.dy - y
+    gh = np.maximum(np.sqrt(ex[None, :] ** 2 + ey[:, None] ** 2) - zmap.radius, 0.0)
+    gv = np.maximum(z - zmap.heights, 0.0)
+    distance = np.where(zmap.heights > zmap.z0, np.sqrt(gh * gh + gv * gv), math.inf)
+    return min(zmap.p["clearance_range"], float(distance.min()))
+
+
+def test_clearance_is_the_distance_to_the_nearest_material_over_the_whole_grid() -> None:
+    """After the clearance tour, at 400 random positions around and in the cut block: the reference (which
+    searches a box around the tool, and the FMU equals it bit for bit on the paths above) gives exactly the
+    smallest distance over every cell of the grid."""
+    parameters, points = PATHS["clearance tour"]
+    _, zmap = run_reference(parameters, points)
+    rng = np.random.default_rng(7)
+    values = []
+    for _ in range(400):
+        position = (rng.uniform(-12 * MM, 112 * MM), rng.uniform(-12 * MM, 72 * MM), rng.uniform(24 * MM, 34 * MM))
+        zmap.position = position
+        values.append(zmap._clearance())
+        assert values[-1] == brute_clearance(zmap, position), position
+    values = np.array(values)
+    assert np.count_nonzero(values == 0) > 20 and np.count_nonzero(values == 3 * MM) > 20
+    assert np.count_nonzero((values > 0) & (values < 3 * MM)) > 100
+
+
+def test_clearance_above_and_beside_the_block(fmu: Path) -> None:
+    """A plunge from 5 mm above the top: the clearance is the height above the top (at most the range, 5 mm),
+    0 from the first step into the block; then beside the block's -x face, the tool axis on a row of cell
+    centres: the gap to the face cells' centres (half a cell inside the face)."""
+    plunge = polyline([(50 * MM, 30 * MM, TOP + 6 * MM), (50 * MM, 30 * MM, TOP - 1 * MM)], 0.05 * MM)
+    y = 30.125 * MM  # cell centres at (j + 1/2) * 0.25 mm
+    beside = polyline([(-8 * MM, y, TOP + 1 * MM), (-8 * MM, y, TOP - 2 * MM), (-5.5 * MM, y, TOP - 2 * MM)],
+                      0.05 * MM)
+    points = chain(plunge, polyline([plunge[-1], (50 * MM, 30 * MM, TOP + 10 * MM)], 0.5 * MM),
+                   polyline([(50 * MM, 30 * MM, TOP + 10 * MM), beside[0]], 1.0 * MM), beside)
+    rows, slave = run_fmu(fmu, {}, points)
+    slave.unload()
+    clearance = rows[:, OUTPUTS.index("clearance")]
+    z = np.array([p[2] for p in points])
+    above = clearance[:len(plunge)]
+    heights = z[:len(plunge)] - TOP
+    assert np.array_equal(above, np.where(heights > 0, np.minimum(heights, 5 * MM), 0.0))
+    x = np.array([p[0] for p in beside])
+    gap = (0.125 * MM - x) - 5 * MM
+    wanted = np.where(np.array([p[2] for p in beside]) > TOP, np.nan, np.minimum(gap, 5 * MM))
+    low = ~np.isnan(wanted)
+    assert np.count_nonzero(low) > 40
+    assert clearance[-len(beside):][low] == pytest.approx(wanted[low], abs=1e-12)
+    assert clearance[-1] == pytest.approx(0.625 * MM, abs=1e-12)
+
+
+# ---- the tool through the bottom of the block ----
+
+
+def test_a_tip_below_the_stock_bottom_over_the_stock_warns_once(fmu: Path) -> None:
+    """Below stock_z_min beside the block: no warning; a plunge through the block into the fixture below it:
+    a warning once (naming the time and the heights in mm), and the reference warns alike."""
+    beside = polyline([(-8 * MM, 30 * MM, 5 * MM), (-8 * MM, 30 * MM, -2 * MM)], 0.2 * MM)
+    plunge = polyline([(-8 * MM, 30 * MM, -2 * MM), (-8 * MM, 30 * MM, 35 * MM), (20 * MM, 30 * MM, 35 * MM),
+                       (20 * MM, 30 * MM, -1 * MM), (20 * MM, 30 * MM, -2 * MM), (30 * MM, 30 * MM, -2 * MM)],
+                      0.2 * MM)
+    points = chain(beside, plunge)
+    parameters = {"flute_length": 0.05}  # the plunge engages the whole 30 mm: no warning of the shank
+    rows, slave = run_fmu(fmu, parameters, points)
+    slave.unload()
+    assert [m.status for m in slave.messages] == [WARNING]
+    first = next(k for k, p in enumerate(points) if p[0] == 20 * MM and p[2] < 0)
+    assert slave.warnings()[0] == (f"doStep: t = {first * H:g} s: the tool tip went to z = -0.2 mm, below the stock "
+                                   "bottom stock_z_min = 0 mm, with the tool over the stock at x = 20 mm, y = 30 mm: "
+                                   "the program plunges through the part (into the fixture?) (reported once)")
+    expected, zmap = run_reference(parameters, points)
+    assert np.array_equal(rows, expected) and zmap.warnings == ["bottom"]
+    beside_only = ZMap({}, beside[0])
+    for point in beside:
+        beside_only.step(point, H)
+    assert beside_only.warnings == []
+
+
+# ---- the final Z-map as a file ----
+
+
+def run_to_file(path: Path, parameters: dict, points: Sequence[Sequence[float]], zmap_file: str) -> Slave:
+    """An instance with zmap_file set, initialized at points[0] and stepped to every point (not terminated)."""
+    slave = Slave(path)
+    slave.instantiate()
+    slave.enter_initialization()
+    slave.fmu.setString([slave.vr["zmap_file"]], [zmap_file])
+    x, y, z = points[0]
+    slave.set({**parameters, "tool_x": x, "tool_y": y, "tool_z": z, "spindle_speed": SPINDLE})
+    slave.exit_initialization()
+    for x, y, z in points:
+        slave.set({"tool_x": x, "tool_y": y, "tool_z": z})
+        assert slave.step(H) in (OK, WARNING), slave.messages[-3:]
+    return slave
+
+
+@pytest.mark.parametrize("name", ["flat end mill", "bull nose"])
+def test_the_final_zmap_file_holds_the_reference_heights_bit_for_bit(fmu: Path, tmp_path: Path, name: str) -> None:
+    """Written at Terminate as an ESRI ASCII grid (square cells: cellsize; the bull-nose grid's are not: dx and
+    dy) and read back with read_zmap: the heights and the cell centres are the reference's to the last bit,
+    cells cut through the bottom at stock_z_min."""
+    parameters, points = PATHS[name]
+    target = tmp_path / "final.asc"
+    slave = run_to_file(fmu, parameters, points, str(target))
+    assert status_of(slave.fmu.terminate) == OK
+    slave.unload()
+    _, zmap = run_reference(parameters, points)
+    x, y, heights = read_zmap(target)
+    assert np.array_equal(heights, zmap.heights)
+    assert np.array_equal(x, zmap.x0 + (np.arange(zmap.nx) + 0.5) * zmap.dx)
+    assert np.array_equal(y, zmap.y0 + (np.arange(zmap.ny) + 0.5) * zmap.dy)
+    size = ["cellsize"] if zmap.dx == zmap.dy else ["dx", "dy"]
+    header = ["ncols", "nrows", "xllcorner", "yllcorner", *size, "NODATA_value"]
+    assert [line.split()[0] for line in target.read_text().splitlines()[:len(header)]] == header
+    assert (name == "bull nose") == (size == ["dx", "dy"])
+    if name == "bull nose":  # cells cut through the bottom: stock_z_min
+        assert np.count_nonzero(heights == zmap.z0) > 100
+    assert not (tmp_path / "final.asc.tmp").exists()
+
+
+def test_a_relative_zmap_file_is_relative_to_the_working_directory(fmu: Path, tmp_path: Path,
+                                                                    monkeypatch: pytest.MonkeyPatch) -> None:
+    monkeypatch.chdir(tmp_path)
+    points = slot_points((-10 * MM, 30 * MM, 28 * MM), (10 * MM, 30 * MM, 28 * MM))
+    slave = run_to_file(fmu, {}, points, "final.asc")
+    assert status_of(slave.fmu.terminate) == OK
+    slave.unload()
+    _, _, heights = read_zmap(tmp_path / "final.asc")
+    assert np.array_equal(heights, run_reference({}, points)[1].heights)
+
+
+def test_no_zmap_file_by_default(fmu: Path, tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
+    monkeypatch.chdir(tmp_path)
+    rows, slave = run_fmu(fmu, {}, slot_points((-10 * MM, 30 * MM, 28 * MM), (10 * MM, 30 * MM, 28 * MM)))
+    assert status_of(slave.fmu.terminate) == OK
+    slave.unload()
+    assert list(tmp_path.iterdir()) == []
+
+
+def test_a_zmap_file_that_cannot_be_written_is_an_error_at_terminate(fmu: Path, tmp_path: Path) -> None:
+    """A missing folder, a folder in the way of the final name (the rename fails) and a full disk (/dev/full
+    behind the temporary name): Terminate returns Error naming zmap_file, the path and the system's reason;
+    no temporary file is left and a file already under the final name keeps its content."""
+    points = slot_points((-10 * MM, 30 * MM, 28 * MM), (10 * MM, 30 * MM, 28 * MM))
+    terminate = "fmi3Terminate" if "fmi2" not in fmu.name else "fmi2Terminate"
+    missing = tmp_path / "missing" / "final.asc"
+    folder = tmp_path / "folder"
+    folder.mkdir()
+    cases = [(missing, f"{terminate}: zmap_file = '{missing}': cannot create '{missing}.tmp': No such file or "
+              "directory"),
+             (folder, f"{terminate}: zmap_file = '{folder}': cannot rename '{folder}.tmp' to '{folder}': Is a "
+              "directory")]
+    if Path("/dev/full").exists():
+        full = tmp_path / "full.asc"
+        full.write_text("the earlier Z-map\n")
+        (tmp_path / "full.asc.tmp").symlink_to("/dev/full")
+        cases.append((full, f"{terminate}: zmap_file = '{full}': cannot write '{full}.tmp': No space left on device"))
+    for target, message in cases:
+        slave = run_to_file(fmu, {}, points, str(target))
+        assert status_of(slave.fmu.terminate) == ERROR
+        assert slave.last_error() == message
+        slave.unload()
+        assert not Path(f"{target}.tmp").exists()
+    assert not missing.parent.exists() and folder.is_dir() and list(folder.iterdir()) == []
+    if Path("/dev/full").exists():
+        assert full.read_text() == "the earlier Z-map\n"
+
+
+BAD_ZMAP_FILES = {
+    "no header": ("1 2 3\n", "line 1: the header has no 'ncols' (an ESRI ASCII grid?)"),
+    "header value not a number": ("ncols 2\nnrows x\n", "line 2: 'x' is not a number"),
+    "header line without its number": ("ncols 2\nnrows\n", "line 2: 'nrows': a header line is a key and a number"),
+    "no cell size": ("ncols 2\nnrows 1\nxllcorner 0\nyllcorner 0\n1 2\n",
+                     "line 5: the header has neither 'cellsize' nor 'dx' and 'dy'"),
+    "a row too short": ("ncols 2\nnrows 2\nxllcorner 0\nyllcorner 0\ncellsize 1\n1 2\n3\n",
+                        "line 7: 1 values, ncols = 2"),
+    "a value not a number": ("ncols 2\nnrows 1\nxllcorner 0\nyllcorner 0\ncellsize 1\n1 z\n",
+                             "line 6: 'z' is not a number"),
+    "rows missing": ("ncols 1\nnrows 3\nxllcorner 0\nyllcorner 0\ncellsize 1\n1\n",
+                     "line 7: the file ends after 1 of nrows = 3 rows"),
+    "rows too many": ("ncols 1\nnrows 1\nxllcorner 0\nyllcorner 0\ncellsize 1\n1\n2\n",
+                      "line 7: more than nrows = 1 rows"),
+}
+
+
+@pytest.mark.parametrize("case", BAD_ZMAP_FILES)
+def test_read_zmap_names_the_file_and_line_of_a_malformed_file(tmp_path: Path, case: str) -> None:
+    text, message = BAD_ZMAP_FILES[case]
+    path = tmp_path / "bad.asc"
+    path.write_text(text)
+    with pytest.raises(ZMapFileError) as raised:
+        read_zmap(path)
+    assert str(raised.value) == f"{path} {message}"
+
+
+def test_read_zmap_reads_gdal_s_variants(tmp_path: Path) -> None:
+    """Cell centres given (xllcenter), keys in upper case, NODATA cells as NaN; rows from north to south."""
+    path = tmp_path / "centres.asc"
+    path.write_text("NCOLS 3\nNROWS 2\nXLLCENTER 1.5\nYLLCENTER -2\nDX 0.5\nDY 2\nNODATA_VALUE -1\n"
+                    "1 2 3\n4 -1 6\n")
+    x, y, heights = read_zmap(path)
+    assert np.array_equal(x, [1.5, 2.0, 2.5]) and np.array_equal(y, [-2.0, 0.0])
+    assert np.array_equal(heights, [[4, np.nan, 6], [1, 2, 3]], equal_nan=True)
+
+
 # ---- removed volume against the exact volume of straight slots ----
 #
 # Resolution error. A cell is cut to the exact tool surface at its centre, so the Z-map's removed
@@ -224,6 +456,7 @@ def test_through_slot_along_cell_boundaries_removes_the_exact_volume(fmu: Path) 
     slave.unload()
     exact = 100 * MM * 10 * MM * 3 * MM
     assert removed_volume(rows) == pytest.approx(exact, rel=1e-12)
+    assert rows[-1, OUTPUTS.index("removed_volume")] == pytest.approx(exact, rel=1e-12)
     # steady state: slotting, full depth and width, MRR = a_p D v_f on average over whole cells
     steady = rows[100:-100]
     assert np.all(steady[:, OUTPUTS.index("axial_depth")] == pytest.approx(3 * MM, rel=1e-12))
@@ -376,7 +609,7 @@ def test_retracing_a_cut_is_no_engagement(fmu: Path, tool: str, angle: float) ->
     slave.unload()
     first, again = rows[:len(slot)], rows[-len(slot):]
     assert np.max(first[:, OUTPUTS.index("radial_depth")]) > 0
-    assert not np.any(again[:-20])  # the last 2 mm: the end wall
+    assert not np.any(again[:-20, STEP_OUTPUTS])  # the last 2 mm: the end wall
     assert np.all(again[:, OUTPUTS.index("mrr")] == 0.0)
 
 
@@ -390,7 +623,12 @@ def test_tool_above_the_stock_gives_zero_engagement(fmu: Path) -> None:
     rows, slave = run_fmu(fmu, {}, points)
     assert not slave.messages
     slave.unload()
-    assert not np.any(rows)
+    assert not np.any(rows[:, STEP_OUTPUTS]) and not np.any(rows[:, OUTPUTS.index("removed_volume")])
+    clearance = rows[:, OUTPUTS.index("clearance")]  # 0.5 mm above the top (towards its edge: more), beside it
+    x = np.array([p[0] for p in points])
+    assert np.all((clearance >= 0.5 * MM - 1e-12) & (clearance <= 5 * MM))
+    over = (x > 5 * MM) & (x < 95 * MM) & (np.array([p[2] for p in points]) > TOP)
+    assert np.count_nonzero(over) > 150 and clearance[over] == pytest.approx(0.5 * MM, abs=1e-12)
 
 
 def initialize_with(path: Path, parameters: dict) -> Slave:

@@ -639,9 +639,14 @@ FmuStatus fmu_do_step(FmuInstance *instance, const char *function, double curren
 }
 
 FmuStatus fmu_terminate(FmuInstance *instance, const char *function) {
+    FmuStatus status = FMU_OK;
+#ifdef MODEL_HAS_TERMINATE
+    status = model_terminate(instance, function);
+    if (status > FMU_WARNING) return status;
+#endif
     instance->state = STATE_TERMINATED;
     fmu_log(instance, FMU_OK, "logEvents", "%s: terminated at t = %g s", function, instance->time);
-    return FMU_OK;
+    return status;
 }
 
 /* ---- FMU state snapshots ---- */

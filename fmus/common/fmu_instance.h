@@ -148,4 +148,11 @@ void model_free_internal(FmuInstance *instance);
 FmuStatus model_instantiate(FmuInstance *instance, const char *function);
 #endif
 
+/* Optional: a model whose config.h defines MODEL_HAS_TERMINATE implements this hook, called by Terminate
+ * (`function` names the FMI call for messages), e.g. to write a result file. An Error (logged by the hook)
+ * makes Terminate return Error. */
+#ifdef MODEL_HAS_TERMINATE
+FmuStatus model_terminate(FmuInstance *instance, const char *function);
+#endif
+
 #endif

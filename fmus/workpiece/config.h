@@ -14,6 +14,8 @@
 #include "model_generated.h"
 #include "model_constants.h" /* N_Z x N_THETA (the engagement map), N_BISECTIONS, the grid limits: models/workpiece.py */
 
+#define MODEL_HAS_TERMINATE 1 /* fmu_instance.h: model_terminate writes the final Z-map to zmap_file */
+
 /* Where a set of probes of the stock was made (the tool at x, y) and how far the probes then lay from
  * the edges of their cells, in cells, towards -x, +x, -y, +y: the set gives the same heights while the
  * tool moves less (model.c: rooms_hold()). */
@@ -36,8 +38,10 @@ typedef struct {
     /* kept between steps */
     double x, y, z;         /* tool tip at the end of the last step [m] */
     double feed_x, feed_y;  /* unit vector of the last horizontal move (+x before the first) */
+    double removed_height;  /* the sum of all height drops so far [m]: removed_volume / (dx dy) */
     bool warned_spindle_stopped;
     bool warned_shank;
+    bool warned_bottom;     /* the tool tip below the stock bottom over the stock */
     /* Every cell whose centre lies within radius - 2 delta/16 of (cleared_x, cleared_y) is at or below
      * cleared_level (model.c: remove_segment(); heights only decrease, so it stays true) */
     bool cleared_valid;

@@ -6,8 +6,10 @@
  * leave out work that provably cannot change their result (cells already cleared, probes of the
  * stock that still fall in the same cells: remove_segment(), engagement()), so a slow feed stepped
  * finely costs little, and the outputs stay those of the reference to the last bit. */
+#include <errno.h>
 #include <float.h>
 #include <math.h>
+#include <stdio.h>
 #include <string.h>
 
 #include "fmu_instance.h"
@@ -529,6 +531,76 @@ static void engagement(FmuInstance *instance, double volume) {
     w->outputs_axial = axial;
 }
 
+/* The cells [from, end) of the row whose centres lie ey from the tool axis in y: the smallest distance to
+ * their material below `best` (else best), each as the reference computes it. */
+static double nearest_in_row(const FmuInstance *instance, const double *row, double ey, size_t from, size_t end,
+                             double best) {
+    const ModelInternal *w = &instance->internal;
+    const double x0 = instance->v.stock_x_min, z0 = instance->v.stock_z_min, x = w->x, z = w->z;
+    size_t i;
+    for (i = from; i < end; i++) {
+        const double h = row[i];
+        double ex, gh, gv, d;
+        if (!(h > z0)) continue;       /* cut to the bottom: no material */
+        gv = z - h;
+        if (gv >= best) continue;      /* d >= gv (rounding is monotonic): no nearer */
+        gv = gv > 0.0 ? gv : 0.0;
+        ex = x0 + ((double)i + 0.5) * w->dx - x;
+        gh = sqrt(ex * ex + ey * ey) - w->radius;
+        gh = gh > 0.0 ? gh : 0.0;
+        d = sqrt(gh * gh + gv * gv);
+        if (d < best) best = d;
+    }
+    return best;
+}
+
+/* The clearance (models/workpiece.py, step 3): the smallest distance from the tool, a cylinder of radius R with
+ * its flat end at the tip, to the material of the cells, and at most clearance_range. The box of cells is the
+ * reference's (models.workpiece.ZMap._clearance); of it, the rows and cells that cannot be nearer than the
+ * nearest found so far are left out, the rows from the tool's outwards (the row of the cell centre at or below
+ * the axis downwards, then the rows above it upwards): a cell's computed distance is at least its row's gap
+ * |ey| - R, rounded as it is computed (rounding is monotonic and sqrt(ey^2) = |ey|), and a row's cells farther
+ * than best + R in x (with a margin of delta/16, far above the rounding) are at least best away. */
+static double clearance(const FmuInstance *instance) {
+    const ModelInternal *w = &instance->internal;
+    const ModelVariables *v = &instance->v;
+    const double x0 = v->stock_x_min, y0 = v->stock_y_min, x = w->x, y = w->y, r = w->radius;
+    const double limit = v->clearance_range, reach = r + limit, margin = w->delta / 16.0;
+    double best = limit, i_lo, i_hi, j_lo, j_hi, j_tool, jd;
+    int direction;
+    if (w->z - w->top >= limit) return limit; /* every cell's gv is at least this */
+    i_lo = max2(floor((x - reach - margin - x0) / w->dx - 0.5), 0.0);
+    i_hi = min2(ceil((x + reach + margin - x0) / w->dx - 0.5), (double)w->nx - 1.0);
+    j_lo = max2(floor((y - reach - margin - y0) / w->dy - 0.5), 0.0);
+    j_hi = min2(ceil((y + reach + margin - y0) / w->dy - 0.5), (double)w->ny - 1.0);
+    if (i_lo > i_hi || j_lo > j_hi) return limit; /* beside the stock */
+    j_tool = clamp(floor_index(clamp((y - y0) / w->dy - 0.5, j_lo - 1.0, j_hi + 1.0)), j_lo, j_hi);
+    for (direction = -1; direction <= 1; direction += 2) { /* |ey| grows from row to row in each direction */
+        for (jd = direction < 0 ? j_tool : j_tool + 1.0; jd >= j_lo && jd <= j_hi; jd += (double)direction) {
+            const double ey = y0 + (jd + 0.5) * w->dy - y;
+            const double gap = fabs(ey) - r, span = r + best + margin;
+            double from, to;
+            if (gap > best) break; /* and the rows beyond */
+            from = max2(ceil_index(clamp((x - span - x0) / w->dx - 0.5, i_lo - 1.0, i_hi + 1.0)), i_lo);
+            to = min2(floor_index(clamp((x + span - x0) / w->dx - 0.5, i_lo - 1.0, i_hi + 1.0)), i_hi);
+            if (from <= to)
+                best = nearest_in_row(instance, instance->heap + index_of(jd) * w->nx, ey, index_of(from),
+                                      index_of(to) + 1, best);
+            if (best == 0.0) return 0.0;
+        }
+    }
+    return best;
+}
+
+/* The tool's footprint (the disc of radius R about its axis) overlaps the block seen from above. */
+static bool over_the_stock(const FmuInstance *instance) {
+    const ModelVariables *v = &instance->v;
+    const ModelInternal *w = &instance->internal;
+    const double gap_x = max2(max2(v->stock_x_min - w->x, 0.0), w->x - (v->stock_x_min + v->stock_length));
+    const double gap_y = max2(max2(v->stock_y_min - w->y, 0.0), w->y - (v->stock_y_min + v->stock_width));
+    return gap_x * gap_x + gap_y * gap_y < w->radius * w->radius;
+}
+
 FmuStatus model_do_step(FmuInstance *instance, double time, double step_size) {
     ModelInternal *w = &instance->internal;
     const ModelVariables *v = &instance->v;
@@ -554,6 +626,9 @@ FmuStatus model_do_step(FmuInstance *instance, double time, double step_size) {
     w->z = end[2];
     engagement(instance, volume);
     instance->v.mrr = volume * (w->dx * w->dy) / step_size;
+    w->removed_height += volume;
+    instance->v.removed_volume = w->removed_height * (w->dx * w->dy);
+    instance->v.clearance = clearance(instance);
     if (volume > 0.0 && fabs(v->spindle_speed) < SPINDLE_STOPPED && !w->warned_spindle_stopped) {
         w->warned_spindle_stopped = true;
         fmu_log(instance, FMU_WARNING, "logStatusWarning",
@@ -568,6 +643,14 @@ FmuStatus model_do_step(FmuInstance *instance, double time, double step_size) {
                 "material (reported once)", time, v->axial_depth, v->flute_length);
         status = FMU_WARNING;
     }
+    if (w->z < v->stock_z_min && over_the_stock(instance) && !w->warned_bottom) {
+        w->warned_bottom = true;
+        fmu_log(instance, FMU_WARNING, "logStatusWarning",
+                "doStep: t = %g s: the tool tip went to z = %g mm, below the stock bottom stock_z_min = %g mm, with "
+                "the tool over the stock at x = %g mm, y = %g mm: the program plunges through the part (into the "
+                "fixture?) (reported once)", time, 1e3 * w->z, 1e3 * v->stock_z_min, 1e3 * w->x, 1e3 * w->y);
+        status = FMU_WARNING;
+    }
     return status;
 }
 
@@ -576,3 +659,66 @@ FmuStatus model_do_step(FmuInstance *instance, double time, double step_size) {
 void model_update_outputs(FmuInstance *instance) { (void)instance; }
 
 void model_free_internal(FmuInstance *instance) { (void)instance; }
+
+/* The heights as an ESRI ASCII grid (models/workpiece.py: the final Z-map) to f; false on a write error. */
+static bool write_grid(const FmuInstance *instance, FILE *f) {
+    const ModelInternal *w = &instance->internal;
+    const ModelVariables *v = &instance->v;
+    size_t i, j;
+    fprintf(f, "ncols %zu\nnrows %zu\nxllcorner %.17g\nyllcorner %.17g\n", w->nx, w->ny, v->stock_x_min,
+            v->stock_y_min);
+    if (w->dx == w->dy)
+        fprintf(f, "cellsize %.17g\n", w->dx);
+    else
+        fprintf(f, "dx %.17g\ndy %.17g\n", w->dx, w->dy);
+    fprintf(f, "NODATA_value -9999\n");
+    for (j = w->ny; j-- > 0;) { /* from north (largest y) to south */
+        const double *row = instance->heap + j * w->nx;
+        for (i = 0; i < w->nx; i++)
+            if (fprintf(f, i + 1 < w->nx ? "%.17g " : "%.17g\n", row[i]) < 0) return false;
+    }
+    return !ferror(f);
+}
+
+/* Writes the final Z-map to zmap_file (if not empty): to "<zmap_file>.tmp", then renamed, so a failed write never
+ * leaves a truncated file under the final name. */
+FmuStatus model_terminate(FmuInstance *instance, const char *function) {
+    const char *path = instance->v.zmap_file;
+    char temporary[FMU_STRING_CAPACITY + 8];
+    const char *failed = "write";
+    FILE *f;
+    int error = 0;
+    if (path[0] == '\0') return FMU_OK;
+    if (!instance->heap) return FMU_OK; /* not initialized: no Z-map (Terminate is only allowed after it) */
+    snprintf(temporary, sizeof temporary, "%s.tmp", path);
+    errno = 0;
+    f = fopen(temporary, "w");
+    if (!f) {
+        error = errno;
+        failed = "create";
+    } else {
+        bool written = write_grid(instance, f);
+        if (!written) error = errno;
+        if (fclose(f) != 0 && written) {
+            written = false;
+            error = errno;
+        }
+        if (written) {
+            errno = 0;
+            if (rename(temporary, path) == 0) return FMU_OK;
+#ifdef _WIN32 /* rename does not replace an existing file there */
+            if (remove(path) == 0 && rename(temporary, path) == 0) return FMU_OK;
+#endif
+            error = errno;
+            failed = "rename";
+        }
+        remove(temporary);
+    }
+    if (strcmp(failed, "rename") == 0)
+        fmu_log(instance, FMU_ERROR, "logStatusError", "%s: zmap_file = '%s': cannot rename '%s' to '%s': %s",
+                function, path, temporary, path, error ? strerror(error) : "unknown error");
+    else
+        fmu_log(instance, FMU_ERROR, "logStatusError", "%s: zmap_file = '%s': cannot %s '%s': %s", function, path,
+                failed, temporary, error ? strerror(error) : "unknown error");
+    return FMU_ERROR;
+}

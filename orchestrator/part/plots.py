@@ -88,7 +88,8 @@ def toolpath_png(x: np.ndarray, y: np.ndarray, z: np.ndarray, colour: np.ndarray
         ax.add_collection3d(Line3DCollection(segments[grey], colors="0.7", linewidths=0.6, linestyles="dashed"))
     coloured = Line3DCollection(segments[~grey], cmap=cmap, norm=norm, linewidths=1.2)
     coloured.set_array(c[~grey])
-    ax.add_collection3d(coloured)
+    if (~grey).any():
+        ax.add_collection3d(coloured)
     bounds = [[float(np.nanmin(v)), float(np.nanmax(v))] if v.size else [0.0, 1.0] for v in (x, y, z)]
     if box is not None:
         (x0, x1), (y0, y1), (z0, z1) = box

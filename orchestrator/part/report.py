@@ -327,12 +327,14 @@ def write_process_report(part: Part, frame: pd.DataFrame, run_dir: Path, *, zmap
         rapid = np.nan_to_num(signals[f"{INTERPOLATOR}.rapid"]) > 0.5
     else:
         line = np.nan_to_num(signals[f"{INTERPOLATOR}.line_number"]).astype(np.int64)
-        rapid = np.array([feeds.get(int(v), 1.0) == 0.0 for v in line]) if feeds else np.zeros(signals.n, bool)
+        lines, where = np.unique(line, return_inverse=True)
+        rapid = np.array([feeds.get(int(v), 1.0) == 0.0 for v in lines], dtype=bool)[where.ravel()]
     if signals.has(f"{INTERPOLATOR}.x") and signals.n > 1:
         box = [(o * 1e3, (o + s) * 1e3) for o, s in zip(part.stock.origin, part.stock.size)]
         figures.append(_img(plots.toolpath_png(x_mm, y_mm, z_mm, resultant, rapid, "resultant force [N]",
                                                "Tool path coloured by the resultant force", box),
-                            "Tool path: resultant force", "Rapid moves dashed grey; the stock block's edges thin grey; coordinates in mm."))
+                            "Tool path: resultant force",
+                            "Rapid moves dashed grey; the stock block's edges thin grey; coordinates in mm."))
         per_sample = _per_sample(table["chatter_indicator"].to_numpy(), spans.starts, spans.stops, signals.n)
         figures.append(_img(plots.toolpath_png(x_mm, y_mm, z_mm, per_sample, rapid, "chatter indicator",
                                                "Tool path coloured by the block's chatter indicator", box,
@@ -351,9 +353,10 @@ def write_process_report(part: Part, frame: pd.DataFrame, run_dir: Path, *, zmap
         lobes = stability_lobes(tuple(part.modes_x), tuple(part.modes_y), ktc, krc, n_flutes)
         cutting = table["axial_depth_max"].to_numpy() > 0
         rpm = np.abs(table["spindle_speed"].to_numpy()) * BY_NAME["spindle_speed"].factor
-        figures.append(_img(plots.lobes_png(lobes, rpm[cutting], table["axial_depth_max"].to_numpy()[cutting] * 1e3,
-                                            table["chatter_indicator"].to_numpy()[cutting], chatter.CHATTER_THRESHOLD,
-                                            f"Stability lobes of T{part.tool.number} in {part.material.name} (slotting)"),
+        depth_mm = table["axial_depth_max"].to_numpy()[cutting] * 1e3
+        indicators = table["chatter_indicator"].to_numpy()[cutting]
+        title = f"Stability lobes of T{part.tool.number} in {part.material.name} (slotting)"
+        figures.append(_img(plots.lobes_png(lobes, rpm[cutting], depth_mm, indicators, chatter.CHATTER_THRESHOLD, title),
                             "Stability lobes and the cutting blocks",
                             "Zero-order (Altintas-Budak) limit for full immersion (slotting) from the part's modes "
                             "and the material's Ktc, Krc; each cutting block at its spindle speed and largest axial "

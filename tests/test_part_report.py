@@ -270,3 +270,24 @@ def test_process_report_names_a_tool_without_flutes(tmp_path: Path) -> None:
     assert any("missing.nc: programmed feeds not read" in w for w in report.warnings)
     assert any("absent.asc: the Z-map file was not written" in w for w in report.warnings)
     assert report.blocks == 3 and report.removed_volume == pytest.approx(5e-6)
+
+
+def test_a_slot_beyond_the_lobes_chatters_and_a_side_cut_within_them_does_not(fmu_dir: Path, tmp_path: Path) -> None:
+    """The part above 0.2 mm deep on the flexible tool of scenarios/chatter.toml (922 Hz, 1.1 %, 1.34e6 N/m in x
+    and y). Zero-order limits at 6000 rpm with 3 flutes: 0.15 mm slotting, 1.2 mm for the side cut's immersion
+    (53..180 deg): the slot chatters, the side cut does not."""
+    mode = "[ { frequency = 922.0, damping = 0.011, stiffness = 1.34e6 } ]"
+    (tmp_path / "prog.nc").write_text(PROGRAM.replace("G1 Z-2 F300", "G1 Z-0.2 F300"))
+    (tmp_path / "tool.tbl").write_text(TOOLS)
+    text = re.sub(r"(?m)^([xy]) = \[.*\]$", lambda m: f"{m.group(1)} = {mode}", PART)
+    (tmp_path / "part.toml").write_text(text)
+    scenario = load_scenario(tmp_path / "part.toml", fmu_dir)
+    result = run(scenario, tmp_path / "runs", progress=False)
+    assert scenario.part is not None and scenario.part.modes_x[0].frequency == 922.0
+    report = write_process_report(scenario.part, load_results(result.run_dir), tmp_path / "report", zmap_file=None)
+    table = pd.read_parquet(report.blocks_parquet)
+    slot, side = table[table["line"] == 6].iloc[0], table[table["line"] == 10].iloc[0]
+    assert slot["chatter"] and slot["chatter_indicator"] > 0.9
+    assert not side["chatter"] and side["chatter_indicator"] < 0.01
+    assert report.chatter_blocks == 1
+    assert "<tr class='chatter'>" in report.html.read_text(encoding="utf-8")

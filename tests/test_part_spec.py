@@ -8,7 +8,7 @@ from pathlib import Path
 
 import pytest
 
-from cases.part_case import write_part
+from cases.part_case import MODES, write_part
 from milling_twin.cli import main
 from milling_twin.models.cutting_force import AL7075_CARBIDE
 from milling_twin.models.materials import MATERIALS
@@ -206,7 +206,7 @@ SPEC_ERRORS = [  # (id, edits of the part file, key, what the message says)
      "unknown variable 'c9' in SpindlePower"),
     ("spindle-cutting-power", [("[part.spindle]\n", "[part.spindle]\ncutting_power_from_force = true\n")],
      "[part.spindle].cutting_power_from_force", "set by [part].cutting_power, not here"),
-    ("modes-missing", [("[part.tool_modes]\n", "[part.other]\n")], "[part].other", "unknown key 'other'"),
+    ("modes-missing", [(MODES, "")], "[part.tool_modes]", "missing required table"),
     ("modes-too-many", [("x = [ {", "x = [ {}, {}, {}, {}, {")], "[part.tool_modes].x",
      "expected a list of at most 4 modes"),
     ("mode-damping", [("damping = 0.03, ", "")], "[part.tool_modes].x[0].damping", "missing required key"),

@@ -42,11 +42,12 @@ start_y = { value = 10, unit = "mm" }
 start_z = { value = 5, unit = "mm" }
 [part.spindle]
 P_idle = { value = 0.3, unit = "kW" }
+""" + (MODES := """\
 [part.tool_modes]
 x = [ { frequency = 1200.0, damping = 0.03, stiffness = 2.0e7 } ]
 y = [ { frequency = 1300.0, damping = 0.02, stiffness = { value = 30, unit = "N/um" } },
       { frequency = 3000.0, damping = 0.05, stiffness = 8.0e7 } ]
-"""
+""")
 
 
 def edited(text: str, *edits: tuple[str, str]) -> str:

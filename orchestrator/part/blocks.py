@@ -60,7 +60,7 @@ COLUMNS: tuple[BlockColumn, ...] = (
     _c("start_time", "s", "s", "Time of the block's first sample"),
     _c("end_time", "s", "s", "Time of the next block's first sample (the last sample for the last block)"),
     _c("duration", "s", "s", "end_time - start_time"),
-    _c("feed_programmed", "m/s", "mm/min", "Programmed feed F of the line (0: rapid; NaN: not read)"),
+    _c("feed_programmed", "m/s", "mm/min", "Programmed feed F of the line (0: rapid; NaN: no move, or not read)"),
     _c("feed_mean", "m/s", "mm/min", "Mean scheduled path speed (interp.feed)"),
     _c("spindle_speed", "rad/s", "rpm", "Mean commanded spindle speed"),
     _c("tool", "1", "1", "Active tool number at the block's start"),
@@ -90,8 +90,8 @@ COLUMNS: tuple[BlockColumn, ...] = (
     _c("chatter", "bool", "bool", "chatter_indicator above the threshold"),
     _c("sle_mean", "m", "um", "Mean surface location error (deflection normal to the feed at the finished wall)"),
     _c("sle_max", "m", "um", "Largest |surface location error|"),
-    _c("analytic_volume", "m3", "cm3", "Width x length x depth of a straight cut at constant depth (else NaN)"),
-    _c("volume_ratio", "1", "1", "removed_volume / analytic_volume"),
+    _c("analytic_volume", "m3", "cm3", "Width x length x depth of the steady part of a straight cut at constant depth"),
+    _c("volume_ratio", "1", "1", "Volume removed over the same samples as analytic_volume / analytic_volume"),
 )
 BY_NAME = {c.name: c for c in COLUMNS}
 INT_COLUMNS = ("block", "line", "tool")

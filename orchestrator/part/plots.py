@@ -20,6 +20,7 @@ from milling_twin.models.stability import Lobes
 
 ENVELOPE_BINS = 2000
 PATH_POINTS = 20000   # the 3D tool path is drawn through at most this many samples
+LOBE_NAMES = 30       # the blocks on the lobe diagram are named when there are at most this many
 
 __all__ = ["Series", "envelope", "lobes_png", "time_series_png", "toolpath_png", "zmap_png"]
 
@@ -128,9 +129,10 @@ def zmap_png(x_mm: np.ndarray, y_mm: np.ndarray, heights_mm: np.ndarray, title: 
 
 
 def lobes_png(lobes: Lobes, speeds_rpm: np.ndarray, depths_mm: np.ndarray, indicators: np.ndarray,
-              threshold: float, title: str) -> bytes:
+              threshold: float, title: str, names: Sequence[str] = ()) -> bytes:
     """Limiting axial depth over spindle speed (mm over rpm) and the cutting blocks coloured by their chatter
-    indicator (hollow: no indicator)."""
+    indicator (hollow: no indicator; the highest indicator drawn on top), named by ``names`` when there are at
+    most LOBE_NAMES of them."""
     fig = Figure(figsize=(10, 6), layout="constrained")
     ax = fig.subplots()
     finite = np.isfinite(speeds_rpm) & (speeds_rpm > 0)
@@ -147,9 +149,14 @@ def lobes_png(lobes: Lobes, speeds_rpm: np.ndarray, depths_mm: np.ndarray, indic
     top = max(3.0 * lowest, 1.3 * deepest)
     ax.set_xlim(low, high)
     ax.set_ylim(0, top if top > 0 else 1.0)
-    known = finite & np.isfinite(indicators)
+    known = np.flatnonzero(finite & np.isfinite(indicators))
+    known = known[np.argsort(indicators[known], kind="stable")]
     scatter = ax.scatter(speeds_rpm[known], depths_mm[known], c=indicators[known], cmap="coolwarm", vmin=0, vmax=1,
                          edgecolors="black", linewidths=0.5, s=30, zorder=3, label="blocks (max axial depth)")
+    if 0 < len(names) <= LOBE_NAMES:
+        for i in np.flatnonzero(finite):
+            ax.annotate(names[i], (speeds_rpm[i], depths_mm[i]), xytext=(4, 3), textcoords="offset points",
+                        fontsize=7)
     unknown = finite & ~np.isfinite(indicators)
     if unknown.any():
         ax.scatter(speeds_rpm[unknown], depths_mm[unknown], facecolors="none", edgecolors="0.4", s=30, zorder=3,

@@ -356,7 +356,8 @@ def write_process_report(part: Part, frame: pd.DataFrame, run_dir: Path, *, zmap
         depth_mm = table["axial_depth_max"].to_numpy()[cutting] * 1e3
         indicators = table["chatter_indicator"].to_numpy()[cutting]
         title = f"Stability lobes of T{part.tool.number} in {part.material.name} (slotting)"
-        png = plots.lobes_png(lobes, rpm[cutting], depth_mm, indicators, chatter.CHATTER_THRESHOLD, title)
+        names = [f"N{line}" for line in table["line"].to_numpy()[cutting]]
+        png = plots.lobes_png(lobes, rpm[cutting], depth_mm, indicators, chatter.CHATTER_THRESHOLD, title, names)
         figures.append(_img(png,
                             "Stability lobes and the cutting blocks",
                             "Zero-order (Altintas-Budak) limit for full immersion (slotting) from the part's modes "

@@ -60,8 +60,8 @@ algorithm in numpy, do:
 
 3. **Clearance** at the new position, against the stock after the removal: the distance from the tool,
    taken as a cylinder of radius ``R`` with a flat end at the tip (the corner radius is ignored: for a
-   bull-nose or ball end mill the distance is the one to that cylinder, at most ``r_c (1 - 1/sqrt(2))``
-   short below the corner), to the material of the cells, each cell's material a vertical segment at its
+   bull-nose or ball end mill the distance is the one to that cylinder, up to ``(sqrt(2) - 1) r_c`` short
+   near the corner, never more than the distance to the tool), to the material of the cells, each cell's material a vertical segment at its
    centre c from the bottom of the block up to its height h(c). Per cell not cut to the bottom
    (h(c) > ``stock_z_min``: an empty cell has no material), with the tool tip at (x, y, z):
    the horizontal gap ``gh = max(0, |c - (x, y)| - R)``, the vertical gap ``gv = max(0, z - h(c))`` and the

@@ -263,3 +263,21 @@ def test_a_flute_length_in_the_part_stands_for_a_missing_stick_out(tmp_path: Pat
     path = write_part(tmp_path, ("[part]\n", '[part]\nflute_length = { value = 30, unit = "mm" }\n'),
                       tools="T1 P1 D10 ; flutes=3\n")
     assert load_scenario(path, fmu_dir).instance("workpiece").parameters["flute_length"] == pytest.approx(0.03)
+
+
+def test_a_recording_beside_the_part_feeds_the_override_and_moves_with_the_written_file(
+        tmp_path: Path, fmu_dir: Path) -> None:
+    recorded = ("[part.tool_modes]", '[recorded]\nfile = "override.csv"\nsample_period = 0.5\n'
+                                     '[recorded.channels]\noverride = { column = "ovr" }\n'
+                                     '[[inputs]]\nfrom = "override"\nto = "interp.feed_override"\n'
+                                     'interpolation = "hold"\n[part.tool_modes]')
+    part_file = write_part(tmp_path / "part", recorded)
+    (tmp_path / "part" / "override.csv").write_text("ovr\n1.0\n0.5\n0.5\n1.2\n1.2\n")
+    scenario = load_scenario(part_file, fmu_dir)
+    assert scenario.stop_time == 2.0  # the recording's end, not the program's machining time
+    assert scenario.instance("interp").inputs == {}
+    assert [(i.channel, str(i.target)) for i in scenario.inputs] == [("override", "interp.feed_override")]
+    out = tmp_path / "out" / "explicit.toml"
+    assert main(["expand", str(part_file), "-o", str(out), "--fmu-dir", str(fmu_dir)]) == 0
+    assert tomllib.loads(out.read_text())["recorded"]["file"] == "../part/override.csv"
+    assert load_scenario(out, fmu_dir).inputs == scenario.inputs

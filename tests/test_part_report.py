@@ -11,6 +11,7 @@ import numpy as np
 import pandas as pd
 import pyarrow.parquet as pq
 import pytest
+from stl import mesh
 
 from milling_twin.models.interpolator.parser import Tool
 from milling_twin.models.stability import Mode
@@ -162,7 +163,7 @@ PROGRAM = """\
 G21 G90 G17
 T1 M6
 S6000 M3
-G0 X-10 Y10 Z5
+G43 G0 X-10 Y10 Z5 H1
 G1 Z-2 F300
 G1 X60 F600
 G0 Z5
@@ -177,7 +178,7 @@ TOOLS = "T1 P1 D10 Z50 ; end mill flutes=3 helix=30 stick_out=25\n"
 PART = """\
 [scenario]
 name = "report_part"
-description = "a slot, then a down-milling side cut 8 mm wide along its wall"
+description = "a slot, then a down-milling side cut 8 mm wide along its wall; G43 H1 (tool length 50 mm)"
 
 [part]
 program = "prog.nc"
@@ -191,7 +192,7 @@ resolution = { value = 0.5, unit = "mm" }
 rapid_feed = { value = 15000, unit = "mm/min" }
 start_x = { value = -10, unit = "mm" }
 start_y = { value = 10, unit = "mm" }
-start_z = { value = 5, unit = "mm" }
+start_z = { value = 55, unit = "mm" }
 [part.tool_modes]
 x = [ { frequency = 1200.0, damping = 0.03, stiffness = 2.0e7 } ]
 y = [ { frequency = 1300.0, damping = 0.02, stiffness = 3.0e7 } ]
@@ -240,7 +241,12 @@ def test_process_report_of_a_part_run(part_run: tuple[Part, pd.DataFrame, Path, 
     # the walls' surface location error is a deflection: finite, and within the largest deflection
     for block in (slot, side):
         assert np.isfinite(block["sle_mean"]) and 0 < block["sle_max"] <= block["deflection_max"] * (1 + 1e-9)
-    assert report.stl is not None and report.stl.stat().st_size > 84
+    # the program zero (G43 H1: the tool length 50 mm) is taken off: the Z-map and the STL in the part's coordinates
+    assert part.program_zero[2] == pytest.approx(0.05)
+    assert report.stl is not None
+    corners = mesh.Mesh.from_file(str(report.stl)).vectors.reshape(-1, 3)
+    assert corners.min(axis=0).tolist() == pytest.approx([0.0, 0.0, -10.0], abs=1e-4)
+    assert corners.max(axis=0).tolist() == pytest.approx([50.0, 30.0, 0.0], abs=1e-4)
     assert report.cutting_time < report.machining_time
     assert report.json.is_file() and report.blocks_csv.is_file()
 

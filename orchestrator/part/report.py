@@ -205,7 +205,7 @@ def write_process_report(part: Part, frame: pd.DataFrame, run_dir: Path, *, zmap
 
     run_dir = Path(run_dir)
     run_dir.mkdir(parents=True, exist_ok=True)
-    notes = list(warnings)
+    notes = list(dict.fromkeys([*part.warnings, *warnings]))  # the part's checks, then the run's
     signals = Signals(frame)
     t = signals.time
     if not signals.has(f"{INTERPOLATOR}.line_number"):
@@ -262,7 +262,7 @@ def write_process_report(part: Part, frame: pd.DataFrame, run_dir: Path, *, zmap
         notes.append(f"{zmap_file}: the Z-map file was not written: no machined surface, STL or volume check")
     else:
         try:
-            grid = load_zmap(Path(zmap_file))
+            grid = load_zmap(Path(zmap_file), part.program_zero)
         except (OSError, ValueError) as exc:
             notes.append(f"{zmap_file}: not read ({exc})")
     bottom = part.stock.origin[2]
@@ -322,7 +322,8 @@ def write_process_report(part: Part, frame: pd.DataFrame, run_dir: Path, *, zmap
                             "Force, torque and power over time",
                             "Grey vertical lines: block starts; the blocks with the largest resultant force are "
                             "named by their line (N...). Each curve is the envelope (min and max per time bin)."))
-    x_mm, y_mm, z_mm = (signals[f"{INTERPOLATOR}.{a}"] * 1e3 for a in "xyz")
+    # in the program's coordinates, where the part gives the stock: machine position - program zero
+    x_mm, y_mm, z_mm = ((signals[f"{INTERPOLATOR}.{a}"] - zero) * 1e3 for a, zero in zip("xyz", part.program_zero))
     if signals.has(f"{INTERPOLATOR}.rapid"):
         rapid = np.nan_to_num(signals[f"{INTERPOLATOR}.rapid"]) > 0.5
     else:
@@ -334,7 +335,8 @@ def write_process_report(part: Part, frame: pd.DataFrame, run_dir: Path, *, zmap
         figures.append(_img(plots.toolpath_png(x_mm, y_mm, z_mm, resultant, rapid, "resultant force [N]",
                                                "Tool path coloured by the resultant force", box),
                             "Tool path: resultant force",
-                            "Rapid moves dashed grey; the stock block's edges thin grey; coordinates in mm."))
+                            "Rapid moves dashed grey; the stock block's edges thin grey; the program's coordinates "
+                            "(machine position - program zero), mm."))
         per_sample = _per_sample(table["chatter_indicator"].to_numpy(), spans.starts, spans.stops, signals.n)
         figures.append(_img(plots.toolpath_png(x_mm, y_mm, z_mm, per_sample, rapid, "chatter indicator",
                                                "Tool path coloured by the block's chatter indicator", box,
@@ -346,7 +348,8 @@ def write_process_report(part: Part, frame: pd.DataFrame, run_dir: Path, *, zmap
                                            f"Final Z-map ({grid.x.size} x {grid.y.size} cells of "
                                            f"{grid.dx * 1e3:.3g} x {grid.dy * 1e3:.3g} mm)"),
                             "Machined surface: final Z-map heights",
-                            f"Heights in mm; the STL of the part: {stl_path.name if stl_path else ''} "
+                            f"Heights and coordinates in mm, the program's; the STL of the part: "
+                            f"{stl_path.name if stl_path else ''} "
                             f"({triangles} triangles, mm)."))
     ktc, krc = part.material.coefficients.get("Ktc"), part.material.coefficients.get("Krc")
     if (part.modes_x or part.modes_y) and ktc and krc is not None and n_flutes >= 1:

@@ -59,12 +59,16 @@ class ZMapGrid:
         return float(above.sum() * self.dx * self.dy)
 
 
-def load_zmap(path: Path) -> ZMapGrid:
-    """The Workpiece's final Z-map file (read by ``models.workpiece.read_zmap``), y ascending."""
+def load_zmap(path: Path, offset: tuple[float, float, float] = (0.0, 0.0, 0.0)) -> ZMapGrid:
+    """The Workpiece's final Z-map file (read by ``models.workpiece.read_zmap``), y ascending, ``offset``
+    subtracted from its coordinates and heights (the part's program zero: the Workpiece holds the stock in
+    machine coordinates, the part gives it in the program's)."""
     from milling_twin.models.workpiece import read_zmap
 
     x, y, heights = read_zmap(path)
-    x, y, heights = np.asarray(x, float), np.asarray(y, float), np.asarray(heights, float)
+    x = np.asarray(x, float) - offset[0]
+    y = np.asarray(y, float) - offset[1]
+    heights = np.asarray(heights, float) - offset[2]
     if x.size > 1 and x[1] < x[0]:
         x, heights = x[::-1], heights[:, ::-1]
     if y.size > 1 and y[1] < y[0]:

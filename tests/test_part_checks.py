@@ -53,7 +53,7 @@ def test_a_second_tool_that_never_reaches_the_stock_is_accepted(tmp_path: Path, 
 
 def test_cutting_with_no_tool_selected_is_refused_among_several(tmp_path: Path, fmu_dir: Path) -> None:
     path, message = _error(tmp_path, fmu_dir, PROGRAM.replace("T1 M6\n", ""))
-    assert message == (f"{path}: [part].program: {tmp_path / 'prog.nc'} line 4: cuts the stock with no tool selected "
+    assert message == (f"{path}: [part].program: {tmp_path / 'prog.nc'} line 5: cuts the stock with no tool selected "
                        f"(no T.. M6 before it) while the tool table holds 2 tools: select the tool with T<n> M6")
 
 
@@ -149,3 +149,18 @@ def test_cutting_with_two_program_zeros_is_refused(tmp_path: Path, fmu_dir: Path
         f"{path}: [part].program: {tmp_path / 'prog.nc'} lines 6 and 11: the program cuts the stock with two "
         f"positions of its zero, x y z = 0.000 0.000 0.000 and 100.000 0.000 0.000 mm in machine coordinates (work "
         f"offset G54..G59, G52, G43 tool length): the stock is placed with one")
+
+
+def test_a_program_without_a_cut_has_the_tool_it_selects_or_none(tmp_path: Path, fmu_dir: Path) -> None:
+    rapids = "G21 G90\nT2 M6\nS6000 M3\nG0 X-10 Y10 Z5\nG0 X60\nM30\n"
+    path = write_part(tmp_path / "t2", program=rapids)
+    scenario = load_scenario(path, fmu_dir)
+    assert scenario.part.tool.number == 2
+    assert scenario.part.warnings == (f"{tmp_path / 't2' / 'prog.nc'}: no feed move reaches the stock (x 0.000 .. "
+                                      f"50.000, y 0.000 .. 20.000, z -10.000 .. 0.000 mm): the program never cuts it",)
+    path = write_part(tmp_path / "none", program=rapids.replace("T2 M6\n", ""))
+    with pytest.raises(ScenarioError) as info:
+        load_scenario(path, fmu_dir)
+    assert str(info.value) == (f"{path}: [part].program: {tmp_path / 'none' / 'prog.nc'}: no feed move reaches the "
+                               f"stock and the program selects no tool (T.. M6), while the tool table holds 2 tools: "
+                               f"the part's tool is unknown")

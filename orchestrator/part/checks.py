@@ -63,6 +63,7 @@ class FeedPath:
     tools: np.ndarray       # (n,) int
     spindle_on: np.ndarray  # (n,) bool
     offsets: np.ndarray     # (n, 3): the machine position of the program zero (work offset, G52, G43 tool length)
+    selected: tuple[int, ...] = ()  # the tools the moves run with (rapids too), in order, without repetition
 
 
 def parse(program: Path, dialect: str, tools: Sequence[Tool], machine: Mapping[str, float]) -> Program:
@@ -107,7 +108,8 @@ def feed_path(program: Program) -> FeedPath:
         offsets.extend([tuple(offset)] * len(samples))
     return FeedPath(program.file, np.asarray(points, dtype=float).reshape(-1, 3), np.asarray(lines, dtype=int),
                     np.asarray(tools, dtype=int), np.asarray(spindle, dtype=bool),
-                    np.asarray(offsets, dtype=float).reshape(-1, 3))
+                    np.asarray(offsets, dtype=float).reshape(-1, 3),
+                    tuple(dict.fromkeys(move.tool for move in program.moves)))
 
 
 def _effective_tools(path: FeedPath, tools: Sequence[Tool]) -> np.ndarray:
@@ -123,7 +125,8 @@ def _over(path: FeedPath, stock: Stock, radius: np.ndarray | float) -> np.ndarra
     x0, y0 = stock.origin[0], stock.origin[1]
     dx = np.maximum(np.maximum(x0 - x, x - (x0 + stock.size[0])), 0.0)
     dy = np.maximum(np.maximum(y0 - y, y - (y0 + stock.size[1])), 0.0)
-    return np.hypot(dx, dy) < radius
+    distance = np.hypot(dx, dy)
+    return (distance < radius) | (distance <= 0.0)  # a tip over the rectangle is over it whatever the radius
 
 
 def _radii(numbers: np.ndarray, tools: Sequence[Tool]) -> np.ndarray:
@@ -142,10 +145,14 @@ def cutting_tool(path: FeedPath, tools: Sequence[Tool], stock: Stock,
     cutting = numbers[inside]
     lines = path.lines[inside]
     used = list(dict.fromkeys(int(n) for n in cutting))
-    if not used:  # the stock is never touched (a warning of check_part): the tool of the first feed move
-        used = list(dict.fromkeys(int(n) for n in numbers))[:1] or [tools[0].number]
-        lines = path.lines
-        cutting = np.full(len(lines), used[0])
+    if not used:  # the stock is never touched (a warning of check_part): the first tool a feed move runs with
+        selected = [n for n in path.selected if n != 0]
+        if selected:
+            return find_tool(tools, selected[0]) or tools[0]
+        if len(tools) == 1:
+            return tools[0]
+        fail(f"{path.file}: no feed move reaches the stock and the program selects no tool (T.. M6), while the "
+             f"tool table holds {len(tools)} tools: the part's tool is unknown")
     first_line = {n: int(lines[np.argmax(cutting == n)]) for n in used}
     if 0 in used:
         fail(f"{path.file} line {first_line[0]}: cuts the stock with no tool selected (no T.. M6 before it) while "

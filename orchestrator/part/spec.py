@@ -32,8 +32,8 @@ MAX_MODES = 4                       # ToolVibration: up to 4 modes per direction
 DEFAULT_FINE_STEP = 1e-5            # s
 DEFAULT_LOOKAHEAD = 2e-3            # m
 FORCENET_MATERIAL = "Al7075-T6"     # ForceNet learned the mechanistic model with these coefficients
-# Set by [part] itself, not by [part.machine] / [part.spindle]
 _log = logging.getLogger("milling_twin.part")
+# Set by [part] itself, not by [part.machine] / [part.spindle]
 _MACHINE_OWN = {"program": "[part].program", "dialect": "[part].dialect", "tool_table": "[part].tool_table"}
 _SPINDLE_OWN = {"cutting_power_from_force": "[part].cutting_power"}
 

@@ -3,7 +3,9 @@ and every mistake named by file and key."""
 from __future__ import annotations
 
 import math
+import re
 import tomllib
+import zipfile
 from pathlib import Path
 
 import pytest
@@ -281,3 +283,26 @@ def test_a_recording_beside_the_part_feeds_the_override_and_moves_with_the_writt
     assert main(["expand", str(part_file), "-o", str(out), "--fmu-dir", str(fmu_dir)]) == 0
     assert tomllib.loads(out.read_text())["recorded"]["file"] == "../part/override.csv"
     assert load_scenario(out, fmu_dir).inputs == scenario.inputs
+
+
+def test_cutting_power_from_the_force_needs_an_fmu_that_takes_it(tmp_path: Path, fmu_dir: Path) -> None:
+    """A SpindlePower built before the input cutting_power (its model description without it) is named."""
+    old = tmp_path / "fmus"
+    old.mkdir()
+    for name in ("Interpolator", "Workpiece", "CuttingForce", "ToolVibration"):
+        (old / f"{name}.fmu").symlink_to(fmu_dir / f"{name}.fmu")
+    with zipfile.ZipFile(fmu_dir / "SpindlePower.fmu") as source, \
+            zipfile.ZipFile(old / "SpindlePower.fmu", "w") as target:
+        for item in source.infolist():
+            data = source.read(item)
+            if item.filename == "modelDescription.xml":
+                data = re.sub(rb'\s*<Float64 name="cutting_power" [^>]*/>', b"", data)
+            target.writestr(item, data)
+    path = write_part(tmp_path / "part")
+    with pytest.raises(ScenarioError) as info:
+        load_scenario(path, old)
+    assert str(info.value) == (f"{path}: [part].cutting_power: \"force\" needs SpindlePower's input cutting_power, "
+                               f"which the FMU in {old} does not have (built before it was added): rebuild the FMUs, "
+                               f"or use cutting_power = \"mrr\"")
+    mrr = write_part(tmp_path / "mrr", ("material = ", 'cutting_power = "mrr"\nmaterial = '))
+    assert not any(str(c.target) == "power.cutting_power" for c in load_scenario(mrr, old).connections)

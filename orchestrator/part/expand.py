@@ -66,6 +66,10 @@ def expand_document(ctx: TomlAccess, doc: dict[str, Any], fmu_dir: Path) -> tupl
     ctx.table(doc, "", BESIDE_PART)
     variables = fmu_variables(ctx, models_of(doc["part"]), fmu_dir)
     part = read_part(ctx, doc["part"], {"Interpolator": variables[INTERPOLATOR], "SpindlePower": variables[POWER]})
+    if part.cutting_power == "force" and "cutting_power" not in variables[POWER]:
+        ctx.fail("[part].cutting_power", f"\"force\" needs SpindlePower's input cutting_power, which the FMU in "
+                                         f"{fmu_dir} does not have (built before it was added): rebuild the FMUs, "
+                                         f"or use cutting_power = \"mrr\"")
     scenario = dict(ctx.table(doc.get("scenario"), "[scenario]", (
         "name", "description", "start_time", "stop_time", "output_interval", "parameter_sets")))
     scenario.setdefault("output_interval", DEFAULT_OUTPUT_INTERVAL)

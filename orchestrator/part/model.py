@@ -62,5 +62,5 @@ class Part:
     # m: the machine position of the program zero while the tool cuts (work offset, G52, G43 tool length): the stock
     # is given in program coordinates, the Workpiece (fed with the machine position) holds it at stock + this
     program_zero: tuple[float, float, float] = (0.0, 0.0, 0.0)
-    machining_time: float = 0.0          # s: the program's duration at 100 % feed override (program summary)
+    machining_time: float = 0.0          # s: the program's duration at 100 % override (0: [scenario].stop_time given)
     warnings: tuple[str, ...] = ()       # what the checks before the run found (orchestrator/part/checks.py)

@@ -666,9 +666,9 @@ def random_arguments(count: int, rng: np.random.Generator) -> dict[str, np.ndarr
     from its -x side, then slots back and forth inside it in passes 1.1 tool diameters apart, with a
     random feed of 0.05 .. 0.4 mm per point (at most 0.4 m/s at 1 ms steps). Fixed parameters are
     constant columns. The ramp starts 2 mm beside the block, so the first 5 points are in air with a
-    clearance that is not 0: a test that holds the tool at one of them (fmpy's master interpolates
-    the inputs, which may move it by an ulp) sees a clearance varying by ulps, not 0 turning into 1e-18 m
-    (the ulp a tool at rest in the material is lifted by)."""
+    clearance well above 0. (A test holding the tool at one point through fmpy's master, which
+    interpolates the inputs and may move them by an ulp, would otherwise compare a clearance of exactly
+    0 in the reference with the 1e-18 m an ulp's lift gives, where no relative tolerance helps.)"""
     diameter = rng.uniform(4e-3, 8e-3)
     parameters = {
         "stock_x_min": rng.uniform(-0.05, 0.05), "stock_y_min": rng.uniform(-0.05, 0.05),

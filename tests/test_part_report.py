@@ -297,3 +297,39 @@ def test_a_slot_beyond_the_lobes_chatters_and_a_side_cut_within_them_does_not(fm
     assert not side["chatter"] and side["chatter_indicator"] < 0.01
     assert report.chatter_blocks == 1
     assert "<tr class='chatter'>" in report.html.read_text(encoding="utf-8")
+
+
+def test_long_programs_and_comparisons_in_the_html(tmp_path: Path) -> None:
+    """250 blocks: the HTML shows the 200 with the largest resultant force, the CSV all; a recorded comparison is
+    listed with its RMS error in its display unit and its plot embedded."""
+    from matplotlib.figure import Figure
+
+    from milling_twin.orchestrator.report import Comparison
+
+    n = 250 * 20
+    load = (np.arange(n) // 20 * 37 % 250).astype(float)       # block b's force: a permutation of 0..249
+    frame = pd.DataFrame({"time": np.arange(n) * 1e-3, "interp.line_number": np.arange(n) // 20 + 1,
+                          "interp.x": np.zeros(n), "interp.y": np.zeros(n), "interp.z": np.zeros(n),
+                          "workpiece.axial_depth": np.full(n, 1e-3), "force.Fx": load})
+    figure = Figure(figsize=(2, 1))
+    figure.subplots().plot([0, 1])
+    figure.savefig(tmp_path / "compare_power_P_total.png")
+    comparison = Comparison(simulated="power.P_total", recorded="spindle_power", unit="W", display_unit="kW",
+                            n_samples=1055, rms_error=22.82, mean_abs_error=15.0, max_error=90.0,
+                            mean_recorded=300.0, relative_rms=0.13, plot="compare_power_P_total.png")
+    part = Part(program=tmp_path / "p.nc", dialect="fanuc", tool_table=None, tool=Tool(1, 0.01, flutes=2),
+                stock=Stock((0.0, 0.0, 0.0), (0.05, 0.03, 0.01), 5e-4), material=Material("m", {}), modes_x=(),
+                modes_y=())
+    report = write_process_report(part, frame, tmp_path, zmap_file=None, comparisons=[comparison])
+    text = report.html.read_text(encoding="utf-8")
+    assert "The 200 most loaded of 250 blocks" in text
+    rows = re.findall(r"<tr(?: class='chatter')?><td>(\d+)</td><td>(\d+)</td>", text)
+    assert len(rows) == 200
+    shown = sorted(int(line) for _, line in rows)
+    loads = {b + 1: b * 37 % 250 for b in range(250)}
+    assert min(loads[line] for line in shown) == 50                 # the 200 largest: 50 .. 249
+    assert shown == sorted(shown) and [int(b) for b, _ in rows] == sorted(int(b) for b, _ in rows)
+    assert len(pd.read_csv(report.blocks_csv)) == 250
+    assert "Comparisons with the recording" in text and "0.02282 kW" in text and "13 %" in text
+    assert "power.P_total vs spindle_power" in text
+    assert set(re.findall(r"src='([a-z]+):", text)) == {"data"}

@@ -125,12 +125,15 @@ def test_recorded_outputs_and_stop_time_beside_the_part_are_kept(tmp_path: Path,
 
 def test_the_written_explicit_scenario_loads_as_the_same_scenario(tmp_path: Path, fmu_dir: Path,
                                                                   capsys: pytest.CaptureFixture) -> None:
-    part_file = write_part(tmp_path / "part")
+    part_file = write_part(tmp_path / "part", ("[part.tool_modes]", "[fmus.force.parameters]\nrunout_offset = "
+                                                                    "{ value = 5, unit = \"um\" }\n[part.tool_modes]"))
     out = tmp_path / "elsewhere" / "explicit.toml"
     assert main(["expand", str(part_file), "-o", str(out), "--fmu-dir", str(fmu_dir)]) == 0
     assert str(out) in capsys.readouterr().out
     doc = tomllib.loads(out.read_text())
     assert "part" not in doc and doc["fmus"]["interp"]["parameters"]["program"] == {"path": "../part/prog.nc"}
+    assert doc["fmus"]["force"]["parameters"]["runout_offset"] == {"value": 5, "unit": "um"}
+    assert list(doc) == ["scenario", "fmus", "connections", "stepping", "outputs"]
     from_part, explicit = load_scenario(part_file, fmu_dir), load_scenario(out, fmu_dir)
     assert explicit.part is None
     for name in ("name", "description", "start_time", "stop_time", "output_interval", "base_step", "outputs",

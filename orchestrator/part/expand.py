@@ -225,7 +225,36 @@ def explicit_text(part_file: Path, fmu_dir: Path, target_dir: Path) -> tuple[str
     header = (f"# The explicit scenario of {part_file.name} (its [part] expanded by `milling-twin expand`): the same "
               f"run as the part file.\n# Values in SI units; paths relative to this file.\n")
     warnings = "".join(f"# check: {w}\n" for w in part.warnings)
-    return header + warnings + "\n" + tomli_w.dumps(relocate(explicit, part_file.parent, target_dir)), part
+    return header + warnings + "\n" + _toml(relocate(explicit, part_file.parent, target_dir)), part
+
+
+def _toml(doc: Mapping[str, Any]) -> str:
+    """``doc`` as TOML in reading order ([scenario] first), arrays of tables as ``[[name]]`` blocks."""
+    order = ("scenario", "fmus", "connections", "stepping", "recorded", "inputs", "compare", "outputs")
+    chunks = []
+    for name in sorted(doc, key=lambda n: order.index(n) if n in order else len(order)):
+        value = doc[name]
+        if isinstance(value, list) and all(isinstance(item, dict) for item in value):
+            chunks.extend(f"[[{name}]]\n{tomli_w.dumps(item)}" for item in value)
+        elif name == "fmus":
+            chunks.extend(_instance_toml(inst, table) for inst, table in value.items())
+        else:
+            chunks.append(tomli_w.dumps({name: value}))
+    return "\n".join(chunks)
+
+
+def _instance_toml(name: str, table: Mapping[str, Any]) -> str:
+    """``[fmus.<name>]`` with its parameters and inputs one per line (a file as ``{ path = "..." }``)."""
+    def line(key: str, value: Any) -> str:
+        if isinstance(value, dict):
+            return f"{key} = {{ {', '.join(tomli_w.dumps({k: v}).strip() for k, v in value.items())} }}\n"
+        return tomli_w.dumps({key: value})
+
+    text = f"[fmus.{name}]\n" + "".join(line(k, v) for k, v in table.items() if not isinstance(v, dict))
+    for section in ("parameters", "inputs"):
+        if section in table:
+            text += f"[fmus.{name}.{section}]\n" + "".join(line(k, v) for k, v in table[section].items())
+    return text
 
 
 def command(args: argparse.Namespace) -> int:

@@ -89,7 +89,7 @@ def toolpath_png(x: np.ndarray, y: np.ndarray, z: np.ndarray, colour: np.ndarray
     norm = Normalize(vmin if vmin is not None else (float(finite.min()) if finite.size else 0.0),
                      vmax if vmax is not None else (float(finite.max()) if finite.size else 1.0))
     if grey.any():
-        ax.add_collection3d(Line3DCollection(segments[grey], colors="0.7", linewidths=0.6, linestyles="dashed"))
+        ax.add_collection3d(Line3DCollection(segments[grey], colors="0.45", linewidths=0.8, linestyles="dashed"))
     coloured = Line3DCollection(segments[~grey], cmap=cmap, norm=norm, linewidths=1.2)
     coloured.set_array(c[~grey])
     if (~grey).any():

@@ -309,7 +309,7 @@ def write_process_report(part: Part, frame: pd.DataFrame, run_dir: Path, *, zmap
     figures: list[str] = []
     boundaries = t[spans.starts] if len(spans) else np.zeros(0)
     top = table.nlargest(LABELLED_BLOCKS, "force_max") if table["force_max"].notna().any() else table.iloc[:0]
-    labels = [(float(r.start_time + 0.5 * r.duration), f"N{int(r.line)}") for r in top.itertuples()]
+    labels = [(float(r.start_time + 0.5 * r.duration), f"L{int(r.line)}") for r in top.itertuples()]
     series = []
     for name, label, column in ((f"{FORCE}.Fx", "Fx [N]", None), (f"{FORCE}.Fy", "Fy [N]", None),
                                 (f"{FORCE}.Fz", "Fz [N]", None), (f"{FORCE}.torque", "torque [N.m]", None),
@@ -321,7 +321,8 @@ def write_process_report(part: Part, frame: pd.DataFrame, run_dir: Path, *, zmap
         figures.append(_img(plots.time_series_png(t, series, boundaries, labels, "Force, torque and power"),
                             "Force, torque and power over time",
                             "Grey vertical lines: block starts; the blocks with the largest resultant force are "
-                            "named by their line (N...). Each curve is the envelope (min and max per time bin)."))
+                            "named by their program line (L + line). Each curve is the envelope (min and max per "
+                            "time bin)."))
     # in the program's coordinates, where the part gives the stock: machine position - program zero
     x_mm, y_mm, z_mm = ((signals[f"{INTERPOLATOR}.{a}"] - zero) * 1e3 for a, zero in zip("xyz", part.program_zero))
     if signals.has(f"{INTERPOLATOR}.rapid"):
@@ -359,7 +360,7 @@ def write_process_report(part: Part, frame: pd.DataFrame, run_dir: Path, *, zmap
         depth_mm = table["axial_depth_max"].to_numpy()[cutting] * 1e3
         indicators = table["chatter_indicator"].to_numpy()[cutting]
         title = f"Stability lobes of T{part.tool.number} in {part.material.name} (slotting)"
-        names = [f"N{line}" for line in table["line"].to_numpy()[cutting]]
+        names = [f"L{line}" for line in table["line"].to_numpy()[cutting]]
         png = plots.lobes_png(lobes, rpm[cutting], depth_mm, indicators, chatter.CHATTER_THRESHOLD, title, names)
         figures.append(_img(png,
                             "Stability lobes and the cutting blocks",

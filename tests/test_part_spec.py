@@ -222,6 +222,13 @@ SPEC_ERRORS = [  # (id, edits of the part file, key, what the message says)
     ("coarse-step", [("[part.machine]\n", "[part.machine]\nperiod = 0.002\n"),
                      ("[part.tool_modes]", "[part.stepping]\ncoarse_step = 0.001\n[part.tool_modes]")],
      "[part.stepping].coarse_step", "0.001 s differs from the machine's period 0.002 s ([part.machine].period)"),
+    ("fine-step-divide", [("[part.tool_modes]", "[part.stepping]\nfine_step = 3e-6\n[part.tool_modes]")],
+     "[part.stepping].fine_step", "3e-06 s does not divide coarse_step 0.001 s a whole number of times"),
+    ("mode-damping-range", [("damping = 0.03,", "damping = 0.99,")], "[part.tool_modes]",
+     "0.99 is outside the range [0.0001, 0.95] that ToolVibration allows for 'damping_x1' (as "
+     "[fmus.vibration].parameters.damping_x1 of the expanded scenario)"),
+    ("feed-override-range", [("[part]\n", "[part]\nfeed_override = 100.0\n")], "[part].feed_override",
+     "that Interpolator allows for 'feed_override' (as [fmus.interp].inputs.feed_override of the expanded scenario)"),
     ("lookahead", [("[part.tool_modes]", "[part.stepping]\nlookahead = { value = -2, unit = \"mm\" }\n"
                                           "[part.tool_modes]")], "[part.stepping].lookahead", "must be > 0"),
     ("override-unknown-instance", [("[part.tool_modes]", "[fmus.mrr.parameters]\nc2 = 1\n[part.tool_modes]")],
@@ -249,6 +256,9 @@ TOOL_ERRORS = [  # (id, tool table, key, message)
     ("no-stick-out", "T1 P1 D10 ; flutes=3\n", "[part].flute_length",
      "T1 of {tools} gives no stick_out= (the flute length of the Workpiece and the depth check): add "
      "stick_out=<mm> to its comment or set [part].flute_length"),
+    ("too-many-flutes", "T1 P1 D10 ; flutes=8 stick_out=20\n", "[part].tool_table",
+     "8 is outside the range [1, 6] that CuttingForce allows for 'n_flutes' (as [fmus.force].parameters.n_flutes of "
+     "the expanded scenario)"),
     ("no-diameter", "T1 P1 ; flutes=3 stick_out=20\n", "[part].tool_table", "T1 of {tools} has no diameter D (> 0 mm)"),
     ("malformed", "T1 P1 D10 K3\n", "[part].tool_table",
      "{tools} line 1: \"T1 P1 D10 K3\": a tool table word T, P, X, Y, Z, A, B, C, U, V, W, D, I, J, Q (letter and "

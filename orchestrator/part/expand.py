@@ -23,7 +23,7 @@ from milling_twin.orchestrator.gcode.program_summary import summarize
 from milling_twin.models.interpolator.tool_table import read_tool_table
 from milling_twin.orchestrator.part.model import FORCE, INTERPOLATOR, POWER, VIBRATION, WORKPIECE, Part
 from milling_twin.orchestrator.part.spec import read_part
-from milling_twin.orchestrator.scenario import ScenarioError, Variable, _Ctx, _load_fmu, _variables
+from milling_twin.orchestrator.scenario import ScenarioError, Variable, _Ctx, _load_fmu, _parameters, _variables
 from milling_twin.orchestrator.toml_access import TomlAccess
 
 INSTANCES = (INTERPOLATOR, WORKPIECE, FORCE, VIBRATION, POWER)
@@ -82,8 +82,32 @@ def expand_document(ctx: TomlAccess, doc: dict[str, Any], fmu_dir: Path) -> tupl
         part = replace(part, machining_time=summary.time)
         scenario["stop_time"] = round(summary.time + STOP_MARGIN, 9)
     explicit = explicit_scenario(part, variables, scenario, doc)
+    for inst, table in explicit["fmus"].items():  # a value out of an FMU's range, named by the part's key
+        for section, causality in (("parameters", "parameter"), ("inputs", "input")):
+            try:
+                _parameters(ctx, inst, table.get(section, {}), variables[inst], table["fmu"], causality)
+            except ScenarioError as exc:
+                name = exc.key.rpartition(".")[2]
+                ctx.fail(_origin(inst, name), f"{exc.detail} (as {exc.key} of the expanded scenario)")
     _overrides(ctx, explicit, doc.get("fmus", {}))
     return explicit, part
+
+
+def _origin(instance: str, name: str) -> str:
+    """The key of ``[part]`` an expanded parameter (or input) comes from."""
+    if instance == INTERPOLATOR:
+        return {"period": "[part.stepping].coarse_step", "feed_override": "[part].feed_override"}.get(
+            name, f"[part.machine].{name}")
+    if instance == WORKPIECE:
+        if name.startswith("stock_") or name == "resolution":
+            return "[part.stock]"
+        return {"flute_length": "[part].flute_length", "clearance_range": "[part.stepping].lookahead",
+                "max_tool_speed": "[part.machine]"}.get(name, "[part].tool_table")
+    if instance == FORCE:
+        return "[part].tool_table" if name in ("n_flutes", "tool_diameter", "helix_angle") else "[part].material"
+    if instance == VIBRATION:
+        return "[part.tool_modes]"
+    return "[part].cutting_power" if name == "cutting_power_from_force" else f"[part.spindle].{name}"
 
 
 def explicit_scenario(part: Part, variables: Mapping[str, Mapping[str, Variable]], scenario: Mapping[str, Any],

@@ -183,6 +183,9 @@ def read_part(ctx: TomlAccess, raw: Any, variables: Mapping[str, Mapping[str, Va
     fine = quantity(ctx, step_table, "[part.stepping]", "fine_step", "s", DEFAULT_FINE_STEP, positive=True)
     if fine > coarse:
         ctx.fail("[part.stepping].fine_step", f"{fine!r} s is longer than coarse_step {coarse!r} s")
+    if abs(coarse / fine - round(coarse / fine)) > 1e-6 * coarse / fine:
+        ctx.fail("[part.stepping].fine_step", f"{fine!r} s does not divide coarse_step {coarse!r} s a whole number "
+                                              f"of times")
     lookahead = quantity(ctx, step_table, "[part.stepping]", "lookahead", "m", DEFAULT_LOOKAHEAD, positive=True)
 
     try:

@@ -14,6 +14,14 @@ Figures are in the simulated variable's unit in ``report.json`` and in the displ
 unit (``[[compare]].unit``, else :func:`~milling_twin.models.units.display_unit_of`) in the plot
 ``compare_<instance>_<variable>.png``: recorded and simulated over time, and the error.
 ``report.json`` also says what the recording's check found and repaired (``recording_check``).
+
+With ``[alignment]`` the pairs are compared on the recording's own samples instead: the recorded positions are
+aligned with the simulated ones (``orchestrator.align.align_results``), each recorded sample is paired with the
+simulated moment of the same machining state, and the simulated output is interpolated (linearly) at that moment.
+That is how a recording that starts earlier, waits where the program does not (dwells, a feed hold, the operator)
+or runs at another feed override is compared with a simulation on its own time axis. The time map is written as
+``time_map.csv`` (recorded_time, simulated_time, confidence) and summarised in ``report.json`` (``alignment``);
+plots are over recorded time.
 """
 from __future__ import annotations
 
@@ -28,6 +36,7 @@ from matplotlib.figure import Figure  # no pyplot: no global figure state, Agg b
 
 from milling_twin.orchestrator.results import load_results
 from milling_twin.orchestrator.scenario import Compare, Scenario
+from milling_twin.orchestrator.align import TimeMap, align_results
 from milling_twin.models.units import UnitError, conversion_factor, display_unit_of
 
 __all__ = ["Comparison", "Report", "write_report"]
@@ -57,17 +66,33 @@ class Report:
     comparisons: tuple[Comparison, ...]
 
 
-def _compare(scenario: Scenario, pair: Compare, results: pd.DataFrame, run_dir: Path) -> Comparison:
+def _pairs(scenario: Scenario, pair: Compare, results: pd.DataFrame,
+           time_map: TimeMap | None) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """(time of the plot, simulated, recorded in the simulated variable's unit) of one pair: at the output times
+    inside the recording, or (``time_map``) at the recorded samples mapped to simulated time."""
     rec = scenario.recorded
     assert rec is not None  # load_scenario guarantees [recorded] when there is a [[compare]]
-    var = scenario.variable(pair.simulated)
-    unit = var.unit
+    factor = _factor(rec.units[pair.recorded], scenario.variable(pair.simulated).unit)
     times = results["time"].to_numpy(dtype=float)
-    inside = (times >= rec.t_start) & (times <= rec.t_end)
-    inside[inside] = rec.consistent(times[inside])
-    t = times[inside]
-    simulated = results[str(pair.simulated)].to_numpy(dtype=float)[inside]
-    recorded = np.asarray(rec.at(pair.recorded, t), dtype=float) * _factor(rec.units[pair.recorded], unit)
+    values = results[str(pair.simulated)].to_numpy(dtype=float)
+    if time_map is None:
+        inside = (times >= rec.t_start) & (times <= rec.t_end)
+        inside[inside] = rec.consistent(times[inside])
+        t = times[inside]
+        return t, values[inside], np.asarray(rec.at(pair.recorded, t), dtype=float) * factor
+    t_rec, t_sim = time_map.recorded_time, time_map.simulated_time
+    inside = (t_sim >= times[0]) & (t_sim <= times[-1]) & (t_rec >= rec.t_start) & (t_rec <= rec.t_end)
+    inside[inside] = rec.consistent(t_rec[inside])
+    t_rec, t_sim = t_rec[inside], t_sim[inside]
+    return t_rec, np.interp(t_sim, times, values), np.asarray(rec.at(pair.recorded, t_rec), dtype=float) * factor
+
+
+def _compare(scenario: Scenario, pair: Compare, results: pd.DataFrame, run_dir: Path,
+             time_map: TimeMap | None = None) -> Comparison:
+    rec = scenario.recorded
+    assert rec is not None
+    unit = scenario.variable(pair.simulated).unit
+    t, simulated, recorded = _pairs(scenario, pair, results, time_map)
     error = simulated - recorded
     n = int(t.size)
     rms = float(np.sqrt(np.mean(error**2))) if n else math.nan
@@ -88,12 +113,12 @@ def _compare(scenario: Scenario, pair: Compare, results: pd.DataFrame, run_dir: 
     )
     cuts = rec.time[[s.start for s in rec.check.segments[1:]]] if rec.check is not None else np.zeros(0)
     _plot(run_dir / comparison.plot, comparison, pair.simulated.variable, t, simulated, recorded, scale,
-          scenario.name, cuts)
+          scenario.name, cuts, "recorded time, aligned" if time_map is not None else "time")
     return comparison
 
 
 def _plot(path: Path, c: Comparison, variable: str, t: np.ndarray, simulated: np.ndarray, recorded: np.ndarray,
-          s: float, title: str, cuts: np.ndarray) -> None:
+          s: float, title: str, cuts: np.ndarray, time_label: str = "time") -> None:
     """``s`` scales values from ``c.unit`` to ``c.display_unit``; ``cuts``: where the recording's consistent
     segments start (drawn as faint lines)."""
     fig = Figure(figsize=(10, 6), layout="constrained")
@@ -115,7 +140,7 @@ def _plot(path: Path, c: Comparison, variable: str, t: np.ndarray, simulated: np
     bottom.plot(t, simulated - recorded, color="tab:red", linewidth=1.0)
     bottom.axhline(0.0, color="black", linewidth=0.5)
     bottom.set_ylabel(f"error [{c.display_unit}]")
-    bottom.set_xlabel("time [s]")
+    bottom.set_xlabel(f"{time_label} [s]")
     bottom.grid(True, alpha=0.3)
     fig.savefig(path, dpi=100)
 
@@ -125,14 +150,32 @@ def write_report(scenario: Scenario, run_dir: str | Path, results: pd.DataFrame 
     writes report.json and one PNG per pair there."""
     run_dir = Path(run_dir)
     results = load_results(run_dir) if results is None else results
-    comparisons = tuple(_compare(scenario, pair, results, run_dir) for pair in scenario.compare)
+    time_map = _align(scenario, results, run_dir) if scenario.alignment is not None else None
+    comparisons = tuple(_compare(scenario, pair, results, run_dir, time_map) for pair in scenario.compare)
     path = run_dir / "report.json"
     doc = {"scenario": scenario.name, "comparisons": [asdict(c) for c in comparisons],
            "recording_check": check_summary(scenario)}
+    if time_map is not None:
+        doc["alignment"] = {"method": time_map.method, "samples": int(time_map.recorded_time.size),
+                            "mean_confidence": float(np.mean(time_map.confidence)), "time_map": "time_map.csv"}
     tmp = path.with_name(".report.json.tmp")
     tmp.write_text(json.dumps(_nan_to_none(doc), indent=2))
     tmp.replace(path)
     return Report(path, comparisons)
+
+
+def _align(scenario: Scenario, results: pd.DataFrame, run_dir: Path) -> TimeMap:
+    """The recording aligned with the results by ``[alignment]``; the map written to ``time_map.csv``."""
+    alignment, rec = scenario.alignment, scenario.recorded
+    assert alignment is not None and rec is not None  # load_scenario checks both
+    time_map = align_results(rec, results, [str(r) for r in alignment.simulated], alignment.recorded,
+                             alignment.method)
+    table = pd.DataFrame({"recorded_time": time_map.recorded_time, "simulated_time": time_map.simulated_time,
+                          "confidence": time_map.confidence})
+    tmp = run_dir / ".time_map.csv.tmp"
+    table.to_csv(tmp, index=False)
+    tmp.replace(run_dir / "time_map.csv")
+    return time_map
 
 
 def check_summary(scenario: Scenario) -> dict | None:

@@ -62,6 +62,11 @@ Format (all times in seconds; paths are relative to the scenario file's folder):
     recorded = "spindle_power"
     unit = "kW"                 # optional display unit of the plot
 
+    [alignment]                 # optional: the [[compare]] pairs on the recording's own samples, each mapped to
+    recorded = ["x", "y", "z"]  # the simulated moment of the same machining state by aligning these recorded
+    simulated = ["interp.x", "interp.y", "interp.z"]   # positions with these simulated ones (orchestrator/align;
+    method = "multiscale"       # default multiscale)
+
     [stepping]                  # optional: the engagement-driven variable communication step
     coarse_step = 1e-3          # s; the length of a coarse interval
     variable = ["force", "vibration"]      # instances that make one step per interval while no condition holds
@@ -100,6 +105,9 @@ largest step; ``output_interval`` must be a multiple of it. Connections with
 ``delay = false`` must not form a cycle between instances (an algebraic loop; the
 check is per instance, not per variable dependency). The execution order is the
 topological order of instances along those connections, ties broken by file order.
+
+``[alignment]``: 2 or 3 recorded channels and as many simulated outputs (Real, length units), in the same axis
+order; a ``method`` of ``orchestrator.align.METHODS``. Without it a ``[[compare]]`` pair is compared at equal times.
 
 ``[stepping]`` (the master's loop in ``orchestrator/master.py`` states what it does): ``coarse_step`` is an integer
 multiple of the base step and of the step of every ``variable`` instance (listed once each, at least one; their
@@ -243,6 +251,15 @@ class Compare:
 
 
 @dataclass(frozen=True)
+class Alignment:
+    """``[alignment]``: compare on the recorded samples mapped to simulated time by aligning ``recorded`` position
+    channels with ``simulated`` outputs (``method`` of orchestrator.align.METHODS)."""
+    recorded: tuple[str, ...]
+    simulated: tuple[Ref, ...]
+    method: str = "multiscale"
+
+
+@dataclass(frozen=True)
 class FineWhen:
     """A condition of ``[stepping].fine_when``: ``output`` (Real) ``above``/``below`` ``threshold`` (strictly, in
     the output's unit), or (Boolean) ``is`` the truth of ``threshold`` (1.0 true, 0.0 false)."""
@@ -292,6 +309,7 @@ class Scenario:
     parameter_sets: tuple[Path, ...] = ()
     stepping: Stepping | None = None  # [stepping]: the variable communication step (None: every step fine)
     part: Part | None = None  # a whole-part scenario's [part], read (orchestrator/part/spec.py)
+    alignment: Alignment | None = None  # [alignment]: comparisons on aligned times
 
     @property
     def execution_order(self) -> tuple[str, ...]:
@@ -663,7 +681,7 @@ def load_scenario(path: str | Path, fmu_dir: str | Path, parameter_sets: Sequenc
         from milling_twin.orchestrator.part.expand import expand_document
         doc, part = expand_document(ctx, doc, fmu_dir)
     ctx.table(doc, "", ("scenario", "fmus", "recorded", "inputs", "connections", "outputs", "compare",
-                        "stepping"))
+                        "stepping", "alignment"))
 
     sc = ctx.table(doc.get("scenario"), "[scenario]", (
         "name", "description", "start_time", "stop_time", "output_interval", "parameter_sets"))
@@ -805,6 +823,9 @@ def load_scenario(path: str | Path, fmu_dir: str | Path, parameter_sets: Sequenc
             outputs.append(ref)
         compares.append(Compare(ref, channel, display))
 
+    alignment = _alignment(ctx, doc["alignment"], instances, recorded) if "alignment" in doc else None
+    if alignment is not None:
+        outputs += [ref for ref in alignment.simulated if ref not in outputs]
     order = _execution_order(ctx, list(instances), conns)
     stepping = _stepping(ctx, doc["stepping"], [instances[n] for n in order], base,
                          {n: v[2] for n, v in loaded.items()}) if "stepping" in doc else None
@@ -815,7 +836,41 @@ def load_scenario(path: str | Path, fmu_dir: str | Path, parameter_sets: Sequenc
         recorded=recorded, inputs=tuple(inputs), connections=tuple(c for _, c in conns),
         outputs=tuple(dict.fromkeys(outputs)), compare=tuple(compares),
         parameter_sets=tuple(set_path for _, set_path in applied_sets), stepping=stepping, part=part,
+        alignment=alignment,
     )
+
+
+def _alignment(ctx: _Ctx, table: Any, instances: Mapping[str, FmuInstance],
+               recorded: RecordedData | None) -> Alignment:
+    """``[alignment]``, checked against the recorded channels and the instances' outputs."""
+    from milling_twin.orchestrator.align import METHODS
+    key = "[alignment]"
+    ctx.table(table, key, ("recorded", "simulated", "method"))
+    if recorded is None:
+        ctx.fail(key, "aligns the recording with the simulation: add a [recorded] section")
+    channels, names = table.get("recorded"), table.get("simulated")
+    for field_name, value in (("recorded", channels), ("simulated", names)):
+        if not (isinstance(value, list) and 2 <= len(value) <= 3 and all(isinstance(v, str) for v in value)):
+            ctx.fail(f"{key}.{field_name}", f"expected 2 or 3 names (x, y[, z]), got {value!r}")
+    if len(channels) != len(names):
+        ctx.fail(f"{key}.simulated", f"{len(names)} outputs for {len(channels)} recorded channels: give one per axis")
+    refs = []
+    for i, (channel, name) in enumerate(zip(channels, names)):
+        if channel not in recorded.channels:
+            ctx.fail(f"{key}.recorded[{i}]", f"unknown recorded channel {channel!r}; channels: "
+                                             f"{', '.join(recorded.channels)}")
+        ref, var = _resolve(ctx, f"{key}.simulated[{i}]", name, instances, "output", types=("real",))
+        try:
+            _factor(recorded.units[channel], "m")
+            _factor(var.unit, "m")
+        except UnitError:
+            ctx.fail(f"{key}.simulated[{i}]", f"aligns positions: {channel!r} ({recorded.units[channel]}) and "
+                                              f"{ref} ({var.unit or 'no unit'}) must both be lengths")
+        refs.append(ref)
+    method = ctx.string(table, key, "method", "multiscale")
+    if method not in METHODS:
+        ctx.fail(f"{key}.method", f"{method!r}: expected one of {', '.join(METHODS)}")
+    return Alignment(tuple(channels), tuple(refs), method)
 
 
 def _stepping(ctx: _Ctx, table: Any, order: Sequence[FmuInstance], base: float,

@@ -333,3 +333,15 @@ def test_long_programs_and_comparisons_in_the_html(tmp_path: Path) -> None:
     assert "Comparisons with the recording" in text and "0.02282 kW" in text and "13 %" in text
     assert "power.P_total vs spindle_power" in text
     assert set(re.findall(r"src='([a-z]+):", text)) == {"data"}
+
+
+def test_no_stl_of_a_z_map_too_large(part_run: tuple[Part, pd.DataFrame, Path, Path], tmp_path: Path,
+                                     monkeypatch: pytest.MonkeyPatch) -> None:
+    from milling_twin.orchestrator.part import report as report_module
+
+    part, frame, _, zmap = part_run
+    monkeypatch.setattr(report_module, "STL_MAX_CELLS", 5999)        # the part's Z-map: 100 x 60 cells
+    report = write_process_report(part, frame, tmp_path, zmap_file=zmap)
+    assert report.stl is None and not (tmp_path / "part.stl").exists()
+    assert any("final.asc: no STL: the Z-map has 6000 cells, more than 5999" in w for w in report.warnings)
+    assert report.removed_volume_zmap == pytest.approx(report.removed_volume, rel=1e-9)

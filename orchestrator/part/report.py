@@ -32,6 +32,7 @@ __all__ = ["ProcessReport", "write_process_report", "HTML_BLOCKS"]
 HTML_BLOCKS = 200          # the HTML table shows the most loaded blocks up to this many; the CSV has all
 LABELLED_BLOCKS = 8        # blocks named on the time-series figure (the largest resultant force)
 VOLUME_AGREEMENT = 1e-9    # relative: the run's removed volume and stock - Z-map are the same cells
+STL_MAX_CELLS = 2_000_000  # a larger Z-map gets no STL (200 MB, about 4 s to write)
 
 # the block table's columns shown in the HTML (all are in the CSV and Parquet files)
 HTML_COLUMNS = ("block", "line", "start_time", "duration", "feed_programmed", "feed_mean", "spindle_speed", "tool",
@@ -269,8 +270,13 @@ def write_process_report(part: Part, frame: pd.DataFrame, run_dir: Path, *, zmap
     removed_run = float(signals[f"{WORKPIECE}.removed_volume"][-1]) if signals.n else math.nan
     if grid is not None:
         removed_zmap = part.stock.volume - grid.volume(bottom)
-        stl_path = run_dir / "part.stl"
-        triangles = write_stl(grid, bottom, stl_path)
+        cells = grid.x.size * grid.y.size
+        if cells <= STL_MAX_CELLS:
+            stl_path = run_dir / "part.stl"
+            triangles = write_stl(grid, bottom, stl_path)
+        else:
+            notes.append(f"{zmap_file}: no STL: the Z-map has {cells} cells, more than {STL_MAX_CELLS} (the STL "
+                         f"takes 100 bytes a cell: {cells * 1e-4:.0f} MB; a coarser [part.stock] resolution gives one)")
         if math.isfinite(removed_run) and abs(removed_zmap - removed_run) > VOLUME_AGREEMENT * part.stock.volume:
             notes.append(f"removed volume: the run's removed_volume {removed_run * 1e6:.6g} cm3 differs from stock - "
                          f"final Z-map {removed_zmap * 1e6:.6g} cm3 ({zmap_file})")

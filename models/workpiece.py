@@ -33,11 +33,16 @@ algorithm in numpy, do:
    ``r(z) + delta`` (``delta = min(dx, dy)``) in the direction phi, reaches above it. The offset
    keeps the test out of the cells this and earlier steps lowered (cells are cut by their centres,
    which may lie up to ``delta/sqrt(2)`` inside the circle). Only the front half ``0 <= phi <= pi`` is
-   tested: behind the cutter is the surface it has just cut. A run of consecutive engaged angle
-   samples counts only if one of its test points lies laterally inside the cutter's circle by more
-   than half a cell diagonal: otherwise the cutter merely touches a wall parallel to the feed (a
-   pass retracing an earlier one cuts nothing and is not engaged). Within about ``sqrt(2 R delta)``
-   of the end of an earlier cut, a retrace still sees that cut's end wall.
+   tested: behind the cutter is the surface it has just cut. A test point (an angle and a profile
+   height) is *cutting* when it is in material and lies laterally (across the feed) inside the
+   cutter's circle at its height by more than half a cell diagonal, so in a cell whose centre is
+   inside it; a point in material but not cutting lies on a wall parallel to the feed that the
+   cutter merely touches. A run of consecutive engaged angle samples counts only if it holds a
+   cutting point (a pass retracing an earlier one cuts nothing and is not engaged), and only the
+   cutting points' heights make its engaged height: the walls an earlier level left at the tool
+   radius, standing above the layer now cut (a slot or pocket cut again deeper, a side cut along
+   such a wall), touch the cutter over their whole height, but only the layer is cut. Within about
+   ``sqrt(2 R delta)`` of the end of an earlier cut, a retrace still sees that cut's end wall.
 
    - ``entry_angle`` / ``exit_angle``: the first and last engaged angle. ``M + 1`` angles
      ``phi_m = m pi / M`` (``M = ceil(pi R / delta)``, about one cell of arc) are each tested over
@@ -47,8 +52,12 @@ algorithm in numpy, do:
      found there is taken back to the cutter's circle at the same lateral position (exact for a
      wall parallel to the feed): ``cos(angle) = clamp((r_top + delta) / r_top * cos(phi), -1, 1)``.
      Slotting gives exactly (0, pi); half immersion down milling (pi/2, pi).
-   - ``axial_depth``: the largest engaged height over all angle samples (exact where the stock top
-     is flat: the column's height, not a sample height).
+   - ``axial_depth``: the largest height of a cutting point over the counted runs (exact where the
+     material cut is flat-topped: the column's height, not a sample height; the layer's thickness on
+     a second level of a flat end mill: 1.5 mm for a slot at 1.5 mm cut again at 3 mm). A ball or
+     bull-nose end mill cut again deeper along its earlier path also widens the groove at its top
+     edges, so there it reports the height up to the material it cuts there (for a ball: up to the
+     stock top).
    - ``radial_depth``: ``r_top (cos(entry) - cos(exit))``, the width across the feed of the cutter's
      circle between entry and exit, ``r_top`` its radius at the top of the cut (``axial_depth``).
    - the **engagement map** ``engagement`` (``N_Z x N_THETA`` = 8 x 24 values, 0 or 1; an FMI 3
@@ -61,9 +70,10 @@ algorithm in numpy, do:
 3. **Clearance** at the new position, against the stock after the removal: the distance from the tool,
    taken as a cylinder of radius ``R`` with a flat end at the tip (the corner radius is ignored: for a
    bull-nose or ball end mill the distance is the one to that cylinder, up to ``(sqrt(2) - 1) r_c`` short
-   near the corner, never more than the distance to the tool), to the material of the cells, each cell's material a vertical segment at its
-   centre c from the bottom of the block up to its height h(c). Per cell not cut to the bottom
-   (h(c) > ``stock_z_min``: an empty cell has no material), with the tool tip at (x, y, z):
+   near the corner, never more than the distance to the tool), to the material of the cells, each cell's
+   material a vertical segment at its centre c from the bottom of the block up to its height h(c). Per
+   cell not cut to the bottom (h(c) > ``stock_z_min``: an empty cell has no material), with the tool tip
+   at (x, y, z):
    the horizontal gap ``gh = max(0, |c - (x, y)| - R)``, the vertical gap ``gv = max(0, z - h(c))`` and the
    distance ``sqrt(gh^2 + gv^2)``; ``clearance`` is the smallest of these and ``clearance_range``, so
    ``clearance_range`` when no material is that near and 0 when the tool is in material (a cell under the
@@ -411,22 +421,24 @@ class ZMap:
         py = y + rho[None, :] * uy[:, None]
         height = self._height_minus(px, py, z)
         engaged = height > self.profile_z[None, :]
-        top = np.where(engaged, np.minimum(height, self.profile_next[None, :]), -np.inf).max(axis=1)
-        # a sample whose test point lies beside the cutter's circle (its lateral offset within half a
-        # cell diagonal of the radius, or beyond) only touches a wall: runs of such samples are no cut
+        any_engaged = np.any(engaged, axis=1)
+        # a test point beside the cutter's circle (its lateral offset within half a cell diagonal of the
+        # radius, or beyond) only touches a wall: runs without a cutting point are no cut, and the
+        # heights such points see (a wall an earlier pass left at the radius, standing above the layer
+        # now cut) are not engaged heights
         lateral = np.abs(rho[None, :] * self.cos_phi[:, None])
-        cutting = np.any(engaged & (lateral < self.profile_r[None, :] - self.half_diagonal), axis=1)
+        cutting = engaged & (lateral < self.profile_r[None, :] - self.half_diagonal)
+        top = np.where(cutting, np.minimum(height, self.profile_next[None, :]), -np.inf).max(axis=1)
         first, last, axial, m = -1, -1, -math.inf, 0
         while m <= self.n_angles:  # runs of consecutive engaged samples
-            if top[m] == -math.inf:
+            if not any_engaged[m]:
                 m += 1
                 continue
-            start, run_top, run_cutting = m, -math.inf, False
-            while m <= self.n_angles and top[m] > -math.inf:
+            start, run_top = m, -math.inf
+            while m <= self.n_angles and any_engaged[m]:
                 run_top = max(run_top, float(top[m]))
-                run_cutting = run_cutting or bool(cutting[m])
                 m += 1
-            if run_cutting:
+            if run_top > -math.inf:  # the run has a cutting point
                 first = start if first < 0 else first
                 last = m - 1
                 axial = max(axial, run_top)

@@ -386,7 +386,7 @@ static double boundary(FmuInstance *instance, int side, double inside, double ou
 }
 
 /* The angle samples of the front half in runs of consecutive engaged samples: whether a run cuts; then
- * the first and last sample of the cutting runs and their largest engaged height. */
+ * the first and last sample of the cutting runs and the largest engaged height of their cutting points. */
 static bool scan(const FmuInstance *instance, ProbeRooms *rooms, size_t *first, size_t *last, double *axial) {
     const ModelInternal *w = &instance->internal;
     const double *heap = instance->heap;
@@ -397,32 +397,34 @@ static bool scan(const FmuInstance *instance, ProbeRooms *rooms, size_t *first, 
     while (m <= w->n_angles) {
         const size_t start = m;
         double run_top = -INFINITY;
-        bool run_cutting = false;
         for (; m <= w->n_angles; m++) {
             const double c = heap[w->cos_phi + m], s = heap[w->sin_phi + m];
             const double ux = s * fx - c * fy, uy = s * fy + c * fx;
-            double best = -INFINITY;
-            bool cutting = false;
+            double best = -INFINITY; /* the highest engaged height of a cutting test point */
+            bool in_material = false;
             for (k = 0; k <= w->n_corner; k++) {
                 const double rho = heap[w->profile_r + k] + w->delta;
                 const double above = height_above(instance, rooms, x + rho * ux, y + rho * uy, z);
                 if (above > heap[w->profile_z + k]) {
-                    const double top = k < w->n_corner ? min2(above, heap[w->profile_z + k + 1]) : above;
-                    if (top > best) best = top;
-                    /* a test point beside the cutter's circle (within half a cell diagonal of its
-                     * radius, or beyond) only touches a wall: runs of such samples are no cut */
-                    if (fabs(rho * c) < heap[w->profile_r + k] - w->half_diagonal) cutting = true;
+                    in_material = true;
+                    /* a test point beside the cutter's circle (within half a cell diagonal of its radius, or
+                     * beyond) only touches a wall: runs without a cutting point are no cut, and the heights
+                     * such points see (a wall an earlier pass left at the radius, standing above the layer
+                     * now cut) are not engaged heights */
+                    if (fabs(rho * c) < heap[w->profile_r + k] - w->half_diagonal) {
+                        const double top = k < w->n_corner ? min2(above, heap[w->profile_z + k + 1]) : above;
+                        if (top > best) best = top;
+                    }
                 }
             }
-            if (best == -INFINITY) break;
+            if (!in_material) break;
             if (best > run_top) run_top = best;
-            run_cutting = run_cutting || cutting;
         }
         if (m == start) { /* not engaged */
             m++;
             continue;
         }
-        if (run_cutting) {
+        if (run_top > -INFINITY) { /* the run has a cutting point */
             if (!engaged) *first = start;
             engaged = true;
             *last = m - 1;

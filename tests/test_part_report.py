@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import math
 import re
+from dataclasses import replace
 from pathlib import Path
 
 import numpy as np
@@ -21,7 +22,7 @@ from milling_twin.orchestrator.part.blocks import Signals, block_spans, block_ta
 from milling_twin.orchestrator.part.model import Material, Part, Stock
 from milling_twin.orchestrator.part.report import write_process_report
 from milling_twin.orchestrator.results import load_results
-from milling_twin.orchestrator.scenario import load_scenario, with_values
+from milling_twin.orchestrator.scenario import Ref, load_scenario, with_values
 
 REPO = Path(__file__).resolve().parents[1]
 
@@ -208,6 +209,7 @@ def part_run(tmp_path_factory: pytest.TempPathFactory, fmu_dir: Path) -> tuple[P
     scenario = load_scenario(folder / "part.toml", fmu_dir)
     zmap = folder / "final.asc"
     scenario = with_values(scenario, {"workpiece.zmap_file": str(zmap)})
+    scenario = replace(scenario, outputs=(*scenario.outputs, Ref("force", "spindle_angle")))
     result = run(scenario, folder / "runs", progress=False)
     assert scenario.part is not None
     return scenario.part, load_results(result.run_dir), result.run_dir, zmap
@@ -345,3 +347,22 @@ def test_no_stl_of_a_z_map_too_large(part_run: tuple[Part, pd.DataFrame, Path, P
     assert report.stl is None and not (tmp_path / "part.stl").exists()
     assert any("final.asc: no STL: the Z-map has 6000 cells, more than 5999" in w for w in report.warnings)
     assert report.removed_volume_zmap == pytest.approx(report.removed_volume, rel=1e-9)
+
+
+def test_surface_location_error_without_the_force_models_spindle_angle(
+        part_run: tuple[Part, pd.DataFrame, Path, Path]) -> None:
+    """The flute angle summed from the commanded spindle speed is the force model's: the same SLE per block."""
+    from milling_twin.orchestrator.part.surface import surface_location_errors
+
+    part, frame, _, _ = part_run
+    with_angle = Signals(frame)
+    without = Signals(frame.drop(columns=["force.spindle_angle"]))
+    spans = block_spans(with_angle["interp.line_number"])
+    mean, largest, count = surface_location_errors(with_angle, spans, 3, part.coarse_step)
+    mean2, largest2, count2 = surface_location_errors(without, spans, 3, part.coarse_step)
+    assert count.tolist() == count2.tolist() and count.max() > 1000
+    cut = count > 0
+    assert mean2[cut] == pytest.approx(mean[cut], rel=1e-4) and largest2[cut] == pytest.approx(largest[cut], rel=1e-4)
+    # down milling along the wall: the tool pushed off it (material left), a few um
+    side = int(np.flatnonzero(spans.lines == 10)[0])
+    assert 0.5e-6 < mean[side] < 10e-6

@@ -127,12 +127,12 @@ def write_stl(grid: ZMapGrid, bottom: float, path: Path) -> int:
 
 
 def _spindle_angle(signals: Signals) -> np.ndarray:
-    """Unwrapped angle of flute 0 (rad): the force model's, else the integral of the commanded spindle speed."""
+    """Unwrapped angle of flute 0 (rad): the force model's, else the commanded spindle speed summed as the force
+    model advances its angle: each step by the speed at its end (the Interpolator steps first) times its length."""
     if signals.has(f"{FORCE}.spindle_angle"):
         return np.unwrap(np.nan_to_num(signals[f"{FORCE}.spindle_angle"]))
     omega = np.nan_to_num(signals[f"{INTERPOLATOR}.spindle_speed"])
-    t = signals.time
-    return np.r_[0.0, np.cumsum(0.5 * (omega[1:] + omega[:-1]) * np.diff(t))]
+    return np.r_[0.0, np.cumsum(omega[1:] * np.diff(signals.time))]
 
 
 def feed_direction(signals: Signals, interpolation_period: float) -> np.ndarray:

@@ -156,10 +156,12 @@ def lobes_png(lobes: Lobes, speeds_rpm: np.ndarray, depths_mm: np.ndarray, indic
     known = known[np.argsort(indicators[known], kind="stable")]
     scatter = ax.scatter(speeds_rpm[known], depths_mm[known], c=indicators[known], cmap="coolwarm", vmin=0, vmax=1,
                          edgecolors="black", linewidths=0.5, s=30, zorder=3, label="blocks (max axial depth)")
-    if 0 < len(names) <= LOBE_NAMES:
+    if 0 < len(names) <= LOBE_NAMES:  # blocks at the same point share one label
+        at: dict[tuple[float, float], list[str]] = {}
         for i in np.flatnonzero(finite):
-            ax.annotate(names[i], (speeds_rpm[i], depths_mm[i]), xytext=(4, 3), textcoords="offset points",
-                        fontsize=7)
+            at.setdefault((round(float(speeds_rpm[i]), 1), round(float(depths_mm[i]), 4)), []).append(names[i])
+        for (speed, depth), group in at.items():
+            ax.annotate(", ".join(group), (speed, depth), xytext=(4, 3), textcoords="offset points", fontsize=7)
     unknown = finite & ~np.isfinite(indicators)
     if unknown.any():
         ax.scatter(speeds_rpm[unknown], depths_mm[unknown], facecolors="none", edgecolors="0.4", s=30, zorder=3,

@@ -21,6 +21,7 @@ if TYPE_CHECKING:  # the heavy modules load when a function is called, not on `i
 
     from milling_twin.orchestrator.calibrate.result import CalibrationResult
     from milling_twin.orchestrator.master import RunResult
+    from milling_twin.orchestrator.part.report import ProcessReport
     from milling_twin.orchestrator.report import Report
     from milling_twin.orchestrator.scenario import Scenario
 
@@ -43,6 +44,7 @@ class Results:
     scenario: Scenario  # as run (overrides and parameter sets applied)
     report: Report | None  # recorded-vs-simulated comparisons, when the scenario has [[compare]]
     run_dir: Path | None  # where the results are, None when they were kept in memory only
+    process_report: ProcessReport | None = None  # a whole-part scenario's per-block report (docs/process_report.md)
 
     @property
     def status(self) -> str:
@@ -99,22 +101,36 @@ def simulate(scenario: Scenario | str | Path, *, fmu_dir: str | Path | None = No
             scenario = with_values(scenario, overrides)
     if out is None:
         with tempfile.TemporaryDirectory(prefix="milling-twin-") as folder:
-            result = _run_and_report(run, scenario, Path(folder), stepping, progress, fmi_call_logger)
-            return Results(result[0], result[1], scenario, result[2], None)
-    frame, run_result, report = _run_and_report(run, scenario, Path(out), stepping, progress, fmi_call_logger)
-    return Results(frame, run_result, scenario, report, run_result.run_dir)
+            results = _run_and_report(run, scenario, Path(folder), stepping, progress, fmi_call_logger)
+            return Results(results.frame, results.run, results.scenario, results.report, None)
+    return _run_and_report(run, scenario, Path(out), stepping, progress, fmi_call_logger)
 
 
 def _run_and_report(run: Callable[..., RunResult], scenario: Scenario, out: Path, stepping: str, progress: bool,
-                    fmi_call_logger: Callable[[str], None] | None) -> tuple[pd.DataFrame, RunResult, Report | None]:
+                    fmi_call_logger: Callable[[str], None] | None) -> Results:
+    """The run, then its comparisons with the recording and, for a whole-part scenario, the process report (the
+    Workpiece writes its final Z-map into the run folder for it)."""
+    zmap = None
+    if scenario.part is not None:
+        from milling_twin.orchestrator.part.model import WORKPIECE
+        from milling_twin.orchestrator.scenario import with_values
+
+        if "zmap_file" in scenario.instance(WORKPIECE).variables:
+            zmap = (out / scenario.name / "final_zmap.asc").resolve()
+            scenario = with_values(scenario, {f"{WORKPIECE}.zmap_file": str(zmap)})
     result = run(scenario, out, progress=progress, stepping=stepping, fmi_call_logger=fmi_call_logger)
     frame = load_results(result.run_dir)
-    report = None
+    report = process = None
     if scenario.compare and result.rows:
         from milling_twin.orchestrator.report import write_report
 
         report = write_report(scenario, result.run_dir, frame)
-    return frame, result, report
+    if scenario.part is not None and result.rows:
+        from milling_twin.orchestrator.part.report import write_process_report
+
+        process = write_process_report(scenario.part, frame, result.run_dir, zmap_file=zmap,
+                                       comparisons=report.comparisons if report else ())
+    return Results(frame, result, scenario, report, result.run_dir, process)
 
 
 def calibrate(spec: str | Path, *, fmu_dir: str | Path | None = None, out: str | Path = "runs",

@@ -38,6 +38,17 @@ def run_summary(results: api.Results) -> str:
                      f"{c.mean_abs_error * s:.4g}, max |error| {c.max_error * s:.4g}, "
                      f"mean recorded {c.mean_recorded * s:.4g} {c.display_unit}")
         lines.append(f"plot: {result.run_dir / c.plot}")
+    process = results.process_report
+    if process is not None:  # a whole-part scenario: the headline of its process report
+        zmap = (f", stock - final Z-map {process.removed_volume_zmap * 1e6:.4g} cm3"
+                if process.removed_volume_zmap is not None else "")
+        lines.append(f"part: machining {process.machining_time:.2f} s, in material {process.cutting_time:.2f} s; "
+                     f"max force {process.max_force:.4g} N, torque {process.max_torque:.4g} N.m, power "
+                     f"{process.max_power / 1e3:.4g} kW, deflection {process.max_deflection * 1e6:.4g} um; removed "
+                     f"{process.removed_volume * 1e6:.4g} cm3{zmap}; {process.blocks} blocks, "
+                     f"{process.chatter_blocks} in chatter")
+        lines.extend(f"part warning: {w}" for w in process.warnings)
+        lines.append(f"process report: {process.html}" + (f", surface: {process.stl}" if process.stl else ""))
     lines.append(f"results: {result.run_dir} (milling_twin.load_results)")
     return "\n".join(lines)
 

@@ -28,7 +28,7 @@ from milling_twin.orchestrator.toml_access import TomlAccess
 
 INSTANCES = (INTERPOLATOR, WORKPIECE, FORCE, VIBRATION, POWER)
 # Tables that may stand beside [part] (kept as they are; [fmus.<instance>] overrides single parameters)
-BESIDE_PART = ("scenario", "part", "fmus", "recorded", "inputs", "outputs", "compare")
+BESIDE_PART = ("scenario", "part", "fmus", "recorded", "inputs", "outputs", "compare", "alignment")
 DEFAULT_OUTPUT_INTERVAL = 1e-4      # s
 STOP_MARGIN = 0.05                  # s after the program's machining time
 CLEARANCE_MARGIN = 1.5              # the Workpiece looks for material this many lookaheads around the tool
@@ -179,7 +179,7 @@ def explicit_scenario(part: Part, variables: Mapping[str, Mapping[str, Variable]
     doc: dict[str, Any] = {"scenario": dict(scenario), "fmus": fmus, "connections": connections,
                            "stepping": {"coarse_step": part.coarse_step, "variable": [FORCE, VIBRATION],
                                         "fine_when": fine_when}}
-    for name in ("recorded", "inputs", "compare"):
+    for name in ("recorded", "inputs", "compare", "alignment"):
         if name in beside:
             doc[name] = copy.deepcopy(beside[name])
     doc["outputs"] = copy.deepcopy(beside["outputs"]) if "outputs" in beside else {"record": [
@@ -254,7 +254,7 @@ def explicit_text(part_file: Path, fmu_dir: Path, target_dir: Path) -> tuple[str
 
 def _toml(doc: Mapping[str, Any]) -> str:
     """``doc`` as TOML in reading order ([scenario] first), arrays of tables as ``[[name]]`` blocks."""
-    order = ("scenario", "fmus", "connections", "stepping", "recorded", "inputs", "compare", "outputs")
+    order = ("scenario", "fmus", "connections", "stepping", "recorded", "alignment", "inputs", "compare", "outputs")
     chunks = []
     for name in sorted(doc, key=lambda n: order.index(n) if n in order else len(order)):
         value = doc[name]

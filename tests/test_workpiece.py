@@ -625,6 +625,146 @@ def test_retracing_a_cut_is_no_engagement(fmu: Path, tool: str, angle: float) ->
     assert np.all(again[:, OUTPUTS.index("mrr")] == 0.0)
 
 
+# ---- second levels: a path cut again deeper reports the layer it cuts ----
+
+
+def run_both(fmu: Path, parameters: dict, points: list) -> np.ndarray:
+    """The FMU's rows on the path, asserted equal to the reference's to the last bit."""
+    actual, slave = run_fmu(fmu, parameters, points)
+    slave.unload()
+    expected, _ = run_reference(parameters, points)
+    differ = np.argwhere(actual != expected)
+    assert not differ.size, (f"{len(differ)} values differ, first at step {differ[0][0]} output "
+                             f"{OUTPUTS[differ[0][1]]}: {actual[tuple(differ[0])]!r} != {expected[tuple(differ[0])]!r}")
+    return expected
+
+
+def levels(path: Sequence[Sequence[float]], depths: Sequence[float], feed: float = 0.2 * MM) -> tuple[list, list]:
+    """The waypoints (x, y) cut at each depth below the top in turn, lifted 5 mm above the block between
+    the levels; returns the points and, per level, the slice of the points on it."""
+    points, slices = [], []
+    for depth in depths:
+        piece = polyline([(x, y, TOP - depth) for x, y in path], feed)
+        lift = [(path[0][0], path[0][1], TOP + 5 * MM)]
+        if points:
+            points += polyline([points[-1], (points[-1][0], points[-1][1], TOP + 5 * MM)] + lift, 1.0 * MM)[1:]
+            points += polyline([lift[0], piece[0]], 1.0 * MM)[1:-1]
+        slices.append(slice(len(points), len(points) + len(piece)))
+        points += piece
+    return points, slices
+
+
+def on_level(rows: np.ndarray, points: list, level: slice, inside) -> dict[str, np.ndarray]:
+    """The outputs at the level's points for which inside(x, y) holds, by name."""
+    chosen = [k for k in range(level.start, level.stop) if inside(points[k][0] / MM, points[k][1] / MM)]
+    assert len(chosen) > 20
+    return {name: rows[chosen, k] for k, name in enumerate(OUTPUTS)}
+
+
+@pytest.mark.parametrize("tool,angle,depths", [("flat", 0.0, (1.5, 3.0)), ("flat", 30.0, (1.0, 2.5)),
+                                               ("flat", 0.0, (1.5, 3.0, 4.5)), ("ball", 0.0, (1.5, 3.0))])
+def test_a_slot_cut_again_deeper_reports_the_layer(fmu: Path, tool: str, angle: float, depths: tuple) -> None:
+    """A slot at depth d1, then the same path at d2 > d1 (the levels of a roughing program): the walls the
+    first level left at the tool radius stand above the layer along both flanks, but only the layer is
+    cut: axial_depth = d2 - d1 (the first level's floor is flat: exact up to rounding, also diagonally
+    to the grid), entry 0, exit pi, the front half of the map engaged; the first level as before. A ball
+    end mill widens the groove at its top edges, so there the second level cuts up to the stock top: d2."""
+    parameters = {"corner_radius": 5 * MM} if tool == "ball" else {}
+    u = (math.cos(math.radians(angle)), math.sin(math.radians(angle)))
+    origin = (0.0, 30.1 * MM if angle == 0 else 20 * MM)
+    path = [(origin[0] - 10 * MM * u[0], origin[1] - 10 * MM * u[1]),
+            (origin[0] + 60 * MM * u[0], origin[1] + 60 * MM * u[1])]
+    points, slices = levels(path, [d * MM for d in depths])
+    rows = run_both(fmu, parameters, points)
+    front = [map_name(i, j) for i in range(N_Z) for j in range(N_THETA // 2)]
+    for level, (above, depth) in enumerate(zip((0.0,) + depths, depths)):
+        steady = rows[slices[level]][100:-50]  # from 10 mm inside the block to 10 mm before the end
+        out = {name: steady[:, k] for k, name in enumerate(OUTPUTS)}
+        layer = depth if tool == "ball" else depth - above
+        assert np.all(out["axial_depth"] == pytest.approx(layer * MM, rel=1e-12)), np.unique(out["axial_depth"])
+        assert np.all(out["entry_angle"] == 0.0) and np.all(out["exit_angle"] == math.pi)
+        if tool == "flat" or level == 0:
+            assert np.all(steady[:, [OUTPUTS.index(n) for n in front]] == 1.0)
+        if tool == "flat":
+            assert np.all(out["radial_depth"] == 10 * MM)
+        elif level > 0:  # the ball's crescent: all engaged below the first level's floor, above it the flanks
+            below = [map_name(i, j) for i in range(N_Z) for j in range(N_THETA // 2)
+                     if (i + 0.5) * layer / N_Z < depth - above]
+            assert np.all(steady[:, [OUTPUTS.index(n) for n in below]] == 1.0)
+            top_row = {j: out[map_name(N_Z - 1, j)] for j in range(N_THETA // 2)}
+            assert np.all(top_row[0] == 1.0) and np.all(top_row[N_THETA // 2 - 1] == 1.0)
+            assert not np.any(top_row[N_THETA // 4 - 1]) and not np.any(top_row[N_THETA // 4])
+
+
+def test_a_pocket_s_second_level_reports_the_layer(fmu: Path) -> None:
+    """A pocket roughed in two levels (1.5 mm, then 4 mm): a loop around the 30 x 20 mm rectangle of
+    the tool's path, then a loop offset 3 mm inside it, on each level. On the second level the outer
+    loop's sides slot through the layer (2.5 mm; entry 0, exit pi) along the pocket's wall; the inner
+    loop's sides cut a 3 mm wide strip of it beside the outer loop's cut (entry 0, exit acos((R - 3)/R),
+    the radial depth within half a cell), with the first level's wall or island at the radius on their
+    other side. Along the middle of the bottom sides (fed +x)."""
+    def loop(inset: float) -> list:
+        x0, y0, x1, y1 = 30 + inset, 20 + inset, 60 - inset, 40 - inset
+        return [(x * MM, y * MM) for x, y in ((x0, y0), (x1, y0), (x1, y1), (x0, y1), (x0, y0))]
+
+    points, slices = levels(loop(0.0) + loop(3.0), [1.5 * MM, 4.0 * MM])
+    rows = run_both(fmu, {}, points)
+    zmap = ZMap({}, points[0])
+    ae_exit = math.acos((5 - 3) / 5)
+    for level, layer in enumerate((1.5, 2.5)):
+        outer = on_level(rows, points, slices[level], lambda x, y: y == pytest.approx(20) and 38 < x < 50)
+        inner = on_level(rows, points, slices[level], lambda x, y: y == pytest.approx(23) and 38 < x < 50)
+        for out in (outer, inner):
+            assert np.all(out["axial_depth"] == pytest.approx(layer * MM, rel=1e-12)), np.unique(out["axial_depth"])
+            assert np.all(out["entry_angle"] == 0.0)
+        assert np.all(outer["exit_angle"] == math.pi) and np.all(outer["radial_depth"] == 10 * MM)
+        assert np.all(np.abs(inner["exit_angle"] - ae_exit) <= angle_tolerance(zmap, ae_exit, True))
+        assert np.all(np.abs(inner["radial_depth"] - 3 * MM) <= 0.5 * zmap.dy + 1e-3 * MM)
+
+
+@pytest.mark.parametrize("mode", ["down", "up"])
+def test_a_side_cut_along_the_wall_an_earlier_level_left_reports_the_layer(fmu: Path, mode: str) -> None:
+    """A 3 mm wide side cut along a face of the block at 1.5 mm, then at 4 mm on the same path: on the
+    second level the first level's wall stands 4 mm high at the radius on the material side, the
+    cut is the 2.5 mm layer with the angles of the first (Altintas: down milling entry pi - acos((R -
+    a_e)/R), exit pi; up milling entry 0, exit acos((R - a_e)/R)) and the radial depth a_e."""
+    radius, ae = 5 * MM, 3 * MM
+    y = 60 * MM - ae + radius if mode == "down" else ae - radius
+    points, slices = levels([(-10 * MM, y), (60 * MM, y)], [1.5 * MM, 4.0 * MM], 0.1 * MM)
+    rows = run_both(fmu, {}, points)
+    zmap = ZMap({}, points[0])
+    if mode == "down":
+        entry, exit_ = math.pi - math.acos((radius - ae) / radius), math.pi
+    else:
+        entry, exit_ = 0.0, math.acos((radius - ae) / radius)
+    for level, layer in enumerate((1.5, 2.5)):
+        out = on_level(rows, points, slices[level], lambda x, _: 10 < x < 50)
+        assert np.all(out["axial_depth"] == pytest.approx(layer * MM, rel=1e-12)), np.unique(out["axial_depth"])
+        assert np.all(np.abs(out["entry_angle"] - entry) <= angle_tolerance(zmap, entry, False))
+        assert np.all(np.abs(out["exit_angle"] - exit_) <= angle_tolerance(zmap, exit_, False))
+        assert np.all(np.abs(out["radial_depth"] - ae) <= 1e-3 * MM)
+
+
+def test_a_pass_beside_a_deeper_slot_reports_its_own_depth(fmu: Path) -> None:
+    """A 4 mm deep slot, then a pass 1.5 mm deep offset 2.5 mm to its +y side (feed +x): the deeper slot's
+    wall is the edge of the new cut and lies below its tip on the slot's side; the pass cuts the stock
+    top over 2.5 mm (up milling: entry 0, exit acos((R - 2.5)/R) within half a cell): 1.5 mm, neither the
+    slot's depth nor more."""
+    y = 30.1 * MM
+    first, _ = levels([(-10 * MM, y), (110 * MM, y)], [4.0 * MM])
+    second = polyline([(-10 * MM, y + 2.5 * MM, TOP - 1.5 * MM), (60 * MM, y + 2.5 * MM, TOP - 1.5 * MM)], 0.1 * MM)
+    points = chain(first, polyline([(110 * MM, y, TOP + 5 * MM), (-10 * MM, y + 2.5 * MM, TOP + 5 * MM)], 1.0 * MM),
+                   second)
+    rows = run_both(fmu, {}, points)
+    zmap = ZMap({}, points[0])
+    out = {name: rows[-100:, k] for k, name in enumerate(OUTPUTS)}
+    exit_ = math.acos(0.5)
+    assert np.all(out["axial_depth"] == pytest.approx(1.5 * MM, rel=1e-12))
+    assert np.all(out["entry_angle"] == 0.0)
+    assert np.all(np.abs(out["exit_angle"] - exit_) <= angle_tolerance(zmap, exit_, True))
+    assert np.all(np.abs(out["radial_depth"] - 2.5 * MM) <= 0.5 * zmap.dy + 1e-3 * MM)
+
+
 # ---- what is not an error, and what is ----
 
 

@@ -95,6 +95,8 @@ def test_block_table_on_a_synthetic_frame(tmp_path: Path) -> None:
     assert csv["removed_volume [cm3]"].tolist() == pytest.approx([2.0, 3.0, 0.0])
     assert csv["deflection_max [um]"].tolist() == pytest.approx([5.0, 0.0, 0.0])
     assert csv["force_max [N]"].tolist() == pytest.approx([20.0, 50.0, 0.0])
+    assert csv["in_cut_fraction"].tolist() == pytest.approx([2 / 3, 0.5, 0.0])
+    assert csv["chatter"].tolist() == [False] * 3                     # no unit in the header of a flag
     parquet = pq.read_table(tmp_path / "b.parquet")
     field = parquet.schema.field("feed_mean")
     assert field.metadata[b"unit"] == b"m/s" and field.metadata[b"display_unit"] == b"mm/min"

@@ -47,7 +47,7 @@ class BlockColumn:
 
     @property
     def header(self) -> str:
-        return f"{self.name} [{self.display_unit}]" if self.display_unit not in ("", "1") else self.name
+        return f"{self.name} [{self.display_unit}]" if self.display_unit not in ("", "1", "bool") else self.name
 
 
 def _c(name: str, unit: str, display: str, description: str) -> BlockColumn:

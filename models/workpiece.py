@@ -98,8 +98,10 @@ working directory), as an ESRI ASCII grid, the heightmap format GIS tools and GD
 ``ncols``, ``nrows``, ``xllcorner``, ``yllcorner`` (the block's corner), ``cellsize`` when ``dx == dy``
 or else ``dx`` and ``dy`` (GDAL's extension for cells that are not square), ``NODATA_value -9999`` (never
 used), then ``nrows`` lines of ``ncols`` heights in m from north (largest y) to south, each cell's
-material top printed with ``%.17g`` (read back, the same double); a cell cut to the bottom has the height
-``stock_z_min``. It is written to ``<zmap_file>.tmp`` and renamed, so a failed write never leaves a
+material top printed with ``%.17g`` (read back, the same double); every number has a ``.`` as its decimal
+point whatever the process's locale (C's printf follows ``LC_NUMERIC``: the FMU replaces the locale's decimal
+point, so an importer running in a decimal-comma locale writes the same file); a cell cut to the bottom has the
+height ``stock_z_min``. It is written to ``<zmap_file>.tmp`` and renamed, so a failed write never leaves a
 truncated file under the final name; a failure (missing folder, disk full, ...) makes Terminate return
 Error with a message naming ``zmap_file``, the path and the system's reason. :func:`read_zmap` reads
 such a file back.

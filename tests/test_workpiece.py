@@ -8,7 +8,7 @@ from __future__ import annotations
 import math
 import time
 from pathlib import Path
-from typing import Sequence
+from typing import Iterator, Sequence
 
 import numpy as np
 import pytest
@@ -352,6 +352,71 @@ def test_the_final_zmap_file_holds_the_reference_heights_bit_for_bit(fmu: Path, 
     if name == "bull nose":  # cells cut through the bottom: stock_z_min
         assert np.count_nonzero(heights == zmap.z0) > 100
     assert not (tmp_path / "final.asc.tmp").exists()
+
+
+COMMA_LOCALES = ("de_DE", "fr_FR", "ru_RU")
+
+
+@pytest.fixture
+def comma_locale(tmp_path_factory: pytest.TempPathFactory) -> Iterator[str]:
+    """The process's LC_NUMERIC set to a locale whose decimal point is a comma, restored afterwards: an
+    installed one (`locale -a`), else one compiled with localedef from the system's locale sources into a
+    temporary LOCPATH (glibc reads it at each setlocale); skips with the reason when neither is possible."""
+    import locale
+    import os
+    import shutil
+    import subprocess
+
+    def comma(name: str) -> bool:
+        try:
+            locale.setlocale(locale.LC_NUMERIC, name)
+            return locale.localeconv()["decimal_point"] == ","
+        except locale.Error:
+            return False
+
+    saved, saved_locpath = locale.setlocale(locale.LC_NUMERIC), os.environ.get("LOCPATH")
+    try:
+        found = next((f"{n}.UTF-8" for n in COMMA_LOCALES if comma(f"{n}.UTF-8") or comma(f"{n}.utf8")), None)
+        sources = Path("/usr/share/i18n/locales")
+        if found is None and shutil.which("localedef"):
+            folder = tmp_path_factory.mktemp("locales")
+            for name in COMMA_LOCALES:
+                if (sources / name).exists() and subprocess.run(
+                        ["localedef", "-i", name, "-f", "UTF-8", str(folder / f"{name}.UTF-8")],
+                        capture_output=True).returncode in (0, 1):  # 1: warnings, the locale is written
+                    os.environ["LOCPATH"] = str(folder)
+                    if comma(f"{name}.UTF-8"):
+                        found = f"{name}.UTF-8"
+                        break
+        if found is None:
+            pytest.skip(f"no locale with a decimal comma: none of {COMMA_LOCALES} is installed (`locale -a`) and "
+                        f"localedef cannot compile one from {sources}")
+        yield found
+    finally:
+        if saved_locpath is None:
+            os.environ.pop("LOCPATH", None)
+        else:
+            os.environ["LOCPATH"] = saved_locpath
+        locale.setlocale(locale.LC_NUMERIC, saved)
+
+
+def test_the_zmap_file_s_numbers_use_a_point_in_a_comma_locale(fmu: Path, tmp_path: Path, comma_locale: str) -> None:
+    """An importer running with LC_NUMERIC a decimal-comma locale (C's printf then writes 1,5): the file is the
+    same as in the C locale, a point in every number, and reads back to the reference's heights bit for bit."""
+    import locale
+    parameters, points = PATHS["bull nose"]  # dx != dy: the header's dx and dy too
+    points = points[:200]
+    assert locale.localeconv()["decimal_point"] == "," and "%.1f" % 1.5 == "1.5"  # Python's % ignores it
+    target = tmp_path / "final.asc"
+    slave = run_to_file(fmu, parameters, points, str(target))
+    assert status_of(slave.fmu.terminate) == OK
+    slave.unload()
+    text = target.read_text()
+    assert "," not in text and "." in text
+    _, zmap = run_reference(parameters, points)
+    x, y, heights = read_zmap(target)
+    assert np.array_equal(heights, zmap.heights)
+    assert np.array_equal(x, zmap.x0 + (np.arange(zmap.nx) + 0.5) * zmap.dx)
 
 
 def test_a_relative_zmap_file_is_relative_to_the_working_directory(fmu: Path, tmp_path: Path,

@@ -8,6 +8,7 @@
  * finely costs little, and the outputs stay those of the reference to the last bit. */
 #include <errno.h>
 #include <float.h>
+#include <locale.h>
 #include <math.h>
 #include <stdio.h>
 #include <string.h>
@@ -662,22 +663,56 @@ void model_update_outputs(FmuInstance *instance) { (void)instance; }
 
 void model_free_internal(FmuInstance *instance) { (void)instance; }
 
-/* The heights as an ESRI ASCII grid (models/workpiece.py: the final Z-map) to f; false on a write error. */
+/* The characters of the decimal point of the process's LC_NUMERIC locale (printf writes it: "," in a
+ * decimal-comma locale an importer may run in), or NULL when it is "." (the C locale's). */
+static const char *locale_point(void) {
+    const struct lconv *conventions = localeconv();
+    const char *point = conventions ? conventions->decimal_point : NULL;
+    return point && point[0] != '\0' && strcmp(point, ".") != 0 ? point : NULL;
+}
+
+/* Writes the number with %.17g (read back, the same double) and `end` after it, with a '.' for the decimal
+ * point whatever the locale: `point` (locale_point()) replaced. Returns fprintf's result. */
+static int write_number(FILE *f, const char *point, double value, char end) {
+    char text[64];
+    const int n = snprintf(text, sizeof text, "%.17g", value);
+    if (n < 0 || (size_t)n >= sizeof text) return -1;
+    if (point) {
+        char *at = strstr(text, point);
+        if (at) { /* the point's characters (one in every common locale) become one '.' */
+            const size_t length = strlen(point);
+            *at = '.';
+            memmove(at + 1, at + length, strlen(at + length) + 1);
+        }
+    }
+    return fprintf(f, "%s%c", text, end);
+}
+
+/* The heights as an ESRI ASCII grid (models/workpiece.py: the final Z-map) to f; false on a write error. Every
+ * number has a '.' as its decimal point, in any locale. */
 static bool write_grid(const FmuInstance *instance, FILE *f) {
     const ModelInternal *w = &instance->internal;
     const ModelVariables *v = &instance->v;
+    const char *point = locale_point();
     size_t i, j;
-    fprintf(f, "ncols %zu\nnrows %zu\nxllcorner %.17g\nyllcorner %.17g\n", w->nx, w->ny, v->stock_x_min,
-            v->stock_y_min);
-    if (w->dx == w->dy)
-        fprintf(f, "cellsize %.17g\n", w->dx);
-    else
-        fprintf(f, "dx %.17g\ndy %.17g\n", w->dx, w->dy);
+    fprintf(f, "ncols %zu\nnrows %zu\nxllcorner ", w->nx, w->ny);
+    write_number(f, point, v->stock_x_min, '\n');
+    fprintf(f, "yllcorner ");
+    write_number(f, point, v->stock_y_min, '\n');
+    if (w->dx == w->dy) {
+        fprintf(f, "cellsize ");
+        write_number(f, point, w->dx, '\n');
+    } else {
+        fprintf(f, "dx ");
+        write_number(f, point, w->dx, '\n');
+        fprintf(f, "dy ");
+        write_number(f, point, w->dy, '\n');
+    }
     fprintf(f, "NODATA_value -9999\n");
     for (j = w->ny; j-- > 0;) { /* from north (largest y) to south */
         const double *row = instance->heap + j * w->nx;
         for (i = 0; i < w->nx; i++)
-            if (fprintf(f, i + 1 < w->nx ? "%.17g " : "%.17g\n", row[i]) < 0) return false;
+            if (write_number(f, point, row[i], i + 1 < w->nx ? ' ' : '\n') < 0) return false;
     }
     return !ferror(f);
 }

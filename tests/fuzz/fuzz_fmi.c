@@ -617,6 +617,28 @@ static char *temp_program(Harness *h) {
     return path;
 }
 
+/* A fuzzed string made a path no file can be read from or created at, whatever follows (a String parameter may
+ * name a file read -- the Interpolator's program -- or written at Terminate -- the Workpiece's zmap_file, also
+ * as "<path>.tmp"): it starts with "/dev/null/", and a path through a file that is no directory fails (ENOTDIR),
+ * also for a process running as root and with ".." after it. A string at least as long as the prefix keeps its
+ * length (the capacity's edge cases), a shorter one is appended to the prefix. */
+static char *off_the_file_system(char *fuzzed, size_t *length) {
+    static const char prefix[] = "/dev/null/";
+    const size_t n = sizeof prefix - 1;
+    char *path;
+    if (*length >= n) {
+        memcpy(fuzzed, prefix, n);
+        return fuzzed;
+    }
+    path = malloc(n + *length + 1);
+    REQUIRE(path != NULL, "out of memory");
+    memcpy(path, prefix, n);
+    memcpy(path + n, fuzzed, *length + 1);
+    free(fuzzed);
+    *length += n;
+    return path;
+}
+
 static void op_string(Harness *h, bool set) {
     unsigned vr[2];
     const char *x[2];
@@ -634,12 +656,11 @@ static void op_string(Harness *h, bool set) {
             case 0: x[i] = NULL, valid = false; break;
             case 1: x[i] = ""; break;
             case 2: x[i] = "/nonexistent/program.nc"; break;
-            case 3: x[i] = "/"; break;
+            case 3: x[i] = "/proc/"; break; /* a directory, in which nothing can be created (a file written to it) */
             case 4: x[i] = temp_program(h); break;
             default:
                 owned[i] = fuzz_string(h, &length);
-                /* kept off the file system: a fuzzed path could name a device or a huge file */
-                if (length > 1) owned[i][0] = '/', owned[i][1] = '~';
+                if (length > 0) owned[i] = off_the_file_system(owned[i], &length);
                 x[i] = owned[i];
                 if (length >= FMU_STRING_CAPACITY) valid = false;
                 break;

@@ -1,0 +1,138 @@
+"""The whole-part scenarios: the engagement-driven variable step against the all-fine-step run, speed, volumes.
+
+    .venv/bin/python tests/benchmarks/whole_part.py [--fmu-dir build/fmus] [--out runs/benchmarks/whole_part]
+        [--parts scenarios/al_bracket.toml scenarios/umich_part.toml]
+
+Per part, in one process and one after the other (ratios of runs made minutes apart on the same machine):
+
+- the part as written (force and vibration at 10 us in and near material, one 1 ms step in air: ``[stepping]``)
+  and the same scenario without ``[stepping]`` (force and vibration at 10 us throughout: the all-fine run), both
+  on the fast path; the stepping loop's wall time of each and their ratio; the real-time factor of the variable
+  run (simulated machining time / wall time of the loop, and / wall time of the whole command: set-up, loop,
+  writing, comparisons and the process report);
+- in material (rows with ``workpiece.axial_depth`` > 0 in the all-fine run): the RMS difference of Fx, Fy, torque
+  and the tip deflection x and y between the two runs, relative to the all-fine run's RMS of each;
+- the machining time (the last row at which the Interpolator's position changes) of both, the removed volume
+  (the Workpiece's ``removed_volume`` at the end) of both, and against stock - final Z-map volume;
+- per straight cut at constant depth, the volume removed over its steady part against width x length x depth
+  (the process report's ``volume_ratio``): count, mean, min, max.
+
+Printed as a table; every figure in ``OUT/whole_part.json``.
+"""
+from __future__ import annotations
+
+import argparse
+import dataclasses
+import json
+import time
+from pathlib import Path
+
+import numpy as np
+import pandas as pd
+
+import milling_twin
+from milling_twin.api import default_fmu_dir
+from milling_twin.orchestrator.part.model import FORCE, INTERPOLATOR, VIBRATION, WORKPIECE
+
+REPO = Path(__file__).resolve().parents[2]
+PARTS = (REPO / "scenarios" / "al_bracket.toml", REPO / "scenarios" / "umich_part.toml")
+COMPARED = (f"{FORCE}.Fx", f"{FORCE}.Fy", f"{FORCE}.torque", f"{VIBRATION}.tip_displacement_x",
+            f"{VIBRATION}.tip_displacement_y")
+
+
+def machining_time(frame: pd.DataFrame) -> float:
+    """The last output time at which the tool's position changed."""
+    xyz = frame[[f"{INTERPOLATOR}.x", f"{INTERPOLATOR}.y", f"{INTERPOLATOR}.z"]].to_numpy()
+    moving = np.flatnonzero(np.any(np.diff(xyz, axis=0) != 0.0, axis=1))
+    return float(frame["time"].to_numpy()[moving[-1] + 1]) if moving.size else 0.0
+
+
+def measure(path: Path, fmu_dir: Path, out: Path) -> dict:
+    scenario = milling_twin.load_scenario(path, fmu_dir)
+    runs = {}
+    for label, case in (("variable", scenario),
+                        ("all_fine", dataclasses.replace(scenario, stepping=None, name=f"{scenario.name}_all_fine"))):
+        start = time.perf_counter()
+        res = milling_twin.simulate(case, out=out, stepping="fast")
+        runs[label] = (res, time.perf_counter() - start)
+    (var, var_wall), (fine, fine_wall) = runs["variable"], runs["all_fine"]
+    a, b = var.frame, fine.frame
+    assert np.array_equal(a["time"].to_numpy(), b["time"].to_numpy())
+    cut = b[f"{WORKPIECE}.axial_depth"].to_numpy() > 0.0
+    differences = {}
+    for column in COMPARED:
+        x, y = a[column].to_numpy()[cut], b[column].to_numpy()[cut]
+        rms = float(np.sqrt(np.mean(y ** 2)))
+        differences[column] = float(np.sqrt(np.mean((x - y) ** 2))) / rms if rms > 0 else 0.0
+    t_var, t_fine = machining_time(a), machining_time(b)
+    v_var = float(a[f"{WORKPIECE}.removed_volume"].iloc[-1])
+    v_fine = float(b[f"{WORKPIECE}.removed_volume"].iloc[-1])
+    process = var.process_report
+    ratios = _volume_ratios(var.run.run_dir)
+    return {
+        "part": path.name, "simulated_time": var.run.end_time, "rows": var.run.rows,
+        "fine_intervals": var.run.fine_intervals, "coarse_intervals": var.run.coarse_intervals,
+        "in_material_fraction": float(np.mean(cut)),
+        "loop_wall_time": {"variable": var.run.loop_wall_time, "all_fine": fine.run.loop_wall_time},
+        "command_wall_time": {"variable": var_wall, "all_fine": fine_wall},
+        "fmu_steps": {"variable": var.run.fmu_steps, "all_fine": fine.run.fmu_steps},
+        "speedup_loop": fine.run.loop_wall_time / var.run.loop_wall_time,
+        "speedup_command": fine_wall / var_wall,
+        "real_time_factor_loop": t_var / var.run.loop_wall_time,
+        "real_time_factor_command": t_var / var_wall,
+        "rms_difference_in_material": differences,
+        "machining_time": {"variable": t_var, "all_fine": t_fine},
+        "removed_volume": {"variable": v_var, "all_fine": v_fine,
+                           "relative_difference": abs(v_var - v_fine) / v_fine if v_fine else 0.0,
+                           "stock_minus_zmap": process.removed_volume_zmap if process else None},
+        "volume_ratio_straight_cuts": {"count": int(ratios.size),
+                                       "mean": float(np.mean(ratios)) if ratios.size else None,
+                                       "min": float(np.min(ratios)) if ratios.size else None,
+                                       "max": float(np.max(ratios)) if ratios.size else None},
+        "process_report": str(process.html) if process else None,
+    }
+
+
+def _volume_ratios(run_dir: Path) -> np.ndarray:
+    """The process report's removed / analytic volume of the straight cuts at constant depth."""
+    path = run_dir / "blocks.parquet"
+    blocks = pd.read_parquet(path) if path.is_file() else pd.DataFrame()
+    return blocks["volume_ratio"].dropna().to_numpy() if "volume_ratio" in blocks else np.zeros(0)
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    parser.add_argument("--fmu-dir", type=Path, default=default_fmu_dir())
+    parser.add_argument("--out", type=Path, default=Path("runs/benchmarks/whole_part"))
+    parser.add_argument("--parts", type=Path, nargs="+", default=list(PARTS))
+    args = parser.parse_args()
+    args.out.mkdir(parents=True, exist_ok=True)
+    results = [measure(path, args.fmu_dir, args.out) for path in args.parts]
+    for r in results:
+        d = r["rms_difference_in_material"]
+        print(f"{r['part']}: {r['simulated_time']:.1f} s simulated, in material {100 * r['in_material_fraction']:.1f} %"
+              f" of the rows, {r['fine_intervals']} of {r['fine_intervals'] + r['coarse_intervals']} intervals fine")
+        print(f"  loop wall time: variable {r['loop_wall_time']['variable']:.2f} s, all-fine "
+              f"{r['loop_wall_time']['all_fine']:.2f} s: {r['speedup_loop']:.2f}x; whole command "
+              f"{r['command_wall_time']['variable']:.2f} s vs {r['command_wall_time']['all_fine']:.2f} s: "
+              f"{r['speedup_command']:.2f}x; doSteps {r['fmu_steps']['variable']} vs {r['fmu_steps']['all_fine']}")
+        print(f"  real-time factor (variable): {r['real_time_factor_loop']:.2f} (loop), "
+              f"{r['real_time_factor_command']:.2f} (whole command)")
+        print("  RMS difference in material / RMS: " + ", ".join(f"{k} {100 * v:.3g} %" for k, v in d.items()))
+        m, v = r["machining_time"], r["removed_volume"]
+        zmap = v["stock_minus_zmap"]
+        print(f"  machining time {m['variable']:.4f} s vs {m['all_fine']:.4f} s; removed volume "
+              f"{v['variable'] * 1e6:.6f} vs {v['all_fine'] * 1e6:.6f} cm3 (relative difference "
+              f"{v['relative_difference']:.2e}); stock - final Z-map "
+              + (f"{zmap * 1e6:.6f} cm3" if zmap is not None else "n/a"))
+        q = r["volume_ratio_straight_cuts"]
+        if q["count"]:
+            print(f"  straight cuts at constant depth: {q['count']} blocks, removed / analytic volume mean "
+                  f"{q['mean']:.4f} (min {q['min']:.4f}, max {q['max']:.4f})")
+    path = args.out / "whole_part.json"
+    path.write_text(json.dumps(results, indent=2))
+    print(f"figures: {path}")
+
+
+if __name__ == "__main__":
+    main()

@@ -38,11 +38,20 @@ algorithm in numpy, do:
    cutter's circle at its height by more than half a cell diagonal, so in a cell whose centre is
    inside it; a point in material but not cutting lies on a wall parallel to the feed that the
    cutter merely touches. A run of consecutive engaged angle samples counts only if it holds a
-   cutting point (a pass retracing an earlier one cuts nothing and is not engaged), and only the
+   cutting point (a pass retracing an earlier one cuts nothing and is not engaged), and only
    cutting points' heights make its engaged height: the walls an earlier level left at the tool
    radius, standing above the layer now cut (a slot or pocket cut again deeper, a side cut along
-   such a wall), touch the cutter over their whole height, but only the layer is cut. Within about
-   ``sqrt(2 R delta)`` of the end of an earlier cut, a retrace still sees that cut's end wall.
+   such a wall), touch the cutter over their whole height, but only the layer is cut. Along an arc
+   of path radius rho such a wall meets the test circle ``delta (R + delta/2) / rho`` farther inside
+   the radius than along a straight path, so the height is that of the run's *deep* points, cutting
+   points inside the circle by more than ``arc_margin = half diagonal + 2 delta (1 + delta / 2R)``
+   (such walls along arcs down to ``rho = R/2``; 0.69 mm on a 0.25 mm grid), and only a run without
+   deep points (a cut narrower than about ``arc_margin``: a finishing pass) takes its cutting points'
+   heights. The price: a sliver narrower than ``arc_margin`` at the flank, standing above a wider
+   cut of a lower layer (a second level whose path strays from the first), is left out of the
+   height. Within about ``sqrt(2 R delta)`` of the end of an earlier cut (more along an arc), within
+   ``delta`` of a corner of the earlier path and along arcs tighter than ``R/2``, a pass still sees
+   the earlier level's walls: a retrace is engaged there, a deeper level reports their height.
 
    - ``entry_angle`` / ``exit_angle``: the first and last engaged angle. ``M + 1`` angles
      ``phi_m = m pi / M`` (``M = ceil(pi R / delta)``, about one cell of arc) are each tested over
@@ -52,9 +61,10 @@ algorithm in numpy, do:
      found there is taken back to the cutter's circle at the same lateral position (exact for a
      wall parallel to the feed): ``cos(angle) = clamp((r_top + delta) / r_top * cos(phi), -1, 1)``.
      Slotting gives exactly (0, pi); half immersion down milling (pi/2, pi).
-   - ``axial_depth``: the largest height of a cutting point over the counted runs (exact where the
-     material cut is flat-topped: the column's height, not a sample height; the layer's thickness on
-     a second level of a flat end mill: 1.5 mm for a slot at 1.5 mm cut again at 3 mm). A ball or
+   - ``axial_depth``: the largest height of the counted runs, each run's that of its deep points, or of
+     its cutting points when it has no deep point (exact where the material cut is flat-topped: the
+     column's height, not a sample height; the layer's thickness on a second level of a flat end mill:
+     1.5 mm for a slot at 1.5 mm cut again at 3 mm). A ball or
      bull-nose end mill cut again deeper along its earlier path also widens the groove at its top
      edges, so there it reports the height up to the material it cuts there (for a ball: up to the
      stock top).
@@ -294,6 +304,9 @@ class ZMap:
         self.flat = self.radius - self.corner
         self.delta = min(self.dx, self.dy)
         self.half_diagonal = 0.5 * math.sqrt(self.dx * self.dx + self.dy * self.dy)
+        # how far inside the cutter's radius the test circle meets an earlier level's wall along an arc
+        # of path radius R/2: the engaged height comes from points farther in (module docstring, step 2)
+        self.arc_margin = self.half_diagonal + 2.0 * self.delta * (1.0 + 0.5 * self.delta / self.radius)
         self.heights = np.full((self.ny, self.nx), self.top)
         # angle samples of the front half and profile samples (height, radius) along the corner arc
         self.n_angles = math.ceil(math.pi * self.radius / self.delta)
@@ -427,23 +440,28 @@ class ZMap:
         # a test point beside the cutter's circle (its lateral offset within half a cell diagonal of the
         # radius, or beyond) only touches a wall: runs without a cutting point are no cut, and the
         # heights such points see (a wall an earlier pass left at the radius, standing above the layer
-        # now cut) are not engaged heights
+        # now cut) are not engaged heights; nor those within arc_margin of the radius when the run has
+        # points farther in (such a wall along an arc reaches that far in)
         lateral = np.abs(rho[None, :] * self.cos_phi[:, None])
         cutting = engaged & (lateral < self.profile_r[None, :] - self.half_diagonal)
-        top = np.where(cutting, np.minimum(height, self.profile_next[None, :]), -np.inf).max(axis=1)
+        deep = engaged & (lateral < self.profile_r[None, :] - self.arc_margin)
+        capped = np.minimum(height, self.profile_next[None, :])
+        top = np.where(cutting, capped, -np.inf).max(axis=1)
+        deep_top = np.where(deep, capped, -np.inf).max(axis=1)
         first, last, axial, m = -1, -1, -math.inf, 0
         while m <= self.n_angles:  # runs of consecutive engaged samples
             if not any_engaged[m]:
                 m += 1
                 continue
-            start, run_top = m, -math.inf
+            start, run_top, run_deep = m, -math.inf, -math.inf
             while m <= self.n_angles and any_engaged[m]:
                 run_top = max(run_top, float(top[m]))
+                run_deep = max(run_deep, float(deep_top[m]))
                 m += 1
             if run_top > -math.inf:  # the run has a cutting point
                 first = start if first < 0 else first
                 last = m - 1
-                axial = max(axial, run_top)
+                axial = max(axial, run_deep if run_deep > -math.inf else run_top)
         if first < 0:
             return out
         entry, exit_ = self._angle(first), self._angle(last)

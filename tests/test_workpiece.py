@@ -761,6 +761,45 @@ def test_a_slot_cut_again_deeper_reports_the_layer(fmu: Path, tool: str, angle: 
             assert not np.any(top_row[N_THETA // 4 - 1]) and not np.any(top_row[N_THETA // 4])
 
 
+@pytest.mark.parametrize("path_radius", [10.0, 5.0, 3.5])
+def test_an_arc_cut_again_deeper_reports_the_layer(fmu: Path, path_radius: float) -> None:
+    """Three quarters of a circle of path radius 2R, R and 0.7 R (R = 5 mm) at 1.5 mm, then at 3 mm: the
+    first level's outer wall along the arc meets the probe circle delta (R + delta/2) / path radius farther
+    inside the cutter's radius than a straight wall does (0.13, 0.26 and 0.37 mm here, on top of the half cell
+    diagonal of the cells' rounding, 0.18 mm), and the heights come from the points farther in than
+    arc_margin (made for path radii down to R/2: 0.69 mm on this grid): the layer, 1.5 mm,
+    along the arc (taking the cutting points' heights gave 3 mm over 14 %, 69 % and 92 % of it), but for its
+    last 4 mm, where the end wall of the first level's arc comes into view."""
+    rho, centre = path_radius * MM, (50 * MM, 30 * MM)
+    points, slices = [], []
+    for depth in (1.5 * MM, 3.0 * MM):
+        turn = arc(centre, rho, -math.pi / 2, 0.75 * 1.5 * math.pi, TOP - depth, 0.1 * MM)
+        lead = polyline([(30 * MM, centre[1] - rho, TOP - depth), turn[0]], 0.1 * MM)
+        points = chain(points, lead, turn) if points else chain(lead, turn)
+        slices.append(slice(len(points) - len(turn), len(points) - 40))  # not the last 4 mm: the end wall
+        points = chain(points, [(points[-1][0], points[-1][1], TOP + 5 * MM)])
+    rows = run_both(fmu, {}, points)
+    for level in range(2):
+        axial = rows[slices[level], OUTPUTS.index("axial_depth")]
+        assert np.all(axial == pytest.approx(1.5 * MM, rel=1e-12)), (level, np.unique(axial))
+
+
+@pytest.mark.parametrize("radial", [0.3, 0.6])
+def test_a_thin_side_cut_reports_its_height(fmu: Path, radial: float) -> None:
+    """A finishing cut 0.3 or 0.6 mm wide along the block's -y face, 2 mm deep: its cutting points all lie
+    within arc_margin of the radius (none farther in), so its height is theirs: 2 mm, the radial depth
+    a_e within a thousandth of a mm (up milling: entry 0)."""
+    radius, ae = 5 * MM, radial * MM
+    points = slot_points((-10 * MM, ae - radius, 28 * MM), (50 * MM, ae - radius, 28 * MM), 0.1 * MM)
+    rows = run_both(fmu, {}, points)
+    zmap = ZMap({}, points[0])
+    assert zmap.half_diagonal < ae < zmap.arc_margin
+    out = {name: rows[-200:, k] for k, name in enumerate(OUTPUTS)}
+    assert np.all(out["axial_depth"] == pytest.approx(2 * MM, rel=1e-12))
+    assert np.all(out["entry_angle"] == 0.0)
+    assert np.all(np.abs(out["radial_depth"] - ae) <= 1e-3 * MM)
+
+
 def test_a_pocket_s_second_level_reports_the_layer(fmu: Path) -> None:
     """A pocket roughed in two levels (1.5 mm, then 4 mm): a loop around the 30 x 20 mm rectangle of
     the tool's path, then a loop offset 3 mm inside it, on each level. On the second level the outer

@@ -31,6 +31,9 @@ typedef struct {
     double dx, dy;          /* cell size [m] */
     double delta;           /* min(dx, dy): offset of the engagement test outside the cutting circle [m] */
     double half_diagonal;   /* of a cell: how far a point may lie from the centre of its cell [m] */
+    double arc_margin;      /* half_diagonal + 2 delta (1 + delta / 2R): how far inside the cutter's radius the
+                             * test circle meets a wall an earlier level left along an arc of path radius R/2;
+                             * the engaged height comes from points farther in (model.c: scan()) [m] */
     double top;             /* top of the stock block [m] */
     double radius, corner, flat; /* tool radius, corner radius, radius of the flat bottom [m] */
     size_t n_angles, n_corner;

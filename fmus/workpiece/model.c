@@ -104,6 +104,7 @@ FmuStatus model_exit_initialization(FmuInstance *instance) {
     w->radius = 0.5 * v->tool_diameter;
     w->corner = v->corner_radius;
     w->flat = w->radius - w->corner;
+    w->arc_margin = w->half_diagonal + 2.0 * w->delta * (1.0 + 0.5 * w->delta / w->radius);
     w->n_angles = (size_t)ceil(PI * w->radius / w->delta);
     w->n_corner = w->corner > 0.0 ? (size_t)ceil(0.5 * PI * w->corner / w->delta) : 0;
     w->cos_phi = w->nx * w->ny;
@@ -397,39 +398,44 @@ static bool scan(const FmuInstance *instance, ProbeRooms *rooms, size_t *first, 
     *axial = -INFINITY;
     while (m <= w->n_angles) {
         const size_t start = m;
-        double run_top = -INFINITY;
+        double run_top = -INFINITY, run_deep = -INFINITY;
         for (; m <= w->n_angles; m++) {
             const double c = heap[w->cos_phi + m], s = heap[w->sin_phi + m];
             const double ux = s * fx - c * fy, uy = s * fy + c * fx;
-            double best = -INFINITY; /* the highest engaged height of a cutting test point */
+            double best = -INFINITY, best_deep = -INFINITY; /* the highest engaged height of a cutting point */
             bool in_material = false;
             for (k = 0; k <= w->n_corner; k++) {
                 const double rho = heap[w->profile_r + k] + w->delta;
                 const double above = height_above(instance, rooms, x + rho * ux, y + rho * uy, z);
                 if (above > heap[w->profile_z + k]) {
+                    const double lateral = fabs(rho * c);
                     in_material = true;
                     /* a test point beside the cutter's circle (within half a cell diagonal of its radius, or
                      * beyond) only touches a wall: runs without a cutting point are no cut, and the heights
                      * such points see (a wall an earlier pass left at the radius, standing above the layer
-                     * now cut) are not engaged heights */
-                    if (fabs(rho * c) < heap[w->profile_r + k] - w->half_diagonal) {
+                     * now cut) are not engaged heights; nor those within arc_margin of the radius when the
+                     * run has points farther in (such a wall along an arc reaches that far in) */
+                    if (lateral < heap[w->profile_r + k] - w->half_diagonal) {
                         const double top = k < w->n_corner ? min2(above, heap[w->profile_z + k + 1]) : above;
                         if (top > best) best = top;
+                        if (lateral < heap[w->profile_r + k] - w->arc_margin && top > best_deep) best_deep = top;
                     }
                 }
             }
             if (!in_material) break;
             if (best > run_top) run_top = best;
+            if (best_deep > run_deep) run_deep = best_deep;
         }
         if (m == start) { /* not engaged */
             m++;
             continue;
         }
         if (run_top > -INFINITY) { /* the run has a cutting point */
+            const double height = run_deep > -INFINITY ? run_deep : run_top;
             if (!engaged) *first = start;
             engaged = true;
             *last = m - 1;
-            if (run_top > *axial) *axial = run_top;
+            if (height > *axial) *axial = height;
         }
     }
     return engaged;

@@ -83,7 +83,10 @@ def parse_override(text: str) -> tuple[str, object]:
         value = float(match.group(1))
         if not math.isfinite(value):
             raise UsageError(f"--set {key}: {raw!r} is not a finite number")
-        return key, {"value": value, "unit": match.group(2).strip()} if match.group(2) else value
+        if match.group(2):
+            return key, {"value": value, "unit": match.group(2).strip()}
+        # a whole number stays one, as in TOML: an Integer/Int32 parameter (n_flutes) takes it, a Real one too
+        return key, int(match.group(1)) if re.fullmatch(r"\s*[+-]?\d+\s*", match.group(1)) else value
     if raw.strip().lower().lstrip("+-") in ("nan", "inf", "infinity"):
         raise UsageError(f"--set {key}: {raw.strip()!r} is not a finite number")
     if raw.strip().lower() in ("true", "false"):

@@ -40,12 +40,12 @@ def run_summary(results: api.Results) -> str:
         lines.append(f"plot: {result.run_dir / c.plot}")
     process = results.process_report
     if process is not None:  # a whole-part scenario: the headline of its process report
-        zmap = (f", stock - final Z-map {process.removed_volume_zmap * 1e6:.4g} cm3"
+        zmap = (f" (stock - final Z-map {process.removed_volume_zmap * 1e6:.6g} cm3)"
                 if process.removed_volume_zmap is not None else "")
         lines.append(f"part: machining {process.machining_time:.2f} s, in material {process.cutting_time:.2f} s; "
                      f"max force {process.max_force:.4g} N, torque {process.max_torque:.4g} N.m, power "
                      f"{process.max_power / 1e3:.4g} kW, deflection {process.max_deflection * 1e6:.4g} um; removed "
-                     f"{process.removed_volume * 1e6:.4g} cm3{zmap}; {process.blocks} blocks, "
+                     f"{process.removed_volume * 1e6:.6g} cm3{zmap}; {process.blocks} blocks, "
                      f"{process.chatter_blocks} in chatter")
         lines.extend(f"part warning: {w}" for w in process.warnings)
         lines.append(f"process report: {process.html}" + (f", surface: {process.stl}" if process.stl else ""))

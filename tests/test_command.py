@@ -99,6 +99,15 @@ def test_set_overrides_parse(text: str, expected: tuple) -> None:
     assert parse_override(text) == expected
 
 
+def test_a_whole_number_set_stays_an_integer(make_case, fmu_dir, tmp_path) -> None:
+    """--set force.n_flutes=3 sets an Int32 parameter (a float 3.0 was refused: 'give a whole number'), and a whole
+    number still sets a Real one."""
+    key, value = parse_override("force.n_flutes=3")
+    assert (key, value, type(value)) == ("force.n_flutes", 3, int)
+    assert main(["run", str(make_case()), "--fmu-dir", str(fmu_dir), "--out", str(tmp_path), "--no-progress",
+                 "--set", "power.P_standby=600"]) == 0
+
+
 @pytest.mark.parametrize("text", ["P_idle=3", "power.P_idle", "=3", "power.=3", "power.c1=nan"])
 def test_bad_set_overrides_are_usage_errors(text: str) -> None:
     with pytest.raises(UsageError, match="--set"):

@@ -34,6 +34,7 @@ import numpy as np
 import pandas as pd
 from matplotlib.figure import Figure  # no pyplot: no global figure state, Agg by default
 
+from milling_twin.orchestrator.json_values import jsonable
 from milling_twin.orchestrator.results import load_results
 from milling_twin.orchestrator.scenario import Compare, Scenario
 from milling_twin.orchestrator.align import TimeMap, align_results
@@ -159,7 +160,7 @@ def write_report(scenario: Scenario, run_dir: str | Path, results: pd.DataFrame 
         doc["alignment"] = {"method": time_map.method, "samples": int(time_map.recorded_time.size),
                             "mean_confidence": float(np.mean(time_map.confidence)), "time_map": "time_map.csv"}
     tmp = path.with_name(".report.json.tmp")
-    tmp.write_text(json.dumps(_nan_to_none(doc), indent=2))
+    tmp.write_text(json.dumps(jsonable(doc), indent=2))
     tmp.replace(path)
     return Report(path, comparisons)
 
@@ -188,13 +189,3 @@ def check_summary(scenario: Scenario) -> dict | None:
             "rows_dropped": check.dropped_rows, "summary": check.summary(),
             "problem_rows": [{"row": p.row, "line": p.row + 2, "kind": p.kind, "detail": p.detail}
                              for p in check.problems]}
-
-
-def _nan_to_none(value: object) -> object:
-    if isinstance(value, float) and not math.isfinite(value):
-        return None
-    if isinstance(value, dict):
-        return {k: _nan_to_none(v) for k, v in value.items()}
-    if isinstance(value, list):
-        return [_nan_to_none(v) for v in value]
-    return value

@@ -20,6 +20,7 @@ from typing import Any
 
 import numpy as np
 
+from milling_twin.orchestrator.json_values import jsonable
 from milling_twin.models.units import display_value, format_quantity
 from milling_twin.orchestrator.calibrate.plots import correlation_png, fit_png, residual_png, trace_png
 from milling_twin.orchestrator.calibrate.result import CalibrationResult, Figure, Table
@@ -200,22 +201,6 @@ def summary_lines(result: CalibrationResult) -> list[str]:
     return lines
 
 
-def _jsonable(value: Any) -> Any:
-    if isinstance(value, float):
-        return value if math.isfinite(value) else None
-    if isinstance(value, (np.floating, np.integer)):
-        return _jsonable(value.item())
-    if isinstance(value, np.ndarray):
-        return _jsonable(value.tolist())
-    if isinstance(value, dict):
-        return {str(k): _jsonable(v) for k, v in value.items()}
-    if isinstance(value, (list, tuple)):
-        return [_jsonable(v) for v in value]
-    if isinstance(value, Path):
-        return str(value)
-    return value
-
-
 def write_report(result: CalibrationResult) -> tuple[Path, Path]:
     """Write report.html, report.md, figures/*.png and calibration.json into ``result.out_dir``."""
     out = result.out_dir
@@ -274,6 +259,6 @@ def write_report(result: CalibrationResult) -> tuple[Path, Path]:
         "tables": [{"title": t.title, "header": t.header, "rows": t.rows} for t in result.tables],
         "alignment": result.alignment.__dict__ if result.alignment else None,
     }
-    (out / "calibration.json").write_text(json.dumps(_jsonable(doc), indent=2), encoding="utf-8")
+    (out / "calibration.json").write_text(json.dumps(jsonable(doc), indent=2), encoding="utf-8")
     result.report_html, result.report_md = html_path, md_path
     return html_path, md_path

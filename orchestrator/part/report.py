@@ -18,6 +18,7 @@ from typing import Any
 import numpy as np
 import pandas as pd
 
+from milling_twin.orchestrator.json_values import jsonable
 from milling_twin.models.stability import stability_lobes
 from milling_twin.models.units import conversion_factor
 from milling_twin.orchestrator.part import chatter, plots
@@ -173,20 +174,6 @@ def _blocks_html(table: pd.DataFrame) -> tuple[str, str]:
     body = "".join(("<tr class='chatter'>" if flag else "<tr>") + "".join(f"<td>{html.escape(v)}</td>" for v in row)
                    + "</tr>" for row, flag in zip(rows, flags))
     return f"<div class='scroll'><table><tr>{head}</tr>{body}</table></div>", note
-
-
-def _jsonable(value: Any) -> Any:
-    if isinstance(value, float):
-        return value if math.isfinite(value) else None
-    if isinstance(value, (np.floating, np.integer, np.bool_)):
-        return _jsonable(value.item())
-    if isinstance(value, dict):
-        return {str(k): _jsonable(v) for k, v in value.items()}
-    if isinstance(value, (list, tuple)):
-        return [_jsonable(v) for v in value]
-    if isinstance(value, Path):
-        return str(value)
-    return value
 
 
 def write_process_report(part: Part, frame: pd.DataFrame, run_dir: Path, *, zmap_file: Path | None,
@@ -428,5 +415,5 @@ def write_process_report(part: Part, frame: pd.DataFrame, run_dir: Path, *, zmap
            "comparisons": [asdict(c) for c in comparisons],
            "block_columns": [{"name": c.name, "unit": c.unit, "display_unit": c.display_unit,
                               "description": c.description} for c in COLUMNS]}
-    result.json.write_text(json.dumps(_jsonable(doc), indent=2), encoding="utf-8")
+    result.json.write_text(json.dumps(jsonable(doc), indent=2), encoding="utf-8")
     return result

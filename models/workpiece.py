@@ -49,8 +49,8 @@ algorithm in numpy, do:
    deep points (a cut narrower than about ``arc_margin``: a finishing pass) takes its cutting points'
    heights. The price: a sliver narrower than ``arc_margin`` at the flank, standing above a wider
    cut of a lower layer (a second level whose path strays from the first), is left out of the
-   height. Within about ``sqrt(2 R delta)`` of the end of an earlier cut (more along an arc), within
-   ``delta`` of a corner of the earlier path and along arcs tighter than ``R/2``, a pass still sees
+   height. Within about ``sqrt(2 R delta)`` of the end of an earlier cut (more along an arc), near a
+   corner of the earlier path (the wall ahead) and along arcs tighter than ``R/2``, a pass still sees
    the earlier level's walls: a retrace is engaged there, a deeper level reports their height.
 
    - ``entry_angle`` / ``exit_angle``: the first and last engaged angle. ``M + 1`` angles

@@ -11,8 +11,13 @@ from the y axis, slotting is phi = 0..pi.
 """
 from __future__ import annotations
 
+import contextlib
+import ctypes
+import functools
 import math
+from collections.abc import Callable, Iterator
 from dataclasses import dataclass
+from pathlib import Path
 
 import numpy as np
 
@@ -83,8 +88,14 @@ def stability_lobes(modes_x: tuple[Mode, ...], modes_y: tuple[Mode, ...], ktc: f
     gy = frf(modes_y, omega) if modes_y else np.zeros_like(omega, dtype=complex)
     a0 = gx * gy * (axx * ayy - axy * ayx)
     a1 = axx * gx + ayy * gy
+    # One eigenvalue when only one direction is flexible or the directional matrix is singular. Decided from
+    # the structure, never from the size of a0: a0 is in m^2/N^2 (~1e-11 for a 2e7 N/m tool), and an absolute
+    # tolerance there dropped the coupled solution for stiff tools (a limit 4.7 times too high at 2800 Hz).
+    determinant = axx * ayy - axy * ayx
+    single = not modes_x or not modes_y or abs(determinant) <= 1e-12 * max(abs(axx), abs(axy), abs(ayx),
+                                                                             abs(ayy)) ** 2
     with np.errstate(divide="ignore", invalid="ignore"):
-        if np.allclose(a0, 0):
+        if single:
             eigenvalues = [-1.0 / a1]
         else:
             root = np.sqrt(a1 ** 2 - 4 * a0)
@@ -103,3 +114,242 @@ def stability_lobes(modes_x: tuple[Mode, ...], modes_y: tuple[Mode, ...], ktc: f
         speeds = np.array([60.0 / (n_flutes * (epsilon + 2 * k * math.pi) / omega) for k in range(lobes)])
     depth[~np.isfinite(depth)] = np.nan
     return Lobes(chatter_frequency=f_chatter, depth=depth, speed=speeds)
+
+
+# --- Semi-discretization (time domain, no averaging over the tooth period) -----------------------------------
+#
+# Insperger and Stepan's first-order semi-discretization (Int. J. Numer. Meth. Engng 61 (2004) 117-141;
+# "Semi-Discretization for Time-Delay Systems", Springer 2011). The tool's modes in modal coordinates,
+# state y = (q_1, dq_1/dt, ..., q_n, dq_n/dt), tip displacement r = C y = (x, y). The linear chip law of the
+# zero-order solution without the averaging over the tooth period:
+#     dy/dt = A y + a Ktc P W(t) (r(t) - r(t - tau)),   W(t) = sum_j g_j w(phi_j(t)),
+# with w(phi) the coefficients of Fx, Fy in the regenerated chip (half the integrands of directional_factors),
+# g_j = 1 while flute j is in the immersion, tau the tooth period (the period of W as well). Each of the m
+# steps of tau keeps W at its mean over the step (exact integrals of w), solves the ODE part exactly
+# (matrix exponential) and interpolates the delayed displacement linearly between its two neighbouring
+# samples. The map over one tooth period (the monodromy matrix) acts on the present state and the m
+# delayed displacements; the cut is asymptotically stable when its spectral radius is below 1.
+
+
+def _modal_state_space(modes_x: tuple[Mode, ...], modes_y: tuple[Mode, ...]
+                       ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """(A, P, C): dy/dt = A y + P F for the modes in x then y (modal mass k / wn^2), r = C y."""
+    modes = [(m, 0) for m in modes_x] + [(m, 1) for m in modes_y]
+    size = 2 * len(modes)
+    a, p, c = np.zeros((size, size)), np.zeros((size, 2)), np.zeros((2, size))
+    for i, (m, axis) in enumerate(modes):
+        wn = 2 * math.pi * m.frequency
+        a[2 * i, 2 * i + 1] = 1.0
+        a[2 * i + 1, 2 * i] = -wn ** 2
+        a[2 * i + 1, 2 * i + 1] = -2 * m.damping * wn
+        p[2 * i + 1, axis] = wn ** 2 / m.stiffness
+        c[axis, 2 * i] = 1.0
+    return a, p, c
+
+
+def step_directional_matrices(n_flutes: int, kr: float, entry: float, exit: float, steps: int) -> np.ndarray:
+    """W averaged over each of ``steps`` equal steps of the tooth period, shape (steps, 2, 2): the force per unit
+    depth and Ktc is W (r(t) - r(t - tau)). Flute j is at phi = 2 pi (i / (N m) + j / N) at the start of step i."""
+    width = 2 * math.pi / (n_flutes * steps)
+    result = np.zeros((steps, 2, 2))
+    for i in range(steps):
+        for j in range(n_flutes):
+            low = i * width + 2 * math.pi * j / n_flutes
+            high = low + width
+            for turn in range(int(math.floor((low - exit) / (2 * math.pi))),
+                              int(math.floor((high - entry) / (2 * math.pi))) + 1):
+                lo, hi = max(low, entry + 2 * math.pi * turn), min(high, exit + 2 * math.pi * turn)
+                if hi > lo:
+                    result[i] += 0.5 * np.reshape(directional_factors(lo, hi, kr), (2, 2))
+    return result / width
+
+
+@dataclass(frozen=True)
+class SemiDiscretization:
+    """The per-step matrices of one cut (tool, coefficients, immersion, speed); ``spectral_radius(depth)``."""
+
+    a: np.ndarray  # (d, d) modal state matrix
+    p: np.ndarray  # (d, 2) force -> state derivative
+    c: np.ndarray  # (2, d) state -> tip displacement
+    pw: np.ndarray  # (m, d, 2) Ktc P W_i per step
+    dt: float  # step [s]
+
+    @classmethod
+    def build(cls, modes_x: tuple[Mode, ...], modes_y: tuple[Mode, ...], ktc: float, krc: float, n_flutes: int,
+              speed_rpm: float, entry: float = 0.0, exit: float = math.pi, steps: int | None = None
+              ) -> "SemiDiscretization":
+        if not modes_x and not modes_y:
+            raise ValueError("semi-discretization: no modes in x or y")
+        if n_flutes < 1 or speed_rpm <= 0 or not 0 < exit - entry <= 2 * math.pi:
+            raise ValueError(f"semi-discretization: n_flutes={n_flutes}, speed_rpm={speed_rpm}, entry={entry}, "
+                             f"exit={exit} (need n_flutes >= 1, speed > 0, 0 < exit - entry <= 2 pi)")
+        for axis, modes in (("x", modes_x), ("y", modes_y)):
+            for k, m in enumerate(modes):
+                if not (m.frequency > 0 and m.stiffness > 0 and m.damping >= 0):
+                    raise ValueError(f"semi-discretization: mode {k + 1} in {axis} {m} (need frequency > 0, "
+                                     "stiffness > 0, damping >= 0)")
+        tau = 60.0 / (n_flutes * speed_rpm)
+        immersion = (exit - entry) * n_flutes / (2 * math.pi)
+        m = steps if steps is not None else default_steps(modes_x + modes_y, tau, immersion)
+        if m < 2:
+            raise ValueError(f"semi-discretization: steps={m} (need >= 2)")
+        a, p, c = _modal_state_space(modes_x, modes_y)
+        w = step_directional_matrices(n_flutes, krc / ktc, entry, exit, m)
+        return cls(a=a, p=p, c=c, pw=ktc * np.einsum("dk,ikl->idl", p, w), dt=tau / m)
+
+    @property
+    def steps(self) -> int:
+        return self.pw.shape[0]
+
+    def monodromy(self, depth: float) -> np.ndarray:
+        """The map over one tooth period of (y_i, r_{i-1}, ..., r_{i-m}), square of size d + 2 m."""
+        d, m, dt = self.a.shape[0], self.steps, self.dt
+        coupling = depth * self.pw  # (m, d, 2)
+        phi, gamma0, gamma1 = _step_exponentials(self.a + coupling @ self.c, dt)
+        # y_{i+1} = Phi_i y_i - (Gamma0 - Gamma1) a Ktc P W_i r_{i-m} - Gamma1 a Ktc P W_i r_{i-m+1}
+        oldest = -(gamma0 - gamma1) @ coupling
+        newer = -gamma1 @ coupling
+        size = d + 2 * m
+        y = np.eye(d, size)  # rows of y_i in terms of the initial vector
+        delayed = [np.eye(2, size, k=d + 2 * k) for k in range(m)]  # rows of r_{i-1-k}
+        start = 0  # delayed[(start + k) % m] holds r_{i-1-k}
+        for i in range(m):
+            r_oldest = delayed[(start + m - 1) % m]
+            r_newer = delayed[(start + m - 2) % m]
+            y_next = phi[i] @ y + oldest[i] @ r_oldest + newer[i] @ r_newer
+            start = (start - 1) % m
+            delayed[start] = self.c @ y
+            y = y_next
+        return np.vstack([y] + [delayed[(start + k) % m] for k in range(m)])
+
+    def spectral_radius(self, depth: float) -> float:
+        with _one_blas_thread():
+            return float(np.max(np.abs(np.linalg.eigvals(self.monodromy(depth)))))
+
+
+@contextlib.contextmanager
+def _one_blas_thread() -> Iterator[None]:
+    """The bundled OpenBLAS of numpy and of scipy on one thread while the monodromy's small dense problems are
+    solved (sizes 12 and ~300: threads only add synchronisation, and on a busy 2-core machine their spin-waits made
+    one speed take 10-100 times longer). Restored afterwards; nothing happens for another BLAS."""
+    controls = _openblas_thread_controls()
+    before = [get() for get, _ in controls]
+    for _, set_ in controls:
+        set_(1)
+    try:
+        yield
+    finally:
+        for (_, set_), threads in zip(controls, before):
+            set_(threads)
+
+
+@functools.lru_cache(maxsize=1)
+def _openblas_thread_controls() -> tuple[tuple[Callable[[], int], Callable[[int], None]], ...]:
+    import scipy  # the semi-discretization's expm is scipy's
+
+    controls = []
+    for package in (np, scipy):
+        folder = Path(package.__file__).resolve().parent.parent / f"{package.__name__}.libs"
+        for library in sorted(folder.glob("lib*openblas*.so*")):
+            try:
+                handle = ctypes.CDLL(str(library))
+            except OSError:
+                continue
+            for prefix, suffix in (("scipy_openblas", "64_"), ("scipy_openblas", ""), ("openblas", "64_"),
+                                   ("openblas", "")):
+                get = getattr(handle, f"{prefix}_get_num_threads{suffix}", None)
+                set_ = getattr(handle, f"{prefix}_set_num_threads{suffix}", None)
+                if get is not None and set_ is not None:
+                    get.restype, set_.argtypes = ctypes.c_int, [ctypes.c_int]
+                    controls.append((get, set_))
+                    break
+    return tuple(controls)
+
+
+def _step_exponentials(a: np.ndarray, dt: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """For each step's A (shape (m, d, d)): Phi = exp(A dt), Gamma0 = int_0^dt exp(A (dt - s)) ds and
+    Gamma1 = int_0^dt exp(A (dt - s)) s / dt ds, from the eigen-decomposition (batched, vectorised); a step whose
+    eigenvectors are ill-conditioned takes the exponential of the block matrix [[A, I, 0], [0, 0, I/dt], [0, 0, 0]]
+    dt instead (Van Loan)."""
+    eigenvalues, vectors = np.linalg.eig(a)
+    condition = np.linalg.cond(vectors)
+    good = np.isfinite(condition) & (condition < 1e8)
+    x = eigenvalues * dt
+    small = np.abs(x) < 1e-3
+    safe = np.where(small, 1.0, x)
+    g0 = np.where(small, 1 + x / 2 + x ** 2 / 6, np.expm1(safe) / safe) * dt
+    g1 = np.where(small, 0.5 + x / 6 + x ** 2 / 24, (np.expm1(safe) - safe) / safe ** 2) * dt
+    inverse = np.linalg.inv(np.where(good[:, None, None], vectors, np.eye(a.shape[1])))
+
+    def combine(values: np.ndarray) -> np.ndarray:
+        return np.real(np.einsum("mij,mj,mjk->mik", vectors, values, inverse))
+
+    phi, gamma0, gamma1 = combine(np.exp(x)), combine(g0), combine(g1)
+    if not np.all(good):
+        from scipy.linalg import expm  # scipy only for this rare case
+
+        d = a.shape[1]
+        bad = np.flatnonzero(~good)
+        blocks = np.zeros((len(bad), 3 * d, 3 * d))
+        blocks[:, :d, :d] = a[bad]
+        blocks[:, :d, d:2 * d] = np.eye(d)
+        blocks[:, d:2 * d, 2 * d:] = np.eye(d) / dt
+        exponentials = expm(blocks * dt)
+        phi[bad], gamma0[bad], gamma1[bad] = (exponentials[:, :d, :d], exponentials[:, :d, d:2 * d],
+                                              exponentials[:, :d, 2 * d:])
+    return phi, gamma0, gamma1
+
+
+def default_steps(modes: tuple[Mode, ...], tau: float, immersion: float = 1.0, per_period: int = 24,
+                  per_cut: int = 20, minimum: int = 40, most_for_the_cut: int = 200) -> int:
+    """Steps per tooth period: ``per_period`` per period of the highest mode, ``per_cut`` while a flute cuts
+    (``immersion``: the cut's share of the tooth period; at most ``most_for_the_cut`` steps for that), at least
+    ``minimum``. The limit then moves by < 1 % from m to 2 m steps (docs/models.md)."""
+    highest = max(m.frequency for m in modes)
+    for_the_cut = min(most_for_the_cut, int(math.ceil(per_cut / min(1.0, max(immersion, 1e-9)))))
+    return max(minimum, int(math.ceil(per_period * highest * tau)), for_the_cut)
+
+
+def _depth_scale(modes_x: tuple[Mode, ...], modes_y: tuple[Mode, ...], ktc: float, n_flutes: int) -> float:
+    """Order of magnitude of the limit: Tlusty's 4 k zeta (1 + zeta) / (N Ktc) of the weakest mode."""
+    return min(4 * m.stiffness * m.damping * (1 + m.damping) for m in modes_x + modes_y) / (n_flutes * ktc)
+
+
+def semi_discretization_limit(modes_x: tuple[Mode, ...], modes_y: tuple[Mode, ...], ktc: float, krc: float,
+                              n_flutes: int, speed_rpm: float, entry: float = 0.0, exit: float = math.pi,
+                              steps: int | None = None, rtol: float = 1e-3, ratio: float = 1.25,
+                              max_depth: float | None = None) -> float:
+    """Limiting axial depth [m] at one spindle speed: the smallest depth whose monodromy matrix has a spectral
+    radius >= 1. Depths rise by ``ratio`` from a fifth of the Tlusty scale until the first unstable one (an
+    unstable island narrower than ``ratio`` below it can be missed), then bisection to ``rtol``. ``inf`` when
+    stable up to ``max_depth`` (default 1000 times that scale)."""
+    sd = SemiDiscretization.build(modes_x, modes_y, ktc, krc, n_flutes, speed_rpm, entry, exit, steps)
+    scale = _depth_scale(modes_x, modes_y, ktc, n_flutes)
+    ceiling = max_depth if max_depth is not None else 1000 * scale
+    low = 0.0
+    high = 0.2 * scale
+    while sd.spectral_radius(high) < 1.0:
+        low, high = high, high * ratio
+        if low >= ceiling:
+            return math.inf
+    if low == 0.0:  # unstable at the first depth: halve down to a stable one
+        low = high / 2
+        while sd.spectral_radius(low) >= 1.0:
+            high, low = low, low / 2
+            if low < 1e-6 * scale:
+                return 0.0
+    while high - low > rtol * high:
+        middle = 0.5 * (low + high)
+        if sd.spectral_radius(middle) < 1.0:
+            low = middle
+        else:
+            high = middle
+    return 0.5 * (low + high)
+
+
+def semi_discretization_lobes(modes_x: tuple[Mode, ...], modes_y: tuple[Mode, ...], ktc: float, krc: float,
+                              n_flutes: int, speeds_rpm: np.ndarray | list[float], entry: float = 0.0,
+                              exit: float = math.pi, steps: int | None = None, rtol: float = 1e-3) -> np.ndarray:
+    """Limiting axial depths [m] at the given spindle speeds (``semi_discretization_limit`` at each)."""
+    return np.array([semi_discretization_limit(modes_x, modes_y, ktc, krc, n_flutes, float(n), entry, exit,
+                                               steps, rtol) for n in np.atleast_1d(np.asarray(speeds_rpm, float))])

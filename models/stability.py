@@ -1,10 +1,12 @@
-"""Stability lobes of milling: Altintas and Budak's zero-order (average tooth-passing) solution.
+"""Stability lobes of milling: Altintas and Budak's zero-order (average tooth-passing) solution, and
+Insperger and Stepan's semi-discretization as the time-domain reference.
 
 Given the cutting coefficients, the tool's modes (the same modal parameters as the ToolVibration
 FMU) and the radial immersion, this gives the limiting axial depth of cut a_lim over spindle
 speed. References: Y. Altintas, E. Budak, "Analytical prediction of stability lobes in milling",
 CIRP Annals 44(1), 1995; Y. Altintas, Manufacturing Automation, 2nd ed., Cambridge University
-Press 2012, section 3.4.
+Press 2012, section 3.4; T. Insperger, G. Stepan, "Updated semi-discretization method for periodic
+delay-differential equations with discrete delay", Int. J. Numer. Meth. Engng 61 (2004) 117-141.
 
 Conventions as in the cutting-force model: feed along x, immersion angle phi measured clockwise
 from the y axis, slotting is phi = 0..pi.

@@ -1,4 +1,4 @@
-# The two commands of README: `make demo` (set up, build, run the default scenario) and
+# The two commands of README: `make demo` (set up, build, run the whole-part twins) and
 # `make test` (set up, build, run ctest and pytest). Everything else is a step of those.
 PYTHON ?= python3
 VENV := .venv
@@ -34,15 +34,15 @@ fmus: configure
 build: configure
 	cmake --build $(BUILD) -j $(JOBS)
 
-# simulate -> align -> calibrate -> re-simulate -> report on the bundled UMich run, then the calibrated scenario
-# with the parameter set just written (under runs/; the committed set changes only with calibrate --write-set).
+# The whole-part twin, twice: UMich run 01's program engraving its wax block through every model (Interpolator,
+# Workpiece, CuttingForce <-> ToolVibration, SpindlePower), compared with the recorded positions and spindle power
+# after aligning the recording in time; then the aluminium bracket's process report (forces, torque, power,
+# deflection and chatter block by block, the machined surface as a Z-map and STL). Results in runs/<part>/.
 # Builds only what it runs (`make fmus`), not the C test binaries.
 MILLING_TWIN := $(abspath $(VENV))/bin/milling-twin
 demo: fmus
-	$(MILLING_TWIN) run scenarios/umich_power.toml --fmu-dir $(BUILD)/fmus --out runs --no-progress
-	$(MILLING_TWIN) calibrate scenarios/calibration/umich_power.toml --fmu-dir $(BUILD)/fmus --out runs --no-progress
-	$(MILLING_TWIN) run scenarios/calibration/umich_power_calibrated.toml --fmu-dir $(BUILD)/fmus --out runs \
-	  --parameter-set runs/calibration/umich_power/umich_power.params.toml --no-progress
+	$(MILLING_TWIN) run scenarios/umich_part.toml --fmu-dir $(BUILD)/fmus --out runs --no-progress
+	$(MILLING_TWIN) run scenarios/al_bracket.toml --fmu-dir $(BUILD)/fmus --out runs --no-progress
 
 # clang for the short libFuzzer runs of tests/test_fuzz.py: installed when missing and we are root
 # (CI); otherwise that run is skipped with its reason and the corpus replay in ctest still runs.

@@ -7,9 +7,9 @@ Per part, in one process and one after the other (ratios of runs made minutes ap
 
 - the part as written (force and vibration at 10 us in and near material, one 1 ms step in air: ``[stepping]``)
   and the same scenario without ``[stepping]`` (force and vibration at 10 us throughout: the all-fine run), both
-  on the fast path, ``--repeat`` times each, alternating; the fastest stepping loop of each and their ratio; the real-time factor of the variable
-  run (simulated machining time / wall time of the loop, and / wall time of the whole command: set-up, loop,
-  writing, comparisons and the process report);
+  on the fast path, ``--repeat`` times each, alternating; the fastest stepping loop of each and their ratio; the
+  real-time factor of the variable run (simulated machining time / wall time of the loop, and / wall time of the
+  whole command: set-up, loop, writing, comparisons and the process report);
 - in material (rows with ``workpiece.axial_depth`` > 0 in the all-fine run): the RMS difference of Fx, Fy, torque
   and the tip deflection x and y between the two runs, relative to the all-fine run's RMS of each;
 - the machining time (the last row at which the Interpolator's position changes) of both, the removed volume

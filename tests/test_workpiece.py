@@ -826,6 +826,71 @@ def test_a_pocket_s_second_level_reports_the_layer(fmu: Path) -> None:
         assert np.all(np.abs(inner["radial_depth"] - 3 * MM) <= 0.5 * zmap.dy + 1e-3 * MM)
 
 
+def test_a_pocket_s_second_level_reports_the_layer_up_to_the_corners_of_its_loops(fmu: Path) -> None:
+    """A pocket roughed in two levels (1.5 mm, then 3 mm) as the bracket's: a loop 3 mm inside the 30 x 20 mm
+    rectangle of the tool's path, a diagonal out to its corner, the loop around it, then a retract at the corner.
+    Running into each corner of the outer loop the tool has the pocket's wall, which the first level left at the
+    tool radius about the corner point, ahead within the test offset, but cuts only the layer: 1.5 mm on every
+    engaged step of the second level, up to every corner and into the corner it closes the loop in (the test
+    points alone gave 3 mm over the last 0.4-0.6 mm before each corner), and no more than the layer while it
+    retracts (they gave 2.9 mm)."""
+    def loop(inset: float) -> list:
+        x0, y0, x1, y1 = 30 + inset, 20 + inset, 60 - inset, 40 - inset
+        return [(x * MM, y * MM) for x, y in ((x0, y0), (x1, y0), (x1, y1), (x0, y1), (x0, y0))]
+
+    points, slices = levels(loop(3.0) + loop(0.0), [1.5 * MM, 3.0 * MM], 0.1 * MM)
+    retract = polyline([points[-1], (points[-1][0], points[-1][1], TOP + 2 * MM)], 0.1 * MM)[1:]
+    rows = run_both(fmu, {}, points + retract)
+    axial = rows[:, OUTPUTS.index("axial_depth")]
+    for level in range(2):
+        engaged = axial[slices[level]][axial[slices[level]] > 0]
+        assert len(engaged) > 0.9 * (slices[level].stop - slices[level].start)
+        assert np.all(engaged == pytest.approx(1.5 * MM, rel=1e-12)), (level, np.unique(engaged))
+    assert np.all(axial[-len(retract):] <= 1.5 * MM * (1 + 1e-12)), np.max(axial[-len(retract):])
+
+
+def test_a_second_level_entering_the_first_level_s_corner_reports_the_layer(fmu: Path) -> None:
+    """An outside profile cut in two levels (4 mm, then 8 mm) as the bracket's: from beside the block a diagonal
+    move into its corner, then 1 mm off its -x face. On the second level the move enters the corner the first level
+    cut, with that level's wall 1 mm off the face in view: it cuts the 4 mm layer, and reports it on every engaged
+    step (the test points alone gave 8 mm over the entry's last 0.4 mm and the last 0.6 mm before the end of the
+    first level's cut)."""
+    path = [(-10 * MM, -10 * MM), (-4 * MM, 0.5 * MM), (-4 * MM, 40 * MM)]
+    points, slices = levels(path, [4.0 * MM, 8.0 * MM], 0.1 * MM)
+    rows = run_both(fmu, {}, points)
+    axial = rows[:, OUTPUTS.index("axial_depth")]
+    for level, layer in enumerate((4.0, 4.0)):
+        engaged = axial[slices[level]][axial[slices[level]] > 0]
+        assert len(engaged) > 300
+        assert np.all(engaged == pytest.approx(layer * MM, rel=1e-12)), (level, np.unique(engaged))
+
+
+def test_a_step_down_into_full_height_material_is_reported_when_the_tool_cuts_it(fmu: Path) -> None:
+    """A slot at 1.5 mm ending at x = 40 mm, then the same path at 3 mm on to x = 80 mm: beyond the first level's
+    end wall (the tool radius about its end point) the material stands the full 3 mm. The second level reports the
+    layer, 1.5 mm, up to the step that first lowers a cell of that material, and the full 3 mm from that step on:
+    the cut top rises at once, with no window to wait for. That step comes within a cell of travel of the cutter's
+    contact at x = 40 mm (the test points alone gave 3 mm from x = 39.4 mm, where the cutter cuts only the layer)."""
+    y = 30.1 * MM
+    first, _ = levels([(-10 * MM, y), (40 * MM, y)], [1.5 * MM])
+    second = polyline([(-10 * MM, y, TOP - 3 * MM), (80 * MM, y, TOP - 3 * MM)], 0.1 * MM)
+    points = chain(first, polyline([(40 * MM, y, TOP + 5 * MM), (-10 * MM, y, TOP + 5 * MM)], 1.0 * MM), second)
+    rows = run_both(fmu, {}, points)
+    zmap = ZMap({}, points[0])
+    contact = None  # the first step of the second level that lowers a cell of the full height
+    start = len(points) - len(second)
+    for k, point in enumerate(points):
+        full = np.count_nonzero(zmap.heights == TOP)
+        zmap.step(point, H, SPINDLE)
+        if contact is None and k >= start and np.count_nonzero(zmap.heights == TOP) < full:
+            contact = k
+    assert contact is not None and 40 * MM < points[contact][0] <= 40 * MM + zmap.dx + 0.1 * MM
+    axial = rows[:, OUTPUTS.index("axial_depth")]
+    before = axial[start + 100:contact]  # from x = 0 on (the block's face)
+    assert np.all(before == pytest.approx(1.5 * MM, rel=1e-12)), np.unique(before)
+    assert np.all(axial[contact:] == pytest.approx(3.0 * MM, rel=1e-12)), np.unique(axial[contact:])
+
+
 @pytest.mark.parametrize("mode", ["down", "up"])
 def test_a_side_cut_along_the_wall_an_earlier_level_left_reports_the_layer(fmu: Path, mode: str) -> None:
     """A 3 mm wide side cut along a face of the block at 1.5 mm, then at 4 mm on the same path: on the

@@ -42,6 +42,9 @@ typedef struct {
     double x, y, z;         /* tool tip at the end of the last step [m] */
     double feed_x, feed_y;  /* unit vector of the last horizontal move (+x before the first) */
     double removed_height;  /* the sum of all height drops so far [m]: removed_volume / (dx dy) */
+    /* The cut top (models/workpiece.py, step 2): the highest height before the cut of the cells lowered in the
+     * current stretch of travel and in the previous one (-inf: none), and the current stretch's travel [m] */
+    double stretch_top, previous_stretch_top, stretch_travel;
     bool warned_spindle_stopped;
     bool warned_shank;
     bool warned_bottom;     /* the tool tip below the stock bottom over the stock */

@@ -132,6 +132,7 @@ FmuStatus model_exit_initialization(FmuInstance *instance) {
     w->z = v->tool_z;
     w->feed_x = 1.0;
     w->feed_y = 0.0;
+    w->stretch_top = w->previous_stretch_top = -INFINITY; /* nothing cut yet */
     for (k = 0; k < N_BISECTIONS; k++) /* no angle of [0, pi] bisected yet */
         w->bisection_phi[0][k] = w->bisection_phi[1][k] = -1.0;
     return FMU_OK;
@@ -152,6 +153,7 @@ typedef struct {
     const double *a, *b;
     double sx, sy, sz, length2;
     double unreachable; /* the lowest the tool reaches or the stock's bottom: a cell at or below cannot change */
+    double *top;        /* the highest height before the cut of the cells lowered so far in the step */
 } Segment;
 
 /* Lower the cells [from, end) of the row at cy that are under the tool, exactly as the reference does;
@@ -191,6 +193,7 @@ static double cut_cells(FmuInstance *instance, const Segment *g, double *row, do
         if (zc < z0) zc = z0;
         if (zc < row[i]) {
             volume += row[i] - zc;
+            if (row[i] > *g->top) *g->top = row[i];
             row[i] = zc;
         }
     }
@@ -206,7 +209,7 @@ static double cut_cells(FmuInstance *instance, const Segment *g, double *row, do
  * those of the disc the last segment cleared to that height or lower (the tool at rest or moving a
  * fraction of a cell per step visits little else). Distances have a margin of delta/16 (at least
  * 0.5 um): their rounding is below 1e-7 m, even with coordinates of 10 m and a 0.1 m tool. */
-static double remove_segment(FmuInstance *instance, const double a[3], const double b[3], double volume) {
+static double remove_segment(FmuInstance *instance, const double a[3], const double b[3], double volume, double *top) {
     ModelInternal *w = &instance->internal;
     const double x0 = instance->v.stock_x_min, y0 = instance->v.stock_y_min, z0 = instance->v.stock_z_min;
     const double r = w->radius, r2 = r * r;
@@ -219,6 +222,7 @@ static double remove_segment(FmuInstance *instance, const double a[3], const dou
     double i_lo, i_hi, j_lo, j_hi, jd;
     g.a = a;
     g.b = b;
+    g.top = top;
     g.sx = b[0] - a[0];
     g.sy = b[1] - a[1];
     g.sz = b[2] - a[2];
@@ -281,8 +285,9 @@ static double remove_segment(FmuInstance *instance, const double a[3], const dou
 }
 
 /* The move of one step, in sub-segments that descend at most DESCEND_PER_SUBSEGMENT * delta each
- * (one for a move without horizontal travel). Returns the sum of the height drops. */
-static double remove_material(FmuInstance *instance, const double start[3], const double end[3]) {
+ * (one for a move without horizontal travel). Returns the sum of the height drops; raises *top to the highest
+ * height before the cut of the cells lowered. */
+static double remove_material(FmuInstance *instance, const double start[3], const double end[3], double *top) {
     const double sx = end[0] - start[0], sy = end[1] - start[1], sz = end[2] - start[2];
     double volume = 0.0, a[3], b[3], n = 1.0, k;
     if (sx * sx + sy * sy > 0.0)
@@ -297,7 +302,7 @@ static double remove_material(FmuInstance *instance, const double start[3], cons
             b[1] = start[1] + sy * f;
             b[2] = start[2] + sz * f;
         }
-        volume = remove_segment(instance, a, b, volume);
+        volume = remove_segment(instance, a, b, volume, top);
         memcpy(a, b, sizeof a);
     }
     return volume;
@@ -451,11 +456,12 @@ static void zero_outputs(FmuInstance *instance) {
 static bool same_bits(double a, double b) { return memcmp(&a, &b, sizeof a) == 0; }
 
 /* Outputs at the current tool position against the current stock (all 0 when not engaged). `volume`:
- * the step's height drops. engagement reads the stock only through height_above(), so the result of
- * a set of probes is reused while no cell was lowered, z and the feed are the same and every probe
- * stays in its cell (rooms_hold()): at 600 mm/min stepped at 10 us the tool moves 1/2500 of a 0.25 mm
- * cell per step, the scan's probes hold for tens of steps. */
-static void engagement(FmuInstance *instance, double volume) {
+ * the step's height drops; `cut_top`: the highest height before the cut of the cells lowered in the current and
+ * the previous stretch of travel (-inf: none), which bounds the engaged height (models/workpiece.py, step 2).
+ * engagement reads the stock only through height_above(), so the result of a set of probes is reused while no
+ * cell was lowered, z and the feed are the same and every probe stays in its cell (rooms_hold()): at 600 mm/min
+ * stepped at 10 us the tool moves 1/2500 of a 0.25 mm cell per step, the scan's probes hold for tens of steps. */
+static void engagement(FmuInstance *instance, double volume, double cut_top) {
     ModelInternal *w = &instance->internal;
     const double x = w->x, y = w->y, z = w->z, fx = w->feed_x, fy = w->feed_y;
     const double column = 2.0 * PI / N_THETA;
@@ -483,6 +489,13 @@ static void engagement(FmuInstance *instance, double volume) {
         return;
     }
     axial = w->scan_axial;
+    if (cut_top > -INFINITY) { /* the engaged height is no more than that of the material the tool cuts */
+        if (!(cut_top - z > 0.0)) {
+            zero_outputs(instance);
+            return;
+        }
+        if (cut_top - z < axial) axial = cut_top - z;
+    }
     if (!rooms_hold(instance, &w->bisection_rooms) || w->bisected_first != w->scan_first ||
         w->bisected_last != w->scan_last) {
         /* its last probes lie within 1/1024 of a sample of a cell's edge: they hold for a few steps */
@@ -616,7 +629,7 @@ FmuStatus model_do_step(FmuInstance *instance, double time, double step_size) {
     const double start[3] = {w->x, w->y, w->z}, end[3] = {v->tool_x, v->tool_y, v->tool_z};
     const double sx = end[0] - start[0], sy = end[1] - start[1], sz = end[2] - start[2];
     const double travel = sqrt(sx * sx + sy * sy + sz * sz), horizontal = sqrt(sx * sx + sy * sy);
-    double volume;
+    double volume, step_top = -INFINITY, stretch_top;
     FmuStatus status = FMU_OK;
     if (travel > v->max_tool_speed * step_size) {
         fmu_log(instance, FMU_ERROR, "logStatusError",
@@ -625,7 +638,9 @@ FmuStatus model_do_step(FmuInstance *instance, double time, double step_size) {
                 travel / step_size, v->max_tool_speed);
         return FMU_ERROR;
     }
-    volume = remove_material(instance, start, end);
+    volume = remove_material(instance, start, end, &step_top);
+    stretch_top = max2(w->stretch_top, step_top);
+    w->stretch_travel += travel;
     if (horizontal > FEED_DIRECTION_MIN_TRAVEL * w->delta) {
         w->feed_x = sx / horizontal;
         w->feed_y = sy / horizontal;
@@ -633,7 +648,14 @@ FmuStatus model_do_step(FmuInstance *instance, double time, double step_size) {
     w->x = end[0];
     w->y = end[1];
     w->z = end[2];
-    engagement(instance, volume);
+    engagement(instance, volume, max2(stretch_top, w->previous_stretch_top));
+    if (w->stretch_travel >= w->radius) { /* the stretch ends with this step */
+        w->previous_stretch_top = stretch_top;
+        w->stretch_top = -INFINITY;
+        w->stretch_travel = 0.0;
+    } else {
+        w->stretch_top = stretch_top;
+    }
     instance->v.mrr = volume * (w->dx * w->dy) / step_size;
     w->removed_height += volume;
     instance->v.removed_volume = w->removed_height * (w->dx * w->dy);

@@ -14,6 +14,7 @@ import pyarrow.parquet as pq
 import pytest
 from stl import mesh
 
+from cases.part_case import MODES, write_part
 from milling_twin.models.interpolator.parser import Tool
 from milling_twin.models.stability import Mode
 from milling_twin.orchestrator.master import run
@@ -178,37 +179,25 @@ M5
 M30
 """
 TOOLS = "T1 P1 D10 Z50 ; end mill flutes=3 helix=30 stick_out=25\n"
-PART = """\
-[scenario]
-name = "report_part"
-description = "a slot, then a down-milling side cut 8 mm wide along its wall; G43 H1 (tool length 50 mm)"
-
-[part]
-program = "prog.nc"
-tool_table = "tool.tbl"
-material = "Al7075-T6"
-[part.stock]
-origin = { value = [0.0, 0.0, -10.0], unit = "mm" }
-size = { value = [50.0, 30.0, 10.0], unit = "mm" }
-resolution = { value = 0.5, unit = "mm" }
-[part.machine]
-rapid_feed = { value = 15000, unit = "mm/min" }
-start_x = { value = -10, unit = "mm" }
-start_y = { value = 10, unit = "mm" }
-start_z = { value = 55, unit = "mm" }
-[part.tool_modes]
+# the tiny part of tests/cases/part_case.py, changed into this one
+PART_EDITS = (
+    ('name = "tiny_part"', 'name = "report_part"'),
+    ('description = "one slot through a small block"',
+     'description = "a slot, then a down-milling side cut 8 mm wide along its wall; G43 H1 (tool length 50 mm)"'),
+    ('size = { value = [50.0, 20.0, 10.0], unit = "mm" }', 'size = { value = [50.0, 30.0, 10.0], unit = "mm" }'),
+    ('start_z = { value = 5, unit = "mm" }', 'start_z = { value = 55, unit = "mm" }'),
+    ('[part.spindle]\nP_idle = { value = 0.3, unit = "kW" }\n', ''),
+    (MODES, """[part.tool_modes]
 x = [ { frequency = 1200.0, damping = 0.03, stiffness = 2.0e7 } ]
 y = [ { frequency = 1300.0, damping = 0.02, stiffness = 3.0e7 } ]
-"""
+"""),
+)
 
 
 @pytest.fixture(scope="module")
 def part_run(tmp_path_factory: pytest.TempPathFactory, fmu_dir: Path) -> tuple[Part, pd.DataFrame, Path, Path]:
     folder = tmp_path_factory.mktemp("part")
-    (folder / "prog.nc").write_text(PROGRAM)
-    (folder / "tool.tbl").write_text(TOOLS)
-    (folder / "part.toml").write_text(PART)
-    scenario = load_scenario(folder / "part.toml", fmu_dir)
+    scenario = load_scenario(write_part(folder, *PART_EDITS, program=PROGRAM, tools=TOOLS), fmu_dir)
     zmap = folder / "final.asc"
     scenario = with_values(scenario, {"workpiece.zmap_file": str(zmap)})
     scenario = replace(scenario, outputs=(*scenario.outputs, Ref("force", "spindle_angle")))
@@ -287,11 +276,9 @@ def test_a_slot_beyond_the_lobes_chatters_and_a_side_cut_within_them_does_not(fm
     and y). Zero-order limits at 6000 rpm with 3 flutes: 0.15 mm slotting, 1.2 mm for the side cut's immersion
     (53..180 deg): the slot chatters, the side cut does not."""
     mode = "[ { frequency = 922.0, damping = 0.011, stiffness = 1.34e6 } ]"
-    (tmp_path / "prog.nc").write_text(PROGRAM.replace("G1 Z-2 F300", "G1 Z-0.2 F300"))
-    (tmp_path / "tool.tbl").write_text(TOOLS)
-    text = re.sub(r"(?m)^([xy]) = \[.*\]$", lambda m: f"{m.group(1)} = {mode}", PART)
-    (tmp_path / "part.toml").write_text(text)
-    scenario = load_scenario(tmp_path / "part.toml", fmu_dir)
+    flexible = (*PART_EDITS[:-1], (MODES, f"[part.tool_modes]\nx = {mode}\ny = {mode}\n"))
+    scenario = load_scenario(write_part(tmp_path, *flexible, program=PROGRAM.replace("G1 Z-2 F300", "G1 Z-0.2 F300"),
+                                        tools=TOOLS), fmu_dir)
     result = run(scenario, tmp_path / "runs", progress=False)
     assert scenario.part is not None and scenario.part.modes_x[0].frequency == 922.0
     report = write_process_report(scenario.part, load_results(result.run_dir), tmp_path / "report", zmap_file=None)

@@ -162,15 +162,11 @@ def block_spans(line_number: np.ndarray) -> Spans:
 def programmed_feeds(part: Part) -> tuple[dict[int, float], str | None]:
     """Line -> programmed feed (m/s; 0 for a line of rapids only) from the part program as the Interpolator reads
     it; (``{}``, the reason) when it cannot be read."""
-    from milling_twin.models.interpolator.definition import INTERPOLATOR as MODEL
-    from milling_twin.models.interpolator.parser import DIALECTS, MOVE_RAPID, parse_program
-    from milling_twin.models.interpolator.tool_table import read_tool_table
+    from milling_twin.models.interpolator.parser import MOVE_RAPID
+    from milling_twin.orchestrator.part.checks import parse
 
     try:
-        tools = read_tool_table(part.tool_table) if part.tool_table else ()
-        program = parse_program(part.program.read_text(encoding="latin-1"), {**MODEL.defaults(), **part.machine},
-                                str(part.program),
-                                dialect=DIALECTS.get(part.dialect, DIALECTS["fanuc"]), tools=tools)
+        program = parse(part.program, part.dialect, part.tools, part.machine)
     except (OSError, ValueError) as exc:
         return {}, f"{part.program}: programmed feeds not read ({exc})"
     feeds: dict[int, float] = {}

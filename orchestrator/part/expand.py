@@ -20,7 +20,6 @@ from typing import Any
 import tomli_w
 
 from milling_twin.orchestrator.gcode.program_summary import summarize
-from milling_twin.models.interpolator.tool_table import read_tool_table
 from milling_twin.orchestrator.part.model import FORCE, INTERPOLATOR, POWER, VIBRATION, WORKPIECE, Part
 from milling_twin.orchestrator.part.spec import read_part
 from milling_twin.orchestrator.scenario import ScenarioError, Variable, _Ctx, _load_fmu, _parameters, _variables
@@ -74,9 +73,8 @@ def expand_document(ctx: TomlAccess, doc: dict[str, Any], fmu_dir: Path) -> tupl
         "name", "description", "start_time", "stop_time", "output_interval", "parameter_sets")))
     scenario.setdefault("output_interval", DEFAULT_OUTPUT_INTERVAL)
     if "stop_time" not in scenario and "recorded" not in doc:
-        tools = read_tool_table(part.tool_table) if part.tool_table else ()
         try:
-            summary = summarize(part.program, part.dialect, tools, part.machine)
+            summary = summarize(part.program, part.dialect, part.tools, part.machine)
         except ValueError as exc:  # the path or the schedule refuses the program (the FMU would too)
             ctx.fail("[part].program", str(exc))
         part = replace(part, machining_time=summary.time)

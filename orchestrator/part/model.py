@@ -64,3 +64,4 @@ class Part:
     program_zero: tuple[float, float, float] = (0.0, 0.0, 0.0)
     machining_time: float = 0.0          # s: the program's duration at 100 % override (0: [scenario].stop_time given)
     warnings: tuple[str, ...] = ()       # what the checks before the run found (orchestrator/part/checks.py)
+    tools: tuple[Tool, ...] = ()         # every tool of the tool table, read once (read_part)

@@ -213,7 +213,8 @@ def read_part(ctx: TomlAccess, raw: Any, variables: Mapping[str, Mapping[str, Va
     return Part(program=program, dialect=dialect, tool_table=tool_table, tool=tool, stock=stock, material=material,
                 modes_x=modes_x, modes_y=modes_y, force_model=force_model, cutting_power=cutting_power,
                 fine_step=fine, coarse_step=coarse, lookahead=lookahead, machine=machine, spindle=spindle,
-                feed_override=feed_override, flute_length=flute_length, program_zero=zero, warnings=tuple(warnings))
+                feed_override=feed_override, flute_length=flute_length, program_zero=zero, warnings=tuple(warnings),
+                tools=tuple(tools))
 
 
 def _tool_geometry(ctx: TomlAccess, tool: Tool, tool_table: Path) -> None:

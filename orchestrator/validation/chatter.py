@@ -23,6 +23,7 @@ import math
 import tempfile
 from dataclasses import asdict, dataclass
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 import numpy as np
 from tqdm import tqdm
@@ -31,6 +32,9 @@ from milling_twin.models.stability import Mode, stability_lobes
 from milling_twin.orchestrator.master import run
 from milling_twin.orchestrator.results import load_results
 from milling_twin.orchestrator.scenario import Scenario, load_scenario, with_values
+
+if TYPE_CHECKING:
+    import pandas as pd
 
 REPO = Path(__file__).resolve().parents[2]
 WINDOWS = ((0.10, 0.15), (0.15, 0.20))  # s: growth = peak-to-peak in the second / in the first
@@ -57,8 +61,22 @@ class Limit:
         return (self.simulated - self.analytic) / self.analytic
 
 
-def analytic_limit(scenario: Scenario, speeds: np.ndarray, lobes: int = 60) -> np.ndarray:
-    """The zero-order limit [m] at ``speeds`` [rpm] for the scenario's coefficients, tool and modes."""
+@dataclass(frozen=True)
+class ToolAndCut:
+    """What the stability models need from a scenario: the tool's modes, the cutting coefficients [N/m^2], the
+    flute count and the immersion [rad] (the instances ``force`` and ``vibration``, with the models' defaults)."""
+
+    modes_x: tuple[Mode, ...]
+    modes_y: tuple[Mode, ...]
+    ktc: float
+    krc: float
+    n_flutes: int
+    entry: float
+    exit: float
+
+
+def tool_and_cut(scenario: Scenario) -> ToolAndCut:
+    """The scenario's tool, coefficients and immersion for ``milling_twin.models.stability``."""
     force, vibration = scenario.instance("force").parameters, scenario.instance("vibration").parameters
     defaults = _defaults(scenario)
     value = lambda table, name: table.get(name, defaults[name])  # noqa: E731
@@ -69,9 +87,14 @@ def analytic_limit(scenario: Scenario, speeds: np.ndarray, lobes: int = 60) -> n
                           value(vibration, f"stiffness_{direction}{i}")) for i in range(1, count + 1))
 
     inputs = scenario.instance("force").inputs
-    result = stability_lobes(modes("x"), modes("y"), value(force, "Ktc"), value(force, "Krc"),
-                             int(value(force, "n_flutes")), inputs.get("entry_angle", 0.0),
-                             inputs.get("exit_angle", math.pi), lobes=lobes)
+    return ToolAndCut(modes("x"), modes("y"), value(force, "Ktc"), value(force, "Krc"), int(value(force, "n_flutes")),
+                      inputs.get("entry_angle", 0.0), inputs.get("exit_angle", math.pi))
+
+
+def analytic_limit(scenario: Scenario, speeds: np.ndarray, lobes: int = 60) -> np.ndarray:
+    """The zero-order limit [m] at ``speeds`` [rpm] for the scenario's coefficients, tool and modes."""
+    c = tool_and_cut(scenario)
+    result = stability_lobes(c.modes_x, c.modes_y, c.ktc, c.krc, c.n_flutes, c.entry, c.exit, lobes=lobes)
     return result.limit(speeds)
 
 
@@ -88,11 +111,17 @@ def _defaults(scenario: Scenario) -> dict[str, float]:
 
 
 def growth_of(scenario: Scenario, out: Path) -> float:
-    """Run ``scenario`` and return the growth of its free (chatter) vibration: the tool displacement
-    sampled once per tooth period, where the forced response repeats, so what varies from sample
-    to sample is the free vibration; its standard deviation in the second window over the first."""
+    """Run ``scenario`` and return the growth of its free (chatter) vibration (``displacement_growth``), the larger
+    of x and y."""
     result = run(scenario, out, progress=False)
-    frame = load_results(result.run_dir)
+    return max(displacement_growth(scenario, load_results(result.run_dir)))
+
+
+def displacement_growth(scenario: Scenario, frame: "pd.DataFrame",
+                        windows: tuple[tuple[float, float], tuple[float, float]] = WINDOWS) -> tuple[float, float]:
+    """The growth in x and in y of the free (chatter) vibration in the results ``frame`` of ``scenario``: the tool
+    displacement sampled once per tooth period, where the forced response repeats, so what varies from sample
+    to sample is the free vibration; its standard deviation in the second of ``windows`` [s] over the first."""
     force = scenario.instance("force")
     tooth_period = 2 * math.pi / (int(force.parameters.get("n_flutes", 2)) * force.inputs["spindle_speed"])
     t = frame["time"].to_numpy()
@@ -100,11 +129,11 @@ def growth_of(scenario: Scenario, out: Path) -> float:
     for axis in ("x", "y"):
         x = frame[f"vibration.tip_displacement_{axis}"].to_numpy()
         spreads = []
-        for start, stop in WINDOWS:
+        for start, stop in windows:
             samples = np.interp(np.arange(start, stop, tooth_period), t, x)
             spreads.append(np.std(samples))
         ratios.append(spreads[1] / spreads[0] if spreads[0] > 0 else math.inf)
-    return max(ratios)
+    return ratios[0], ratios[1]
 
 
 def cut(base: Scenario, speed: float, depth: float, out: Path) -> Cut:

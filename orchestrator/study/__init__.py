@@ -1,0 +1,1 @@
+"""Studies: many runs of one scenario (grids, lists, samples, Monte Carlo) dispatched through one executor."""

@@ -1,0 +1,108 @@
+"""Where study cases run: one ``concurrent.futures.Executor`` for the sweep, the stability map and calibration.
+
+``open_executor(workers, scheduler)`` is the one entry point:
+
+- ``workers=None, scheduler=None``: an embedded ``dask.distributed`` ``LocalCluster`` sized to the machine (one worker
+  process per usable core, one thread each: FMUs run in worker processes, so an FMU that crashes kills only its
+  worker and dask reschedules its tasks elsewhere), the dashboard on a free port, quiet logs;
+- ``workers=N`` (N >= 1): the same with N local worker processes;
+- ``workers=0``: :class:`SerialExecutor`, everything in this process in submission order (debugging, tests and the
+  bit-identical reference of a parallel run);
+- ``scheduler="tcp://host:8786"`` (or any address with ``://``) or the path of a scheduler file written by
+  ``dask scheduler --scheduler-file``: an existing cluster (``workers`` must then be None).
+
+The executor yielded is dask's ``Client.get_executor(pure=False)`` (every submission runs, even with equal arguments)
+or the serial one; both return ``concurrent.futures.Future`` objects, so callers use ``submit``, ``as_completed`` and
+``wait`` from the standard library and never import dask. Functions and arguments submitted must pickle (module-level
+functions, dataclasses); paths given to them must be absolute (workers may run in another directory or machine).
+"""
+from __future__ import annotations
+
+import concurrent.futures
+import logging
+import os
+from collections.abc import Callable, Iterator
+from contextlib import contextmanager
+from pathlib import Path
+from typing import Any, TypeVar
+
+T = TypeVar("T")
+
+
+class SerialExecutor(concurrent.futures.Executor):
+    """Runs each submitted call at once in the calling process; the future returned is already done."""
+
+    def __init__(self) -> None:
+        self._shut = False
+
+    def submit(self, fn: Callable[..., T], /, *args: Any, **kwargs: Any) -> concurrent.futures.Future[T]:
+        if self._shut:
+            raise RuntimeError("cannot submit to a SerialExecutor after shutdown")
+        future: concurrent.futures.Future[T] = concurrent.futures.Future()
+        future.set_running_or_notify_cancel()
+        try:
+            future.set_result(fn(*args, **kwargs))
+        except BaseException as exc:  # noqa: B902 - handed to the caller through the future, as a pool does
+            if isinstance(exc, (KeyboardInterrupt, SystemExit)):
+                raise
+            future.set_exception(exc)
+        return future
+
+    def shutdown(self, wait: bool = True, *, cancel_futures: bool = False) -> None:
+        self._shut = True
+
+
+def machine_workers() -> int:
+    """The number of cores this process may use (the default size of the embedded cluster)."""
+    try:
+        return max(1, len(os.sched_getaffinity(0)))
+    except AttributeError:  # not on Linux
+        return max(1, os.cpu_count() or 1)
+
+
+def _client_for(workers: int | None, scheduler: str | None):  # -> (Client, LocalCluster | None)
+    from distributed import Client, LocalCluster
+
+    if scheduler is not None:
+        if workers is not None:
+            raise ValueError(f"workers={workers} and scheduler={scheduler!r}: choose one (the cluster's workers "
+                             "are the scheduler's)")
+        if "://" in scheduler:
+            return Client(scheduler), None
+        path = Path(scheduler)
+        if not path.is_file():
+            raise ValueError(f"scheduler {scheduler!r}: neither an address (tcp://host:port) nor an existing "
+                             "scheduler file")
+        return Client(scheduler_file=str(path.resolve())), None
+    n = machine_workers() if workers is None else workers
+    cluster = LocalCluster(n_workers=n, threads_per_worker=1, processes=True, dashboard_address=":0",
+                           silence_logs=logging.ERROR)
+    try:
+        return Client(cluster), cluster
+    except BaseException:
+        cluster.close()
+        raise
+
+
+@contextmanager
+def open_executor(workers: int | None = None, scheduler: str | None = None) -> Iterator[concurrent.futures.Executor]:
+    """workers=None: an embedded dask.distributed LocalCluster sized to the machine (processes, 1 thread each);
+    workers=N: N local worker processes; workers=0: in-process serial executor (debugging, tests, bit-identical
+    reference); scheduler='tcp://host:8786' or a path to a scheduler file: an existing cluster (Client(...)).
+    Yields a concurrent.futures.Executor (dask's Client.get_executor() or the serial one)."""
+    if workers is not None and workers < 0:
+        raise ValueError(f"workers={workers}: expected 0 (serial, in this process) or a positive number")
+    if workers == 0 and scheduler is None:
+        executor = SerialExecutor()
+        try:
+            yield executor
+        finally:
+            executor.shutdown()
+        return
+    client, cluster = _client_for(workers, scheduler)
+    try:
+        yield client.get_executor(pure=False)
+    finally:
+        client.close()
+        if cluster is not None:
+            cluster.close()

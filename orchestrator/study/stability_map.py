@@ -1,0 +1,311 @@
+"""The simulated stability map: a (spindle speed x axial depth) grid of force/vibration co-simulations, the onset of
+chatter per speed read from the grid, and the same onset from the semi-discretization and the zero-order solution.
+
+A study of ``scenarios/chatter.toml`` (CuttingForce and ToolVibration in a loop; ``studies/stability_map.toml``) runs
+each case and reduces it with ``chatter_growth``: the growth in x and in y of the free vibration, the tool
+displacement sampled once per tooth period (``orchestrator/validation/chatter.py``: ``displacement_growth``), its
+spread in the last quarter of the run over that in the quarter before (0.15-0.2 s over 0.1-0.15 s for the
+scenario's 0.2 s, as ``milling-twin validate chatter``); ``growth`` is the larger of the two and the case is
+``stable`` (1) when it is <= 1, else 0.
+
+The map (``[study.map]`` of the study; run after the sweep, or by :func:`stability_map` on a summary):
+
+- the co-simulated onset per speed: going up in depth, the first unstable case and the stable case below it bracket
+  the onset; the depth where log(growth) crosses 0, interpolated linearly in depth between the two
+  (:func:`onset_of`); not bracketed when every depth is stable (the onset is above the grid) or none is (below);
+- the semi-discretization onset (``models.stability.semi_discretization_limit``, exact for the delay equation up to
+  its step) and the zero-order onset (``models.stability.stability_lobes``, as ``milling-twin lobes``) at the same
+  speeds, for the base scenario's tool, coefficients and immersion;
+- ``stability_map.csv`` (one row per speed: the three onsets in mm, the bracket and the relative differences), the
+  same table printed, and ``stability_map.png``: every case coloured by its growth (circles stable, crosses chatter)
+  over the zero-order and semi-discretization lobes, the co-simulated onsets marked.
+
+``[study.map]`` keys (all optional): ``speed`` (the varied spindle speed, default ``"force.spindle_speed"``),
+``depth`` (default ``"force.axial_depth"``), ``growth`` (the summary column, default ``"growth"``),
+``curve_points`` (speeds of the semi-discretization curve in the figure, default 120; 0 draws none),
+``zoa_lobes`` (lobes of the zero-order curve, default 60).
+"""
+from __future__ import annotations
+
+import csv
+import math
+from collections.abc import Mapping, Sequence
+from dataclasses import dataclass
+from pathlib import Path
+from typing import TYPE_CHECKING, Any
+
+import numpy as np
+
+from milling_twin.models.stability import semi_discretization_limit, stability_lobes
+from milling_twin.orchestrator.study.reduce import CaseRun, register
+from milling_twin.orchestrator.validation.chatter import ToolAndCut, displacement_growth, tool_and_cut
+
+if TYPE_CHECKING:
+    import pandas as pd
+
+    from milling_twin.orchestrator.scenario import Scenario
+
+__all__ = ["MapConfig", "MapRow", "Onset", "chatter_growth", "growth_windows", "map_config", "map_rows", "onset_of",
+           "onsets", "plot_map", "references", "stability_map", "table_text", "write_csv"]
+
+RPM = 60.0 / (2 * math.pi)  # rad/s -> rpm
+CSV_NAME = "stability_map.csv"
+FIGURE_NAME = "stability_map.png"
+
+
+def growth_windows(start_time: float, stop_time: float) -> tuple[tuple[float, float], tuple[float, float]]:
+    """The two windows of the growth: the third and the last quarter of the run ((0.1, 0.15), (0.15, 0.2) for 0.2 s)."""
+    span = stop_time - start_time
+    return ((start_time + 0.5 * span, start_time + 0.75 * span), (start_time + 0.75 * span, stop_time))
+
+
+@register("chatter_growth")
+def chatter_growth(case: CaseRun) -> dict[str, float]:
+    """``growth_x``, ``growth_y``, ``growth`` (the larger) and ``stable`` (1 when growth <= 1, else 0) of one case."""
+    scenario = case.scenario
+    gx, gy = displacement_growth(scenario, case.results, growth_windows(scenario.start_time, scenario.stop_time))
+    growth = max(gx, gy)
+    return {"growth_x": float(gx), "growth_y": float(gy), "growth": float(growth), "stable": float(growth <= 1.0)}
+
+
+@dataclass(frozen=True)
+class Onset:
+    """The co-simulated onset at one speed: ``depth`` [m] interpolated in log growth between ``stable_depth`` and
+    ``unstable_depth`` (NaN when not bracketed: ``note`` says why)."""
+
+    speed_rpm: float
+    depth: float
+    stable_depth: float  # m: the deepest stable case below the first unstable one (NaN: none)
+    unstable_depth: float  # m: the shallowest unstable case (NaN: none)
+    note: str = ""
+
+
+def onset_of(speed_rpm: float, depths: Sequence[float], growths: Sequence[float]) -> Onset:
+    """The onset at one speed from its cases (any order): the first unstable depth going up (growth > 1) and the
+    stable one below it; between them the depth where log(growth) is 0, linear in depth."""
+    d = np.asarray(depths, dtype=float)
+    g = np.asarray(growths, dtype=float)
+    keep = np.isfinite(d) & ~np.isnan(g)
+    order = np.argsort(d[keep], kind="stable")
+    d, g = d[keep][order], g[keep][order]
+    if d.size == 0:
+        return Onset(speed_rpm, math.nan, math.nan, math.nan, "no case")
+    unstable = np.flatnonzero(g > 1.0)
+    if unstable.size == 0:
+        return Onset(speed_rpm, math.nan, float(d[-1]), math.nan, f"stable up to {d[-1] * 1e3:.4g} mm")
+    i = int(unstable[0])
+    if i == 0:
+        return Onset(speed_rpm, math.nan, math.nan, float(d[0]), f"chatter from {d[0] * 1e3:.4g} mm")
+    low, high = float(d[i - 1]), float(d[i])
+    note = "stable again above" if np.any(g[i + 1:] <= 1.0) else ""
+    log_low = math.log(max(float(g[i - 1]), 1e-300))
+    log_high = math.log(float(g[i])) if math.isfinite(g[i]) else math.inf
+    if not math.isfinite(log_high) or log_high <= log_low:
+        return Onset(speed_rpm, 0.5 * (low + high), low, high, note or "middle of the bracket")
+    depth = low + (0.0 - log_low) / (log_high - log_low) * (high - low)
+    return Onset(speed_rpm, depth, low, high, note)
+
+
+def onsets(summary: pd.DataFrame, speed: str = "force.spindle_speed", depth: str = "force.axial_depth",
+           growth: str = "growth") -> list[Onset]:
+    """The onset at each speed of a study summary (one row per case; ``speed`` in rad/s, ``depth`` in m, SI as the
+    scenario's values), in increasing speed. Rows whose ``status`` column is not "ok" are left out."""
+    for column in (speed, depth, growth):
+        if column not in summary.columns:
+            raise KeyError(f"the summary has no column {column!r} (columns: {', '.join(map(str, summary.columns))})")
+    rows = summary
+    if "status" in rows.columns:
+        rows = rows[rows["status"] == "ok"]
+    result = []
+    for omega, group in rows.groupby(speed, sort=True):
+        result.append(onset_of(float(omega) * RPM, group[depth].to_numpy(float), group[growth].to_numpy(float)))
+    return result
+
+
+def references(tool: ToolAndCut, speeds_rpm: Sequence[float], zoa_lobes: int = 60) -> tuple[np.ndarray, np.ndarray]:
+    """(semi-discretization, zero-order) onsets [m] at ``speeds_rpm`` for the tool, coefficients and immersion."""
+    speeds = np.asarray(speeds_rpm, dtype=float)
+    sd = np.array([semi_discretization_limit(tool.modes_x, tool.modes_y, tool.ktc, tool.krc, tool.n_flutes, float(n),
+                                             tool.entry, tool.exit) for n in speeds])
+    return sd, _zero_order(tool, zoa_lobes).limit(speeds)
+
+
+def _zero_order(tool: ToolAndCut, lobes: int):  # -> Lobes
+    return stability_lobes(tool.modes_x, tool.modes_y, tool.ktc, tool.krc, tool.n_flutes, tool.entry, tool.exit,
+                           lobes=lobes)
+
+
+@dataclass(frozen=True)
+class MapRow:
+    """One speed of the map: the three onsets [m] and the co-simulated bracket."""
+
+    speed_rpm: float
+    cosim: float
+    stable_depth: float
+    unstable_depth: float
+    sd: float
+    zoa: float
+    note: str
+
+    @property
+    def cosim_vs_sd(self) -> float:
+        return self.cosim / self.sd - 1
+
+    @property
+    def zoa_vs_sd(self) -> float:
+        return self.zoa / self.sd - 1
+
+    @property
+    def cosim_vs_zoa(self) -> float:
+        return self.cosim / self.zoa - 1
+
+
+def map_rows(found: Sequence[Onset], tool: ToolAndCut, zoa_lobes: int = 60) -> list[MapRow]:
+    """The co-simulated onsets next to the semi-discretization and zero-order onsets at their speeds."""
+    sd, zoa = references(tool, [o.speed_rpm for o in found], zoa_lobes)
+    return [MapRow(o.speed_rpm, o.depth, o.stable_depth, o.unstable_depth, float(s), float(z), o.note)
+            for o, s, z in zip(found, sd, zoa)]
+
+
+CSV_COLUMNS = ("speed_rpm", "cosim_mm", "stable_mm", "unstable_mm", "sd_mm", "zoa_mm", "cosim_vs_sd_pct",
+               "zoa_vs_sd_pct", "cosim_vs_zoa_pct", "note")
+
+
+def _csv_values(row: MapRow) -> list[Any]:
+    mm = lambda v: f"{v * 1e3:.6g}" if math.isfinite(v) else ""  # noqa: E731
+    pct = lambda v: f"{100 * v:.3f}" if math.isfinite(v) else ""  # noqa: E731
+    return [f"{row.speed_rpm:.6g}", mm(row.cosim), mm(row.stable_depth), mm(row.unstable_depth), mm(row.sd),
+            mm(row.zoa), pct(row.cosim_vs_sd), pct(row.zoa_vs_sd), pct(row.cosim_vs_zoa), row.note]
+
+
+def write_csv(rows: Sequence[MapRow], path: Path) -> None:
+    """The table, one row per speed (depths in mm, differences in %; empty where not bracketed)."""
+    path.parent.mkdir(parents=True, exist_ok=True)
+    with path.open("w", newline="") as f:
+        writer = csv.writer(f)
+        writer.writerow(CSV_COLUMNS)
+        writer.writerows(_csv_values(r) for r in rows)
+
+
+def table_text(rows: Sequence[MapRow]) -> str:
+    """The table as printed: onset per speed, co-simulation vs semi-discretization (SD) vs zero-order (ZOA)."""
+    def mm(v: float) -> str:
+        return f"{v * 1e3:9.4f}" if math.isfinite(v) else f"{'-':>9}"
+
+    def pct(v: float) -> str:
+        return f"{100 * v:+8.1f} %" if math.isfinite(v) else f"{'-':>10}"
+
+    def bracket(r: MapRow) -> str:
+        ends = [f"{v * 1e3:.4f}" if math.isfinite(v) else "-" for v in (r.stable_depth, r.unstable_depth)]
+        return f"{ends[0] + '-' + ends[1]:>15}"
+
+    lines = [f"{'speed':>7} {'co-sim':>9} {'bracket':>15} {'SD':>9} {'ZOA':>9} {'co-sim/SD':>10} {'ZOA/SD':>10} "
+             f"{'co-sim/ZOA':>10}",
+             f"{'[rpm]':>7} {'[mm]':>9} {'[mm]':>15} {'[mm]':>9} {'[mm]':>9}"]
+    for r in rows:
+        lines.append(f"{r.speed_rpm:7.0f} {mm(r.cosim)} {bracket(r)} {mm(r.sd)} {mm(r.zoa)} {pct(r.cosim_vs_sd)} "
+                     f"{pct(r.zoa_vs_sd)} {pct(r.cosim_vs_zoa)}" + (f"  {r.note}" if r.note else ""))
+    bracketed = [r for r in rows if math.isfinite(r.cosim)]
+    if bracketed:
+        worst = max(bracketed, key=lambda r: abs(r.cosim_vs_sd))
+        worst_zoa = max(bracketed, key=lambda r: abs(r.zoa_vs_sd))
+        within = sum(abs(r.cosim_vs_sd) <= 0.05 for r in bracketed)
+        lines.append(f"co-sim within 5 % of SD at {within} of {len(bracketed)} bracketed speeds; largest "
+                     f"{100 * worst.cosim_vs_sd:+.1f} % at {worst.speed_rpm:.0f} rpm; ZOA vs SD largest "
+                     f"{100 * worst_zoa.zoa_vs_sd:+.1f} % at {worst_zoa.speed_rpm:.0f} rpm")
+    return "\n".join(lines)
+
+
+def plot_map(path: Path, cases: pd.DataFrame, rows: Sequence[MapRow], tool: ToolAndCut, speed: str, depth: str,
+             growth: str = "growth", curve_points: int = 120, zoa_lobes: int = 60, title: str = "") -> None:
+    """Every case at (speed, depth) coloured by its growth (circles stable, crosses chatter) over the zero-order
+    lobes and ``curve_points`` semi-discretization onsets; the co-simulated onsets as diamonds."""
+    from matplotlib.colors import TwoSlopeNorm
+    from matplotlib.figure import Figure
+
+    ok = cases[cases["status"] == "ok"] if "status" in cases.columns else cases
+    n = ok[speed].to_numpy(float) * RPM
+    a = ok[depth].to_numpy(float) * 1e3
+    g = ok[growth].to_numpy(float)
+    log_g = np.log10(np.clip(np.nan_to_num(g, nan=1.0, posinf=1e6), 1e-6, 1e6))
+    span = max(1e-3, float(np.max(np.abs(log_g)))) if log_g.size else 1.0
+    norm = TwoSlopeNorm(vcenter=0.0, vmin=-span, vmax=span)
+    low, high = (float(np.min(n)), float(np.max(n))) if n.size else (1.0, 2.0)
+    margin = 0.03 * (high - low) if high > low else 0.05 * high
+    fig = Figure(figsize=(10, 5.5), layout="constrained")
+    ax = fig.subplots()
+    dense = np.linspace(low - margin, high + margin, 1500)
+    ax.plot(dense, _zero_order(tool, zoa_lobes).limit(dense) * 1e3, color="black", lw=1.1,
+            label="zero-order (ZOA) lobes")
+    if curve_points > 0:
+        speeds = np.linspace(low - margin, high + margin, curve_points)
+        sd, _ = references(tool, speeds, zoa_lobes)
+        ax.plot(speeds, sd * 1e3, color="tab:blue", lw=1.1, ls="--", label="semi-discretization (SD)")
+    stable = g <= 1.0
+    scatter = ax.scatter(n[stable], a[stable], c=log_g[stable], cmap="coolwarm", norm=norm, marker="o", s=26,
+                         edgecolors="black", linewidths=0.4, label="co-simulation: stable", zorder=4)
+    ax.scatter(n[~stable], a[~stable], c=log_g[~stable], cmap="coolwarm", norm=norm, marker="X", s=34,
+               edgecolors="black", linewidths=0.3, label="co-simulation: chatter", zorder=4)
+    found = [r for r in rows if math.isfinite(r.cosim)]
+    ax.scatter([r.speed_rpm for r in found], [r.cosim * 1e3 for r in found], marker="D", s=30, facecolors="none",
+               edgecolors="tab:green", linewidths=1.4, label="co-simulated onset (growth = 1)", zorder=5)
+    fig.colorbar(scatter, ax=ax, label="log10 growth of the free vibration")
+    ax.set_xlim(low - margin, high + margin)
+    top = float(np.max(a)) if a.size else 1.0
+    ax.set_ylim(0, 1.08 * top)
+    ax.set_xlabel("spindle speed [rpm]")
+    ax.set_ylabel("axial depth of cut [mm]")
+    ax.set_title(title or "Simulated stability map: co-simulated cases over the ZOA and SD lobes", fontsize=10)
+    ax.grid(alpha=0.3)
+    ax.legend(fontsize=8, loc="upper left")
+    path.parent.mkdir(parents=True, exist_ok=True)
+    fig.savefig(path, dpi=110)
+
+
+@dataclass(frozen=True)
+class MapConfig:
+    """The ``[study.map]`` table (see the module docstring)."""
+
+    speed: str = "force.spindle_speed"
+    depth: str = "force.axial_depth"
+    growth: str = "growth"
+    curve_points: int = 120
+    zoa_lobes: int = 60
+
+
+def map_config(table: Mapping[str, Any], where: str) -> MapConfig:
+    """``[study.map]`` read from ``table``; errors name ``where`` (the study file) and the key."""
+    if not isinstance(table, Mapping):
+        raise ValueError(f"{where}: [study.map]: expected a table, got {table!r}")
+    fields = MapConfig.__dataclass_fields__
+    values: dict[str, Any] = {}
+    for key, value in table.items():
+        if key not in fields:
+            raise ValueError(f"{where}: [study.map].{key}: unknown key; known: {', '.join(fields)}")
+        default = getattr(MapConfig, key)
+        if isinstance(default, str):
+            if not isinstance(value, str) or (key != "growth" and value.count(".") < 1):
+                raise ValueError(f"{where}: [study.map].{key} = {value!r}: expected "
+                                 + ("a column name" if key == "growth" else "'instance.variable'"))
+        elif isinstance(value, bool) or not isinstance(value, int) or value < (0 if key == "curve_points" else 1):
+            raise ValueError(f"{where}: [study.map].{key} = {value!r}: expected an integer >= "
+                             f"{0 if key == 'curve_points' else 1}")
+        values[key] = value
+    return MapConfig(**values)
+
+
+def stability_map(summary: pd.DataFrame, base: Scenario, out_dir: Path, config: MapConfig = MapConfig(),
+                  echo: bool = True) -> list[MapRow]:
+    """The map of a finished study: onsets per speed (co-sim, SD, ZOA) in ``out_dir/stability_map.csv`` (printed
+    when ``echo``) and the figure ``out_dir/stability_map.png``. ``base``: the study's base scenario (its tool)."""
+    tool = tool_and_cut(base)
+    rows = map_rows(onsets(summary, config.speed, config.depth, config.growth), tool, config.zoa_lobes)
+    write_csv(rows, out_dir / CSV_NAME)
+    plot_map(out_dir / FIGURE_NAME, summary, rows, tool, config.speed, config.depth, config.growth,
+             config.curve_points, config.zoa_lobes,
+             title=f"Simulated stability map of {base.path.name}: co-simulated cases over the ZOA and SD lobes")
+    if echo:
+        print(table_text(rows))
+        print(f"map: {out_dir / CSV_NAME}, {out_dir / FIGURE_NAME}")
+    return rows
+

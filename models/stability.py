@@ -17,6 +17,7 @@ import contextlib
 import ctypes
 import functools
 import math
+import threading
 from collections.abc import Callable, Iterator
 from dataclasses import dataclass
 from pathlib import Path
@@ -229,20 +230,41 @@ class SemiDiscretization:
             return float(np.max(np.abs(np.linalg.eigvals(self.monodromy(depth)))))
 
 
-@contextlib.contextmanager
-def _one_blas_thread() -> Iterator[None]:
+class _OneBlasThread:
     """The bundled OpenBLAS of numpy and of scipy on one thread while the monodromy's small dense problems are
     solved (sizes 12 and ~300: threads only add synchronisation, and on a busy 2-core machine their spin-waits made
-    one speed take 10-100 times longer). Restored afterwards; nothing happens for another BLAS."""
-    controls = _openblas_thread_controls()
-    before = [get() for get, _ in controls]
-    for _, set_ in controls:
-        set_(1)
-    try:
-        yield
-    finally:
-        for (_, set_), threads in zip(controls, before):
-            set_(threads)
+    one speed take 10-100 times longer); nothing happens for another BLAS.
+
+    OpenBLAS's thread count belongs to the process, so the switch is counted: the first of any number of
+    concurrent users (threads of a study's worker, say) saves the count and sets one thread, the last restores it.
+    Without the count, two overlapping users restoring in the wrong order would leave the process on one thread."""
+
+    def __init__(self) -> None:
+        self._lock = threading.Lock()
+        self._users = 0
+        self._saved: list[int] = []
+
+    @contextlib.contextmanager
+    def __call__(self) -> Iterator[None]:
+        controls = _openblas_thread_controls()
+        with self._lock:
+            if self._users == 0:
+                self._saved = [get() for get, _ in controls]
+                for _, set_ in controls:
+                    set_(1)
+            self._users += 1
+        try:
+            yield
+        finally:
+            with self._lock:
+                self._users -= 1
+                if self._users == 0:
+                    for (_, set_), threads in zip(controls, self._saved):
+                        set_(threads)
+
+
+# One per process, like the thread count it guards.
+_one_blas_thread = _OneBlasThread()
 
 
 @functools.lru_cache(maxsize=1)

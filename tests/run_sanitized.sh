@@ -9,7 +9,8 @@
 # environment -- runs instrumented. Leak detection is off: the interpreter's own allocations are not ours
 # (leaks are checked by valgrind in ctest). Every report is written to <build>/sanitizer-reports/ as well as
 # aborting the process that made it: the stage fails when pytest fails or when any report exists, so a report
-# from a subprocess whose failure a test expected still fails it.
+# from a subprocess whose failure a test expected still fails it. MILLING_TWIN_SANITIZED=1 tells the few tests
+# that repeat one check over many random inputs to take fewer (each says how many and why).
 set -eu
 PYTHON=$1
 BUILD=$(cd "$2" && pwd)
@@ -27,7 +28,7 @@ status=0
 env LD_PRELOAD="$ASAN_RUNTIME $UBSAN_RUNTIME" \
     ASAN_OPTIONS="detect_leaks=0:abort_on_error=1:halt_on_error=1:log_path=$REPORTS/asan" \
     UBSAN_OPTIONS="halt_on_error=1:print_stacktrace=1:log_path=$REPORTS/ubsan" \
-    MILLING_TWIN_FMU_DIR="$BUILD/fmus" \
+    MILLING_TWIN_FMU_DIR="$BUILD/fmus" MILLING_TWIN_SANITIZED=1 \
     "$PYTHON" -m pytest -p no:cacheprovider "$@" || status=$?
 if [ -n "$(ls -A "$REPORTS")" ]; then
     for report in "$REPORTS"/*; do

@@ -1,0 +1,95 @@
+"""The simulated stability map: the onset per speed read from a study summary, the semi-discretization and zero-order
+columns, the table and the figure, and a tiny real grid of chatter co-simulations through the study layer."""
+from __future__ import annotations
+
+import csv
+import math
+from pathlib import Path
+
+import numpy as np
+import pandas as pd
+import pytest
+
+from fmu_helpers import fmu_dir, repo_root
+from milling_twin.models.stability import Mode, semi_discretization_limit, stability_lobes
+from milling_twin.orchestrator.scenario import load_scenario
+from milling_twin.orchestrator.study import stability_map as sm
+from milling_twin.orchestrator.study.reduce import get_reduction
+from milling_twin.orchestrator.validation.chatter import tool_and_cut
+
+SCENARIO = repo_root() / "scenarios" / "chatter.toml"
+MODE = Mode(922.0, 0.011, 1.34e6)  # scenarios/chatter.toml's tool
+KTC, KRC = 767.01e6, 168.8e6  # the CuttingForce defaults
+
+
+def synthetic_summary(onset_by_speed: dict[float, float], depths: np.ndarray, rate: float = 40.0) -> pd.DataFrame:
+    """Growth exp(rate (a / a_onset - 1)) at every depth: log(growth) is linear in depth, crossing 0 at the onset."""
+    rows = []
+    for rpm, onset in onset_by_speed.items():
+        for depth in depths[::-1]:  # any order
+            rows.append({"force.spindle_speed": rpm * 2 * math.pi / 60, "force.axial_depth": depth,
+                         "growth": math.exp(rate * (depth / onset - 1)), "status": "ok"})
+    return pd.DataFrame(rows)
+
+
+def test_onset_is_the_log_growth_crossing_between_the_deepest_stable_and_shallowest_unstable_depth() -> None:
+    depths = np.linspace(0.02e-3, 0.12e-3, 6)  # 0.02 mm steps
+    summary = synthetic_summary({6000.0: 0.0391e-3, 16000.0: 0.0534e-3, 24000.0: 0.11e-3}, depths)
+    found = sm.onsets(summary)
+    assert [o.speed_rpm for o in found] == pytest.approx([6000.0, 16000.0, 24000.0])
+    assert [o.depth for o in found] == pytest.approx([0.0391e-3, 0.0534e-3, 0.11e-3], rel=1e-9)
+    assert (found[0].stable_depth, found[0].unstable_depth) == pytest.approx((0.02e-3, 0.04e-3))
+    assert (found[2].stable_depth, found[2].unstable_depth) == pytest.approx((0.10e-3, 0.12e-3))
+    assert all(o.note == "" for o in found)
+
+
+def test_onset_not_bracketed_failed_cases_left_out_and_an_island_noted() -> None:
+    assert math.isnan(sm.onset_of(6000.0, [1e-5, 2e-5], [0.3, 0.9]).depth)
+    assert sm.onset_of(6000.0, [1e-5, 2e-5], [0.3, 0.9]).note == "stable up to 0.02 mm"
+    below = sm.onset_of(6000.0, [1e-5, 2e-5], [1.3, 2.0])
+    assert math.isnan(below.depth) and below.unstable_depth == 2e-5 / 2 and below.note == "chatter from 0.01 mm"
+    island = sm.onset_of(9000.0, [1e-5, 2e-5, 3e-5, 4e-5], [0.5, 2.0, 0.8, 3.0])
+    assert (island.stable_depth, island.unstable_depth, island.note) == (1e-5, 2e-5, "stable again above")
+    assert island.depth == pytest.approx(1e-5 + math.log(2) / math.log(4) * 1e-5)
+    summary = synthetic_summary({6000.0: 0.04e-3}, np.array([0.02e-3, 0.03e-3, 0.05e-3]))
+    failed = summary.iloc[[0]].assign(**{"force.axial_depth": 0.045e-3, "growth": math.nan, "status": "failed"})
+    (onset,) = sm.onsets(pd.concat([summary, failed], ignore_index=True))
+    assert (onset.stable_depth, onset.unstable_depth) == pytest.approx((0.03e-3, 0.05e-3))
+    with pytest.raises(KeyError, match="no column 'growth_z'"):
+        sm.onsets(summary, growth="growth_z")
+
+
+def test_sd_and_zoa_columns_are_the_stability_models_at_the_same_speeds(tmp_path: Path) -> None:
+    base = load_scenario(SCENARIO, fmu_dir())
+    speeds = [11000.0, 16000.0]
+    summary = synthetic_summary({11000.0: 0.036e-3, 16000.0: 0.055e-3}, np.linspace(0.03e-3, 0.06e-3, 4))
+    rows = sm.stability_map(summary, base, tmp_path, sm.MapConfig(curve_points=6), echo=False)
+    sd = [semi_discretization_limit((MODE,), (MODE,), KTC, KRC, 2, n) for n in speeds]
+    zoa = stability_lobes((MODE,), (MODE,), KTC, KRC, 2, lobes=60).limit(speeds)
+    assert [r.sd for r in rows] == pytest.approx(sd, rel=1e-12)
+    assert [r.zoa for r in rows] == pytest.approx(zoa, rel=1e-12)
+    assert [r.cosim for r in rows] == pytest.approx([0.036e-3, 0.055e-3], rel=1e-9)
+    assert rows[0].cosim_vs_sd == pytest.approx(0.036e-3 / sd[0] - 1)
+    with (tmp_path / sm.CSV_NAME).open() as f:
+        table = list(csv.DictReader(f))
+    assert [float(r["sd_mm"]) for r in table] == pytest.approx(np.array(sd) * 1e3, rel=1e-5)
+    assert [float(r["zoa_vs_sd_pct"]) for r in table] == pytest.approx(100 * (zoa / np.array(sd) - 1), abs=1e-3)
+    assert (tmp_path / sm.FIGURE_NAME).stat().st_size > 20_000
+    text = sm.table_text(rows)
+    assert "11000" in text and "co-sim within 5 % of SD at" in text
+
+
+def test_map_config_errors_name_the_file_and_key() -> None:
+    assert sm.map_config({"curve_points": 0}, "s.toml") == sm.MapConfig(curve_points=0)
+    with pytest.raises(ValueError, match=r"s\.toml: \[study\.map\]\.speeds: unknown key"):
+        sm.map_config({"speeds": 3}, "s.toml")
+    with pytest.raises(ValueError, match=r"s\.toml: \[study\.map\]\.zoa_lobes = 0"):
+        sm.map_config({"zoa_lobes": 0}, "s.toml")
+    with pytest.raises(ValueError, match=r"s\.toml: \[study\.map\]\.depth = 'depth'"):
+        sm.map_config({"depth": "depth"}, "s.toml")
+
+
+def test_chatter_growth_is_registered() -> None:
+    assert get_reduction("chatter_growth") is sm.chatter_growth
+    assert np.allclose(sm.growth_windows(0.0, 0.2), ((0.1, 0.15), (0.15, 0.2)), rtol=0, atol=1e-15)
+    assert tool_and_cut(load_scenario(SCENARIO, fmu_dir())).modes_x == (MODE,)

@@ -63,24 +63,34 @@ def test_sd_and_zoa_columns_are_the_stability_models_at_the_same_speeds(tmp_path
     base = load_scenario(SCENARIO, fmu_dir())
     speeds = [11000.0, 16000.0]
     summary = synthetic_summary({11000.0: 0.036e-3, 16000.0: 0.055e-3}, np.linspace(0.03e-3, 0.06e-3, 4))
-    rows = sm.stability_map(summary, base, tmp_path, sm.MapConfig(curve_points=6), echo=False)
+    summary["chip_growth"] = summary["growth"] ** 2  # the same crossings
+    maps = sm.stability_map(summary, base, tmp_path, sm.MapConfig(growth=("growth", "chip_growth"), curve_points=6),
+                            echo=False)
+    rows = maps["growth"]
     sd = [semi_discretization_limit((MODE,), (MODE,), KTC, KRC, 2, n) for n in speeds]
     zoa = stability_lobes((MODE,), (MODE,), KTC, KRC, 2, lobes=60).limit(speeds)
     assert [r.sd for r in rows] == pytest.approx(sd, rel=1e-12)
     assert [r.zoa for r in rows] == pytest.approx(zoa, rel=1e-12)
     assert [r.cosim for r in rows] == pytest.approx([0.036e-3, 0.055e-3], rel=1e-9)
     assert rows[0].cosim_vs_sd == pytest.approx(0.036e-3 / sd[0] - 1)
-    with (tmp_path / sm.CSV_NAME).open() as f:
+    assert [r.cosim for r in maps["chip_growth"]] == pytest.approx([r.cosim for r in rows], rel=1e-9)
+    csv_path, figure = sm.map_paths(tmp_path, "growth", True)
+    assert (csv_path.name, figure.name) == ("stability_map.csv", "stability_map.png")
+    with csv_path.open() as f:
         table = list(csv.DictReader(f))
     assert [float(r["sd_mm"]) for r in table] == pytest.approx(np.array(sd) * 1e3, rel=1e-5)
     assert [float(r["zoa_vs_sd_pct"]) for r in table] == pytest.approx(100 * (zoa / np.array(sd) - 1), abs=1e-3)
-    assert (tmp_path / sm.FIGURE_NAME).stat().st_size > 20_000
+    assert figure.stat().st_size > 20_000
+    assert all(p.stat().st_size > 0 for p in sm.map_paths(tmp_path, "chip_growth", False))
     text = sm.table_text(rows)
     assert "11000" in text and "co-sim within 5 % of SD at" in text
 
 
 def test_map_config_errors_name_the_file_and_key() -> None:
     assert sm.map_config({"curve_points": 0}, "s.toml") == sm.MapConfig(curve_points=0)
+    assert sm.map_config({"growth": "chip_growth"}, "s.toml").growth == ("chip_growth",)
+    with pytest.raises(ValueError, match=r"s\.toml: \[study\.map\]\.growth = \[\]"):
+        sm.map_config({"growth": []}, "s.toml")
     with pytest.raises(ValueError, match=r"s\.toml: \[study\.map\]\.speeds: unknown key"):
         sm.map_config({"speeds": 3}, "s.toml")
     with pytest.raises(ValueError, match=r"s\.toml: \[study\.map\]\.zoa_lobes = 0"):

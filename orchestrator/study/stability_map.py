@@ -2,13 +2,17 @@
 chatter per speed read from the grid, and the same onset from the semi-discretization and the zero-order solution.
 
 A study of ``scenarios/chatter.toml`` (CuttingForce and ToolVibration in a loop; ``studies/stability_map.toml``) runs
-each case and reduces it with ``chatter_growth``: the growth in x and in y of the free vibration, the tool
-displacement sampled once per tooth period (``orchestrator/validation/chatter.py``: ``displacement_growth``), its
-spread in the last quarter of the run over that in the quarter before (0.15-0.2 s over 0.1-0.15 s for the
-scenario's 0.2 s, as ``milling-twin validate chatter``); ``growth`` is the larger of the two and the case is
-``stable`` (1) when it is <= 1, else 0.
+each case and reduces it with ``chatter_growth`` over two windows, the third and the last quarter of the run
+(0.1-0.15 s and 0.15-0.2 s for the scenario's 0.2 s, as ``milling-twin validate chatter``):
 
-The map (``[study.map]`` of the study; run after the sweep, or by :func:`stability_map` on a summary):
+- ``growth_x``, ``growth_y``: the growth of the free vibration, the tool displacement sampled once per tooth period
+  (``orchestrator/validation/chatter.py``: ``displacement_growth``), its spread in the second window over the first;
+  ``growth`` is the larger of the two and the case is ``stable`` (1) when it is <= 1, else 0;
+- ``chip_growth``: the RMS of the dynamic chip r(t) - r(t - tau) of the tip displacement in the second window over
+  the first (:func:`dynamic_chip_growth`), where the forced response cancels at every step, not only in samples.
+
+The map (``[study.map]`` of the study; run after the sweep, or by :func:`stability_map` on a summary), for each
+growth column named:
 
 - the co-simulated onset per speed: going up in depth, the first unstable case and the stable case below it bracket
   the onset; the depth where log(growth) crosses 0, interpolated linearly in depth between the two
@@ -16,12 +20,13 @@ The map (``[study.map]`` of the study; run after the sweep, or by :func:`stabili
 - the semi-discretization onset (``models.stability.semi_discretization_limit``, exact for the delay equation up to
   its step) and the zero-order onset (``models.stability.stability_lobes``, as ``milling-twin lobes``) at the same
   speeds, for the base scenario's tool, coefficients and immersion;
-- ``stability_map.csv`` (one row per speed: the three onsets in mm, the bracket and the relative differences), the
-  same table printed, and ``stability_map.png``: every case coloured by its growth (circles stable, crosses chatter)
-  over the zero-order and semi-discretization lobes, the co-simulated onsets marked.
+- a CSV (one row per speed: the three onsets in mm, the bracket and the relative differences), the same table
+  printed, and a figure: every case coloured by its growth (circles stable, crosses chatter) over the zero-order
+  and semi-discretization lobes, the co-simulated onsets marked (:func:`map_paths`: ``stability_map.csv``/``.png``
+  for the first column, ``stability_map_<column>.csv``/``.png`` for the others).
 
 ``[study.map]`` keys (all optional): ``speed`` (the varied spindle speed, default ``"force.spindle_speed"``),
-``depth`` (default ``"force.axial_depth"``), ``growth`` (the summary column, default ``"growth"``),
+``depth`` (default ``"force.axial_depth"``), ``growth`` (a summary column or a list of them, default ``"growth"``),
 ``curve_points`` (speeds of the semi-discretization curve in the figure, default 120; 0 draws none),
 ``zoa_lobes`` (lobes of the zero-order curve, default 60).
 """
@@ -45,12 +50,11 @@ if TYPE_CHECKING:
 
     from milling_twin.orchestrator.scenario import Scenario
 
-__all__ = ["MapConfig", "MapRow", "Onset", "chatter_growth", "growth_windows", "map_config", "map_rows", "onset_of",
-           "onsets", "plot_map", "references", "stability_map", "table_text", "write_csv"]
+__all__ = ["MapConfig", "MapRow", "Onset", "chatter_growth", "dynamic_chip_growth", "growth_windows", "map_config",
+           "map_paths", "map_rows", "onset_of", "onsets", "plot_map", "references", "stability_map", "table_text",
+           "write_csv"]
 
 RPM = 60.0 / (2 * math.pi)  # rad/s -> rpm
-CSV_NAME = "stability_map.csv"
-FIGURE_NAME = "stability_map.png"
 
 
 def growth_windows(start_time: float, stop_time: float) -> tuple[tuple[float, float], tuple[float, float]]:
@@ -59,13 +63,32 @@ def growth_windows(start_time: float, stop_time: float) -> tuple[tuple[float, fl
     return ((start_time + 0.5 * span, start_time + 0.75 * span), (start_time + 0.75 * span, stop_time))
 
 
+def dynamic_chip_growth(scenario: Scenario, frame: pd.DataFrame,
+                        windows: tuple[tuple[float, float], tuple[float, float]]) -> float:
+    """The RMS of the dynamic chip e(t) = r(t) - r(t - tau) (r: the tool tip displacement in x and y, tau: the tooth
+    period) in the second of ``windows`` [s] over the first. The forced response repeats every tooth period and
+    cancels in e at every output step, so e is the regenerative (free) vibration alone."""
+    force = scenario.instance("force")
+    tau = 2 * math.pi / (int(force.parameters.get("n_flutes", 2)) * force.inputs["spindle_speed"])
+    t = frame["time"].to_numpy(float)
+    squares = np.zeros_like(t)
+    for axis in ("x", "y"):
+        r = frame[f"vibration.tip_displacement_{axis}"].to_numpy(float)
+        squares += (r - np.interp(t - tau, t, r)) ** 2
+    rms = [math.sqrt(float(np.mean(squares[(t >= start) & (t < stop)]))) for start, stop in windows]
+    return rms[1] / rms[0] if rms[0] > 0 else math.inf
+
+
 @register("chatter_growth")
 def chatter_growth(case: CaseRun) -> dict[str, float]:
-    """``growth_x``, ``growth_y``, ``growth`` (the larger) and ``stable`` (1 when growth <= 1, else 0) of one case."""
+    """``growth_x``, ``growth_y``, ``growth`` (the larger), ``stable`` (1 when growth <= 1, else 0) and
+    ``chip_growth`` (:func:`dynamic_chip_growth`) of one case, over :func:`growth_windows`."""
     scenario = case.scenario
-    gx, gy = displacement_growth(scenario, case.results, growth_windows(scenario.start_time, scenario.stop_time))
+    windows = growth_windows(scenario.start_time, scenario.stop_time)
+    gx, gy = displacement_growth(scenario, case.results, windows)
     growth = max(gx, gy)
-    return {"growth_x": float(gx), "growth_y": float(gy), "growth": float(growth), "stable": float(growth <= 1.0)}
+    return {"growth_x": float(gx), "growth_y": float(gy), "growth": float(growth), "stable": float(growth <= 1.0),
+            "chip_growth": float(dynamic_chip_growth(scenario, case.results, windows))}
 
 
 @dataclass(frozen=True)
@@ -268,7 +291,7 @@ class MapConfig:
 
     speed: str = "force.spindle_speed"
     depth: str = "force.axial_depth"
-    growth: str = "growth"
+    growth: tuple[str, ...] = ("growth",)  # summary columns, one map each; the first names the files without suffix
     curve_points: int = 120
     zoa_lobes: int = 60
 
@@ -283,10 +306,15 @@ def map_config(table: Mapping[str, Any], where: str) -> MapConfig:
         if key not in fields:
             raise ValueError(f"{where}: [study.map].{key}: unknown key; known: {', '.join(fields)}")
         default = getattr(MapConfig, key)
-        if isinstance(default, str):
-            if not isinstance(value, str) or (key != "growth" and value.count(".") < 1):
-                raise ValueError(f"{where}: [study.map].{key} = {value!r}: expected "
-                                 + ("a column name" if key == "growth" else "'instance.variable'"))
+        if key == "growth":
+            columns = [value] if isinstance(value, str) else value
+            if not isinstance(columns, list) or not columns or not all(isinstance(c, str) and c for c in columns):
+                raise ValueError(f"{where}: [study.map].growth = {value!r}: expected a summary column or a list "
+                                 "of them")
+            value = tuple(columns)
+        elif isinstance(default, str):
+            if not isinstance(value, str) or value.count(".") < 1:
+                raise ValueError(f"{where}: [study.map].{key} = {value!r}: expected 'instance.variable'")
         elif isinstance(value, bool) or not isinstance(value, int) or value < (0 if key == "curve_points" else 1):
             raise ValueError(f"{where}: [study.map].{key} = {value!r}: expected an integer >= "
                              f"{0 if key == 'curve_points' else 1}")
@@ -294,18 +322,34 @@ def map_config(table: Mapping[str, Any], where: str) -> MapConfig:
     return MapConfig(**values)
 
 
-def stability_map(summary: pd.DataFrame, base: Scenario, out_dir: Path, config: MapConfig = MapConfig(),
-                  echo: bool = True) -> list[MapRow]:
-    """The map of a finished study: onsets per speed (co-sim, SD, ZOA) in ``out_dir/stability_map.csv`` (printed
-    when ``echo``) and the figure ``out_dir/stability_map.png``. ``base``: the study's base scenario (its tool)."""
-    tool = tool_and_cut(base)
-    rows = map_rows(onsets(summary, config.speed, config.depth, config.growth), tool, config.zoa_lobes)
-    write_csv(rows, out_dir / CSV_NAME)
-    plot_map(out_dir / FIGURE_NAME, summary, rows, tool, config.speed, config.depth, config.growth,
-             config.curve_points, config.zoa_lobes,
-             title=f"Simulated stability map of {base.path.name}: co-simulated cases over the ZOA and SD lobes")
-    if echo:
-        print(table_text(rows))
-        print(f"map: {out_dir / CSV_NAME}, {out_dir / FIGURE_NAME}")
-    return rows
+def map_paths(out_dir: Path, growth: str, first: bool) -> tuple[Path, Path]:
+    """(CSV, figure) of the map of one growth column: ``stability_map.csv``/``.png`` for the first column of
+    ``[study.map].growth``, ``stability_map_<column>.csv``/``.png`` for the others."""
+    stem = "stability_map" if first else f"stability_map_{growth}"
+    return out_dir / f"{stem}.csv", out_dir / f"{stem}.png"
 
+
+def stability_map(summary: pd.DataFrame, base: Scenario, out_dir: Path, config: MapConfig = MapConfig(),
+                  echo: bool = True) -> dict[str, list[MapRow]]:
+    """The maps of a finished study, one per growth column of ``config``: onsets per speed (co-sim, SD, ZOA) in a CSV
+    (printed when ``echo``) and a figure (:func:`map_paths`). ``base``: the study's base scenario (its tool)."""
+    tool = tool_and_cut(base)
+    speeds = [o.speed_rpm for o in onsets(summary, config.speed, config.depth, config.growth[0])]
+    sd, zoa = references(tool, speeds, config.zoa_lobes)  # once for every growth column
+    maps: dict[str, list[MapRow]] = {}
+    for k, growth in enumerate(config.growth):
+        found = onsets(summary, config.speed, config.depth, growth)
+        rows = [MapRow(o.speed_rpm, o.depth, o.stable_depth, o.unstable_depth, float(s), float(z), o.note)
+                for o, s, z in zip(found, sd, zoa)]
+        csv_path, figure = map_paths(out_dir, growth, k == 0)
+        write_csv(rows, csv_path)
+        plot_map(figure, summary, rows, tool, config.speed, config.depth, growth, config.curve_points,
+                 config.zoa_lobes, title=f"Simulated stability map of {base.path.name} ({growth}): co-simulated cases "
+                 "over the ZOA and SD lobes")
+        if echo:
+            print(f"onset of chatter per speed, co-simulation ({growth} = 1) vs semi-discretization (SD) vs "
+                  "zero-order (ZOA):")
+            print(table_text(rows))
+            print(f"map: {csv_path}, {figure}")
+        maps[growth] = rows
+    return maps

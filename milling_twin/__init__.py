@@ -1,7 +1,7 @@
 """Milling twin: FMUs of CNC milling co-simulated against recorded machine data, aligned and calibrated.
 
 The Python API (:mod:`milling_twin.api`): :func:`simulate`, :func:`calibrate`, :func:`load_results`,
-:func:`load_scenario`, :class:`Results`. The command line: ``milling-twin`` (:mod:`milling_twin.cli`).
+:func:`load_scenario`, :func:`sweep` (studies), :class:`Results`. The command line: ``milling-twin`` (:mod:`milling_twin.cli`).
 Subpackages: ``milling_twin.models`` (the equations, the single source of every FMU),
 ``milling_twin.orchestrator`` (scenarios, co-simulation, alignment, calibration, validation),
 ``milling_twin.training`` (the learned model parts), ``milling_twin.datasets`` (published data sets).
@@ -13,9 +13,9 @@ from typing import TYPE_CHECKING, Any
 __version__ = "0.1.0"
 
 if TYPE_CHECKING:
-    from milling_twin.api import Results, calibrate, load_results, load_scenario, simulate
+    from milling_twin.api import Results, calibrate, load_results, load_scenario, simulate, sweep
 
-__all__ = ["Results", "__version__", "calibrate", "load_results", "load_scenario", "simulate"]
+__all__ = ["Results", "__version__", "calibrate", "load_results", "load_scenario", "simulate", "sweep"]
 
 
 def __getattr__(name: str) -> Any:

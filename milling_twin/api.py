@@ -24,8 +24,9 @@ if TYPE_CHECKING:  # the heavy modules load when a function is called, not on `i
     from milling_twin.orchestrator.part.report import ProcessReport
     from milling_twin.orchestrator.report import Report
     from milling_twin.orchestrator.scenario import Scenario
+    from milling_twin.orchestrator.study.run import StudyResult
 
-__all__ = ["Results", "calibrate", "default_fmu_dir", "load_results", "load_scenario", "simulate"]
+__all__ = ["Results", "calibrate", "default_fmu_dir", "load_results", "load_scenario", "simulate", "sweep"]
 
 FMU_DIR_ENV = "MILLING_TWIN_FMU_DIR"
 
@@ -143,3 +144,18 @@ def calibrate(spec: str | Path, *, fmu_dir: str | Path | None = None, out: str |
 
     return run_calibration(spec, fmu_dir if fmu_dir is not None else default_fmu_dir(), out, data=data,
                            progress=progress, write_set=write_set, overrides=overrides)
+
+
+def sweep(study: str | Path, *, fmu_dir: str | Path | None = None, out: str | Path = "runs",
+          workers: int | None = None, scheduler: str | None = None, resume: bool = False,
+          progress: bool = False) -> StudyResult:
+    """Run a study file's cases (docs/studies.md) into ``out/<study name>/``: each case a run folder in ``cases/``,
+    one summary row per case in ``summary.parquet`` (and ``summary/``, written as cases finish). ``workers``:
+    None an embedded dask cluster sized to the machine, N local worker processes, 0 serially in this process;
+    ``scheduler``: an existing dask cluster (address or scheduler file). ``resume`` skips the cases already ok.
+    Raises ``StudyError`` (naming the file and key) for an invalid study; a failing case is a summary row."""
+    from milling_twin.orchestrator.study.run import sweep as run_study
+    from milling_twin.orchestrator.study.spec import load_study
+
+    loaded = load_study(study, fmu_dir if fmu_dir is not None else default_fmu_dir())
+    return run_study(loaded, out, workers=workers, scheduler=scheduler, resume=resume, progress=progress)

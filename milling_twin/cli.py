@@ -48,6 +48,7 @@ EXIT_CODES: tuple[ExitCode, ...] = (
     ExitCode("milling_twin.orchestrator.recorded", "RecordedDataError", 2, "invalid recorded data"),
     ExitCode("milling_twin.models.units", "UnitError", 2, "unknown unit, or a unit of another dimension"),
     ExitCode("milling_twin.orchestrator.calibrate.errors", "CalibrationSpecError", 2, "invalid calibration spec"),
+    ExitCode("milling_twin.orchestrator.study.spec", "StudyError", 2, "invalid study file"),
     ExitCode("milling_twin.datasets", "DataMissing", 2, "a data set is not where it was looked for"),
     ExitCode("milling_twin.orchestrator.fastpath", "FastPathUnavailable", 2, "--path fast cannot run this scenario"),
     ExitCode("milling_twin.orchestrator.align.errors", "AlignmentError", 2,
@@ -254,6 +255,32 @@ def _train_rbf(p: argparse.ArgumentParser) -> None:
     p.add_argument("--epochs", type=int, default=None, help="gradient-descent epochs")
 
 
+def _workers(text: str) -> int:
+    try:
+        n = int(text)
+    except ValueError:
+        n = -1
+    if n < 0:
+        raise argparse.ArgumentTypeError(f"expected 0 (serial, in this process) or a number of workers, got {text!r}")
+    return n
+
+
+def _sweep(p: argparse.ArgumentParser) -> None:
+    p.add_argument("study", type=Path, help="study TOML file ([study]: base scenario, cases, reductions)")
+    _add_fmu_dir(p)
+    p.add_argument("--out", type=Path, default=Path("runs"),
+                   help="the study goes to OUT/<study name>/: summary.parquet, summary/, cases/ (default: runs)")
+    where = p.add_mutually_exclusive_group()
+    where.add_argument("--workers", type=_workers, default=None, metavar="N",
+                       help="N local worker processes (0: serially in this process); default: an embedded dask "
+                            "cluster with one worker per core")
+    where.add_argument("--scheduler", default=None, metavar="ADDR|FILE",
+                       help="an existing dask cluster: its scheduler's address (tcp://host:8786) or scheduler file")
+    p.add_argument("--resume", action="store_true",
+                   help="skip the cases the summary has as ok (a killed or failed study goes on)")
+    p.add_argument("--no-progress", action="store_true", help="no progress bar")
+
+
 def _info(p: argparse.ArgumentParser) -> None:
     p.add_argument("fmu", type=Path, help="an .fmu file (or a model name found in --fmu-dir, e.g. SpindlePower)")
     _add_fmu_dir(p)
@@ -305,6 +332,8 @@ COMMANDS: tuple[Subcommand | Group, ...] = (
                "milling_twin.commands:run"),
     Subcommand("calibrate", "fit model parameters to recorded data (a calibration spec)", _calibrate,
                "milling_twin.commands:calibrate"),
+    Subcommand("sweep", "run a study: many cases of a scenario (grid, list, sample, Monte Carlo) on dask workers, "
+               "one summary row per case", _sweep, "milling_twin.orchestrator.study.cli:command"),
     Group("align", "align recorded data with simulation in time or space", (
         Subcommand("temporal", "map every recorded sample to its simulated moment; writes the time map (CSV)",
                    _align_temporal, "milling_twin.orchestrator.align.cli:temporal"),

@@ -19,6 +19,7 @@ functions, dataclasses); paths given to them must be absolute (workers may run i
 from __future__ import annotations
 
 import concurrent.futures
+import importlib
 import logging
 import os
 from collections.abc import Callable, Iterator
@@ -99,10 +100,27 @@ def open_executor(workers: int | None = None, scheduler: str | None = None) -> I
         finally:
             executor.shutdown()
         return
-    client, cluster = _client_for(workers, scheduler)
+    with _quiet_dask():
+        client, cluster = _client_for(workers, scheduler)
+        try:
+            yield client.get_executor(pure=False)
+        finally:
+            client.close()
+            if cluster is not None:
+                cluster.close()
+
+
+@contextmanager
+def _quiet_dask() -> Iterator[None]:
+    """dask's scheduler and client log at INFO (start, addresses, every connection): only warnings and errors show
+    while the executor is open, unless this process logs at DEBUG."""
+    importlib.import_module("distributed")  # configures its loggers on import: first, so the level set here holds
+
+    logger = logging.getLogger("distributed")
+    previous = logger.level
+    if logging.getLogger().getEffectiveLevel() > logging.DEBUG:
+        logger.setLevel(logging.WARNING)
     try:
-        yield client.get_executor(pure=False)
+        yield
     finally:
-        client.close()
-        if cluster is not None:
-            cluster.close()
+        logger.setLevel(previous)

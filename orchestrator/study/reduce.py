@@ -28,6 +28,7 @@ Built in (``kind``):
 from __future__ import annotations
 
 import importlib
+import json
 import math
 from collections.abc import Callable, Mapping
 from dataclasses import dataclass, field
@@ -65,10 +66,13 @@ class CaseRun:
     run_dir: Path
     status: str
     run: RunResult | None = field(default=None, compare=False, repr=False)
+    frame: pd.DataFrame | None = field(default=None, compare=False, repr=False)  # the rows, when already loaded
 
     @cached_property
     def results(self) -> pd.DataFrame:
-        """The run's rows (loaded from ``run_dir`` on first use)."""
+        """The run's rows (``frame``, else loaded from ``run_dir`` on first use)."""
+        if self.frame is not None:
+            return self.frame
         from milling_twin.orchestrator.results import load_results
 
         return load_results(self.run_dir)
@@ -159,14 +163,21 @@ def machining_time(case: CaseRun, *, name: str = "machining_time") -> dict[str, 
 
 @register("rms_error")
 def rms_error(case: CaseRun) -> dict[str, float]:
-    """The scenario's ``[[compare]]`` pairs, compared as ``milling-twin run`` does (report.json in the run folder)."""
+    """The scenario's ``[[compare]]`` pairs, compared as ``milling-twin run`` does: the run's report.json (written
+    by the run), else the comparison made now."""
     if not case.scenario.compare:
         raise ValueError(f"kind = 'rms_error': scenario {case.scenario.path} has no [[compare]] pairs")
-    from milling_twin.orchestrator.report import write_report
+    report_file = case.run_dir / "report.json"
+    if report_file.is_file():
+        comparisons = json.loads(report_file.read_text())["comparisons"]
+    else:
+        from dataclasses import asdict
 
-    report = write_report(case.scenario, case.run_dir, case.results)
+        from milling_twin.orchestrator.report import write_report
+
+        comparisons = [asdict(c) for c in write_report(case.scenario, case.run_dir, case.results).comparisons]
     out: dict[str, float] = {}
-    for c in report.comparisons:
-        out[f"rms_error_{c.simulated}"] = c.rms_error
-        out[f"relative_rms_{c.simulated}"] = math.nan if c.relative_rms is None else c.relative_rms
+    for c in comparisons:
+        out[f"rms_error_{c['simulated']}"] = math.nan if c["rms_error"] is None else float(c["rms_error"])
+        out[f"relative_rms_{c['simulated']}"] = math.nan if c["relative_rms"] is None else float(c["relative_rms"])
     return out

@@ -51,8 +51,8 @@ if TYPE_CHECKING:
     from milling_twin.orchestrator.scenario import Scenario
 
 __all__ = ["MapConfig", "MapRow", "Onset", "chatter_growth", "dynamic_chip_growth", "growth_windows", "map_config",
-           "map_paths", "map_rows", "onset_of", "onsets", "plot_map", "references", "stability_map", "table_text",
-           "write_csv"]
+           "map_paths", "map_rows", "onset_of", "onsets", "plot_map", "references", "sd_curve", "speed_range",
+           "stability_map", "table_text", "write_csv"]
 
 RPM = 60.0 / (2 * math.pi)  # rad/s -> rpm
 
@@ -239,13 +239,31 @@ def table_text(rows: Sequence[MapRow]) -> str:
     return "\n".join(lines)
 
 
+def speed_range(cases: pd.DataFrame, speed: str) -> tuple[float, float]:
+    """The figure's speed axis [rpm]: the cases' speeds and 3 % of their range either side."""
+    n = cases[speed].to_numpy(float) * RPM
+    low, high = (float(np.min(n)), float(np.max(n))) if n.size else (1.0, 2.0)
+    margin = 0.03 * (high - low) if high > low else 0.05 * high
+    return low - margin, high + margin
+
+
+def sd_curve(tool: ToolAndCut, speeds: tuple[float, float], points: int) -> tuple[np.ndarray, np.ndarray]:
+    """(speeds [rpm], semi-discretization onsets [m]) at ``points`` speeds evenly over ``speeds``."""
+    n = np.linspace(speeds[0], speeds[1], points)
+    return n, np.array([semi_discretization_limit(tool.modes_x, tool.modes_y, tool.ktc, tool.krc, tool.n_flutes,
+                                                  float(x), tool.entry, tool.exit) for x in n])
+
+
 def plot_map(path: Path, cases: pd.DataFrame, rows: Sequence[MapRow], tool: ToolAndCut, speed: str, depth: str,
-             growth: str = "growth", curve_points: int = 120, zoa_lobes: int = 60, title: str = "") -> None:
-    """Every case at (speed, depth) coloured by its growth (circles stable, crosses chatter) over the zero-order
-    lobes and ``curve_points`` semi-discretization onsets; the co-simulated onsets as diamonds."""
+             growth: str = "growth", sd: tuple[np.ndarray, np.ndarray] | None = None, zoa_lobes: int = 60,
+             title: str = "") -> None:
+    """Every case at (speed, depth) coloured by its growth (circles stable, crosses chatter, grey triangles failed)
+    over the zero-order lobes and the semi-discretization curve ``sd`` (:func:`sd_curve`; None: not drawn); the
+    co-simulated onsets as diamonds."""
     from matplotlib.colors import TwoSlopeNorm
     from matplotlib.figure import Figure
 
+    failed = cases[cases["status"] != "ok"] if "status" in cases.columns else cases.iloc[:0]
     ok = cases[cases["status"] == "ok"] if "status" in cases.columns else cases
     n = ok[speed].to_numpy(float) * RPM
     a = ok[depth].to_numpy(float) * 1e3
@@ -253,28 +271,29 @@ def plot_map(path: Path, cases: pd.DataFrame, rows: Sequence[MapRow], tool: Tool
     log_g = np.log10(np.clip(np.nan_to_num(g, nan=1.0, posinf=1e6), 1e-6, 1e6))
     span = max(1e-3, float(np.max(np.abs(log_g)))) if log_g.size else 1.0
     norm = TwoSlopeNorm(vcenter=0.0, vmin=-span, vmax=span)
-    low, high = (float(np.min(n)), float(np.max(n))) if n.size else (1.0, 2.0)
-    margin = 0.03 * (high - low) if high > low else 0.05 * high
+    low, high = speed_range(cases, speed)
     fig = Figure(figsize=(10, 5.5), layout="constrained")
     ax = fig.subplots()
-    dense = np.linspace(low - margin, high + margin, 1500)
+    dense = np.linspace(low, high, 1500)
     ax.plot(dense, _zero_order(tool, zoa_lobes).limit(dense) * 1e3, color="black", lw=1.1,
             label="zero-order (ZOA) lobes")
-    if curve_points > 0:
-        speeds = np.linspace(low - margin, high + margin, curve_points)
-        sd, _ = references(tool, speeds, zoa_lobes)
-        ax.plot(speeds, sd * 1e3, color="tab:blue", lw=1.1, ls="--", label="semi-discretization (SD)")
+    if sd is not None:
+        ax.plot(sd[0], sd[1] * 1e3, color="tab:blue", lw=1.1, ls="--", label="semi-discretization (SD)")
     stable = g <= 1.0
     scatter = ax.scatter(n[stable], a[stable], c=log_g[stable], cmap="coolwarm", norm=norm, marker="o", s=26,
                          edgecolors="black", linewidths=0.4, label="co-simulation: stable", zorder=4)
     ax.scatter(n[~stable], a[~stable], c=log_g[~stable], cmap="coolwarm", norm=norm, marker="X", s=34,
                edgecolors="black", linewidths=0.3, label="co-simulation: chatter", zorder=4)
+    if len(failed):
+        ax.scatter(failed[speed].to_numpy(float) * RPM, failed[depth].to_numpy(float) * 1e3, marker="^", s=26,
+                   color="0.6", edgecolors="black", linewidths=0.3, zorder=4,
+                   label=f"co-simulation failed ({len(failed)}; the summary has the errors)")
     found = [r for r in rows if math.isfinite(r.cosim)]
     ax.scatter([r.speed_rpm for r in found], [r.cosim * 1e3 for r in found], marker="D", s=30, facecolors="none",
                edgecolors="tab:green", linewidths=1.4, label="co-simulated onset (growth = 1)", zorder=5)
     fig.colorbar(scatter, ax=ax, label="log10 growth of the free vibration")
-    ax.set_xlim(low - margin, high + margin)
-    top = float(np.max(a)) if a.size else 1.0
+    ax.set_xlim(low, high)
+    top = float(cases[depth].max()) * 1e3 if len(cases) else 1.0
     ax.set_ylim(0, 1.08 * top)
     ax.set_xlabel("spindle speed [rpm]")
     ax.set_ylabel("axial depth of cut [mm]")
@@ -334,22 +353,26 @@ def stability_map(summary: pd.DataFrame, base: Scenario, out_dir: Path, config: 
     """The maps of a finished study, one per growth column of ``config``: onsets per speed (co-sim, SD, ZOA) in a CSV
     (printed when ``echo``) and a figure (:func:`map_paths`). ``base``: the study's base scenario (its tool)."""
     tool = tool_and_cut(base)
+    failed = int((summary["status"] != "ok").sum()) if "status" in summary.columns else 0
     speeds = [o.speed_rpm for o in onsets(summary, config.speed, config.depth, config.growth[0])]
-    sd, zoa = references(tool, speeds, config.zoa_lobes)  # once for every growth column
+    reference = dict(zip(speeds, zip(*references(tool, speeds, config.zoa_lobes))))  # once for every growth column
+    curve = sd_curve(tool, speed_range(summary, config.speed), config.curve_points) if config.curve_points else None
     maps: dict[str, list[MapRow]] = {}
     for k, growth in enumerate(config.growth):
         found = onsets(summary, config.speed, config.depth, growth)
-        rows = [MapRow(o.speed_rpm, o.depth, o.stable_depth, o.unstable_depth, float(s), float(z), o.note)
-                for o, s, z in zip(found, sd, zoa)]
+        rows = [MapRow(o.speed_rpm, o.depth, o.stable_depth, o.unstable_depth, float(reference[o.speed_rpm][0]),
+                       float(reference[o.speed_rpm][1]), o.note) for o in found]
         csv_path, figure = map_paths(out_dir, growth, k == 0)
         write_csv(rows, csv_path)
-        plot_map(figure, summary, rows, tool, config.speed, config.depth, growth, config.curve_points,
-                 config.zoa_lobes, title=f"Simulated stability map of {base.path.name} ({growth}): co-simulated cases "
+        plot_map(figure, summary, rows, tool, config.speed, config.depth, growth, curve, config.zoa_lobes,
+                 title=f"Simulated stability map of {base.path.name} ({growth}): co-simulated cases "
                  "over the ZOA and SD lobes")
         if echo:
             print(f"onset of chatter per speed, co-simulation ({growth} = 1) vs semi-discretization (SD) vs "
                   "zero-order (ZOA):")
             print(table_text(rows))
+            if failed:
+                print(f"{failed} failed cases left out (their errors are in the summary)")
             print(f"map: {csv_path}, {figure}")
         maps[growth] = rows
     return maps

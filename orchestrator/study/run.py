@@ -1,0 +1,193 @@
+"""Running a study: every case through the executor, the summary written as cases finish.
+
+:func:`sweep` submits one :func:`run_case` per case to :func:`~milling_twin.orchestrator.study.executor.open_executor`
+(the embedded dask cluster, N local workers, an existing scheduler, or serially in this process). On the worker a
+case is the ordinary run: the base scenario with the case's values (``with_values``, named by the case id), run by
+the master into ``<out>/<study>/cases/<case id>/`` (Parquet, run.json, the report), then reduced there; only the
+summary row comes back. A case that fails (an invalid value, an FMU error, a reduction that raises, a worker lost
+more often than dask retries) gives a row with status "failed" and the message; the study goes on.
+"""
+from __future__ import annotations
+
+import logging
+import math
+import time
+import traceback
+from collections.abc import Mapping
+from concurrent.futures import FIRST_COMPLETED, Executor, Future, wait
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+import pandas as pd
+from tqdm import tqdm
+
+from milling_twin.orchestrator.scenario import Scenario
+from milling_twin.orchestrator.study.executor import SerialExecutor, open_executor
+from milling_twin.orchestrator.study.reduce import CaseRun, get_reduction
+from milling_twin.orchestrator.study.spec import Case, ReduceSpec, Study
+from milling_twin.orchestrator.study.summary import SummaryStore
+
+__all__ = ["CaseTask", "StudyResult", "run_case", "sweep"]
+
+_log = logging.getLogger(__name__)
+
+CASES = "cases"
+
+
+@dataclass(frozen=True)
+class CaseTask:
+    """What a worker needs for one case (pickled to it; paths absolute)."""
+
+    case: Case
+    scenario: Scenario  # the study's base scenario (stop time applied)
+    cases_dir: Path
+    reductions: tuple[ReduceSpec, ...]
+    inputs: tuple[str, ...]  # the study's variables: the summary's input columns
+    stepping: str = "auto"
+
+
+@dataclass(frozen=True)
+class StudyResult:
+    name: str
+    folder: Path  # <out>/<study name>
+    summary: pd.DataFrame  # the consolidated summary (summary.parquet)
+    ran: int  # cases run by this sweep
+    skipped: int  # cases finished before (--resume)
+    failed: int  # rows with status "failed"
+    wall_time: float  # s, the sweep (cluster start included)
+    workers: int | None  # the executor's size when known (0: serial)
+
+    @property
+    def summary_file(self) -> Path:
+        return self.folder / "summary.parquet"
+
+
+def _si_inputs(scenario: Scenario, names: tuple[str, ...]) -> dict[str, Any]:
+    out: dict[str, Any] = {}
+    for name in names:
+        instance, _, variable = name.partition(".")
+        inst = scenario.instance(instance)
+        out[name] = inst.parameters.get(variable, inst.inputs.get(variable))
+    return out
+
+
+def _message(exc: BaseException) -> str:
+    text = str(exc) or traceback.format_exception_only(type(exc), exc)[-1].strip()
+    return f"{type(exc).__name__}: {text}"
+
+
+def _check_outputs(spec: ReduceSpec, outputs: Any) -> dict[str, float]:
+    if not isinstance(outputs, Mapping):
+        raise TypeError(f"{spec.key} ({spec.kind}) returned {type(outputs).__name__}, not a dict of numbers")
+    checked = {}
+    for name, value in outputs.items():
+        if isinstance(value, bool) or not isinstance(value, (int, float)):
+            raise TypeError(f"{spec.key} ({spec.kind}) gave {name!r} = {value!r}, not a number")
+        checked[str(name)] = float(value)
+    return checked
+
+
+def run_case(task: CaseTask) -> dict[str, Any]:
+    """One case on a worker: run, reduce, and the summary row (never raises for the case's own failures)."""
+    from milling_twin.api import simulate
+    from milling_twin.orchestrator.scenario import with_values
+
+    t0 = time.perf_counter()
+    case = task.case
+    row: dict[str, Any] = {"case_id": case.case_id, "status": "failed", "error": "",
+                           **{name: None for name in task.inputs}}
+    outputs: dict[str, float] = {}
+    run_status = ""
+    try:
+        scenario = with_values(task.scenario, case.values, name=case.case_id)
+        row.update(_si_inputs(scenario, task.inputs))
+        results = simulate(scenario, out=task.cases_dir, stepping=task.stepping, progress=False)
+        run_status = results.status
+        if results.status == "interrupted":
+            raise RuntimeError("the run was interrupted")
+        done = CaseRun(case.case_id, dict(case.values), results.scenario, Path(results.run_dir), results.status,
+                       results.run, results.frame)
+        for spec in task.reductions:
+            try:
+                values = get_reduction(spec.kind)(done, **spec.options)
+            except Exception as exc:  # noqa: BLE001 - the case fails with the reduction's message
+                raise RuntimeError(f"{spec.key} ({spec.kind}): {_message(exc)}") from exc
+            outputs.update(_check_outputs(spec, values))
+        row["status"] = "ok"
+    except Exception as exc:  # noqa: BLE001 - a failed case is a row of the summary, the study goes on
+        row["error"] = _message(exc)
+    row.update(outputs)
+    row.update(run_status=run_status, wall_time=time.perf_counter() - t0,
+               run_dir=str(task.cases_dir / case.case_id))
+    return row
+
+
+def _lost_row(task: CaseTask, exc: BaseException) -> dict[str, Any]:
+    """The row of a case whose task itself failed (its worker died more often than dask retries, say)."""
+    return {"case_id": task.case.case_id, "status": "failed", "error": _message(exc),
+            **{name: None for name in task.inputs}, "run_status": "", "wall_time": math.nan,
+            "run_dir": str(task.cases_dir / task.case.case_id)}
+
+
+def _dispatch(executor: Executor, tasks: list[CaseTask], store: SummaryStore, bar: tqdm) -> None:
+    """Submit the tasks (all at once to a cluster, which schedules them; one at a time to the serial executor,
+    which runs a task as it is submitted) and write each row as its case finishes."""
+    window = 1 if isinstance(executor, SerialExecutor) else len(tasks)
+    pending: dict[Future, CaseTask] = {}
+    queue = iter(tasks)
+    while True:
+        for task in queue:
+            pending[executor.submit(run_case, task)] = task
+            if len(pending) >= window:
+                break
+        if not pending:
+            return
+        finished, _ = wait(pending, return_when=FIRST_COMPLETED)
+        for future in finished:
+            task = pending.pop(future)
+            try:
+                row = future.result()
+            except Exception as exc:  # noqa: BLE001 - the task (not the case) failed: recorded, the study goes on
+                row = _lost_row(task, exc)
+            if row["status"] != "ok":
+                _log.warning("case %s failed: %s", row["case_id"], row["error"])
+            store.write(row)
+            bar.update()
+
+
+def _study_doc(study: Study, workers: int | None, scheduler: str | None) -> dict[str, Any]:
+    return {"study": str(study.path.resolve()), "name": study.name, "description": study.description,
+            "base": str(study.base.path), "stop_time": study.stop_time, "variables": list(study.variables),
+            "reductions": [{"kind": r.kind, **r.options} for r in study.reductions],
+            "workers": workers, "scheduler": scheduler,
+            "cases": [{"case_id": c.case_id, "source": c.source, "values": c.values} for c in study.cases]}
+
+
+def sweep(study: Study, out: str | Path, *, workers: int | None = None, scheduler: str | None = None,
+          resume: bool = False, progress: bool = True, stepping: str = "auto") -> StudyResult:
+    """Run ``study``'s cases into ``out/<study name>/`` (see the module docstring); with ``resume`` the cases whose
+    summary row says "ok" are skipped, the others run again."""
+    t0 = time.perf_counter()
+    folder = (Path(out) / study.name).resolve()
+    store = SummaryStore(folder)
+    if resume:
+        done = store.finished_ok()
+    else:
+        store.clear()
+        done = set()
+    todo = [case for case in study.cases if case.case_id not in done]
+    store.write_study(_study_doc(study, workers, scheduler))
+    base = study.scenario()
+    cases_dir = folder / CASES
+    cases_dir.mkdir(parents=True, exist_ok=True)
+    tasks = [CaseTask(case, base, cases_dir, study.reductions, study.variables, stepping) for case in todo]
+    try:
+        if tasks:
+            with open_executor(workers, scheduler) as executor, \
+                    tqdm(total=len(tasks), unit="case", desc=study.name, disable=not progress) as bar:
+                _dispatch(executor, tasks, store, bar)
+    finally:
+        summary = store.consolidate([c.case_id for c in study.cases], study.variables)
+    return StudyResult(study.name, folder, summary, len(tasks), len(study.cases) - len(todo),
+                       int((summary["status"] != "ok").sum()), time.perf_counter() - t0, workers)

@@ -1,0 +1,89 @@
+"""The study's summary: one row per case, written as the cases finish, consolidated at the end.
+
+Layout of ``<out>/<study name>/``:
+
+- ``summary/<case id>.parquet``: one file per finished case (written to a temporary name, then renamed: a killed
+  study leaves only whole files), the Parquet dataset of the finished cases;
+- ``summary.parquet`` and ``summary.csv``: the rows of the study's cases in the study's order, rewritten at the end
+  of every sweep (also an interrupted one);
+- ``study.json``: what ran (the study file, the base scenario, the cases with their values, the reductions).
+
+A row: ``case_id``, ``status`` ("ok" or "failed"), ``error`` (the message, "" when ok), the study's variables in
+the variable's SI unit as the case ran them (None when the case failed before it could set them), the reductions'
+outputs (NaN when missing), ``run_status`` (the master's: "completed", "terminated: ..."), ``wall_time`` (s, the
+case on its worker: setup, run, reductions) and ``run_dir`` (the case's run folder).
+"""
+from __future__ import annotations
+
+import json
+import os
+from collections.abc import Iterable, Mapping
+from pathlib import Path
+from typing import Any
+
+import pandas as pd
+import pyarrow as pa
+import pyarrow.parquet as pq
+
+__all__ = ["SummaryStore"]
+
+PARTS = "summary"
+FIRST = ("case_id", "status", "error")
+LAST = ("run_status", "wall_time", "run_dir")
+
+
+class SummaryStore:
+    """The summary files of one study folder."""
+
+    def __init__(self, folder: Path) -> None:
+        self.folder = folder
+        self.parts = folder / PARTS
+
+    def clear(self) -> None:
+        """Forget the finished cases of an earlier sweep (their run folders are overwritten as the cases rerun)."""
+        if self.parts.is_dir():
+            for part in self.parts.glob("*.parquet"):
+                part.unlink()
+
+    def write(self, row: Mapping[str, Any]) -> None:
+        self.parts.mkdir(parents=True, exist_ok=True)
+        path = self.parts / f"{row['case_id']}.parquet"
+        tmp = path.with_name(f".{path.name}.{os.getpid()}.tmp")
+        pq.write_table(pa.Table.from_pylist([dict(row)]), tmp)
+        os.replace(tmp, path)
+
+    def rows(self) -> dict[str, dict[str, Any]]:
+        """The rows of every finished case, by case id."""
+        found: dict[str, dict[str, Any]] = {}
+        for part in sorted(self.parts.glob("*.parquet")) if self.parts.is_dir() else ():
+            for row in pq.read_table(part).to_pylist():
+                found[row["case_id"]] = row
+        return found
+
+    def finished_ok(self) -> set[str]:
+        return {cid for cid, row in self.rows().items() if row.get("status") == "ok"}
+
+    def consolidate(self, case_ids: Iterable[str], inputs: Iterable[str]) -> pd.DataFrame:
+        """The rows of ``case_ids`` that have finished, in that order, written to summary.parquet and .csv."""
+        rows = self.rows()
+        ordered = [rows[cid] for cid in case_ids if cid in rows]
+        inputs = list(inputs)
+        outputs = list(dict.fromkeys(k for row in ordered for k in row
+                                     if k not in (*FIRST, *LAST, *inputs)))
+        columns = [*FIRST, *inputs, *outputs, *LAST]
+        frame = pd.DataFrame(ordered, columns=columns).infer_objects()
+        self.folder.mkdir(parents=True, exist_ok=True)
+        for name, write in (("summary.parquet", lambda p: frame.to_parquet(p, index=False)),
+                            ("summary.csv", lambda p: frame.to_csv(p, index=False))):
+            path = self.folder / name
+            tmp = path.with_name(f".{name}.tmp")
+            write(tmp)
+            os.replace(tmp, path)
+        return frame
+
+    def write_study(self, doc: Mapping[str, Any]) -> None:
+        self.folder.mkdir(parents=True, exist_ok=True)
+        path = self.folder / "study.json"
+        tmp = path.with_name(".study.json.tmp")
+        tmp.write_text(json.dumps(doc, indent=2, default=str))
+        os.replace(tmp, path)

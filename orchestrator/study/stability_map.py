@@ -290,8 +290,8 @@ def plot_map(path: Path, cases: pd.DataFrame, rows: Sequence[MapRow], tool: Tool
                    label=f"co-simulation failed ({len(failed)}; the summary has the errors)")
     found = [r for r in rows if math.isfinite(r.cosim)]
     ax.scatter([r.speed_rpm for r in found], [r.cosim * 1e3 for r in found], marker="D", s=30, facecolors="none",
-               edgecolors="tab:green", linewidths=1.4, label="co-simulated onset (growth = 1)", zorder=5)
-    fig.colorbar(scatter, ax=ax, label="log10 growth of the free vibration")
+               edgecolors="tab:green", linewidths=1.4, label=f"co-simulated onset ({growth} = 1)", zorder=5)
+    fig.colorbar(scatter, ax=ax, label=f"log10 {growth} (free vibration)")
     ax.set_xlim(low, high)
     top = float(cases[depth].max()) * 1e3 if len(cases) else 1.0
     ax.set_ylim(0, 1.08 * top)

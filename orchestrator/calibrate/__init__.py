@@ -24,8 +24,9 @@ __all__ = ["CalibrationError", "CalibrationSpec", "CalibrationSpecError", "calib
 
 def calibrate(spec_path: str | Path, fmu_dir: str | Path, out: str | Path = "runs", *,
               data: str | Path | None = None, progress: bool = True, write_set: str | Path | None = None,
-              overrides: Mapping[str, Any] | None = None) -> "CalibrationResult":
+              overrides: Mapping[str, Any] | None = None, workers: int | None = None,
+              scheduler: str | None = None) -> "CalibrationResult":
     """See :func:`milling_twin.orchestrator.calibrate.run.calibrate`."""
     from milling_twin.orchestrator.calibrate.run import calibrate as run_calibration
     return run_calibration(spec_path, fmu_dir, out, data=data, progress=progress, write_set=write_set,
-                           overrides=overrides)
+                           overrides=overrides, workers=workers, scheduler=scheduler)

@@ -14,6 +14,7 @@ from __future__ import annotations
 
 import time
 from collections.abc import Callable, Sequence
+from concurrent.futures import Executor
 from dataclasses import dataclass
 
 import numpy as np
@@ -21,6 +22,7 @@ from tqdm import tqdm
 
 from milling_twin.orchestrator.calibrate.errors import CalibrationError
 from milling_twin.orchestrator.calibrate.lsq import LeastSquaresSolver, StartOutcome
+from milling_twin.orchestrator.calibrate.parallel import columns_on, solve_starts
 from milling_twin.orchestrator.calibrate.parameters import Parameter, draw_starts
 from milling_twin.orchestrator.calibrate.residuals import EXACT, ResidualModel
 from milling_twin.orchestrator.calibrate.spec import SolverSpec, StatisticsSpec
@@ -68,11 +70,22 @@ def _pick(outcomes: list[StartOutcome]) -> tuple[StartOutcome, str]:
 def fit(model: ResidualModel, recorded: np.ndarray, *, weights: Sequence[float], sigma: Sequence[float | None],
         solver: SolverSpec, statistics: StatisticsSpec, progress: bool = False,
         lsq: LeastSquaresSolver | None = None, starts: np.ndarray | None = None,
-        strategy: Callable[[LeastSquaresSolver, np.ndarray, np.ndarray, int], StartOutcome] | None = None
-        ) -> FitOutcome:
+        strategy: Callable[[LeastSquaresSolver, np.ndarray, np.ndarray, int], StartOutcome] | None = None,
+        executor: Executor | None = None) -> FitOutcome:
     """Fit ``model`` to ``recorded`` (pairs x outputs). ``lsq``: a solver built for this model
     earlier (synthetic repeats); ``starts`` (rows of SI parameters): instead of the drawn ones;
-    ``strategy(lsq, x0, p, index)``: how one start is solved (default: one IPOPT run)."""
+    ``strategy(lsq, x0, p, index)``: how one start is solved (default: one IPOPT run); ``executor``: where
+    the starts (more than one) and the finite-difference Jacobians' columns of the FMU path run
+    (:mod:`milling_twin.orchestrator.calibrate.parallel`: the same result as without, bit for bit)."""
+    with columns_on(model, executor):
+        return _fit(model, recorded, weights, sigma, solver, statistics, progress, lsq, starts, strategy, executor)
+
+
+def _fit(model: ResidualModel, recorded: np.ndarray, weights: Sequence[float], sigma: Sequence[float | None],
+         solver: SolverSpec, statistics: StatisticsSpec, progress: bool, lsq: LeastSquaresSolver | None,
+         starts: np.ndarray | None,
+         strategy: Callable[[LeastSquaresSolver, np.ndarray, np.ndarray, int], StartOutcome] | None,
+         executor: Executor | None) -> FitOutcome:
     t0 = time.perf_counter()
     lsq = lsq or LeastSquaresSolver(model.problem, max_iterations=solver.max_iterations,
                                     tolerance=solver.tolerance, hessian=solver.hessian)
@@ -81,9 +94,11 @@ def fit(model: ResidualModel, recorded: np.ndarray, *, weights: Sequence[float],
     noise = initial_sigma(recorded, sigma)
     p = model.data_vector(recorded, np.sqrt(user) / noise)
     thetas = starts if starts is not None else draw_starts(model.parameters, solver.starts, solver.seed)
-    outcomes = []
-    for i, theta in enumerate(tqdm(thetas, desc="calibration starts", unit="start", disable=not progress,
-                                   leave=False)):
+    parallel = (solve_starts(model, lsq, thetas, p, executor, progress)
+                if executor is not None and strategy is None and len(thetas) > 1 else None)
+    outcomes = parallel if parallel is not None else []
+    for i, theta in enumerate(tqdm(thetas if parallel is None else [], desc="calibration starts", unit="start",
+                                   disable=not progress, leave=False)):
         try:
             x0 = model.start(theta)
         except Exception as exc:  # noqa: BLE001 - the start's simulation failed: report, go on

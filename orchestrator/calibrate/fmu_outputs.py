@@ -33,10 +33,13 @@ failing trial point).
 """
 from __future__ import annotations
 
+import os
+import tempfile
 import time
 from collections import OrderedDict
 from collections.abc import Sequence
-from dataclasses import dataclass, replace
+from concurrent.futures import Executor, Future
+from dataclasses import dataclass, field, replace
 from pathlib import Path
 
 import casadi as ca
@@ -49,7 +52,8 @@ from milling_twin.orchestrator.master import run
 from milling_twin.orchestrator.results import load_results
 from milling_twin.orchestrator.scenario import Ref, Scenario, with_values
 
-__all__ = ["FD_METHODS", "FmuOutputs", "default_step", "fmu_residuals"]
+__all__ = ["Access", "Evaluation", "FD_METHODS", "FmuOutputs", "JacobianAccess", "Simulation", "default_step",
+           "evaluate", "fmu_residuals"]
 
 FD_METHODS = ("forward", "central")
 EPS = float(np.finfo(float).eps)
@@ -64,6 +68,76 @@ def default_step(method: str) -> float:
 class Failure:
     theta: tuple[float, ...]
     message: str
+
+
+@dataclass(frozen=True)
+class Simulation:
+    """One evaluation's recipe, picklable (it is what a worker process receives): the scenario (FMU paths
+    absolute), the fitted parameters' names and bounds, the recorded outputs and the pairs' row times."""
+
+    scenario: Scenario
+    refs: tuple[Ref | str, ...]  # with_values keys, parameters order
+    outputs: tuple[str, ...]
+    row_time: np.ndarray
+    lower: np.ndarray
+    upper: np.ndarray
+    scale: np.ndarray
+
+    def __call__(self, theta: np.ndarray, work_dir: Path) -> np.ndarray:
+        """The outputs at the row times (pairs x outputs) of a run into ``work_dir``; raises when it fails."""
+        # IPOPT keeps strictly inside the bounds (strict_bounds); what lies outside by rounding is clipped
+        theta = np.where(np.abs(theta - np.clip(theta, self.lower, self.upper)) <= 1e-9 * self.scale,
+                         np.clip(theta, self.lower, self.upper), theta)
+        case = with_values(self.scenario, dict(zip(self.refs, (float(v) for v in theta))))
+        result = run(case, work_dir, progress=False)
+        if result.status != "completed":
+            raise RuntimeError(f"the simulation ended {result.status}")
+        return at_rows(load_results(result.run_dir), list(self.outputs), self.row_time)
+
+
+@dataclass(frozen=True)
+class Evaluation:
+    """What a worker sends back for one simulation: the outputs, or the failure's cause."""
+
+    y: np.ndarray | None
+    error: str | None  # "ExceptionType: message"
+    seconds: float
+
+
+def evaluate(simulation: Simulation, theta: np.ndarray) -> Evaluation:
+    """A task of the parallel finite-difference Jacobian (module level: it pickles). The run goes to a
+    temporary folder of the worker (several run at once; the worker may be another machine)."""
+    t0 = time.perf_counter()
+    try:
+        with tempfile.TemporaryDirectory(prefix="milling_twin_evaluation_") as folder:
+            y = simulation(theta, Path(folder))
+        return Evaluation(y, None, time.perf_counter() - t0)
+    except Exception as exc:  # noqa: BLE001 - any failure of the FMUs or the run is a failed evaluation
+        return Evaluation(None, f"{type(exc).__name__}: {exc}", time.perf_counter() - t0)
+
+
+@dataclass(frozen=True)
+class Access:
+    """One evaluation asked of :class:`FmuOutputs` (for :meth:`FmuOutputs.replay`): its outputs, and, if it
+    was simulated rather than found in the cache, the failure's cause (None: it ran) and its time."""
+
+    key: bytes
+    theta: np.ndarray
+    y: np.ndarray
+    simulated: bool
+    error: str | None = None
+    seconds: float = 0.0
+
+
+@dataclass(frozen=True)
+class JacobianAccess:
+    """One Jacobian asked of :class:`FmuOutputs`: its value and the evaluations it made (None: it was cached)."""
+
+    key: bytes
+    theta: np.ndarray
+    nominal: np.ndarray | None
+    jacobian: np.ndarray
+    accesses: list[Access | JacobianAccess] | None = field(default=None)
 
 
 class FmuOutputs:
@@ -91,12 +165,31 @@ class FmuOutputs:
         self.lower = np.array([q.lower for q in parameters])
         self.upper = np.array([q.upper for q in parameters])
         self.scale = np.array([q.scale for q in parameters])
+        self.simulation = Simulation(_absolute_fmus(self.scenario), tuple(self.refs), tuple(self.outputs),
+                                     self.row_time, self.lower, self.upper, self.scale)
         self._cache: OrderedDict[bytes, np.ndarray] = OrderedDict()
         self._jacobians: OrderedDict[bytes, np.ndarray] = OrderedDict()
         self.cache_size = cache_size
         self.failures: list[Failure] = []
         self.simulations = 0
         self.simulation_time = 0.0
+        # parallel calibration (orchestrator/calibrate/parallel.py): where the Jacobian's columns are simulated
+        # (None: here, one after the other), and the log of the evaluations asked (None: not kept)
+        self.executor: Executor | None = None
+        self.log: list[Access | JacobianAccess] | None = None
+
+    def detached(self) -> "FmuOutputs":
+        """A copy for another process: the same evaluations, no cache, no failures, no executor, no log."""
+        copy = object.__new__(FmuOutputs)
+        copy.__dict__.update(self.__dict__)
+        copy._cache, copy._jacobians, copy.failures = OrderedDict(), OrderedDict(), []
+        copy.simulations, copy.simulation_time, copy.executor, copy.log = 0, 0.0, None, None
+        return copy
+
+    def __getstate__(self) -> dict:
+        if self.executor is not None:
+            raise TypeError("an FmuOutputs with an executor does not pickle: send FmuOutputs.detached()")
+        return self.__dict__.copy()
 
     @property
     def shape(self) -> tuple[int, int]:
@@ -108,14 +201,7 @@ class FmuOutputs:
                 "projected Levenberg-Marquardt")
 
     def _simulate(self, theta: np.ndarray) -> np.ndarray:
-        # IPOPT keeps strictly inside the bounds (strict_bounds); what lies outside by rounding is clipped
-        theta = np.where(np.abs(theta - np.clip(theta, self.lower, self.upper)) <= 1e-9 * self.scale,
-                         np.clip(theta, self.lower, self.upper), theta)
-        case = with_values(self.scenario, dict(zip(self.refs, (float(v) for v in theta))))
-        result = run(case, self.work_dir, progress=False)
-        if result.status != "completed":
-            raise RuntimeError(f"the simulation ended {result.status}")
-        return at_rows(load_results(result.run_dir), self.outputs, self.row_time)
+        return self.simulation(theta, self.work_dir)
 
     def __call__(self, theta: np.ndarray) -> np.ndarray:
         """Outputs at the pairs (pairs x outputs); NaN where the simulation failed (cause in failures)."""
@@ -123,19 +209,31 @@ class FmuOutputs:
         key = theta.tobytes()
         if key in self._cache:
             self._cache.move_to_end(key)
-            return self._cache[key]
+            y = self._cache[key]
+            if self.log is not None:
+                self.log.append(Access(key, theta, y, simulated=False))
+            return y
         t0 = time.perf_counter()
         try:
-            y = self._simulate(theta)
+            y, error = self._simulate(theta), None
         except Exception as exc:  # noqa: BLE001 - any failure of the FMUs or the run is a failed evaluation
+            y, error = None, f"{type(exc).__name__}: {exc}"
+        return self._store(key, theta, y, error, time.perf_counter() - t0)
+
+    def _store(self, key: bytes, theta: np.ndarray, y: np.ndarray | None, error: str | None,
+               seconds: float) -> np.ndarray:
+        """Count and cache one simulation (``y`` None: it failed with ``error``)."""
+        if y is None:
             values = ", ".join(f"{n} = {v:.6g}" for n, v in zip(self.names, theta))
-            self.failures.append(Failure(tuple(theta), f"{type(exc).__name__}: {exc} (at {values})"))
+            self.failures.append(Failure(tuple(theta), f"{error} (at {values})"))
             y = np.full(self.shape, np.nan)
         self.simulations += 1
-        self.simulation_time += time.perf_counter() - t0
+        self.simulation_time += seconds
         self._cache[key] = y
         if len(self._cache) > self.cache_size:
             self._cache.popitem(last=False)
+        if self.log is not None:
+            self.log.append(Access(key, theta, y, True, error, seconds))
         return y
 
     def vector(self, theta: np.ndarray) -> np.ndarray:
@@ -143,13 +241,38 @@ class FmuOutputs:
         return self(theta).ravel()
 
     def jacobian(self, theta: np.ndarray, nominal: np.ndarray | None = None) -> np.ndarray:
-        """d vector / d theta (SI), (pairs * outputs) x parameters."""
+        """d vector / d theta (SI), (pairs * outputs) x parameters. With an :attr:`executor`, the columns'
+        simulations run there at once; the Jacobian, the cache and the counts are those of the serial loop."""
         theta = np.asarray(theta, dtype=float).ravel()
         key = theta.tobytes()
         if key in self._jacobians:
+            if self.log is not None:
+                self.log.append(JacobianAccess(key, theta, nominal, self._jacobians[key]))
             return self._jacobians[key]
-        y0 = self.vector(theta) if nominal is None else np.asarray(nominal, dtype=float).ravel()
-        jac = np.empty((y0.size, theta.size))
+        outer, self.log = self.log, ([] if self.log is not None else None)
+        try:
+            y0 = self.vector(theta) if nominal is None else np.asarray(nominal, dtype=float).ravel()
+            columns = self._columns(theta)
+            if self.executor is not None:
+                self._run_ahead([moved for column in columns for moved in column])
+            jac = np.empty((y0.size, theta.size))
+            for j, column in enumerate(columns):
+                if len(column) == 2:  # central
+                    plus, minus = column
+                    jac[:, j] = (self.vector(plus) - self.vector(minus)) / (plus[j] - minus[j])
+                else:
+                    moved, = column
+                    jac[:, j] = (self.vector(moved) - y0) / (moved[j] - theta[j])  # the step as represented
+        finally:
+            accesses, self.log = self.log, outer
+        self._store_jacobian(key, jac)
+        if outer is not None:
+            outer.append(JacobianAccess(key, theta, nominal, jac, accesses))
+        return jac
+
+    def _columns(self, theta: np.ndarray) -> list[tuple[np.ndarray, ...]]:
+        """Per parameter, the moved parameter vectors its column is computed from (in that order)."""
+        columns = []
         for j in range(theta.size):
             h = self.step * max(abs(theta[j]), self.scale[j])
             up, down = theta[j] + h <= self.upper[j], theta[j] - h >= self.lower[j]
@@ -157,20 +280,81 @@ class FmuOutputs:
                 plus, minus = theta.copy(), theta.copy()
                 plus[j] += h
                 minus[j] -= h
-                jac[:, j] = (self.vector(plus) - self.vector(minus)) / (plus[j] - minus[j])
+                columns.append((plus, minus))
             else:
                 moved = theta.copy()
                 moved[j] += h if up else -h
-                jac[:, j] = (self.vector(moved) - y0) / (moved[j] - theta[j])  # the step as represented
+                columns.append((moved,))
+        return columns
+
+    def _store_jacobian(self, key: bytes, jac: np.ndarray) -> None:
         self._jacobians[key] = jac
         if len(self._jacobians) > 4:
             self._jacobians.popitem(last=False)
-        return jac
+
+    def _run_ahead(self, thetas: list[np.ndarray]) -> None:
+        """Simulate on the executor, all at once, the evaluations of ``thetas`` (in this order) that the
+        serial loop would simulate (the cache's least-recently-used order played on the keys), then account
+        for them in that order: the cache and the counts end as the serial loop leaves them."""
+        order = OrderedDict((k, None) for k in self._cache)
+        futures: dict[bytes, Future] = {}
+        for theta in thetas:
+            key = theta.tobytes()
+            if key in order:
+                order.move_to_end(key)
+                continue
+            order[key] = None
+            if len(order) > self.cache_size:
+                order.popitem(last=False)
+            if key not in futures:
+                futures[key] = self.executor.submit(evaluate, self.simulation, theta)
+        done: dict[bytes, Evaluation] = {}
+        for key, future in futures.items():  # in submission order, never in completion order
+            try:
+                done[key] = future.result()
+            except Exception as exc:  # noqa: BLE001 - the worker itself failed (e.g. died with its FMU)
+                done[key] = Evaluation(None, f"the worker failed: {type(exc).__name__}: {exc}", 0.0)
+        for theta in thetas:
+            key = theta.tobytes()
+            if key in self._cache:
+                self._cache.move_to_end(key)
+                if self.log is not None:
+                    self.log.append(Access(key, theta, self._cache[key], simulated=False))
+            else:
+                e = done[key]
+                self._store(key, theta, e.y, e.error, e.seconds)
+
+    def replay(self, log: Sequence[Access | JacobianAccess]) -> None:
+        """Account here for the evaluations another process made (a start run on a worker), in their order,
+        as if they had been asked here: an evaluation this cache holds is not counted (the serial loop would
+        have found it), one it does not hold is cached and counted (with its failure, if any). The evaluations
+        are deterministic (checked at the initial values), so the values are those this process would get."""
+        for a in log:
+            if isinstance(a, JacobianAccess):
+                if a.key in self._jacobians:
+                    continue
+                if a.accesses is None:  # the worker had it cached, this process has not: compute it as serial
+                    self.jacobian(a.theta, a.nominal)
+                    continue
+                self.replay(a.accesses)
+                self._store_jacobian(a.key, a.jacobian)
+            elif a.key in self._cache:
+                self._cache.move_to_end(a.key)
+            else:
+                error = a.error if a.simulated else ("the simulation failed (first reported at these values)"
+                                                     if not np.all(np.isfinite(a.y)) else None)
+                self._store(a.key, a.theta, None if error is not None else a.y, error, a.seconds)
 
     def clear_cache(self) -> None:
         """Forget the cached evaluations (timing a repeated fit from the same start)."""
         self._cache.clear()
         self._jacobians.clear()
+
+
+def _absolute_fmus(scenario: Scenario) -> Scenario:
+    """``scenario`` with its FMUs by absolute path (a worker process may run in another folder)."""
+    return replace(scenario, instances=tuple(replace(i, path=Path(os.path.abspath(i.path)))
+                                             for i in scenario.instances))
 
 
 class _Jacobian(ca.Callback):
@@ -243,4 +427,4 @@ def fmu_residuals(fmu: FmuOutputs, pairs: Pairs) -> ResidualModel:
                          describe_residual=residual, describe_variable=lambda j: fmu.names[j])
     return replace(model, problem=replace(model.problem, failures=lambda: [f.message for f in fmu.failures],
                                           strict_bounds=True, algorithm="levenberg-marquardt"),
-                   derivatives=fmu.describe(), keep_alive=callback)
+                   derivatives=fmu.describe(), keep_alive=callback, origin=(fmu, pairs))

@@ -89,7 +89,7 @@ class LeastSquaresSolver:
         jac = ca.jacobian(r, x)
         self.check = ca.Function("lsq_check", [x, p], [r, jac])
         self.residual = ca.Function("lsq_residual", [x, p], [r])
-        self.max_iterations, self.tolerance = max_iterations, tolerance
+        self.max_iterations, self.tolerance, self.hessian = max_iterations, tolerance, hessian
         if problem.algorithm not in ("ipopt", "levenberg-marquardt"):
             raise ValueError(f"unknown least-squares algorithm {problem.algorithm!r}")
         if problem.algorithm == "levenberg-marquardt" and problem.constraints.numel():
@@ -199,6 +199,7 @@ class LeastSquaresSolver:
 
     def _levenberg_marquardt(self, x: np.ndarray, p: np.ndarray, index: int, lbx: np.ndarray,
                              ubx: np.ndarray) -> StartOutcome:
+        x0 = x
         r, jac = self.residual_and_jacobian(x, p)
         f = 0.5 * float(r @ r)
         trace = {"obj": [f]}
@@ -239,7 +240,7 @@ class LeastSquaresSolver:
                     else:
                         status, state = "Stopped: no decrease along the damped steps", "not converged"
                     break
-        return StartOutcome(index, x, state, status, x, f, iterations, 0.0, trace)
+        return StartOutcome(index, x0, state, status, x, f, iterations, 0.0, trace)
 
     def residual_values(self, x: np.ndarray, p: np.ndarray) -> np.ndarray:
         return np.asarray(self.residual(x, p), dtype=float).ravel()

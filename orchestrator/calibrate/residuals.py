@@ -51,6 +51,9 @@ class ResidualModel:
     within: np.ndarray | None = None  # per output: sum of squares of the samples about their bin mean
     derivatives: str = EXACT  # how the outputs and their Jacobian are computed (said in the report)
     keep_alive: object = None  # Python objects the casadi Functions call (callbacks): casadi holds no reference
+    # what a worker process builds the model again from (parallel starts, orchestrator/calibrate/parallel.py):
+    # the FMU path's (FmuOutputs, Pairs); None: the model's starts stay in this process
+    origin: tuple | None = None
 
     @property
     def n_samples(self) -> int:

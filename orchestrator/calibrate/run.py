@@ -3,6 +3,7 @@ from __future__ import annotations
 
 import time
 from collections.abc import Mapping
+from dataclasses import replace
 from pathlib import Path
 
 from milling_twin.orchestrator.calibrate.report import write_report
@@ -16,7 +17,8 @@ Override = float | tuple[float, str] | Mapping[str, object]
 
 def calibrate(spec_path: str | Path, fmu_dir: str | Path, out: str | Path = "runs", *, data: str | Path | None = None,
               progress: bool = True, write_set: str | Path | None = None,
-              overrides: Mapping[str, Override] | None = None) -> CalibrationResult:
+              overrides: Mapping[str, Override] | None = None, workers: int | None = None,
+              scheduler: str | None = None) -> CalibrationResult:
     """Run the calibration of ``spec_path``; results, report and the parameter set go to
     ``out/calibration/<name>/`` (the set under the file name of the spec's ``parameter_set``), and nothing
     is written outside ``out`` unless ``write_set`` is given: the set is then also published there (e.g.
@@ -25,8 +27,15 @@ def calibrate(spec_path: str | Path, fmu_dir: str | Path, out: str | Path = "run
     the fit, as a parameter set's values are (SI, or ``(value, unit)`` / ``{"value": v, "unit": u}``); the
     calibrated values win over them in the re-simulation.
     ``data``: the slot-milling recordings' folder (kind "slot_forces"; default as the validation finds it), or
-    the runs' folder (kind "runs"; default its ``[runs].folder``)."""
+    the runs' folder (kind "runs"; default its ``[runs].folder``). ``workers`` / ``scheduler``: instead of the
+    spec's ``[solver]`` ones, where a kind "scenario" fit runs its simulations
+    (:mod:`milling_twin.orchestrator.calibrate.parallel`; 0: serial, in this process)."""
     spec = load_spec(spec_path)
+    if workers is not None or scheduler is not None:  # both replace the spec's
+        if (workers is not None and workers < 0) or (workers and scheduler is not None):
+            raise ValueError(f"workers={workers!r}, scheduler={scheduler!r}: expected workers >= 0 (0: serial, in "
+                             "this process) or a scheduler, not both")
+        spec = replace(spec, solver=replace(spec.solver, workers=workers or 0, scheduler=scheduler))
     out_dir = Path(out) / "calibration" / spec.name
     out_dir.mkdir(parents=True, exist_ok=True)
     values = {key: ({"value": value[0], "unit": value[1]} if isinstance(value, tuple) else value)

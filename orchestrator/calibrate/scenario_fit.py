@@ -34,6 +34,7 @@ import inspect
 import os
 import time
 from collections.abc import Mapping, Sequence
+from concurrent.futures import Executor
 from dataclasses import dataclass, replace
 from pathlib import Path
 from typing import Any
@@ -51,6 +52,7 @@ from milling_twin.orchestrator.calibrate.fmu_outputs import FmuOutputs, fmu_resi
 from milling_twin.orchestrator.calibrate.graph import ModelGraph, NotExpressible, build_graph
 from milling_twin.orchestrator.calibrate.pairing import LEARNING, VALIDATION, Pairs, make_pairs
 from milling_twin.orchestrator.calibrate.parameters import Parameter, resolve_parameter, unit_factor
+from milling_twin.orchestrator.calibrate.parallel import calibration_executor
 from milling_twin.orchestrator.calibrate.paramset import write_parameter_set, write_ssv
 from milling_twin.orchestrator.calibrate.residuals import ResidualModel, build_residuals
 from milling_twin.orchestrator.calibrate.result import CalibrationResult, Series, Table, error_row
@@ -409,12 +411,12 @@ def consistency(prepared: Prepared, model, learning: Pairs) -> float:
     return deviation
 
 
-def _fit(prepared: Prepared, learning: Pairs, solver: SolverSpec, progress: bool):
+def _fit(prepared: Prepared, learning: Pairs, solver: SolverSpec, progress: bool, executor: Executor | None = None):
     spec = prepared.spec
     model = prepared.residual_model(learning, solver)
     outcome = fit(model, learning.recorded, weights=[o.weight for o in prepared.outputs],
                   sigma=[o.sigma if spec.solver.noise == "sigma" else None for o in prepared.outputs],
-                  solver=solver, statistics=spec.statistics, progress=progress)
+                  solver=solver, statistics=spec.statistics, progress=progress, executor=executor)
     return model, outcome
 
 
@@ -439,9 +441,22 @@ def _notes(outcome: FitOutcome) -> list[str]:
 def calibrate_scenario(spec: CalibrationSpec, fmu_dir: Path, out_dir: Path, progress: bool = False, *,
                        write_set: Path | None = None, overrides: Mapping[str, Any] | None = None) -> CalibrationResult:
     """The calibration of a kind "scenario" spec; the parameter set goes to ``out_dir`` under the file name
-    of the spec's ``parameter_set``, and to ``write_set`` too (after the re-simulation) if given."""
+    of the spec's ``parameter_set``, and to ``write_set`` too (after the re-simulation) if given. With
+    ``[solver] workers``/``scheduler``, the fit's simulations run on that executor
+    (:mod:`milling_twin.orchestrator.calibrate.parallel`)."""
+    t0 = time.perf_counter()
+    with calibration_executor(spec.solver) as executor:
+        started = time.perf_counter() - t0
+        return _calibrate_scenario(spec, fmu_dir, out_dir, progress, write_set, overrides, executor, started)
+
+
+def _calibrate_scenario(spec: CalibrationSpec, fmu_dir: Path, out_dir: Path, progress: bool, write_set: Path | None,
+                        overrides: Mapping[str, Any] | None, executor: Executor | None,
+                        started: float) -> CalibrationResult:
     prepared = prepare(spec, fmu_dir, out_dir, progress, overrides)
     timings = prepared.timings
+    if executor is not None:
+        timings["start the workers"] = started
     t0 = time.perf_counter()
     if prepared.graph is not None:
         tokens = check_tokens(prepared.scenario, list(prepared.graph.instances))
@@ -453,14 +468,19 @@ def calibrate_scenario(spec: CalibrationSpec, fmu_dir: Path, out_dir: Path, prog
     timings["align"] = time.perf_counter() - t0
     learning, validation = pairs.select(LEARNING), pairs.select(VALIDATION)
     t0 = time.perf_counter()
-    model, outcome = _fit(prepared, learning, spec.solver, progress)
+    model, outcome = _fit(prepared, learning, spec.solver, progress, executor)
     deviation = consistency(prepared, model, learning)
     timings["fit (build, starts, statistics)"] = time.perf_counter() - t0
     tables: list[Table] = []
     notes = [f"Derivatives: {outcome.derivatives}."]
     if prepared.graph is None:
         fmu = model.keep_alive.fmu
+        where = (f"{spec.solver.workers} local worker processes" if spec.solver.workers else
+                 f"the cluster of {spec.solver.scheduler}")
         notes += [f"Fitted through the FMUs because {prepared.fd_reason}.",
+                  *([f"Parallel fit on {where}: the starts (more than one) and the finite-difference Jacobians' "
+                     "columns as tasks, combined in a fixed order (the serial result, bit for bit)."]
+                    if executor is not None else []),
                   f"FMU evaluations: {fmu.simulations} simulations ({fmu.simulation_time:.3g} s) for the starts and "
                   f"the statistics, {len(fmu.failures)} failed; re-run at the initial values vs the initial run at "
                   f"the learning pairs: max relative deviation {deviation:.3g}."]
@@ -476,7 +496,7 @@ def calibrate_scenario(spec: CalibrationSpec, fmu_dir: Path, out_dir: Path, prog
         model_id = prepared.residual_model(plain.select(LEARNING))
         other = fit(model_id, plain.select(LEARNING).recorded, weights=[o.weight for o in prepared.outputs],
                     sigma=[None] * len(prepared.outputs), solver=single, statistics=spec.statistics,
-                    starts=outcome.theta[None, :])
+                    starts=outcome.theta[None, :], executor=executor)
         tables.append(Table(
             f"What the alignment ({spec.alignment.method}) changed",
             ("parameter", "estimate on aligned pairs", "estimate on identity pairs", "difference / standard error"),

@@ -72,6 +72,11 @@ recorded data)::
                                       # (orchestrator/calibrate/fmu_outputs.py); "auto": exact where possible
     fd_method = "forward"             # finite differences: "forward" (p runs per Jacobian) or "central" (2p)
     fd_step = 1.5e-8                  # relative step (default sqrt(eps) forward, eps^(1/3) central)
+    workers = 2                       # parallel fit (FMU path: starts and finite-difference columns as tasks,
+                                      # orchestrator/calibrate/parallel.py, the serial result bit for bit): N local
+                                      # worker processes; 0 (default): serial, in this process
+    scheduler = "tcp://host:8786"     # or a dask scheduler file (relative to this file): an existing cluster
+                                      # instead of local workers (not both)
 
     [statistics]                      # all optional: flag thresholds
     condition = 100.0                 # near-singular direction: condition index above this
@@ -201,6 +206,8 @@ class SolverSpec:
     derivatives: str = "auto"
     fd_method: str = "forward"
     fd_step: float | None = None  # None: the method's default
+    workers: int = 0  # parallel fit: local worker processes (0: serial, in this process)
+    scheduler: str | None = None  # parallel fit on an existing cluster: address or scheduler file
 
 
 @dataclass(frozen=True)
@@ -350,13 +357,24 @@ def _alignment(ctx: _Ctx, raw: Any) -> AlignmentSpec:
     return AlignmentSpec(method, simulated, ctx.strings(table, key, "recorded", 3), delay, confidence, refuse)
 
 
-def _solver(ctx: _Ctx, raw: Any) -> SolverSpec:
+def _solver(ctx: _Ctx, raw: Any, base: Path) -> SolverSpec:
     key = "[solver]"
     table = ctx.table(raw, key, ("starts", "seed", "max_iterations", "tolerance", "hessian", "shooting",
-                                 "shooting_interval", "noise", "derivatives", "fd_method", "fd_step"))
+                                 "shooting_interval", "noise", "derivatives", "fd_method", "fd_step", "workers",
+                                 "scheduler"))
     step = ctx.number(table, key, "fd_step", None, positive=True)
     if step is not None and step >= 0.1:
         ctx.fail(f"{key}.fd_step", f"{step!r}: a relative step, far below 1 (default 1.5e-8 forward, 6.1e-6 central)")
+    workers = ctx.integer(table, key, "workers", 0, 0)
+    scheduler = ctx.string(table, key, "scheduler", None)
+    if scheduler is not None:
+        if not scheduler.strip():
+            ctx.fail(f"{key}.scheduler", "expected an address (tcp://host:8786) or a scheduler file, got \"\"")
+        if workers:
+            ctx.fail(f"{key}.workers", f"workers = {workers} and scheduler = {scheduler!r}: give one (the cluster's "
+                                       "workers are the scheduler's)")
+        if "://" not in scheduler:
+            scheduler = str(base / scheduler)
     return SolverSpec(starts=ctx.integer(table, key, "starts", 4, 1), seed=ctx.integer(table, key, "seed", 0, 0),
                       max_iterations=ctx.integer(table, key, "max_iterations", 200, 1),
                       tolerance=ctx.number(table, key, "tolerance", 1e-10, positive=True),
@@ -366,7 +384,7 @@ def _solver(ctx: _Ctx, raw: Any) -> SolverSpec:
                       noise=ctx.string(table, key, "noise", "estimate", ("estimate", "sigma")),
                       derivatives=ctx.string(table, key, "derivatives", "auto", DERIVATIVES),
                       fd_method=ctx.string(table, key, "fd_method", "forward", ("forward", "central")),
-                      fd_step=step)
+                      fd_step=step, workers=workers, scheduler=scheduler)
 
 
 def _statistics(ctx: _Ctx, raw: Any) -> StatisticsSpec:
@@ -476,7 +494,8 @@ def load_spec(path: str | Path) -> CalibrationSpec:
     common = dict(path=path, sha256=hashlib.sha256(raw).hexdigest(), name=name,
                   description=ctx.string(head, key, "description", ""), kind=kind, scenario=scenario,
                   parameter_set=parameter_set, calibrated_scenario=calibrated_path, parameters=parameters,
-                  solver=_solver(ctx, doc.get("solver", {})), statistics=_statistics(ctx, doc.get("statistics", {})))
+                  solver=_solver(ctx, doc.get("solver", {}), base),
+                  statistics=_statistics(ctx, doc.get("statistics", {})))
     if kind == "slot_forces":
         for section in ("outputs", "segments", "alignment", "inputs"):
             if section in doc:

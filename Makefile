@@ -74,7 +74,7 @@ ASAN_BUILD := build-asan
 SANITIZE_IGNORE := test_forcenet_train.py test_fuzz.py test_fmu_sanitizers.py test_stability.py test_units.py \
                    test_packaging.py test_calibrate_fit.py test_calibrate_slot.py test_calibrate_spec.py \
                    test_calibrate_report.py test_calibrate_fmu_path.py test_calibrate_outputs.py \
-                   test_calibrate_runs.py test_documented_commands.py
+                   test_calibrate_runs.py test_calibrate_parallel.py test_documented_commands.py
 SANITIZE_DESELECT := test_fmu_lifecycle.py::test_repeated_lifecycles_do_not_grow_memory \
                      test_interpolator_programs.py::test_parsing_is_linear_in_the_program_size \
                      test_fmu_loading.py::test_loading_is_cheaper_than_fmpys

@@ -103,3 +103,41 @@ def test_chatter_growth_is_registered() -> None:
     assert get_reduction("chatter_growth") is sm.chatter_growth
     assert np.allclose(sm.growth_windows(0.0, 0.2), ((0.1, 0.15), (0.15, 0.2)), rtol=0, atol=1e-15)
     assert tool_and_cut(load_scenario(SCENARIO, fmu_dir())).modes_x == (MODE,)
+
+
+TINY_STUDY = """
+[study]
+name = "tiny_map"
+base = "{base}"
+stop_time = 0.1
+
+[study.grid]
+"force.spindle_speed" = {{ values = [16000, 20000], unit = "rpm" }}
+"force.axial_depth" = {{ values = [0.025, 0.05, 0.1], unit = "mm" }}
+
+[[study.reduce]]
+kind = "chatter_growth"
+"""
+
+
+def test_map_of_a_tiny_real_grid_through_the_serial_executor(tmp_path: Path) -> None:
+    """2 speeds x 3 depths of 0.1 s through the study layer in this process: at each speed the semi-discretization
+    onset lies in the co-simulated bracket (0.05-0.1 mm at 16000 rpm, 0.025-0.05 mm at 20000 rpm)."""
+    from milling_twin.api import sweep
+
+    study = tmp_path / "tiny.toml"
+    study.write_text(TINY_STUDY.format(base=SCENARIO.as_posix()))
+    result = sweep(study, fmu_dir=fmu_dir(), out=tmp_path / "out", workers=0)
+    summary = result.summary
+    assert list(summary["status"]) == ["ok"] * 6
+    assert {"growth_x", "growth_y", "growth", "stable", "chip_growth"} <= set(summary.columns)
+    assert list(summary["stable"]) == [float(g <= 1) for g in summary["growth"]]
+    maps = sm.stability_map(summary, load_scenario(SCENARIO, fmu_dir()), tmp_path / "map",
+                            sm.MapConfig(growth=("growth", "chip_growth"), curve_points=4), echo=False)
+    for rows in maps.values():
+        assert [r.speed_rpm for r in rows] == pytest.approx([16000.0, 20000.0])
+        for r in rows:
+            assert r.stable_depth < r.sd < r.unstable_depth and r.stable_depth < r.cosim < r.unstable_depth
+            assert abs(r.cosim_vs_sd) < 0.15
+    assert (tmp_path / "map" / "stability_map.png").stat().st_size > 20_000
+    assert (tmp_path / "map" / "stability_map_chip_growth.csv").read_text().count("\n") == 3

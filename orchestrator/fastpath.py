@@ -22,6 +22,13 @@ call, so the two paths give bit-identical results:
   output with its threshold and sense), each instance's ``variable`` flag, and the coarse intervals' state
   (current interval fine or coarse, whether a condition held at the latest evaluation, the counts), which
   ``stp_run`` carries from one chunk to the next, so a chunk may end anywhere inside an interval.
+* Parameter changes at events (``[[on_change]]``): the plan holds each entry's watched output (the address of its
+  Int32 or Boolean element, read after every step of its instance, since it is among the outputs read there),
+  its instance's step in ticks, the value that fires and the value at the previous check. At the start of a tick
+  where an entry fires, ``stp_run`` returns :data:`EVENT` before doing anything of that tick, leaving the
+  remembered values as they were; the master reads them (:meth:`Stepper.remembered`), checks the tick as the
+  Python loop does, sets the parameters, stores the values back (:meth:`Stepper.remember`) and calls ``stp_run``
+  again from that tick to the same end: C then finds nothing new there and steps on.
 
 Chunks are sized to take about :data:`CHUNK_SECONDS` of wall time (they start small and adapt),
 so the progress bar moves and Ctrl-C, which Python can only act on between chunks, stops the run
@@ -54,7 +61,7 @@ __all__ = ["LIBRARY_ENV", "LIBRARY_NAME", "Choice", "FastPathUnavailable", "Step
 
 LIBRARY_ENV = "MILLING_TWIN_STEPPER"
 LIBRARY_NAME = "libmilling_stepper.so"
-ABI_VERSION = 5
+ABI_VERSION = 6
 CHUNK_SECONDS = 0.1  # wall time a chunk should take: the Ctrl-C latency and progress-bar period
 FIRST_CHUNK_TICKS = 256
 MAX_CHUNK_TICKS = 1 << 18  # bounds a chunk where ticks cost next to nothing (and rows are rare)
@@ -62,7 +69,7 @@ MAX_CHUNK_ROWS = 1 << 14  # bounds the row buffer
 
 _REPO_BUILD = Path(__file__).resolve().parents[1] / "build" / "stepper" / LIBRARY_NAME
 REAL, BOOL_FMI2, BOOL_FMI3 = 0, 1, 2
-DONE, STOPPED, TERMINATED, FAILED, OUT_OF_RECORDING = 0, 1, 2, 3, 4
+DONE, STOPPED, TERMINATED, FAILED, OUT_OF_RECORDING, EVENT = 0, 1, 2, 3, 4, 5
 # stp_outcome.function -> the FMI function's name without its fmi2/fmi3 prefix
 _FUNCTIONS = {2: ["", "SetReal", "SetBoolean", "DoStep", "GetReal", "GetBoolean", "GetInteger"],
               3: ["", "SetFloat64", "SetBoolean", "DoStep", "GetFloat64", "GetBoolean", "GetInt32"]}
@@ -84,6 +91,11 @@ class _Gate(ctypes.Structure):
 
 
 _SENSES = {"above": 0, "below": 1, "is": 2}  # stp_gate.sense
+
+
+class _Watch(ctypes.Structure):
+    _fields_ = [("source", _vp), ("ticks_per_step", _i64), ("kind", _i32), ("boolean", _i32), ("equals", _i32),
+                ("last", _i32)]
 
 
 class _Column(ctypes.Structure):
@@ -116,7 +128,8 @@ class _Plan(ctypes.Structure):
                 ("recorded_time", _vp), ("recorded_samples", _i64), ("recorded_tolerance", _f64),
                 ("gates", ctypes.POINTER(_Gate)), ("n_gates", _i64), ("ticks_per_interval", _i64),
                 ("first_variable", _i64), ("fine_intervals", _i64), ("coarse_intervals", _i64),
-                ("variable_steps", _i64), ("fine", _i32), ("held", _i32)]
+                ("variable_steps", _i64), ("fine", _i32), ("held", _i32),
+                ("watches", ctypes.POINTER(_Watch)), ("n_watches", _i64)]
 
 
 class _Outcome(ctypes.Structure):
@@ -166,7 +179,7 @@ def load_library(path: Path) -> ctypes.CDLL:
     lib.stp_run.argtypes = [ctypes.POINTER(_Plan), _i64, _i64, _vp, ctypes.POINTER(_Outcome)]
     if lib.stp_abi_version() != ABI_VERSION:
         raise OSError(f"{path}: ABI version {lib.stp_abi_version()}, expected {ABI_VERSION}: rebuild it")
-    for which, struct in enumerate((_Link, _Column, _Instance, _Plan, _Outcome, _Recorded, _Gate)):
+    for which, struct in enumerate((_Link, _Column, _Instance, _Plan, _Outcome, _Recorded, _Gate, _Watch)):
         if lib.stp_struct_size(which) != ctypes.sizeof(struct):
             raise OSError(f"{path}: {struct.__name__.lstrip('_')} has {lib.stp_struct_size(which)} bytes, "
                           f"expected {ctypes.sizeof(struct)}: rebuild it")
@@ -227,13 +240,13 @@ def _kind(buffer: Any) -> int:
 
 @dataclass
 class Outcome:
-    code: int  # DONE, STOPPED, TERMINATED, FAILED
-    tick: int  # ticks completed
+    code: int  # DONE, STOPPED, TERMINATED, FAILED, OUT_OF_RECORDING, EVENT
+    tick: int  # ticks completed (EVENT: the tick where an [[on_change]] entry fires, not begun)
     rows: np.ndarray  # the rows written (a view of the stepper's buffer, valid until the next chunk)
     instance: str  # failing or terminating instance, else ""
     function: str  # the failing FMI function, e.g. "fmi2DoStep"
     status: int
-    time: float
+    time: float  # EVENT: the time of that tick
 
 
 class Stepper:
@@ -340,6 +353,16 @@ class Stepper:
             self._plan.gates, self._plan.n_gates = gates, len(gates)
             self._plan.ticks_per_interval = stepping.ticks_per_interval
             self._plan.first_variable = next(i for i, s in enumerate(self.slaves) if s.name in variable)
+        watched = getattr(scenario, "on_change", ())  # [[on_change]] (test doubles of a scenario may lack it)
+        self._watches = (_Watch * max(1, len(watched)))()
+        for watch, entry in zip(self._watches, watched):
+            src = by_name[entry.output.instance]
+            kind, j = src.out_index[entry.output.variable]
+            buf = getattr(src, f"{kind}_out")
+            watch.source, watch.kind, watch.boolean = _address(buf, j), _kind(buf), int(kind == "bool")
+            watch.ticks_per_step, watch.equals = src.m, int(entry.equals)
+            watch.last = int(buf[j] != 0) if kind == "bool" else int(buf[j])  # the master sets it too (remember)
+        self._plan.watches, self._plan.n_watches = self._watches, len(watched)
         if rec is not None:
             time = np.ascontiguousarray(rec.time, dtype=np.float64)
             self._keep += [time, channels]
@@ -359,6 +382,15 @@ class Stepper:
         """[stepping]: the intervals evaluated fine and coarse, and the doSteps of the variable instances."""
         plan = self._plan
         return plan.fine_intervals, plan.coarse_intervals, plan.variable_steps
+
+    def remembered(self) -> list[int]:
+        """[[on_change]]: each entry's output value at its previous check (C updates them as it steps)."""
+        return [self._watches[i].last for i in range(self._plan.n_watches)]
+
+    def remember(self, values: Sequence[int]) -> None:
+        """[[on_change]]: set the values the entries compare with (after the master checked an event's tick)."""
+        for i, value in enumerate(values):
+            self._watches[i].last = int(value)
 
     def max_ticks(self) -> int:
         """The largest chunk the buffers allow."""

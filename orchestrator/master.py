@@ -40,6 +40,18 @@ Semantics of :func:`run` (``base`` = the scenario's base step, ``t_k = start + k
   ``cM``, and makes one ``doStep(t_cM, t_min((c+1)M, N) - t_cM)``, its inputs set at that tick as above;
   recorded rows inside the interval hold its outputs from that step (the step covering that time, as for a
   slower instance). Delayed connections still pass the copy taken at the start of the tick, every tick.
+* Parameter changes at events (``[[on_change]]``, :class:`~milling_twin.orchestrator.scenario.OnChange`). The
+  watched output (Int32 or Boolean) is read after every step of its instance. At the start of each tick ``k``
+  that is a communication point of that instance (``k % m == 0``, its own ``m``: a trigger's instance is never
+  a variable one), before the delayed copies and before any instance steps, the master compares the output's
+  value (as left by the instance's step ending at ``t_k``) with its value at the previous such point (at
+  ``k = 0``: the value after initialization, so nothing fires there). If it changed and now equals ``equals``,
+  the entry fires: its ``set`` values are set (one FMI set call each, in the order written); then the tick
+  proceeds as usual, so each target uses its new value from its next doStep on (the one from ``t_k`` where
+  due at ``k``). Several entries may fire at one tick, in file order; an entry whose output changed to
+  another value does not fire, but the new value is remembered. A change at the run's last point ``t_N`` is
+  never checked (nothing steps after it). The events that fired (time, output, value, entry) are in
+  :class:`RunResult` and ``run.json`` (``"on_change"``).
 * Recording. The first row is at ``start`` after initialization; then one row
   after each tick that reaches a multiple of ``output_interval``, holding every
   recorded variable as left by its instance's latest step (for a slower instance:
@@ -56,7 +68,9 @@ Two implementations of this loop give bit-identical results (same FMI calls in t
 same arithmetic): the Python loop below, the reference, and the compiled fast path
 (:mod:`milling_twin.orchestrator.fastpath`, the C library in ``fmus/stepper/``), which runs chunks of ticks
 without returning to Python (keeping the coarse intervals' state in its plan, so a chunk may end inside
-one). ``run(stepping="auto")`` takes the fast path when its library is found
+one). The compiled loop reads the watched outputs too and returns at a tick where an ``[[on_change]]``
+entry fires, before anything of that tick; Python applies the entries and resumes at the same tick (one
+return per event). ``run(stepping="auto")`` takes the fast path when its library is found
 and the scenario is supported, else the Python path; the choice and its reason are in
 :class:`RunResult` and ``run.json``. On the fast path Ctrl-C ends the run after the current chunk
 (chunks last about 0.1 s) instead of the current tick; ``should_stop`` is still asked after
@@ -93,7 +107,7 @@ from milling_twin.orchestrator.fmu_loading import FMU2Slave, FMU3Slave
 from milling_twin.orchestrator.results import RunWriter, sha256_of
 from milling_twin.orchestrator.scenario import FmuInstance, Scenario
 
-__all__ = ["RunResult", "SimulationError", "run"]
+__all__ = ["FiredEvent", "RunResult", "SimulationError", "run"]
 
 BLOCK_TICKS = 4096  # recorded inputs are sampled for this many ticks at a time
 _log = logging.getLogger(__name__)
@@ -129,6 +143,17 @@ class SimulationError(RuntimeError):
 
 
 @dataclass(frozen=True)
+class FiredEvent:
+    """An ``[[on_change]]`` entry that fired: at ``time``, before any instance stepped from there, ``output``
+    had changed to ``value``; ``entry`` is its index in the scenario's ``on_change``."""
+
+    time: float
+    output: str
+    value: int | bool
+    entry: int
+
+
+@dataclass(frozen=True)
 class RunResult:
     status: str  # "completed", "interrupted", "terminated: ..."
     run_dir: Path
@@ -143,6 +168,7 @@ class RunResult:
     stepping_reason: str = ""  # why the Python path was used ("" on the fast path)
     fine_intervals: int = 0  # [stepping]: coarse intervals evaluated fine (0 without [stepping])
     coarse_intervals: int = 0  # [stepping]: coarse intervals evaluated coarse (0 without [stepping])
+    events: tuple[FiredEvent, ...] = ()  # [[on_change]]: the entries that fired, in order
 
 
 class _Slave:
@@ -201,6 +227,8 @@ class _Slave:
         # [stepping]: gate outputs are read after each step, as connection sources are
         wanted += [g.output.variable for g in (stepping.fine_when if stepping else ())
                    if g.output.instance == inst.name]
+        # [[on_change]]: the watched outputs too
+        wanted += [e.output.variable for e in scenario.on_change if e.output.instance == inst.name]
         self.variable = stepping is not None and inst.name in stepping.variable
         self.feeds_connections = bool(wanted)
         wanted += [r.variable for r in scenario.outputs if r.instance == inst.name]
@@ -262,17 +290,27 @@ class _Slave:
         elif self.log_all:
             _log.info("%s: %s", self.name, text)
 
+    def _setter(self, kind: str) -> Callable[[list[int], list[Any]], None]:
+        """fmpy's set function for values of ``kind`` ("real", "int", "bool", "string")."""
+        fmu = self.fmu
+        return {"real": fmu.setFloat64 if self.fmi3 else fmu.setReal,
+                "int": fmu.setInt32 if self.fmi3 else fmu.setInteger,
+                "bool": fmu.setBoolean, "string": fmu.setString}[kind]
+
     def set_parameters(self) -> None:
         """Parameters and constant inputs, as start values (before initialization)."""
         params = {**self.inst.parameters, **self.inst.inputs}
         kinds = {n: self.inst.variables[n].type for n in params}
         vr = lambda names: [self.inst.variables[n].value_reference for n in names]  # noqa: E731
-        for kind, setter in (("real", self.fmu.setFloat64 if self.fmi3 else self.fmu.setReal),
-                             ("int", self.fmu.setInt32 if self.fmi3 else self.fmu.setInteger),
-                             ("bool", self.fmu.setBoolean), ("string", self.fmu.setString)):
+        for kind in ("real", "int", "bool", "string"):
             names = [n for n in params if kinds[n] == kind]
             if names:
-                setter(vr(names), [params[n] for n in names])
+                self._setter(kind)(vr(names), [params[n] for n in names])
+
+    def set_value(self, name: str, value: Any) -> None:
+        """One parameter during the run (a tunable one: [[on_change]]), in one FMI set call."""
+        var = self.inst.variables[name]
+        self._setter(var.type)([var.value_reference], [value])
 
     def set_inputs(self) -> None:
         for call in self._set_calls:
@@ -413,6 +451,39 @@ class _Intervals:
             self.coarse_count += 1
 
 
+class _Triggers:
+    """``[[on_change]]`` on both paths: each entry's output (its buffer element, read after every step of its
+    instance), its value at the previous communication point of that instance (``last``), and the check. The fast
+    path keeps ``last`` in its plan while C runs; at a tick where C found an entry firing, the master loads it from
+    there, checks the tick here and stores it back."""
+
+    def __init__(self, scenario: Scenario, slaves: dict[str, _Slave]) -> None:
+        self.entries = []
+        for entry in scenario.on_change:
+            s = slaves[entry.output.instance]
+            buf, j = s.column(entry.output.variable)
+            targets = tuple((slaves[r.instance], r.variable, value) for r, value in entry.values)
+            self.entries.append((buf, j, scenario.variable(entry.output).type == "bool", s.m, entry, targets))
+        self.last = [self._value(i) for i in range(len(self.entries))]  # after initialization
+        self.fired: list[FiredEvent] = []
+
+    def _value(self, i: int) -> int:
+        buf, j, boolean = self.entries[i][:3]
+        return int(buf[j] != 0) if boolean else int(buf[j])  # as the stepper reads it
+
+    def check(self, tick: int) -> list[int]:
+        """The entries firing at ``tick`` (file order); each entry due there remembers its output's value."""
+        firing = []
+        for i, (_, _, _, m, entry, _) in enumerate(self.entries):
+            if tick % m == 0:
+                value = self._value(i)
+                if value != self.last[i]:
+                    self.last[i] = value
+                    if value == entry.equals:
+                        firing.append(i)
+        return firing
+
+
 class _Writer(RunWriter):
     """RunWriter with, for the fast path, block appends (the same buffer and flush rules as append)
     and chunk files written by a worker thread (:meth:`in_background`): Parquet encoding and fsync
@@ -510,6 +581,7 @@ class _Run:
         self.status = "completed"
         self.loop_wall = 0.0
         self.intervals: _Intervals | None = None  # [stepping] (the Python path's state)
+        self.triggers: _Triggers | None = None  # [[on_change]]
         self.counts = (0, 0, 0)  # [stepping]: fine intervals, coarse intervals, doSteps of variable instances
 
     def grid(self, k: Any) -> Any:
@@ -545,6 +617,19 @@ class _Run:
             s.fmu.exitInitializationMode()
             s.get_outputs()
             s.snapshot()
+        if scenario.on_change:
+            self.triggers = _Triggers(scenario, self.slaves)
+
+    def fire(self, firing: Sequence[int], t: float) -> None:
+        """Apply the ``[[on_change]]`` entries ``firing`` at ``t``: their values, in file and written order."""
+        triggers = self.triggers
+        assert triggers is not None
+        for i in firing:
+            entry, targets = triggers.entries[i][4:]
+            for slave, name, value in targets:
+                self.current = slave.name
+                slave.set_value(name, value)
+            triggers.fired.append(FiredEvent(t, str(entry.output), entry.equals, i))
 
     def loop(self, stop: _StopFlag, bar: tqdm, should_stop: Callable[[float], bool] | None) -> None:
         scenario, n_ticks, tpo, grid = self.scenario, self.n_ticks, self.scenario.ticks_per_output, self.grid
@@ -557,6 +642,7 @@ class _Run:
         append([self.start] + [buf[j] for buf, j in record])
         iv = self.intervals
         gate_point, coarse = (iv.first, iv.m) if iv is not None else (None, 0)
+        triggers = self.triggers
 
         tick = 0
         try:
@@ -568,6 +654,10 @@ class _Run:
                     for s in order:
                         s.load_block(scenario, times)
                 t = self.t = grid(tick)
+                if triggers is not None:
+                    firing = triggers.check(tick)
+                    if firing:
+                        self.fire(firing, t)
                 for s in delayed:
                     s.snapshot()
                 for s in order:
@@ -612,14 +702,29 @@ class _Run:
         self.writer.append([self.start] + [buf[j] for buf, j in record])
         self.writer.in_background()
         tick, chunk = 0, fastpath.FIRST_CHUNK_TICKS
+        triggers = self.triggers
+        if triggers is not None:
+            stepper.remember(triggers.last)
         try:
             while tick < n_ticks and not stop.set:
                 self.t = self.grid(tick)
-                t0 = time.perf_counter()
-                out = stepper.run_chunk(tick, min(tick + chunk, n_ticks))
-                elapsed = time.perf_counter() - t0
-                tick = out.tick
-                self.writer.append_rows(out.rows)
+                last, elapsed = min(tick + chunk, n_ticks), 0.0
+                while True:  # the chunk, resumed after each [[on_change]] event at the tick C stopped at
+                    t0 = time.perf_counter()
+                    out = stepper.run_chunk(tick, last)
+                    elapsed += time.perf_counter() - t0
+                    tick = out.tick
+                    self.writer.append_rows(out.rows)
+                    if out.code != fastpath.EVENT or triggers is None:
+                        break
+                    self.t = out.time
+                    triggers.last = stepper.remembered()
+                    firing = triggers.check(tick)
+                    if not firing:  # C and Python disagree: resuming would stop at the same tick again
+                        raise RuntimeError(f"the stepper stopped for an [[on_change]] event at t = {out.time!r} s, "
+                                           "but no entry fires there")
+                    self.fire(firing, out.time)
+                    stepper.remember(triggers.last)
                 bar.update(tick - bar.n)
                 if stepper.pending is not None:
                     raise stepper.pending
@@ -721,6 +826,10 @@ def run(scenario: Scenario, out_dir: str | Path, *, progress: bool = True,
         raise
     finally:
         fmu_steps = state.fmu_steps()
+        events = tuple(state.triggers.fired) if state.triggers is not None else ()
+        on_change = {} if not scenario.on_change else {"on_change": {
+            "entries": [e.table() for e in scenario.on_change],
+            "events": [{"time": e.time, "output": e.output, "value": e.value, "entry": e.entry} for e in events]}}
         rate = state.tick / state.loop_wall if state.loop_wall > 0 else 0.0
         wall = time.perf_counter() - t0_wall
         variable_step = {} if scenario.stepping is None else {"variable_step": {
@@ -729,9 +838,9 @@ def run(scenario: Scenario, out_dir: str | Path, *, progress: bool = True,
             writer.finish(state.status, steps=state.tick, fmu_steps=fmu_steps,
                           end_time=state.grid(state.tick), wall_time=wall,
                           loop_wall_time=state.loop_wall, steps_per_second=rate,
-                          stepping={**info["stepping"], **variable_step})
+                          stepping={**info["stepping"], **variable_step}, **on_change)
         finally:
             state.close()
     return RunResult(state.status, writer.run_dir, state.tick, fmu_steps, writer.rows_written,
                      state.grid(state.tick), wall, state.loop_wall, rate, choice.path, choice.reason,
-                     state.counts[0], state.counts[1])
+                     state.counts[0], state.counts[1], events)

@@ -75,6 +75,11 @@ Format (all times in seconds; paths are relative to the scenario file's folder):
       { output = "workpiece.clearance", below = { value = 2.0, unit = "mm" } }, # (its unit, or { value, unit })
     ]                           # Boolean: { output = "...", is = true }
 
+    [[on_change]]               # optional, repeatable: set tunable parameters when an output changes
+    output = "interp.tool_number"   # an Int32 or Boolean output (of an instance that is not variable)
+    equals = 2                      # fires when the output changes to this value (Boolean: true/false)
+    set = { "force.n_flutes" = 2, "force.tool_diameter" = { value = 6.0, unit = "mm" } }  # in this order
+
 Parameter sets (``[scenario].parameter_sets``, and ``load_scenario(..., parameter_sets=...)``
 after those) are TOML files of parameter values by instance, applied in order after the
 instances' own ``parameters`` (a later value wins); ``orchestrator calibrate`` writes them::
@@ -117,6 +122,12 @@ on a Real/Float64 output (``above`` or ``below``, strict, a number in the output
 the same dimension) or a Boolean output (``is = true`` or ``false``) of an instance that steps at exactly
 ``coarse_step`` and precedes every variable instance in the execution order (so the condition reads the value at
 the coarse interval's end).
+
+``[[on_change]]`` (when it fires: ``orchestrator/master.py``): ``output`` an Int32 or Boolean output of an
+instance that is not a ``[stepping]`` variable instance (it must keep its own step grid); ``equals`` a whole
+number (Int32) or true/false (Boolean); ``set`` at least one ``"instance.variable" = value``, each a parameter
+with variability ``tunable`` (a ``fixed`` one is refused), its value checked and converted as in
+``[fmus.<instance>.parameters]`` (units, types, range). :func:`on_change_toml` writes entries back as TOML.
 """
 from __future__ import annotations
 
@@ -131,6 +142,7 @@ from pathlib import Path
 from typing import Any, NoReturn
 
 import fmpy
+import tomli_w
 from fmpy import read_model_description
 
 from milling_twin.orchestrator.toml_access import TomlAccess
@@ -140,8 +152,8 @@ from milling_twin.orchestrator.recording_checks_spec import check_table
 from milling_twin.models.units import UnitError, conversion_factor
 
 __all__ = [
-    "Compare", "Connection", "FineWhen", "FmuInstance", "Ref", "RecordedInput", "Scenario",
-    "ScenarioError", "Stepping", "Variable", "load_scenario", "with_values",
+    "Compare", "Connection", "FineWhen", "FmuInstance", "OnChange", "Ref", "RecordedInput", "Scenario",
+    "ScenarioError", "Stepping", "Variable", "load_scenario", "on_change_toml", "with_values",
 ]
 
 BUILD_HINT = ("build the FMUs first: `make build` (or `cmake -S . -B build && cmake --build build`), "
@@ -289,6 +301,38 @@ class Stepping:
 
 
 @dataclass(frozen=True)
+class OnChange:
+    """An ``[[on_change]]`` entry: when ``output`` (Int32 or Boolean) has changed at a communication point of its
+    instance and now equals ``equals``, the master sets ``values`` (tunable parameters, SI values as
+    ``[fmus.<instance>.parameters]`` gives them, in the order written) before any instance steps from there."""
+
+    output: Ref
+    equals: int | bool  # bool for a Boolean output
+    values: tuple[tuple[Ref, float | bool | int | str], ...]
+
+    def table(self) -> dict[str, Any]:
+        """The entry as the TOML table it reads back from (values in SI units)."""
+        return {"output": str(self.output), "equals": self.equals, "set": {str(r): v for r, v in self.values}}
+
+
+def on_change_toml(tables: Sequence[Mapping[str, Any]]) -> str:
+    """``[[on_change]]`` blocks of ``tables`` (as :meth:`OnChange.table` gives them, or as written: a value may be
+    ``{ value, unit }`` or ``{ path }``), ``set`` as one inline table so that the block reads back as written."""
+    def inline(name: str, value: Any) -> str:
+        if isinstance(value, Mapping):
+            return f"{_toml_key(name)} = {{ {', '.join(inline(k, v) for k, v in value.items())} }}"
+        return tomli_w.dumps({name: value}).strip()
+
+    return "\n".join("[[on_change]]\n" + "".join(inline(k, v) + "\n" for k, v in table.items())
+                     for table in tables)
+
+
+def _toml_key(name: str) -> str:
+    """``name`` as a TOML key (quoted when it has to be, as ``"force.n_flutes"``)."""
+    return tomli_w.dumps({name: 0}).strip()[:-len(" = 0")]
+
+
+@dataclass(frozen=True)
 class Scenario:
     path: Path
     name: str
@@ -310,6 +354,7 @@ class Scenario:
     stepping: Stepping | None = None  # [stepping]: the variable communication step (None: every step fine)
     part: Part | None = None  # a whole-part scenario's [part], read (orchestrator/part/spec.py)
     alignment: Alignment | None = None  # [alignment]: comparisons on aligned times
+    on_change: tuple[OnChange, ...] = ()  # [[on_change]]: parameter changes at events, in file order
 
     @property
     def execution_order(self) -> tuple[str, ...]:
@@ -681,7 +726,7 @@ def load_scenario(path: str | Path, fmu_dir: str | Path, parameter_sets: Sequenc
         from milling_twin.orchestrator.part.expand import expand_document
         doc, part = expand_document(ctx, doc, fmu_dir)
     ctx.table(doc, "", ("scenario", "fmus", "recorded", "inputs", "connections", "outputs", "compare",
-                        "stepping", "alignment"))
+                        "stepping", "alignment", "on_change"))
 
     sc = ctx.table(doc.get("scenario"), "[scenario]", (
         "name", "description", "start_time", "stop_time", "output_interval", "parameter_sets"))
@@ -829,6 +874,7 @@ def load_scenario(path: str | Path, fmu_dir: str | Path, parameter_sets: Sequenc
     order = _execution_order(ctx, list(instances), conns)
     stepping = _stepping(ctx, doc["stepping"], [instances[n] for n in order], base,
                          {n: v[2] for n, v in loaded.items()}) if "stepping" in doc else None
+    on_change = _on_change(ctx, doc, instances, stepping)
     return Scenario(
         path=path, name=name, description=ctx.string(sc, "[scenario]", "description", ""),
         start_time=start, stop_time=stop, output_interval=output_interval, base_step=base,
@@ -836,7 +882,7 @@ def load_scenario(path: str | Path, fmu_dir: str | Path, parameter_sets: Sequenc
         recorded=recorded, inputs=tuple(inputs), connections=tuple(c for _, c in conns),
         outputs=tuple(dict.fromkeys(outputs)), compare=tuple(compares),
         parameter_sets=tuple(set_path for _, set_path in applied_sets), stepping=stepping, part=part,
-        alignment=alignment,
+        alignment=alignment, on_change=on_change,
     )
 
 
@@ -943,6 +989,51 @@ def _stepping(ctx: _Ctx, table: Any, order: Sequence[FmuInstance], base: float,
             ctx.fail(f"{k}.{sense}", f"unit {unit!r} does not fit {ref} ({var.unit or 'no unit'}): {exc}")
         gates.append(FineWhen(ref, sense, threshold))
     return Stepping(coarse, ticks, tuple(sorted(names, key=position.__getitem__)), tuple(gates))
+
+
+def _on_change(ctx: _Ctx, doc: dict, instances: Mapping[str, FmuInstance],
+               stepping: Stepping | None) -> tuple[OnChange, ...]:
+    """``[[on_change]]``, checked against the instances (and ``[stepping]``: a trigger keeps its own step grid)."""
+    entries = []
+    for key, item in _array(ctx, doc, "on_change", ("output", "equals", "set")):
+        ref, var = _resolve(ctx, f"{key}.output", item.get("output"), instances, "output",
+                            types=("real", "bool", "int"))
+        if var.type == "real":
+            ctx.fail(f"{key}.output", f"{ref} is a Real/Float64 output: a trigger must be an Int32 or Boolean "
+                                      "output (a value that changes in steps)")
+        if stepping is not None and ref.instance in stepping.variable:
+            ctx.fail(f"{key}.output", f"instance {ref.instance!r} is a variable instance of [stepping]: a trigger's "
+                                      "instance must keep its own step grid")
+        if "equals" not in item:
+            ctx.fail(f"{key}.equals", "missing required key: the value that fires the entry")
+        equals = item["equals"]
+        if var.type == "bool" and not isinstance(equals, bool):
+            ctx.fail(f"{key}.equals", f"{ref} is Boolean: give equals = true or false, got {equals!r}")
+        if var.type == "int" and (isinstance(equals, bool) or not isinstance(equals, int)
+                                  or not -2**31 <= equals < 2**31):
+            ctx.fail(f"{key}.equals", f"{ref} is an Int32: give a whole number, got {equals!r}")
+        table = item.get("set")
+        if not isinstance(table, dict) or not table:
+            ctx.fail(f"{key}.set", f"expected a table of at least one \"instance.variable\" = value, got {table!r}")
+        values = []
+        for name, raw in table.items():
+            k = f"{key}.set.{_toml_key(name)}"
+            target = Ref.parse(name, k, ctx.fail)
+            inst = instances.get(target.instance)
+            if inst is None:
+                ctx.fail(k, f"unknown instance {target.instance!r}; instances: {', '.join(instances)}")
+            try:  # the values of [fmus.<instance>.parameters], converted and checked by the same code
+                value = _parameters(ctx, inst.name, {target.variable: raw}, inst.variables,
+                                    inst.model_identifier)[target.variable]
+            except ScenarioError as exc:
+                ctx.fail(k, exc.detail)
+            variability = inst.variables[target.variable].variability
+            if variability != "tunable":
+                ctx.fail(k, f"{target} is a {variability} parameter of {inst.model_identifier}: only tunable "
+                            "parameters may change during a run")
+            values.append((target, value))
+        entries.append(OnChange(ref, equals, tuple(values)))
+    return tuple(entries)
 
 
 def with_values(scenario: Scenario, values: Mapping[str | Ref, Any], *, name: str | None = None) -> Scenario:

@@ -23,6 +23,7 @@ size_t stp_struct_size(int which) {
     case 4: return sizeof(stp_outcome);
     case 5: return sizeof(stp_recorded);
     case 6: return sizeof(stp_gate);
+    case 7: return sizeof(stp_watch);
     default: return 0;
     }
 }
@@ -75,6 +76,34 @@ static void evaluate_gates(stp_plan *plan) {
     } else {
         ++plan->coarse_intervals;
     }
+}
+
+/* A watched output's value as master.py's _Triggers reads it: an Int32 as is, a Boolean as 0 or 1. */
+static int32_t watch_value(const stp_watch *w) {
+    const int32_t v = (int32_t)read_bool(w->source, w->kind);
+    return w->boolean ? (v != 0) : v;
+}
+
+/* [[on_change]] at the start of tick k: 1 when a watch due at k fires (nothing is changed: Python checks the tick
+ * itself); else 0, and every due watch remembers its value (a change to another value fires nothing). */
+static int watches_fire(stp_plan *plan, int64_t k) {
+    int64_t i;
+    for (i = 0; i < plan->n_watches; ++i) {
+        const stp_watch *w = &plan->watches[i];
+        if (k % w->ticks_per_step == 0) {
+            const int32_t v = watch_value(w);
+            if (v != w->last && v == w->equals) {
+                return 1;
+            }
+        }
+    }
+    for (i = 0; i < plan->n_watches; ++i) {
+        stp_watch *w = &plan->watches[i];
+        if (k % w->ticks_per_step == 0) {
+            w->last = watch_value(w);
+        }
+    }
+    return 0;
 }
 
 /* As RecordedData.at: a time beyond the recording's ends by more than its tolerance (or NaN) is an error. */
@@ -210,6 +239,11 @@ void stp_run(stp_plan *plan, int64_t first_tick, int64_t last_tick, double *rows
     o->time = 0.0;
     while (k < last_tick) {
         const double t = plan->start + (double)k * plan->base;
+        if (plan->n_watches > 0 && watches_fire(plan, k)) {
+            o->code = STP_EVENT;
+            o->time = t;
+            break;
+        }
         for (i = 0; i < n_instances; ++i) {
             stp_instance *s = &plan->instances[i];
             if (s->snapshot) {

@@ -9,7 +9,9 @@
  * [first_tick, last_tick) of the fixed grid exactly as orchestrator/master.py's Python loop does
  * (same FMI calls in the same order, same arithmetic), writing one row per output interval. With a
  * variable communication step ([stepping]) the plan also holds the conditions (gates), which instances are
- * variable, and the state of the coarse intervals, carried from one call to the next.
+ * variable, and the state of the coarse intervals, carried from one call to the next. With parameter changes at
+ * events ([[on_change]]) it holds the watched outputs: stp_run returns STP_EVENT at the start of a tick where one
+ * fires, before anything of that tick, and Python sets the parameters and calls it again from that tick.
  *
  * No global state: everything lives in the caller's structures. The library calls nothing but
  * the FMI functions it is given and, when set, the should_stop callback.
@@ -23,7 +25,7 @@
 #include "fmi2FunctionTypes.h"
 #include "fmi3FunctionTypes.h"
 
-#define STP_ABI_VERSION 5
+#define STP_ABI_VERSION 6
 
 #if defined(__GNUC__)
 #define STP_EXPORT __attribute__((visibility("default")))
@@ -47,7 +49,8 @@ enum {
     STP_STOPPED = 1,    /* should_stop returned nonzero after an output row: stopped after that tick */
     STP_TERMINATED = 2, /* an FMI 3 instance set terminateSimulation: stopped after that tick */
     STP_FAILED = 3,     /* an FMI call returned Discard, Error or Fatal */
-    STP_OUT_OF_RECORDING = 4 /* a recorded input was due at a time outside the recording (with its tolerance) */
+    STP_OUT_OF_RECORDING = 4, /* a recorded input was due at a time outside the recording (with its tolerance) */
+    STP_EVENT = 5       /* an [[on_change]] entry fires at the start of tick `tick`: nothing of it was done */
 };
 
 /* stp_outcome.function */
@@ -82,6 +85,17 @@ typedef struct {
     int32_t kind;       /* STP_REAL, STP_BOOL_FMI2, STP_BOOL_FMI3 */
     int32_t sense;      /* STP_ABOVE, STP_BELOW, STP_IS */
 } stp_gate;
+
+/* One [[on_change]] entry: its watched output, checked at the start of each tick k % ticks_per_step == 0. It fires
+ * when the value differs from `last` and equals `equals`. */
+typedef struct {
+    const void *source;     /* an element of the instance's output buffer (read after each of its steps) */
+    int64_t ticks_per_step; /* the instance's step in ticks: its communication points */
+    int32_t kind;           /* STP_BOOL_FMI2 (an int: an Int32 or an FMI 2 Boolean) or STP_BOOL_FMI3 */
+    int32_t boolean;        /* 1: a Boolean output, its value taken as 0 or 1 */
+    int32_t equals;         /* the value that fires */
+    int32_t last;           /* the value at the previous check (Python sets it after initialization and events) */
+} stp_watch;
 
 /* One recorded column (after "time"). */
 typedef struct {
@@ -180,23 +194,28 @@ typedef struct {
     int64_t variable_steps;     /* doSteps of the variable instances */
     int32_t fine;               /* the current interval is fine */
     int32_t held;               /* a condition held at the latest evaluation */
+    /* [[on_change]] (n_watches 0: none). At a tick's start the due watches are checked: when one fires, stp_run
+     * returns STP_EVENT at that tick, the watches unchanged; else each due watch remembers its value. */
+    stp_watch *watches;
+    int64_t n_watches;
 } stp_plan;
 
 typedef struct {
     int64_t tick;       /* ticks completed: the grid index reached */
     int64_t rows;       /* rows written */
-    int32_t code;       /* STP_DONE ... STP_FAILED */
+    int32_t code;       /* STP_DONE ... STP_EVENT */
     int32_t instance;   /* index of the failing or terminating instance, else -1 */
     int32_t function;   /* STP_FN_* of the failing call; STP_OUT_OF_RECORDING: 0 (all inputs sample one recording) */
     int32_t status;     /* its FMI status */
-    double time;        /* master time of the failing call / start of the terminating step / sampled time */
+    double time;        /* master time of the failing call / start of the terminating step / sampled time /
+                           the event's tick */
 } stp_outcome;
 
 /* STP_ABI_VERSION of the library. */
 STP_EXPORT int stp_abi_version(void);
 
 /* sizeof of stp_link (0), stp_column (1), stp_instance (2), stp_plan (3), stp_outcome (4), stp_recorded (5),
- * stp_gate (6); 0 otherwise. */
+ * stp_gate (6), stp_watch (7); 0 otherwise. */
 STP_EXPORT size_t stp_struct_size(int which);
 
 /* Ticks [first_tick, last_tick) (last_tick <= plan->n_ticks). rows: room for one row of

@@ -27,6 +27,8 @@ def run_summary(results: api.Results) -> str:
     if intervals:
         lines.append(f"variable step: {result.fine_intervals} of {intervals} coarse intervals fine "
                      f"({100 * result.fine_intervals / intervals:.1f} %)")
+    if results.scenario.on_change:  # [[on_change]]: the parameter changes made at events
+        lines.append(f"on_change: {len(result.events)} events fired ({len(results.scenario.on_change)} entries)")
     check = results.scenario.recorded.check if results.scenario.recorded is not None else None
     if check is not None:
         lines.extend(f"recording check: {line}" for line in check.summary()[:2])

@@ -22,7 +22,8 @@ import tomli_w
 from milling_twin.orchestrator.gcode.program_summary import summarize
 from milling_twin.orchestrator.part.model import FORCE, INTERPOLATOR, POWER, VIBRATION, WORKPIECE, Part
 from milling_twin.orchestrator.part.spec import read_part
-from milling_twin.orchestrator.scenario import ScenarioError, Variable, _Ctx, _load_fmu, _parameters, _variables
+from milling_twin.orchestrator.scenario import (ScenarioError, Variable, _Ctx, _load_fmu, _parameters, _variables,
+                                                on_change_toml)
 from milling_twin.orchestrator.toml_access import TomlAccess
 
 INSTANCES = (INTERPOLATOR, WORKPIECE, FORCE, VIBRATION, POWER)
@@ -252,11 +253,14 @@ def explicit_text(part_file: Path, fmu_dir: Path, target_dir: Path) -> tuple[str
 
 def _toml(doc: Mapping[str, Any]) -> str:
     """``doc`` as TOML in reading order ([scenario] first), arrays of tables as ``[[name]]`` blocks."""
-    order = ("scenario", "fmus", "connections", "stepping", "recorded", "alignment", "inputs", "compare", "outputs")
+    order = ("scenario", "fmus", "connections", "stepping", "on_change", "recorded", "alignment", "inputs", "compare",
+             "outputs")
     chunks = []
     for name in sorted(doc, key=lambda n: order.index(n) if n in order else len(order)):
         value = doc[name]
-        if isinstance(value, list) and all(isinstance(item, dict) for item in value):
+        if name == "on_change":  # its set = { ... } inline, as written (orchestrator.scenario.on_change_toml)
+            chunks.append(on_change_toml(value))
+        elif isinstance(value, list) and all(isinstance(item, dict) for item in value):
             chunks.extend(f"[[{name}]]\n{tomli_w.dumps(item)}" for item in value)
         elif name == "fmus":
             chunks.extend(_instance_toml(inst, table) for inst, table in value.items())

@@ -221,7 +221,7 @@ class _Slave:
         self.conn_bool = [c for c in conns if not is_real(c.target.variable)]
         real_in = [x.target.variable for x in self.rec_real + self.conn_real]
         bool_in = [x.target.variable for x in self.rec_bool + self.conn_bool]
-        # Outputs: what connections read and what is recorded (Int32 outputs: recorded only).
+        # Outputs: what connections and [stepping] read, what [[on_change]] watches, and what is recorded.
         wanted = [c.source.variable for c in scenario.connections if c.source.instance == inst.name]
         stepping = scenario.stepping
         # [stepping]: gate outputs are read after each step, as connection sources are

@@ -147,12 +147,12 @@ typedef struct {
 
     int32_t fmi_version;      /* 2 or 3 */
     int32_t ticks_per_step;   /* due at ticks k with k % ticks_per_step == 0 */
-    int32_t get_after_step;   /* outputs feed connections: read right after each step */
+    int32_t get_after_step;   /* outputs feed connections, gates or watches: read right after each step */
     int32_t snapshot;         /* source of a delayed connection: copy outputs at each tick's start */
     int32_t get_at_rows;      /* has outputs: read them at each output row */
     int32_t variable;         /* a variable instance of [stepping]: one step per coarse interval while coarse */
 
-    /* Int32 outputs (recorded only; fmi2Integer or fmi3Int32 elements, both int32) */
+    /* Int32 outputs (recorded or watched by [[on_change]]; fmi2Integer or fmi3Int32 elements, both int32) */
     fmi2GetIntegerTYPE *fmi2_get_integer;
     fmi3GetInt32TYPE *fmi3_get_int32;
     const uint32_t *vr_int_out;

@@ -136,14 +136,18 @@ def _run_and_report(run: Callable[..., RunResult], scenario: Scenario, out: Path
 
 def calibrate(spec: str | Path, *, fmu_dir: str | Path | None = None, out: str | Path = "runs",
               overrides: Mapping[str, Any] | None = None, write_set: str | Path | None = None,
-              data: str | Path | None = None, progress: bool = False) -> CalibrationResult:
+              data: str | Path | None = None, progress: bool = False, workers: int | None = None,
+              scheduler: str | None = None) -> CalibrationResult:
     """Calibrate the parameters a spec names against its recording: results, the parameter set and the
     report (HTML, Markdown) go to ``out/calibration/<name>/``; ``write_set`` also publishes the set there
-    (e.g. the committed file the calibrated scenario applies). ``overrides`` change the scenario first."""
+    (e.g. the committed file the calibrated scenario applies). ``overrides`` change the scenario first.
+    ``workers`` (0: serial) / ``scheduler``: instead of the spec's ``[solver]`` ones, where a fit through the
+    FMUs runs its starts and finite-difference columns (the serial result, bit for bit)."""
     from milling_twin.orchestrator.calibrate.run import calibrate as run_calibration
 
     return run_calibration(spec, fmu_dir if fmu_dir is not None else default_fmu_dir(), out, data=data,
-                           progress=progress, write_set=write_set, overrides=overrides)
+                           progress=progress, write_set=write_set, overrides=overrides, workers=workers,
+                           scheduler=scheduler)
 
 
 def sweep(study: str | Path, *, fmu_dir: str | Path | None = None, out: str | Path = "runs",

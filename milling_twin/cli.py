@@ -151,6 +151,12 @@ def _calibrate(p: argparse.ArgumentParser) -> None:
     p.add_argument("--write-set", type=Path, metavar="PATH",
                    help="also publish the calibrated parameter set here (e.g. the spec's parameter_set, to "
                         "update the committed one); without it only OUT is written")
+    where = p.add_mutually_exclusive_group()
+    where.add_argument("--workers", type=_workers, default=None, metavar="N",
+                       help="a fit through the FMUs runs its starts and finite-difference columns on N local worker "
+                            "processes, with the serial result (0: serially; default: the spec's [solver] workers)")
+    where.add_argument("--scheduler", default=None, metavar="ADDR|FILE",
+                       help="the same on an existing dask cluster: its scheduler's address (tcp://host:8786) or file")
     p.add_argument("--no-progress", action="store_true", help="no progress bars")
 
 

@@ -79,7 +79,8 @@ def calibrate(args: argparse.Namespace) -> int:
     from milling_twin.orchestrator.calibrate.report import summary_lines
 
     result = api.calibrate(args.spec, fmu_dir=args.fmu_dir, out=args.out, data=args.data,
-                           overrides=overrides_of(args), write_set=args.write_set, progress=not args.no_progress)
+                           overrides=overrides_of(args), write_set=args.write_set, progress=not args.no_progress,
+                           workers=args.workers, scheduler=args.scheduler)
     print("stages: " + ", ".join(f"{name} {seconds:.2f} s" for name, seconds in result.timings.items()))
     print("\n".join(summary_lines(result)))
     print(f"parameter set: {result.parameter_set}")

@@ -1,7 +1,8 @@
-"""Parallel calibration (orchestrator/calibrate/parallel.py): the starts and the finite-difference Jacobians'
-columns of the FMU path as tasks of an executor give the serial fit bit for bit (estimates, objectives,
-statistics, the report's figures, the count of simulations), with local dask worker processes as with the
-in-process executor; a failed evaluation on a worker is reported as the serial loop reports it."""
+"""Parallel calibration (orchestrator/calibrate/parallel.py): the simulations of a fit through the FMUs (its
+starts, solved at once, and its finite-difference Jacobians' columns) as tasks of an executor give the serial
+fit bit for bit (estimates, objectives, statistics, the report's figures, the count of simulations), with local
+dask worker processes as with the in-process executor; a failed evaluation on a worker is reported as the serial
+loop reports it; the spec and the command line take the workers or a scheduler."""
 from __future__ import annotations
 
 import re
@@ -47,6 +48,18 @@ def slot(tmp_path_factory, fmu_dir: Path):
     return spec, prepared, learning
 
 
+class CountingPool(ThreadPoolExecutor):
+    """Threads of this process (a test can patch what they run), counting the tasks."""
+
+    def __init__(self) -> None:
+        super().__init__(2)
+        self.tasks = 0
+
+    def submit(self, fn, /, *args, **kwargs):
+        self.tasks += 1
+        return super().submit(fn, *args, **kwargs)
+
+
 def fresh_fmu(slot, method: str = "forward") -> FmuOutputs:
     spec, prepared, learning = slot
     return FmuOutputs(prepared.scenario, prepared.parameters, [o.ref for o in prepared.outputs], learning.row_time,
@@ -54,7 +67,8 @@ def fresh_fmu(slot, method: str = "forward") -> FmuOutputs:
 
 
 def test_workers_and_scheduler_in_the_spec(tmp_path: Path) -> None:
-    assert load_spec(slot_spec(tmp_path)).solver.workers == 0 and load_spec(slot_spec(tmp_path)).solver.scheduler is None
+    solver = load_spec(slot_spec(tmp_path)).solver
+    assert (solver.workers, solver.scheduler) == (0, None)
     solver = load_spec(slot_spec(tmp_path, "workers = 2\n")).solver
     assert (solver.workers, solver.scheduler) == (2, None)
     solver = load_spec(slot_spec(tmp_path, 'scheduler = "tcp://10.0.0.1:8786"\n')).solver
@@ -72,10 +86,11 @@ def test_jacobian_columns_on_an_executor_are_the_serial_loop(slot, method: str) 
     """Same Jacobian to the bit, same cache (keys and order), same count of simulations."""
     theta = np.array([q.initial for q in slot[1].parameters])
     serial, parallel = fresh_fmu(slot, method), fresh_fmu(slot, method)
-    with ThreadPoolExecutor(2) as pool:
+    with CountingPool() as pool:
         parallel.executor = pool
         jac_parallel = parallel.jacobian(theta)
         parallel.jacobian(theta * 1.01)
+    assert pool.tasks == 2 * 6 * (1 if method == "forward" else 2)  # the moved runs; the nominal ones here
     jac = serial.jacobian(theta)
     serial.jacobian(theta * 1.01)
     assert np.array_equal(jac, jac_parallel) and np.all(np.isfinite(jac))
@@ -98,9 +113,10 @@ def test_a_failed_evaluation_on_a_worker_is_reported_as_in_the_serial_loop(slot,
     theta = np.array([q.initial for q in slot[1].parameters])
     theta[2] = 200e6 - 1.0  # the Kac column steps above 200e6
     serial, parallel = fresh_fmu(slot), fresh_fmu(slot)
-    with ThreadPoolExecutor(2) as pool:
+    with CountingPool() as pool:
         parallel.executor = pool
         jac_parallel = parallel.jacobian(theta)
+    assert pool.tasks == 6
     jac = serial.jacobian(theta)
     assert [f.message for f in serial.failures] == [f.message for f in parallel.failures]
     assert len(serial.failures) == 1 and "force.Kac = 2e+08" in serial.failures[0].message
@@ -109,9 +125,10 @@ def test_a_failed_evaluation_on_a_worker_is_reported_as_in_the_serial_loop(slot,
     assert np.array_equal(np.nan_to_num(jac), np.nan_to_num(jac_parallel))
 
 
-def test_starts_as_tasks_in_process_are_the_serial_fit(slot) -> None:
-    """The in-process executor (workers = 0 of the studies) runs each start as a task with its own cache and
-    replays it: the fit's numbers and the count of simulations are the serial loop's."""
+def test_starts_at_once_with_the_in_process_executor_are_the_serial_fit(slot) -> None:
+    """The starts solved at once (threads), each with its own cache, their simulations on the in-process executor
+    of the studies, their logs replayed in start order: the fit's numbers and the count of simulations are the
+    serial loop's."""
     spec, prepared, learning = slot
     solver = replace(spec.solver, starts=2)
     outcomes = []
@@ -160,3 +177,16 @@ def test_two_worker_processes_give_the_serial_calibration_bit_for_bit(tmp_path: 
     assert count.search(md_a).group(1) == count.search(md_b).group(1)
     assert "Parallel fit on 2 local worker processes" in md_b and "Parallel fit" not in md_a
     assert "start the workers" in parallel.timings
+
+
+def test_the_command_line_takes_workers_or_a_scheduler(capsys) -> None:
+    from milling_twin.cli import build_parser
+
+    args = build_parser().parse_args(["calibrate", "spec.toml", "--workers", "2"])
+    assert (args.workers, args.scheduler) == (2, None)
+    args = build_parser().parse_args(["calibrate", "spec.toml", "--scheduler", "tcp://10.0.0.1:8786"])
+    assert (args.workers, args.scheduler) == (None, "tcp://10.0.0.1:8786")
+    for wrong in (["--workers", "-1"], ["--workers", "2", "--scheduler", "tcp://10.0.0.1:8786"]):
+        with pytest.raises(SystemExit):
+            build_parser().parse_args(["calibrate", "spec.toml", *wrong])
+    assert "--workers" in capsys.readouterr().err

@@ -30,6 +30,12 @@ that the solver module (:mod:`milling_twin.orchestrator.calibrate.lsq`: its proj
 one Jacobian per iteration), multi-start and statistics of the exact path serve this one. A failed simulation gives non-finite outputs and its cause is kept
 (:attr:`FmuOutputs.failures`): the solver reports it for the start (and IPOPT backs off from a
 failing trial point).
+
+Parallel calibration (:mod:`milling_twin.orchestrator.calibrate.parallel`): with an :attr:`FmuOutputs.executor`,
+a Jacobian's column simulations are submitted at once (:func:`evaluate`, a picklable :class:`Simulation` run in a
+temporary folder of the worker) and accounted in the serial loop's order, so the cache and the counts end as the
+serial loop leaves them; ``remote`` sends every simulation there; a start solved elsewhere logs what it asked
+(:attr:`FmuOutputs.log`) and :meth:`FmuOutputs.replay` accounts for it here.
 """
 from __future__ import annotations
 
@@ -176,6 +182,7 @@ class FmuOutputs:
         # parallel calibration (orchestrator/calibrate/parallel.py): where the Jacobian's columns are simulated
         # (None: here, one after the other), and the log of the evaluations asked (None: not kept)
         self.executor: Executor | None = None
+        self.remote = False  # every simulation a task of the executor (not only the Jacobian's columns)
         self.log: list[Access | JacobianAccess] | None = None
 
     def detached(self) -> "FmuOutputs":
@@ -183,7 +190,7 @@ class FmuOutputs:
         copy = object.__new__(FmuOutputs)
         copy.__dict__.update(self.__dict__)
         copy._cache, copy._jacobians, copy.failures = OrderedDict(), OrderedDict(), []
-        copy.simulations, copy.simulation_time, copy.executor, copy.log = 0, 0.0, None, None
+        copy.simulations, copy.simulation_time, copy.executor, copy.remote, copy.log = 0, 0.0, None, False, None
         return copy
 
     def __getstate__(self) -> dict:
@@ -213,12 +220,22 @@ class FmuOutputs:
             if self.log is not None:
                 self.log.append(Access(key, theta, y, simulated=False))
             return y
+        if self.remote and self.executor is not None:
+            e = self._wait(self.executor.submit(evaluate, self.simulation, theta))
+            return self._store(key, theta, e.y, e.error, e.seconds)
         t0 = time.perf_counter()
         try:
             y, error = self._simulate(theta), None
         except Exception as exc:  # noqa: BLE001 - any failure of the FMUs or the run is a failed evaluation
             y, error = None, f"{type(exc).__name__}: {exc}"
         return self._store(key, theta, y, error, time.perf_counter() - t0)
+
+    @staticmethod
+    def _wait(future: Future) -> Evaluation:
+        try:
+            return future.result()
+        except Exception as exc:  # noqa: BLE001 - the worker itself failed (e.g. died with its FMU)
+            return Evaluation(None, f"the worker failed: {type(exc).__name__}: {exc}", 0.0)
 
     def _store(self, key: bytes, theta: np.ndarray, y: np.ndarray | None, error: str | None,
                seconds: float) -> np.ndarray:
@@ -308,12 +325,7 @@ class FmuOutputs:
                 order.popitem(last=False)
             if key not in futures:
                 futures[key] = self.executor.submit(evaluate, self.simulation, theta)
-        done: dict[bytes, Evaluation] = {}
-        for key, future in futures.items():  # in submission order, never in completion order
-            try:
-                done[key] = future.result()
-            except Exception as exc:  # noqa: BLE001 - the worker itself failed (e.g. died with its FMU)
-                done[key] = Evaluation(None, f"the worker failed: {type(exc).__name__}: {exc}", 0.0)
+        done = {key: self._wait(future) for key, future in futures.items()}  # by key: the order does not matter
         for theta in thetas:
             key = theta.tobytes()
             if key in self._cache:

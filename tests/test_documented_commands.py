@@ -20,7 +20,7 @@ DOCUMENTS = [REPO_ROOT / "README.md", *sorted((REPO_ROOT / "docs").glob("*.md"))
 EXTERNAL = {"cmake", "git", "chromium", "xdg-open", "open", "pip", "python3", "fmpy", "sh", "bash", "cd", "ctest",
             "valgrind", "apt-get", "export", "ls", "cat", "sudo", "sha256sum", "python"}
 # milling-twin subcommands cheap enough to run from the docs as they stand (a few seconds each)
-RUN = {"run", "info", "lobes", "calibrate", "--version"}
+RUN = {"run", "info", "lobes", "calibrate", "sweep", "--version"}
 FENCE = re.compile(r"^```sh\s*\n(.*?)^```", re.M | re.S)
 PYTHON = re.compile(r"^```python\s*\n(.*?)^```", re.M | re.S)
 
@@ -65,6 +65,7 @@ def _workspace(tmp_path: Path, fmu_dir: Path) -> tuple[Path, dict[str, str]]:
     folder = tmp_path / "repo"
     folder.mkdir()
     (folder / "scenarios").symlink_to(REPO_ROOT / "scenarios")
+    (folder / "studies").symlink_to(REPO_ROOT / "studies")
     (folder / "build").mkdir()
     (folder / "build" / "fmus").symlink_to(fmu_dir)
     if SHARED.is_dir():

@@ -9,8 +9,8 @@ the study file. Variables are named ``"instance.variable"`` (quoted) or as a tab
 = ...`` in TOML).
 
 - grid: per variable a list of values, ``{ values = [...], unit = "mm" }`` or ``{ start, stop, num, unit }``
-  (``num`` evenly spaced values, both ends included); the cases are the cartesian product (the first variable
-  varies slowest).
+  (``num`` evenly spaced values, both ends included, to 15 significant digits); the cases are the cartesian
+  product (the first variable varies slowest).
 - list: per variable a list of values, all of one length; case i takes the i-th value of each (explicit cases).
 - sample: ``method = "lhs"`` (Latin hypercube) or ``"sobol"`` (scrambled; ``n`` a power of 2), ``n``, ``seed``
   (default 0) and per variable ``{ min, max, unit }`` (``scipy.stats.qmc``); a range of two whole numbers without
@@ -143,7 +143,8 @@ def _value_list(entry: Any, name: str, key: str, fail: Fail, base: Path, grid: b
             fail(f"{key}.num", f"expected a whole number >= 1, got {num!r}")
         start = _number(entry["start"], f"{key}.start", fail)
         stop = _number(entry["stop"], f"{key}.stop", fail)
-        raw, unit = [float(x) for x in np.linspace(start, stop, num)], _unit(entry, key, fail)
+        # 15 significant digits: 0.02, not linspace's 0.019999999999999997
+        raw, unit = [float(f"{x:.15g}") for x in np.linspace(start, stop, num)], _unit(entry, key, fail)
     else:
         forms = "a list, { values = [...], unit = ... }" + (" or { start, stop, num, unit }" if grid else "")
         fail(key, f"expected {forms}, got {entry!r}")

@@ -151,7 +151,7 @@ def _dispatch(executor: Executor, tasks: list[CaseTask], store: SummaryStore, ba
             except Exception as exc:  # noqa: BLE001 - the task (not the case) failed: recorded, the study goes on
                 row = _lost_row(task, exc)
             if row["status"] != "ok":
-                _log.warning("case %s failed: %s", row["case_id"], row["error"])
+                _log.info("case %s failed: %s", row["case_id"], row["error"])
             store.write(row)
             bar.update()
 

@@ -1,0 +1,243 @@
+"""The study layer in one process: study files (cases, sampling, errors naming file and key), case ids, the
+summary, a failing case, --resume, the command. The dask cluster: tests/test_study_dask.py."""
+from __future__ import annotations
+
+import concurrent.futures
+from pathlib import Path
+
+import pandas as pd
+import pytest
+
+from milling_twin.cli import main
+from milling_twin.orchestrator.study.cases import case_id
+from milling_twin.orchestrator.study.executor import SerialExecutor, open_executor
+from milling_twin.orchestrator.study.reduce import REDUCTIONS, get_reduction
+from milling_twin.orchestrator.study.run import sweep
+from milling_twin.orchestrator.study.spec import StudyError, load_study
+
+REPO = Path(__file__).resolve().parents[1]
+CHATTER = REPO / "scenarios" / "chatter.toml"
+
+HEAD = f"""\
+[study]
+name = "s"
+base = "{CHATTER.as_posix()}"
+stop_time = 0.005
+"""
+REDUCE = """
+[[study.reduce]]
+kind = "max"
+variable = "force.Fx"
+[[study.reduce]]
+kind = "rms"
+variable = "vibration.tip_displacement_y"
+name = "tip_rms"
+"""
+GRID = """
+[study.grid]
+force.spindle_speed = { values = [5000, 7000], unit = "rpm" }
+"force.axial_depth" = ["0.02mm", "0.05mm"]
+"""
+
+
+def write(tmp_path: Path, body: str, name: str = "study.toml") -> Path:
+    path = tmp_path / name
+    path.write_text(HEAD + body)
+    return path
+
+
+def test_a_grid_is_the_cartesian_product_in_si_with_stable_ids(tmp_path: Path, fmu_dir: Path) -> None:
+    study = load_study(write(tmp_path, GRID + REDUCE), fmu_dir)
+    assert study.variables == ("force.spindle_speed", "force.axial_depth")
+    assert [c.values["force.axial_depth"] for c in study.cases] == [{"value": 0.02, "unit": "mm"},
+                                                                   {"value": 0.05, "unit": "mm"}] * 2
+    assert len({c.case_id for c in study.cases}) == 4
+    # the id depends on the values (and the study's stop time), not on their order or on the file
+    again = load_study(write(tmp_path, GRID.replace("[5000, 7000]", "[7000, 5000]") + REDUCE, "b.toml"), fmu_dir)
+    assert {c.case_id for c in again.cases} == {c.case_id for c in study.cases}
+    values = study.cases[0].values
+    assert case_id(dict(reversed(list(values.items()))), 0.005) == study.cases[0].case_id
+    assert case_id(values, 0.006) != study.cases[0].case_id
+
+
+def test_lists_ranges_set_and_duplicates(tmp_path: Path, fmu_dir: Path) -> None:
+    study = load_study(write(tmp_path, """
+[study.set]
+"force.feed_velocity_x" = "300mm/min"
+[[study.grid]]
+force.axial_depth = { start = 0.01, stop = 0.03, num = 3, unit = "mm" }
+[[study.grid]]
+force.axial_depth = { values = [0.01], unit = "mm" }
+[study.list]
+force.axial_depth = [0.00001, 0.00002]
+force.n_flutes = [2, 3]
+""" + REDUCE), fmu_dir)
+    depths = [c.values["force.axial_depth"] for c in study.cases]
+    # the second grid's 0.01 mm is the first grid's first case: one case
+    assert depths == [{"value": 0.01, "unit": "mm"}, {"value": 0.02, "unit": "mm"}, {"value": 0.03, "unit": "mm"},
+                      1e-05, 2e-05]
+    assert all(c.values["force.feed_velocity_x"] == {"value": 300.0, "unit": "mm/min"} for c in study.cases)
+    assert [c.values.get("force.n_flutes") for c in study.cases] == [None, None, None, 2, 3]
+
+
+SAMPLE = """
+[study.sample]
+method = "{method}"
+n = {n}
+seed = {seed}
+force.spindle_speed = {{ min = 5000, max = 8000, unit = "rpm" }}
+force.n_flutes = {{ min = 1, max = 4 }}
+"""
+
+
+@pytest.mark.parametrize("method", ["lhs", "sobol"])
+def test_samples_are_seeded_and_inside_their_ranges(tmp_path: Path, fmu_dir: Path, method: str) -> None:
+    def cases(seed: int, name: str) -> list[dict]:
+        body = SAMPLE.format(method=method, n=8, seed=seed) + REDUCE
+        return [c.values for c in load_study(write(tmp_path, body, name), fmu_dir).cases]
+
+    first, same, other = cases(1, "a.toml"), cases(1, "b.toml"), cases(2, "c.toml")
+    assert first == same and first != other and len(first) == 8
+    speeds = sorted(c["force.spindle_speed"]["value"] for c in first)
+    assert 5000 <= speeds[0] and speeds[-1] <= 8000
+    assert all(isinstance(c["force.n_flutes"], int) and 1 <= c["force.n_flutes"] <= 4 for c in first)
+    if method == "lhs":  # one sample in each of the 8 strata of the range
+        assert sorted(int((s - 5000) / 375) for s in speeds) == list(range(8))
+
+
+def test_monte_carlo_draws_are_seeded(tmp_path: Path, fmu_dir: Path) -> None:
+    body = """
+[study.distributions]
+n = 200
+seed = 3
+force.Ktc = { kind = "normal", mean = 767, std = 20, unit = "N/mm2" }
+force.Krc = { kind = "uniform", min = 150, max = 180, unit = "N/mm2" }
+force.Kac = { kind = "lognormal", median = 222, sigma = 0.1, unit = "N/mm2" }
+""" + REDUCE
+    a = load_study(write(tmp_path, body, "a.toml"), fmu_dir).cases
+    b = load_study(write(tmp_path, body, "b.toml"), fmu_dir).cases
+    assert [c.values for c in a] == [c.values for c in b]
+    kt = pd.Series([c.values["force.Ktc"]["value"] for c in a])
+    kr = pd.Series([c.values["force.Krc"]["value"] for c in a])
+    ka = pd.Series([c.values["force.Kac"]["value"] for c in a])
+    assert abs(kt.mean() - 767) < 5 and 15 < kt.std() < 25
+    assert kr.between(150, 180).all()
+    assert abs(ka.median() / 222 - 1) < 0.03 and (ka > 0).all()
+
+
+@pytest.mark.parametrize(("body", "key", "message"), [
+    ("[study.grid]\nforce.axial_depth = [1]\n[study.foo]\n", "study.foo", "unknown key 'foo'"),
+    ("[study.grid]\nforce.spindle_speed = { values = [5000], unit = \"kg\" }\n",
+     "[study.grid].force.spindle_speed", "does not fit"),
+    ("[study.grid]\nforce.nope = [1.0]\n", "[study.grid].force.nope", "unknown variable 'nope'"),
+    ("[study.grid]\nforce.axial_depth = [\"200mm\"]\n", "[study.grid].force.axial_depth", "outside the range"),
+    ("[study.list]\nforce.axial_depth = [1e-5, 2e-5]\nforce.n_flutes = [2]\n", "[study.list].force.n_flutes",
+     "1 values, but force.axial_depth has 2"),
+    ("[study.sample]\nmethod = \"sobol\"\nn = 6\nforce.axial_depth = { min = 0, max = 1, unit = \"mm\" }\n",
+     "[study.sample].n", "power of 2"),
+    ("[study.sample]\nmethod = \"grid\"\nn = 4\n", "[study.sample].method", "lhs"),
+    ("[study.distributions]\nn = 4\nforce.Ktc = { kind = \"normal\", mean = 700 }\n",
+     "[study.distributions].force.Ktc.std", "finite number"),
+    ("[study.grid]\nforce.axial_depth = [1e-5]\n[[study.reduce]]\nkind = \"max\"\nvariable = \"force.torque\"\n",
+     "[[study.reduce]][0].variable", "not a recorded output"),
+    ("[study.grid]\nforce.axial_depth = [1e-5]\n[[study.reduce]]\nkind = \"maxx\"\n",
+     "[[study.reduce]][0].kind", "unknown reduction"),
+    ("[study.grid]\nforce.axial_depth = [1e-5]\n[[study.reduce]]\nkind = \"machining_time\"\nwindow = 2\n",
+     "[[study.reduce]][0]", "window"),
+    ("[study.grid]\nforce.axial_depth = [1e-5]\n[[study.reduce]]\nkind = \"rms_error\"\n",
+     "[[study.reduce]][0].kind", "needs [[compare]] pairs"),
+    ("", "study", "no cases"),
+])
+def test_bad_study_files_name_the_file_and_the_key(tmp_path: Path, fmu_dir: Path, body: str, key: str,
+                                                  message: str) -> None:
+    reduce = "" if "study.reduce" in body else REDUCE
+    path = write(tmp_path, body + reduce)
+    with pytest.raises(StudyError) as info:
+        load_study(path, fmu_dir)
+    assert info.value.path == path and info.value.key == key, str(info.value)
+    assert message in info.value.detail
+    assert str(info.value).startswith(f"{path}: {key}: ")
+
+
+def test_a_missing_base_and_a_scenario_given_as_study(tmp_path: Path, fmu_dir: Path) -> None:
+    path = tmp_path / "s.toml"
+    path.write_text('[study]\nname = "s"\nbase = "nowhere.toml"\n')
+    with pytest.raises(StudyError, match=r"s.toml: study.base: no scenario file .*nowhere.toml"):
+        load_study(path, fmu_dir)
+    with pytest.raises(StudyError, match=r"chatter.toml: study: missing required table \[study\] \(a scenario"):
+        load_study(CHATTER, fmu_dir)
+
+
+def test_the_serial_executor_hands_back_results_and_exceptions() -> None:
+    with open_executor(workers=0) as executor:
+        assert isinstance(executor, SerialExecutor)
+        ok, bad = executor.submit(pow, 2, 10), executor.submit(int, "x")
+        assert ok.result() == 1024 and isinstance(bad.exception(), ValueError)
+        assert [f.result() for f in concurrent.futures.as_completed([ok])] == [1024]
+    with pytest.raises(RuntimeError, match="after shutdown"):
+        executor.submit(pow, 2, 2)
+    with pytest.raises(ValueError, match="workers=-1"):
+        with open_executor(workers=-1):
+            pass
+    with pytest.raises(ValueError, match="choose one"):
+        with open_executor(workers=2, scheduler="tcp://127.0.0.1:1"):
+            pass
+
+
+def test_reductions_are_registered_by_name() -> None:
+    assert {"max", "min", "mean", "rms", "machining_time", "rms_error"} <= set(REDUCTIONS)
+    assert get_reduction("math:hypot")(3, 4) == 5
+    with pytest.raises(KeyError, match="unknown reduction"):
+        get_reduction("nope")
+
+
+FAILING = """
+[study.list]
+force.history_size = [16384, 16]
+"""
+
+
+def test_a_failing_case_is_a_row_with_its_message_and_the_study_goes_on(tmp_path: Path, fmu_dir: Path) -> None:
+    study = load_study(write(tmp_path, FAILING + REDUCE), fmu_dir)
+    result = sweep(study, tmp_path / "out", workers=0, progress=False)
+    rows = result.summary.set_index("force.history_size")
+    assert list(rows["status"]) == ["ok", "failed"] and result.failed == 1
+    assert rows.loc[16384, "error"] == "" and rows.loc[16384, "max_force.Fx"] > 0
+    assert rows.loc[16, "error"].startswith("SimulationError: DoStep of instance 'force'")
+    assert "history_size = 16 samples" in rows.loc[16, "error"]
+    assert pd.isna(rows.loc[16, "max_force.Fx"])
+
+
+def test_resume_runs_only_the_cases_not_finished(tmp_path: Path, fmu_dir: Path) -> None:
+    study = load_study(write(tmp_path, GRID + REDUCE), fmu_dir)
+    out = tmp_path / "out"
+    full = sweep(study, out, workers=0, progress=False)
+    assert full.ran == 4 and full.failed == 0
+    parts = sorted((full.folder / "summary").glob("*.parquet"))
+    assert len(parts) == 4
+    # a study killed after two cases: two rows in summary/
+    for part in parts[2:]:
+        part.unlink()
+    kept = {p.stem: (full.folder / "cases" / p.stem / "run.json").stat().st_mtime_ns for p in parts[:2]}
+    resumed = sweep(study, out, workers=0, resume=True, progress=False)
+    assert (resumed.ran, resumed.skipped) == (2, 2)
+    assert {cid: (full.folder / "cases" / cid / "run.json").stat().st_mtime_ns for cid in kept} == kept
+    columns = [c for c in full.summary.columns if c != "wall_time"]
+    pd.testing.assert_frame_equal(resumed.summary[columns], full.summary[columns])
+    assert list(pd.read_csv(full.folder / "summary.csv")["case_id"]) == [c.case_id for c in study.cases]
+    # without --resume everything runs again
+    assert sweep(study, out, workers=0, progress=False).ran == 4
+
+
+def test_the_sweep_command(tmp_path: Path, fmu_dir: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    path = write(tmp_path, FAILING + REDUCE)
+    out = tmp_path / "out"
+    assert main(["sweep", str(path), "--fmu-dir", str(fmu_dir), "--out", str(out), "--workers", "0",
+                 "--no-progress"]) == 0
+    text = capsys.readouterr().out
+    assert "s: 2 of 2 cases in the summary (2 run, 0 finished before), 1 failed" in text
+    assert "failed " in text and "history_size = 16 samples" in text
+    assert (out / "s" / "summary.parquet").is_file() and (out / "s" / "summary.csv").is_file()
+    bad = write(tmp_path, "[study.grid]\nforce.nope = [1.0]\n" + REDUCE, "bad.toml")
+    assert main(["sweep", str(bad), "--fmu-dir", str(fmu_dir), "--workers", "0"]) == 2
+    assert "bad.toml: [study.grid].force.nope: unknown variable" in capsys.readouterr().err

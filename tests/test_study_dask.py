@@ -1,0 +1,98 @@
+"""The study layer on dask: the embedded LocalCluster (worker processes) and an existing cluster (real `dask
+scheduler` and `dask worker` processes over TCP, found by a scheduler file) give the serial results bit for bit."""
+from __future__ import annotations
+
+import subprocess
+import sys
+import time
+from collections.abc import Iterator
+from pathlib import Path
+
+import pandas as pd
+import pytest
+
+from milling_twin.orchestrator.results import load_results
+from milling_twin.orchestrator.study.run import StudyResult, sweep
+from milling_twin.orchestrator.study.spec import Study, load_study
+
+REPO = Path(__file__).resolve().parents[1]
+STUDY = f"""\
+[study]
+name = "grid4"
+base = "{(REPO / 'scenarios' / 'chatter.toml').as_posix()}"
+stop_time = 0.01
+[study.grid]
+force.spindle_speed = {{ values = [5000, 7000], unit = "rpm" }}
+force.axial_depth = {{ values = [0.05, 0.2], unit = "mm" }}
+[[study.reduce]]
+kind = "max"
+variable = "vibration.tip_displacement_y"
+[[study.reduce]]
+kind = "mean"
+variable = "force.Fy"
+where = "force.Fx"
+"""
+
+
+@pytest.fixture(scope="module")
+def study(tmp_path_factory: pytest.TempPathFactory, fmu_dir: Path) -> Study:
+    path = tmp_path_factory.mktemp("study") / "grid4.toml"
+    path.write_text(STUDY)
+    return load_study(path, fmu_dir)
+
+
+@pytest.fixture(scope="module")
+def serial(study: Study, tmp_path_factory: pytest.TempPathFactory) -> StudyResult:
+    return sweep(study, tmp_path_factory.mktemp("serial"), workers=0, progress=False)
+
+
+def assert_same(result: StudyResult, reference: StudyResult) -> None:
+    """The summary (but the wall times and folders) and every case's rows, bit for bit."""
+    assert result.failed == 0, list(result.summary["error"])
+    assert result.ran == len(reference.summary) == 4
+    columns = [c for c in reference.summary.columns if c not in ("wall_time", "run_dir")]
+    pd.testing.assert_frame_equal(result.summary[columns], reference.summary[columns], check_exact=True)
+    for cid in reference.summary["case_id"]:
+        pd.testing.assert_frame_equal(load_results(result.folder / "cases" / cid),
+                                      load_results(reference.folder / "cases" / cid), check_exact=True)
+
+
+def test_two_local_workers_give_the_serial_results_bit_for_bit(study: Study, serial: StudyResult,
+                                                                tmp_path: Path) -> None:
+    result = sweep(study, tmp_path, workers=2, progress=False)
+    assert_same(result, serial)
+    assert result.summary["max_vibration.tip_displacement_y"].gt(0).all()
+
+
+@pytest.fixture
+def cluster(tmp_path: Path) -> Iterator[Path]:
+    """A dask scheduler and one worker process on localhost, as `dask scheduler`/`dask worker` start them."""
+    file = tmp_path / "scheduler.json"
+    bin_dir = Path(sys.executable).parent
+    procs = [subprocess.Popen([str(bin_dir / "dask"), "scheduler", "--scheduler-file", str(file), "--host",
+                               "127.0.0.1", "--port", "0", "--no-dashboard"], cwd=tmp_path,
+                              stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)]
+    try:
+        deadline = time.monotonic() + 60
+        while not file.is_file() and time.monotonic() < deadline:
+            time.sleep(0.1)
+        assert file.is_file(), "the scheduler did not write its file within 60 s"
+        procs.append(subprocess.Popen([str(bin_dir / "dask"), "worker", "--scheduler-file", str(file),
+                                       "--nthreads", "1", "--no-nanny", "--no-dashboard"],
+                                      cwd=tmp_path, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL))
+        yield file
+    finally:
+        for proc in reversed(procs):
+            proc.terminate()
+        for proc in procs:
+            try:
+                proc.wait(timeout=20)
+            except subprocess.TimeoutExpired:
+                proc.kill()
+                proc.wait()
+
+
+def test_an_existing_cluster_found_by_its_scheduler_file_gives_the_serial_results(
+        study: Study, serial: StudyResult, tmp_path: Path, cluster: Path) -> None:
+    result = sweep(study, tmp_path / "out", scheduler=str(cluster), progress=False)
+    assert_same(result, serial)

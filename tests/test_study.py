@@ -3,6 +3,11 @@ summary, a failing case, --resume, the command. The dask cluster: tests/test_stu
 from __future__ import annotations
 
 import concurrent.futures
+import os
+import signal
+import subprocess
+import sys
+import time
 from pathlib import Path
 
 import pandas as pd
@@ -241,3 +246,28 @@ def test_the_sweep_command(tmp_path: Path, fmu_dir: Path, capsys: pytest.Capture
     bad = write(tmp_path, "[study.grid]\nforce.nope = [1.0]\n" + REDUCE, "bad.toml")
     assert main(["sweep", str(bad), "--fmu-dir", str(fmu_dir), "--workers", "0"]) == 2
     assert "bad.toml: [study.grid].force.nope: unknown variable" in capsys.readouterr().err
+
+
+def test_a_study_resumed_after_sigkill_gives_the_uninterrupted_summary(tmp_path: Path, fmu_dir: Path) -> None:
+    path = write(tmp_path, """
+[study.list]
+force.axial_depth = ["0.01mm", "0.02mm", "0.03mm", "0.04mm", "0.05mm", "0.06mm"]
+""" + REDUCE)
+    path.write_text(path.read_text().replace("stop_time = 0.005", "stop_time = 0.5"))
+    study = load_study(path, fmu_dir)
+    parts = tmp_path / "killed" / "s" / "summary"
+    proc = subprocess.Popen([sys.executable, "-m", "milling_twin", "sweep", str(path), "--fmu-dir", str(fmu_dir),
+                             "--out", str(tmp_path / "killed"), "--workers", "0", "--no-progress"],
+                            stdout=subprocess.DEVNULL, stderr=subprocess.PIPE)
+    deadline = time.monotonic() + 120
+    while len(list(parts.glob("*.parquet"))) < 2 and proc.poll() is None and time.monotonic() < deadline:
+        time.sleep(0.005)
+    os.kill(proc.pid, signal.SIGKILL)
+    proc.wait()
+    finished = len(list(parts.glob("*.parquet")))
+    assert proc.returncode == -signal.SIGKILL and 2 <= finished < 6, (proc.returncode, finished)
+    resumed = sweep(study, tmp_path / "killed", workers=0, resume=True, progress=False)
+    assert (resumed.ran, resumed.skipped) == (6 - finished, finished)
+    whole = sweep(study, tmp_path / "whole", workers=0, progress=False)
+    columns = [c for c in whole.summary.columns if c not in ("wall_time", "run_dir")]
+    pd.testing.assert_frame_equal(resumed.summary[columns], whole.summary[columns], check_exact=True)

@@ -96,3 +96,41 @@ def test_an_existing_cluster_found_by_its_scheduler_file_gives_the_serial_result
         study: Study, serial: StudyResult, tmp_path: Path, cluster: Path) -> None:
     result = sweep(study, tmp_path / "out", scheduler=str(cluster), progress=False)
     assert_same(result, serial)
+
+
+def kill_study(tmp_path: Path, depths: str, always_depth: float) -> Path:
+    markers = tmp_path / "markers"
+    markers.mkdir()
+    path = tmp_path / "kill.toml"
+    path.write_text(STUDY.split("[study.grid]")[0] + f"""
+[study.list]
+force.axial_depth = {depths}
+[[study.reduce]]
+kind = "cases.study_kill:kill_worker"
+markers = "{markers.as_posix()}"
+always_depth = {always_depth}
+[[study.reduce]]
+kind = "max"
+variable = "force.Fx"
+""")
+    return path
+
+
+def test_a_killed_worker_loses_no_case_and_its_case_runs_again(tmp_path: Path, fmu_dir: Path) -> None:
+    study = load_study(kill_study(tmp_path, "[1e-5, 2e-5, 4e-5]", -1.0), fmu_dir)
+    result = sweep(study, tmp_path / "out", workers=2, progress=False)
+    assert list(result.summary["status"]) == ["ok"] * 3, list(result.summary["error"])
+    assert (result.summary["attempts"] >= 2).all()  # every case killed its worker once, then ran again
+    assert (result.summary["max_force.Fx"] > 0).all()
+
+
+def test_a_case_that_kills_every_worker_is_a_failed_row(tmp_path: Path, fmu_dir: Path) -> None:
+    import dask
+
+    # one case: another case on the worker it kills counts that death too (dask's suspicious tasks)
+    study = load_study(kill_study(tmp_path, "[4e-5]", 4e-5), fmu_dir)
+    with dask.config.set({"distributed.scheduler.allowed-failures": 1}):
+        result = sweep(study, tmp_path / "out", workers=2, progress=False)
+    row = result.summary.iloc[0]
+    assert row["status"] == "failed" and row["error"].startswith("KilledWorker: "), row["error"]
+    assert (tmp_path / "markers" / row["case_id"]).read_text() == "2"  # run twice, two workers killed

@@ -190,3 +190,15 @@ def test_the_command_line_takes_workers_or_a_scheduler(capsys) -> None:
         with pytest.raises(SystemExit):
             build_parser().parse_args(["calibrate", "spec.toml", *wrong])
     assert "--workers" in capsys.readouterr().err
+
+
+def test_the_exact_path_starts_no_workers_and_says_so(tmp_path: Path, fmu_dir: Path) -> None:
+    """SpindlePower (its outputs are models/ expressions): no simulation in the fit, so no worker is started
+    for it, and the report says why the workers asked for were not used."""
+    from cases.calibration_synthetic import write_power_case
+
+    spec = write_power_case(tmp_path / "case", fmu_dir=fmu_dir)
+    result = calibrate(spec, fmu_dir, tmp_path / "out", progress=False, workers=2)
+    assert result.fit.derivatives.startswith("exact derivatives")
+    assert "start the workers" not in result.timings
+    assert any(n.startswith("[solver] workers / scheduler: not used") for n in result.notes), result.notes

@@ -444,19 +444,20 @@ def calibrate_scenario(spec: CalibrationSpec, fmu_dir: Path, out_dir: Path, prog
     of the spec's ``parameter_set``, and to ``write_set`` too (after the re-simulation) if given. With
     ``[solver] workers``/``scheduler``, the fit's simulations run on that executor
     (:mod:`milling_twin.orchestrator.calibrate.parallel`)."""
-    t0 = time.perf_counter()
-    with calibration_executor(spec.solver) as executor:
-        started = time.perf_counter() - t0
-        return _calibrate_scenario(spec, fmu_dir, out_dir, progress, write_set, overrides, executor, started)
-
-
-def _calibrate_scenario(spec: CalibrationSpec, fmu_dir: Path, out_dir: Path, progress: bool, write_set: Path | None,
-                        overrides: Mapping[str, Any] | None, executor: Executor | None,
-                        started: float) -> CalibrationResult:
     prepared = prepare(spec, fmu_dir, out_dir, progress, overrides)
+    # the workers take simulations: the exact path has none in its fit
+    solver = spec.solver if prepared.graph is None else replace(spec.solver, workers=0, scheduler=None)
+    t0 = time.perf_counter()
+    with calibration_executor(solver) as executor:
+        if executor is not None:
+            prepared.timings["start the workers"] = time.perf_counter() - t0
+        return _calibrate_scenario(prepared, fmu_dir, out_dir, progress, write_set, overrides, executor)
+
+
+def _calibrate_scenario(prepared: Prepared, fmu_dir: Path, out_dir: Path, progress: bool, write_set: Path | None,
+                        overrides: Mapping[str, Any] | None, executor: Executor | None) -> CalibrationResult:
+    spec = prepared.spec
     timings = prepared.timings
-    if executor is not None:
-        timings["start the workers"] = started
     t0 = time.perf_counter()
     if prepared.graph is not None:
         tokens = check_tokens(prepared.scenario, list(prepared.graph.instances))
@@ -489,6 +490,9 @@ def _calibrate_scenario(spec: CalibrationSpec, fmu_dir: Path, out_dir: Path, pro
     else:
         notes.append(f"models/ vs FMU at the initial values on the rows of the learning pairs: max relative "
                      f"deviation {deviation:.3g}.")
+        if spec.solver.workers or spec.solver.scheduler is not None:
+            notes.append("[solver] workers / scheduler: not used (the fit evaluates the models/ equations, it runs "
+                         "no simulation to dispatch).")
     if spec.alignment.method != "none":
         t0 = time.perf_counter()
         plain, _, _ = pairs_for(prepared, alignment=AlignmentSpec("none"))

@@ -271,3 +271,37 @@ force.axial_depth = ["0.01mm", "0.02mm", "0.03mm", "0.04mm", "0.05mm", "0.06mm"]
     whole = sweep(study, tmp_path / "whole", workers=0, progress=False)
     columns = [c for c in whole.summary.columns if c not in ("wall_time", "run_dir")]
     pd.testing.assert_frame_equal(resumed.summary[columns], whole.summary[columns], check_exact=True)
+
+
+def test_a_whole_part_study_reduces_the_process_report(tmp_path: Path, fmu_dir: Path) -> None:
+    from cases.part_case import write_part
+
+    part = write_part(tmp_path)
+    path = tmp_path / "part_study.toml"
+    path.write_text(f"""
+[study]
+name = "part_feed"
+base = "{part.name}"
+[study.list]
+interp.feed_override = [1.2]
+[[study.reduce]]
+kind = "machining_time"
+[[study.reduce]]
+kind = "process_report"
+fields = ["cutting_time", "removed_volume"]
+[[study.reduce]]
+kind = "max"
+variable = "force.Fx"
+where = "workpiece.axial_depth"
+""")
+    result = sweep(load_study(path, fmu_dir), tmp_path / "out", workers=0, progress=False)
+    row = result.summary.iloc[0]
+    assert row["status"] == "ok", row["error"]
+    report = pd.read_json(result.folder / "cases" / row["case_id"] / "process_report.json", typ="series")
+    assert row["machining_time"] == report["machining_time"] and row["cutting_time"] == report["cutting_time"]
+    assert 0 < row["cutting_time"] < row["machining_time"] and row["removed_volume"] > 0
+    assert row["max_force.Fx"] > 0
+    bad = path.read_text().replace('fields = ["cutting_time", "removed_volume"]', 'fields = ["speed"]')
+    path.write_text(bad)
+    with pytest.raises(StudyError, match=r"\[\[study.reduce\]\]\[1\].fields: expected a list of machining_time"):
+        load_study(path, fmu_dir)

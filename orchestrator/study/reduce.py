@@ -19,8 +19,9 @@ Built in (``kind``):
 
 - ``"max"``, ``"min"``, ``"mean"``, ``"rms"``: of ``variable`` (a recorded output), over all rows or only those
   where ``where`` (another recorded output) is > 0; output ``name`` (default ``"<kind>_<variable>"``);
-- ``"machining_time"``: the time the Interpolator (``interp``) reports ``finished`` first, else the run's end time;
-  output ``name`` (default ``"machining_time"``);
+- ``"machining_time"``: a whole part's machining time from its process report, else the time the Interpolator
+  (``interp``) reports ``finished`` first, else the run's end time; output ``name`` (default ``"machining_time"``);
+- ``"process_report"``: a whole part's headline figures (:data:`PROCESS_FIGURES`, or the list ``fields``);
 - ``"rms_error"``: per ``[[compare]]`` pair of the scenario, the recorded-vs-simulated comparison of
   :mod:`milling_twin.orchestrator.report` (its ``rms_error`` and ``relative_rms``); outputs
   ``"rms_error_<simulated>"`` and ``"relative_rms_<simulated>"``.
@@ -51,6 +52,10 @@ Reduction = Callable[..., dict[str, float]]  # reduction(case: CaseRun, **option
 REDUCTIONS: dict[str, Reduction] = {}
 
 STATISTICS = ("max", "min", "mean", "rms")
+
+PROCESS_REPORT = "process_report.json"  # a whole-part run's report (orchestrator/part/report.py)
+PROCESS_FIGURES = ("machining_time", "cutting_time", "max_force", "max_torque", "max_power", "max_deflection",
+                   "removed_volume", "removed_volume_zmap", "blocks", "chatter_blocks")
 
 # modules that register reductions, imported on demand by get_reduction (a missing one is skipped)
 PLUGIN_MODULES = ("milling_twin.orchestrator.study.stability_map",)
@@ -149,7 +154,11 @@ for _kind in STATISTICS:
 
 @register("machining_time")
 def machining_time(case: CaseRun, *, name: str = "machining_time") -> dict[str, float]:
-    """The first time the Interpolator reports ``finished``, else the time of the run's last row."""
+    """A whole part's machining time from its process report (first program line to the tool's last motion or
+    the program's end); else the first time the Interpolator reports ``finished``; else the last row's time."""
+    report = case.run_dir / PROCESS_REPORT
+    if report.is_file():
+        return {name: float(json.loads(report.read_text())["machining_time"])}
     frame = case.results
     column = "interp.finished"
     if column in frame.columns:
@@ -159,6 +168,22 @@ def machining_time(case: CaseRun, *, name: str = "machining_time") -> dict[str, 
     if len(frame):
         return {name: float(frame["time"].iloc[-1])}
     return {name: math.nan}
+
+
+@register("process_report")
+def process_report(case: CaseRun, *, fields: list[str] | None = None) -> dict[str, float]:
+    """A whole part's headline figures from its process report (docs/process_report.md), SI: ``fields`` of
+    :data:`PROCESS_FIGURES` (default all)."""
+    report = case.run_dir / PROCESS_REPORT
+    if not report.is_file():
+        raise ValueError(f"kind = 'process_report': no {PROCESS_REPORT} in {case.run_dir} (a whole-part scenario "
+                         "writes one)")
+    doc = json.loads(report.read_text())
+    chosen = PROCESS_FIGURES if fields is None else tuple(fields)
+    unknown = [f for f in chosen if f not in PROCESS_FIGURES]
+    if unknown:
+        raise ValueError(f"fields: {unknown[0]!r} is not one of {', '.join(PROCESS_FIGURES)}")
+    return {f: math.nan if doc.get(f) is None else float(doc[f]) for f in chosen}
 
 
 @register("rms_error")

@@ -25,7 +25,7 @@ from typing import Any, NoReturn
 
 from milling_twin.orchestrator.scenario import Scenario, ScenarioError, load_scenario, with_values
 from milling_twin.orchestrator.study import cases as cases_mod
-from milling_twin.orchestrator.study.reduce import STATISTICS, get_reduction
+from milling_twin.orchestrator.study.reduce import PROCESS_FIGURES, STATISTICS, get_reduction
 
 __all__ = ["Case", "ReduceSpec", "Study", "StudyError", "load_study"]
 
@@ -126,6 +126,13 @@ def _reductions(reader: _Reader, study: dict, scenario: Scenario) -> tuple[Reduc
                 if ref not in recorded:
                     reader.fail(f"{key}.{option}", f"{ref!r} is not a recorded output of {scenario.path.name} "
                                                    f"([outputs].record: {', '.join(recorded)})")
+        if kind == "process_report":
+            if scenario.part is None:
+                reader.fail(f"{key}.kind", f"process_report needs a whole-part scenario ([part]); {scenario.path} "
+                                           "is not one")
+            fields = options.get("fields", list(PROCESS_FIGURES))
+            if not isinstance(fields, list) or not fields or any(f not in PROCESS_FIGURES for f in fields):
+                reader.fail(f"{key}.fields", f"expected a list of {', '.join(PROCESS_FIGURES)}, got {fields!r}")
         if kind == "rms_error" and not scenario.compare:
             reader.fail(f"{key}.kind", f"rms_error needs [[compare]] pairs; {scenario.path} has none")
         if "name" in options and not isinstance(options["name"], str):

@@ -202,3 +202,28 @@ def test_the_exact_path_starts_no_workers_and_says_so(tmp_path: Path, fmu_dir: P
     assert result.fit.derivatives.startswith("exact derivatives")
     assert "start the workers" not in result.timings
     assert any(n.startswith("[solver] workers / scheduler: not used") for n in result.notes), result.notes
+
+
+def test_the_spec_chooses_the_executor(monkeypatch) -> None:
+    """workers = 0 without a scheduler: no executor (the serial fit); else the studies' executor with the local
+    workers or the scheduler."""
+    from contextlib import contextmanager
+
+    from milling_twin.orchestrator.calibrate import parallel
+    from milling_twin.orchestrator.calibrate.spec import SolverSpec
+    from milling_twin.orchestrator.study import executor as study_executor
+
+    opened = []
+
+    @contextmanager
+    def fake(workers=None, scheduler=None):
+        opened.append((workers, scheduler))
+        yield SerialExecutor()
+
+    monkeypatch.setattr(study_executor, "open_executor", fake)
+    for solver, expected in ((SolverSpec(), None), (SolverSpec(workers=3), (3, None)),
+                             (SolverSpec(scheduler="tcp://10.0.0.1:8786"), (None, "tcp://10.0.0.1:8786"))):
+        opened.clear()
+        with parallel.calibration_executor(solver) as executor:
+            assert (executor is None) == (expected is None)
+        assert opened == ([] if expected is None else [expected])

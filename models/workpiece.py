@@ -6,9 +6,10 @@ The stock is a block ``[stock_x_min, +stock_length] x [stock_y_min, +stock_width
 block exactly), each holding the height of the material above its centre. Heights only decrease;
 a cell cut down to the bottom of the block is empty.
 
-Per step (the tool tip held at the inputs' previous value at the start and moved in a straight
-line to their current value) the FMU (``fmus/workpiece/model.c``) and :class:`ZMap` below, the same
-algorithm in numpy, do:
+Per step (the tool tip held at its previous position at the start and moved in a straight line to the
+current one; the tip is the controlled point of the inputs ``tool_x, tool_y, tool_z`` lowered by
+``tool_length``, 0 by default: the inputs are the tip) the FMU (``fmus/workpiece/model.c``) and
+:class:`ZMap` below, the same algorithm in numpy, do:
 
 1. **Removal** under the swept tool: the move is split into ``n`` sub-segments so that none descends
    more than ``min(dx, dy)/4`` (``n = 1`` for a move without horizontal travel: a plunge is exact).
@@ -122,6 +123,19 @@ removed while the spindle stands still (``spindle``), an engaged height above ``
 tool's footprint (the disc of radius R about its axis) overlaps the block seen from above: the program
 plunges through the part, into the fixture (``bottom``).
 
+**A tool change**: ``tool_diameter``, ``corner_radius``, ``tool_length`` and ``flute_length`` are tunable
+(a master sets them between steps at a tool change of the program: T2 M6, G43 H2). When any of the first
+three differs at a doStep from the tool the last step used, the new tool is in the spindle from the step's
+start: the tip at the start is the previous controlled point lowered by the *new* ``tool_length`` (a change
+of length alone moves no tip, so it removes nothing and the ``max_tool_speed`` guard sees only the
+controlled point's motion), the tool's radius, corner, ``arc_margin`` and its angle and profile samples are
+derived again, the Z-map is kept, the cut top is forgotten (the old tool's cuts do not bound the new tool's
+engaged height: the next contact is a first contact) and the shank warning is re-armed (a new
+``flute_length`` alone re-arms it too). The checks of initialization on the tool (``corner_radius`` at most
+``tool_diameter``/2, the tool no larger than the stock, at least 4 cells across it) are made for the new
+tool: a tool they reject fails the doStep with their message after ``tool change:``. :meth:`ZMap.change_tool`
+does the same between steps; ``flute_count`` and ``helix_angle`` (not used by the Z-map) stay fixed.
+
 **The final Z-map** (``zmap_file``, a String parameter; empty: none): in fmi2Terminate /
 fmi3Terminate the FMU writes the heights to that file (a relative path is relative to the process's
 working directory), as an ESRI ASCII grid, the heightmap format GIS tools and GDAL read: the lines
@@ -189,16 +203,21 @@ def _variables() -> tuple[Variable, ...]:
         length("stock_height", "Stock block: size in z", 0.03, 1e-3, 2.0),
         length("resolution", "Z-map cell size (largest; cells are fitted to the block, dx <= resolution)",
                0.25e-3, 1e-5, 0.02),
-        length("tool_diameter", "Cutter diameter D", 0.01, 1e-4, 0.1),
-        length("corner_radius", "Corner radius of the end: 0 flat end mill, D/2 ball end mill", 0.0, 0.0, 0.05),
+        length("tool_diameter", "Cutter diameter D (tunable: a change is a tool change)", 0.01, 1e-4, 0.1,
+               variability="tunable"),
+        length("corner_radius", "Corner radius of the end: 0 flat end mill, D/2 ball end mill (tunable)", 0.0, 0.0,
+               0.05, variability="tunable"),
+        length("tool_length", "How far the controlled point (tool_x, tool_y, tool_z) is above the tool tip: the tip "
+               "is at tool_z - tool_length; 0: the inputs are the tip (tunable)", 0.0, 0.0, 1.0,
+               variability="tunable"),
         Variable("flute_count", "Int32", "parameter", "Number of flutes (for the force model; not used by the Z-map)",
                  start=2, min=1, max=20, variability="fixed"),
         Variable("helix_angle", "Float64", "parameter",
                  "Helix angle of the flutes (for the force model; not used by the Z-map)",
                  unit="rad", display_unit="deg", start=math.radians(30.0), min=0.0, max=math.radians(70.0),
                  variability="fixed"),
-        length("flute_length", "Cutting length of the flutes: deeper engagement warns (the shank rubs)",
-               0.022, 1e-4, 0.3),
+        length("flute_length", "Cutting length of the flutes: deeper engagement warns (the shank rubs; tunable)",
+               0.022, 1e-4, 0.3, variability="tunable"),
         length("clearance_range", "How far clearance searches for material: clearance is at most this", 5e-3, 0.0,
                0.1),
         Variable("zmap_file", "String", "parameter",
@@ -207,9 +226,12 @@ def _variables() -> tuple[Variable, ...]:
         Variable("max_tool_speed", "Float64", "parameter",
                  "Fastest plausible tool motion: a faster jump between steps is an error (glitch or wrong units)",
                  unit="m/s", display_unit="mm/min", start=2.0, min=1e-3, max=100.0),
-        length("tool_x", "Tool tip (lowest point of the cutter) x", 0.0, -10.0, 10.0, causality="input"),
-        length("tool_y", "Tool tip y", 0.0, -10.0, 10.0, causality="input"),
-        length("tool_z", "Tool tip z", 0.05, -10.0, 10.0, causality="input"),
+        length("tool_x", "The controlled point x: the tool tip (lowest point of the cutter) when tool_length is 0",
+               0.0, -10.0, 10.0, causality="input"),
+        length("tool_y", "The controlled point y: the tool tip when tool_length is 0", 0.0, -10.0, 10.0,
+               causality="input"),
+        length("tool_z", "The controlled point z: the tool tip when tool_length is 0 (the tip is at tool_z - "
+               "tool_length)", 0.05, -10.0, 10.0, causality="input"),
         Variable("spindle_speed", "Float64", "input",
                  "Spindle speed (only checked: removing material with the spindle stopped warns)",
                  unit="rad/s", display_unit="rpm", start=0.0, min=-1e4, max=1e4),
@@ -268,6 +290,21 @@ def _g(number: float) -> str:
 
 def validate(p: Mapping[str, float]) -> tuple[int, int]:
     """The checks of exitInitializationMode beyond the variable ranges; returns the grid (nx, ny)."""
+    validate_tool(p)
+    resolution = p["resolution"]
+    nx_real = _cell_count(p["stock_length"], resolution)
+    ny_real = _cell_count(p["stock_width"], resolution)
+    if nx_real * ny_real > MAX_CELLS:
+        finest = _finest_resolution(p["stock_length"], p["stock_width"])
+        raise WorkpieceError(
+            f"resolution = {_g(resolution)} m is too fine for the stock: {nx_real:.0f} x {ny_real:.0f} cells, more "
+            f"than the limit of {MAX_CELLS} cells ({MAX_CELLS * 8 / 1e6:.0f} MB); use resolution >= {_g(finest)} m")
+    return int(nx_real), int(ny_real)
+
+
+def validate_tool(p: Mapping[str, float]) -> None:
+    """The checks of the tool against the stock and the grid: those of exitInitializationMode, made again at
+    a tool change (the FMU's doStep then fails with the message after "tool change: ")."""
     diameter, corner = p["tool_diameter"], p["corner_radius"]
     if corner > 0.5 * diameter:
         raise WorkpieceError(
@@ -283,14 +320,6 @@ def validate(p: Mapping[str, float]) -> tuple[int, int]:
             f"resolution = {_g(resolution)} m is too coarse for tool_diameter = {_g(diameter)} m: the Z-map needs "
             f"at least {MIN_CELLS_ACROSS_TOOL:g} cells across the tool (resolution <= "
             f"{_g(diameter / MIN_CELLS_ACROSS_TOOL)} m)")
-    nx_real = _cell_count(p["stock_length"], resolution)
-    ny_real = _cell_count(p["stock_width"], resolution)
-    if nx_real * ny_real > MAX_CELLS:
-        finest = _finest_resolution(p["stock_length"], p["stock_width"])
-        raise WorkpieceError(
-            f"resolution = {_g(resolution)} m is too fine for the stock: {nx_real:.0f} x {ny_real:.0f} cells, more "
-            f"than the limit of {MAX_CELLS} cells ({MAX_CELLS * 8 / 1e6:.0f} MB); use resolution >= {_g(finest)} m")
-    return int(nx_real), int(ny_real)
 
 
 def _finest_resolution(length: float, width: float) -> float:
@@ -319,15 +348,37 @@ class ZMap:
         self.dx = p["stock_length"] / self.nx
         self.dy = p["stock_width"] / self.ny
         self.top = self.z0 + p["stock_height"]
+        self.delta = min(self.dx, self.dy)
+        self.half_diagonal = 0.5 * math.sqrt(self.dx * self.dx + self.dy * self.dy)
+        self.heights = np.full((self.ny, self.nx), self.top)
+        self._derive_tool()
+        column = 2.0 * math.pi / N_THETA
+        front = [j for j in range(N_THETA) if (j + 0.5) * column < math.pi]
+        self.map_columns = np.array(front)
+        self.map_angles = np.array([(j + 0.5) * column for j in front])
+        self.map_cos = np.array([math.cos((j + 0.5) * column) for j in front])
+        self.map_sin = np.array([math.sin((j + 0.5) * column) for j in front])
+        x, y, z = (float(c) for c in position)
+        self.point_z = z  # the controlled point's z (tool_z) at the end of the last step
+        self.position = (x, y, z - p["tool_length"])  # the tool tip
+        self.feed = (1.0, 0.0)
+        self.removed_height = 0.0  # the sum of all height drops so far [m]
+        self._forget_the_cut_top()
+        self._step_top = -math.inf  # of the cells the step lowers
+        self.removed_volume = 0.0
+        self.warnings: list[str] = []
+        self._warned_spindle = self._warned_shank = self._warned_bottom = False
+        self.outputs = dict.fromkeys(OUTPUTS, 0.0)
+
+    def _derive_tool(self) -> None:
+        """The tool's geometry and samples from ``self.p`` (at initialization and at a tool change)."""
+        p = self.p
         self.radius = 0.5 * p["tool_diameter"]
         self.corner = p["corner_radius"]
         self.flat = self.radius - self.corner
-        self.delta = min(self.dx, self.dy)
-        self.half_diagonal = 0.5 * math.sqrt(self.dx * self.dx + self.dy * self.dy)
         # how far inside the cutter's radius the test circle meets an earlier level's wall along an arc
         # of path radius R/2: the engaged height comes from points farther in (module docstring, step 2)
         self.arc_margin = self.half_diagonal + 2.0 * self.delta * (1.0 + 0.5 * self.delta / self.radius)
-        self.heights = np.full((self.ny, self.nx), self.top)
         # angle samples of the front half and profile samples (height, radius) along the corner arc
         self.n_angles = math.ceil(math.pi * self.radius / self.delta)
         self.cos_phi = np.array([math.cos(self._angle(m)) for m in range(self.n_angles + 1)])
@@ -339,25 +390,41 @@ class ZMap:
         self.profile_r = np.array([self.flat + self.corner * math.sin(k * arc) for k in range(self.n_corner)]
                                   + [self.radius])
         self.profile_next = np.append(self.profile_z[1:], math.inf)
-        column = 2.0 * math.pi / N_THETA
-        front = [j for j in range(N_THETA) if (j + 0.5) * column < math.pi]
-        self.map_columns = np.array(front)
-        self.map_angles = np.array([(j + 0.5) * column for j in front])
-        self.map_cos = np.array([math.cos((j + 0.5) * column) for j in front])
-        self.map_sin = np.array([math.sin((j + 0.5) * column) for j in front])
-        self.position = tuple(float(c) for c in position)
-        self.feed = (1.0, 0.0)
-        self.removed_height = 0.0  # the sum of all height drops so far [m]
+
+    def _forget_the_cut_top(self) -> None:
+        """No material cut in the current and the previous stretch (at the start, and at a tool change: the old
+        tool's cuts do not bound the new tool's engaged height)."""
         # the cut top (module docstring, step 2): the highest height before the cut of the cells lowered in
         # the current stretch of travel and in the previous one (-inf: none), the current stretch's travel
         self.stretch_top = -math.inf
         self.previous_stretch_top = -math.inf
         self.stretch_travel = 0.0
-        self._step_top = -math.inf  # of the cells the step lowers
-        self.removed_volume = 0.0
-        self.warnings: list[str] = []
-        self._warned_spindle = self._warned_shank = self._warned_bottom = False
-        self.outputs = dict.fromkeys(OUTPUTS, 0.0)
+
+    def change_tool(self, tool_diameter: float, corner_radius: float, tool_length: float,
+                    flute_length: float) -> bool:
+        """The tool for the next step (the values of the tunable parameters before it, as the FMU reads them at
+        its doStep): a tool change when the diameter, corner radius or length differ from the tool's (module
+        docstring, tool change); a new ``flute_length`` alone re-arms the shank warning. Returns whether the
+        tool changed; raises :class:`WorkpieceError` (nothing changed) for a tool the stock or grid rejects."""
+        p = self.p
+        changed = (tool_diameter != p["tool_diameter"] or corner_radius != p["corner_radius"]
+                   or tool_length != p["tool_length"])
+        if changed:
+            new = {**p, "tool_diameter": tool_diameter, "corner_radius": corner_radius, "tool_length": tool_length}
+            try:
+                validate_tool(new)
+            except WorkpieceError as error:
+                raise WorkpieceError(f"tool change: {error}") from None
+            self.p = new
+            self._derive_tool()
+            x, y, _ = self.position
+            self.position = (x, y, self.point_z - tool_length)  # the new tool in the spindle from the step's start
+            self._forget_the_cut_top()
+            self._warned_shank = False
+        if changed or flute_length != self.p["flute_length"]:
+            self.p = {**self.p, "flute_length": flute_length}
+            self._warned_shank = False
+        return changed
 
     # ---- removal ----
 
@@ -567,8 +634,10 @@ class ZMap:
 
     def step(self, position: Sequence[float], step_size: float, spindle_speed: float = 0.0,
              max_tool_speed: float | None = None) -> dict[str, float]:
-        """Move the tool tip in a straight line to ``position`` over ``step_size``; returns the outputs."""
-        end = tuple(float(c) for c in position)
+        """Move the tool in a straight line to the controlled point ``position`` (tool_x, tool_y, tool_z) over
+        ``step_size``; returns the outputs."""
+        x, y, z = (float(c) for c in position)
+        end = (x, y, z - self.p["tool_length"])
         start = self.position
         sx, sy, sz = (e - s for s, e in zip(start, end))
         travel = math.sqrt(sx * sx + sy * sy + sz * sz)
@@ -585,6 +654,7 @@ class ZMap:
         if horizontal > FEED_DIRECTION_MIN_TRAVEL * self.delta:
             self.feed = (sx / horizontal, sy / horizontal)
         self.position = end
+        self.point_z = z
         self.removed_height += volume
         self.removed_volume = self.removed_height * (self.dx * self.dy)
         out = self._engagement(max(stretch_top, self.previous_stretch_top))
@@ -727,6 +797,7 @@ def reference_trajectory(points: Sequence[Mapping[str, float]], step_size: float
     rows = []
     for point in points:
         point = {**first, **{n: v for n, v in point.items() if WORKPIECE.variable(n).effective_variability != "fixed"}}
+        zmap.change_tool(point["tool_diameter"], point["corner_radius"], point["tool_length"], point["flute_length"])
         out = zmap.step((point["tool_x"], point["tool_y"], point["tool_z"]), step_size, point["spindle_speed"],
                         point["max_tool_speed"])
         rows.append([out[n] for n in OUTPUTS])
@@ -738,11 +809,12 @@ def random_arguments(count: int, rng: np.random.Generator) -> dict[str, np.ndarr
     ranges are not valid for this model: the tool must fit the stock and the path must be a path).
     A random small block, tool (flat, ball or bull-nose) and depth; the tool ramps into the block
     from its -x side, then slots back and forth inside it in passes 1.1 tool diameters apart, with a
-    random feed of 0.05 .. 0.4 mm per point (at most 0.4 m/s at 1 ms steps). Fixed parameters are
-    constant columns. The ramp starts 2 mm beside the block, so the first 5 points are in air with a
-    clearance well above 0. (A test holding the tool at one point through fmpy's master, which
-    interpolates the inputs and may move them by an ulp, would otherwise compare a clearance of exactly
-    0 in the reference with the 1e-18 m an ulp's lift gives, where no relative tolerance helps.)"""
+    random feed of 0.05 .. 0.4 mm per point (at most 0.4 m/s at 1 ms steps). Parameters other than
+    max_tool_speed are constant columns (no tool change); the tool's length is 0 or random (tool_z the
+    controlled point that far above the tip). The ramp starts 2 mm beside the block, so the first 5 points
+    are in air with a clearance well above 0. (A test holding the tool at one point through fmpy's master,
+    which interpolates the inputs and may move them by an ulp, would otherwise compare a clearance of
+    exactly 0 in the reference with the 1e-18 m an ulp's lift gives, where no relative tolerance helps.)"""
     diameter = rng.uniform(4e-3, 8e-3)
     parameters = {
         "stock_x_min": rng.uniform(-0.05, 0.05), "stock_y_min": rng.uniform(-0.05, 0.05),
@@ -752,6 +824,7 @@ def random_arguments(count: int, rng: np.random.Generator) -> dict[str, np.ndarr
         "corner_radius": float(rng.choice([0.0, 0.5 * diameter, rng.uniform(0.0, 0.5 * diameter)])),
         "flute_count": float(rng.integers(2, 5)), "helix_angle": rng.uniform(0.0, 0.8),
         "flute_length": 3 * diameter, "clearance_range": rng.uniform(0.5e-3, 8e-3),
+        "tool_length": float(rng.choice([0.0, rng.uniform(0.02, 0.1)])),
     }
     radius = 0.5 * diameter
     top = parameters["stock_z_min"] + parameters["stock_height"]
@@ -780,7 +853,7 @@ def random_arguments(count: int, rng: np.random.Generator) -> dict[str, np.ndarr
     values["max_tool_speed"] = rng.uniform(1.0, 3.0, count)
     values["tool_x"] = np.array([p[0] for p in path])
     values["tool_y"] = np.array([p[1] for p in path])
-    values["tool_z"] = np.array([p[2] for p in path])
+    values["tool_z"] = np.array([p[2] for p in path]) + parameters["tool_length"]  # the controlled point
     values["spindle_speed"] = rng.uniform(500.0, 2000.0, count)
     return values
 

@@ -15,7 +15,7 @@ import pytest
 
 from fmu_helpers import ERROR, OK, WARNING, Slave, fmu_dir, fmu_id, require_fmu, status_of
 from milling_twin.models.workpiece import (MAP_NAMES, N_THETA, N_Z, OUTPUTS, WORKPIECE, WorkpieceError, ZMap,
-                                          ZMapFileError, map_name, read_zmap, validate)
+                                          ZMapFileError, map_name, read_zmap, reference_trajectory, validate)
 
 FMUS = [fmu_dir() / "Workpiece.fmu", fmu_dir() / "Workpiece_fmi2.fmu"]
 MM = 1e-3
@@ -1039,6 +1039,265 @@ def test_engagement_deeper_than_the_flutes_warns_once(fmu: Path) -> None:
            "(reported once)" in slave.warnings()[0]
     slave.unload()
     assert np.max(rows[:, OUTPUTS.index("axial_depth")]) == pytest.approx(10 * MM, rel=1e-12)
+
+
+# ---- tool changes ----
+
+TOOL = ("tool_diameter", "corner_radius", "tool_length")
+
+
+def tool_path(pieces: Sequence[tuple[dict, list]], parameters: dict | None = None) -> list[dict]:
+    """Points (dicts of inputs and tunable tool parameters) of pieces of path, each cut with its tool (the values of
+    TOOL; tool_length 0 when not given) from its first point on: the pieces' points are tips, the inputs the
+    controlled point tool_length above. At a change of length the controlled point stays where it was: the new
+    tool's tip starts that much lower (or higher), and a link of 1 mm per step takes it to the piece's first tip.
+    points[0] also holds the fixed ``parameters``."""
+    points: list[dict] = []
+    length = 0.0
+    for tool, tips in pieces:
+        tool = {"tool_length": 0.0, **tool}
+        if points and tool["tool_length"] != length:
+            last = points[-1]
+            start = (last["tool_x"], last["tool_y"], last["tool_z"] - tool["tool_length"])
+            if math.dist(start, tips[0]) > 1e-12:
+                tips = polyline([start, tips[0]], 1.0 * MM)[1:] + list(tips[1:])
+        length = tool["tool_length"]
+        points += [{**tool, "tool_x": x, "tool_y": y, "tool_z": z + length} for x, y, z in tips]
+    points[0] = {**DEFAULTS, "spindle_speed": SPINDLE, **(parameters or {}), **points[0]}
+    return points
+
+
+def run_fmu_points(path: Path, points: Sequence[dict]) -> tuple[np.ndarray, Slave]:
+    """Initialize with points[0], then set each point (fixed parameters left out) and step H: outputs after each."""
+    slave = Slave(path)
+    slave.instantiate()
+    slave.initialize({n: v for n, v in points[0].items() if n in slave.vr})
+    rows = []
+    for point in points:
+        slave.set(point, include_fixed=False)
+        assert slave.step(H) in (OK, WARNING), slave.messages[-3:]
+        rows.append(slave.get(FMU_OUTPUTS))
+    return np.array(rows), slave
+
+
+def assert_bits_equal(actual: np.ndarray, expected: np.ndarray) -> None:
+    assert actual.shape == expected.shape
+    differ = np.argwhere(actual != expected)
+    if differ.size:
+        first = tuple(differ[0])
+        pytest.fail(f"{len(differ)} values differ, first at step {first[0]} output {OUTPUTS[first[1]]}: "
+                    f"{actual[first]!r} != {expected[first]!r}")
+
+
+FLAT = {"tool_diameter": 10 * MM, "corner_radius": 0.0}
+BULL = {"tool_diameter": 6 * MM, "corner_radius": 1.5 * MM, "tool_length": 20 * MM}
+BALL = {"tool_diameter": 8 * MM, "corner_radius": 4 * MM, "tool_length": 25 * MM}
+
+
+def two_changes() -> tuple[list[dict], int, int]:
+    """A 10 mm flat end mill ramps in, slots and rises to 60 mm; in air a 6 mm bull nose 20 mm longer comes in (its
+    tip at 40 mm), goes down across the slot and along an arc; while that cuts, an 8 mm ball 5 mm longer still, its
+    tip 5 mm lower (in material) from the step of the change on. Returns the points and the indices of the
+    two changes."""
+    first = polyline([(-8 * MM, 20 * MM, 31 * MM), (10 * MM, 20 * MM, 27.5 * MM), (45 * MM, 20 * MM, 27.5 * MM),
+                      (45 * MM, 20 * MM, 60 * MM)], 0.3 * MM)
+    second = chain(polyline([(45 * MM, 20 * MM, 40 * MM), (30 * MM, 10 * MM, 33 * MM), (30 * MM, 10 * MM, 28 * MM),
+                             (30 * MM, 35 * MM, 28 * MM)], 0.3 * MM),
+                   arc((40 * MM, 35 * MM), 10 * MM, math.pi, 1.5 * math.pi, 28 * MM, 0.2 * MM))
+    third = [(x, y, z - 5 * MM) for x, y, z in
+             chain(arc((40 * MM, 35 * MM), 10 * MM, 1.5 * math.pi, 2 * math.pi, 28 * MM, 0.2 * MM),
+                   polyline([(50 * MM, 35 * MM, 28 * MM), (50 * MM, 50 * MM, 28 * MM)], 0.2 * MM))[1:]]
+    points = tool_path([(FLAT, first), (BULL, second), (BALL, third)])
+    assert len(points) == len(first) + len(second) + len(third)  # no links: the tips continue at the changes
+    return points, len(first), len(first) + len(second)
+
+
+def without_changes() -> list[dict]:
+    """two_changes()'s tips with the flat end mill throughout (a link of 1 mm per step from 60 down to 40 mm)."""
+    points, in_air, cutting = two_changes()
+    tips = [(p["tool_x"], p["tool_y"], p["tool_z"] - p["tool_length"]) for p in points]
+    return tool_path([(FLAT, tips[:in_air] + polyline([tips[in_air - 1], tips[in_air]], 1.0 * MM)[1:-1]
+                       + tips[in_air:])])
+
+
+def test_two_tool_changes_equal_the_reference_bit_for_bit(fmu: Path) -> None:
+    """A change of diameter, corner and length in air, then another while cutting: the FMU equals the reference
+    (which finds the changes in the tunable values of the points, as the FMU does) to the last bit, and each
+    tool cuts as itself (the reference without changes, started with the new tool on the Z-map the old one
+    left, gives the same outputs from the change on)."""
+    points, in_air, cutting = two_changes()
+    actual, slave = run_fmu_points(fmu, points)
+    assert [m.status for m in slave.messages] == []
+    slave.unload()
+    expected = reference_trajectory(points, H)
+    assert_bits_equal(actual, expected)
+    mrr = expected[:, OUTPUTS.index("mrr")]
+    clearance = expected[:, OUTPUTS.index("clearance")]
+    assert clearance[in_air - 1] > 0 and clearance[cutting - 1] == 0  # the first change in air, the second cutting
+    for lo, hi in ((0, in_air), (in_air, cutting), (cutting, len(points))):
+        assert np.count_nonzero(mrr[lo:hi]) > (hi - lo) // 4
+    # the ball's first step cuts under its tip, 5 mm below the bull nose's: it removes its whole lower part
+    zmap = ZMap({}, (points[0]["tool_x"], points[0]["tool_y"], points[0]["tool_z"]))
+    for point in points[:cutting]:
+        zmap.change_tool(point["tool_diameter"], point["corner_radius"], point["tool_length"], zmap.p["flute_length"])
+        zmap.step((point["tool_x"], point["tool_y"], point["tool_z"]), H, SPINDLE)
+    assert zmap.radius == 3 * MM and zmap.n_corner > 0
+    fresh = ZMap({**BALL, "tool_length": 0.0}, (zmap.position[0], zmap.position[1], zmap.point_z - BALL["tool_length"]))
+    fresh.heights = zmap.heights.copy()
+    fresh.feed = zmap.feed
+    fresh.removed_height = zmap.removed_height
+    rows = []
+    for point in points[cutting:]:
+        out = fresh.step((point["tool_x"], point["tool_y"], point["tool_z"] - BALL["tool_length"]), H, SPINDLE)
+        rows.append([out[n] for n in OUTPUTS])
+    assert_bits_equal(np.array(rows), expected[cutting:])
+
+
+def test_after_a_tool_change_the_new_tool_cuts_its_own_slot(fmu: Path) -> None:
+    """A 10 mm flat end mill slots through the block 3 mm deep, its walls on cell boundaries; in air a 6 mm one,
+    40 mm longer, comes in and slots through it 2 mm deep elsewhere: each removes exactly its slot's volume
+    (100 mm x D x depth: the walls on cell boundaries, so no cell is partly under the tool), with the depths and
+    widths of slotting."""
+    first = polyline([(-10 * MM, 30 * MM, 27 * MM), (110 * MM, 30 * MM, 27 * MM), (110 * MM, 30 * MM, 80 * MM)],
+                     0.4 * MM)
+    second = slot_points((110 * MM, 50 * MM, 28 * MM), (-10 * MM, 50 * MM, 28 * MM), 0.4 * MM)
+    points = tool_path([(FLAT, first), ({"tool_diameter": 6 * MM, "tool_length": 40 * MM}, second)])
+    change = len(first)
+    assert points[change - 1]["tool_z"] == 80 * MM and points[change]["tool_z"] == pytest.approx(79.5 * MM)  # in air
+    actual, slave = run_fmu_points(fmu, points)
+    slave.unload()
+    expected = reference_trajectory(points, H)
+    assert_bits_equal(actual, expected)
+    removed = expected[:, OUTPUTS.index("removed_volume")]
+    assert removed[change - 1] == pytest.approx(100 * MM * 10 * MM * 3 * MM, rel=1e-12)
+    assert removed[-1] - removed[change - 1] == pytest.approx(100 * MM * 6 * MM * 2 * MM, rel=1e-12)
+    steady = expected[-200:-50]
+    assert steady[:, OUTPUTS.index("axial_depth")] == pytest.approx(2 * MM, rel=1e-12)
+    assert np.all(steady[:, OUTPUTS.index("radial_depth")] == 6 * MM)
+
+
+def test_a_change_of_length_alone_moves_no_tip(fmu: Path) -> None:
+    """A longer tool at the same controlled point puts the tip 4 mm lower (4 m/s in a step of 1 ms: the speed
+    guard of 2 m/s would stop a move): no error, nothing removed, the clearance from the new tip. A shorter tool
+    at rest in a slot lifts the tip out of it: nothing removed, no engagement."""
+    def inputs(x: float, y: float, z: float, length: float) -> dict:
+        return {"tool_x": x, "tool_y": y, "tool_z": z, "tool_length": length}
+
+    above = [inputs(50 * MM, 30 * MM, 35 * MM, 0.0)] * 3 + [inputs(50 * MM, 30 * MM, 35 * MM, 4 * MM)] * 3
+    path = polyline([(50 * MM, 30 * MM, 35 * MM), (-10 * MM, 30 * MM, 35 * MM), (-10 * MM, 30 * MM, 31 * MM),
+                     (30 * MM, 30 * MM, 31 * MM)], 0.4 * MM)[1:]  # the tip 4 mm lower: a slot 3 mm deep
+    cut = [inputs(x, y, z, 4 * MM) for x, y, z in path]
+    shorter = [inputs(30 * MM, 30 * MM, 31 * MM, 1 * MM)] * 3  # the tip at 30 mm: the top
+    points = above + cut + shorter
+    points[0] = {**DEFAULTS, "spindle_speed": SPINDLE, **points[0]}
+    assert points[0]["max_tool_speed"] == 2.0
+    actual, slave = run_fmu_points(fmu, points)
+    assert not slave.messages
+    slave.unload()
+    expected = reference_trajectory(points, H)
+    assert_bits_equal(actual, expected)
+    clearance, mrr = expected[:, OUTPUTS.index("clearance")], expected[:, OUTPUTS.index("mrr")]
+    assert clearance[2] == pytest.approx(5 * MM) and clearance[3] == pytest.approx(1 * MM)  # the tip 4 mm lower
+    assert not np.any(mrr[:6])
+    lifted = len(points) - len(shorter)
+    assert mrr[lifted - 1] > 0 and expected[lifted - 1, OUTPUTS.index("axial_depth")] == pytest.approx(3 * MM)
+    assert not np.any(mrr[lifted:])
+    volume = expected[:, OUTPUTS.index("removed_volume")]
+    assert np.all(volume[lifted:] == volume[lifted - 1])
+    assert not np.any(expected[lifted:, STEP_OUTPUTS])
+
+
+BAD_TOOLS = {
+    "corner radius beyond the radius": ({"corner_radius": 0.006}, "corner_radius = 0.006 m is larger than "
+                                        "tool_diameter/2 = 0.005 m (0: flat end mill, tool_diameter/2: ball end mill)"),
+    "tool larger than the stock": ({"tool_diameter": 0.08}, "the tool is larger than the stock: tool_diameter = "
+                                   "0.08 m, stock_length = 0.1 m, stock_width = 0.06 m"),
+    "resolution too coarse": ({"tool_diameter": 0.0009}, "resolution = 0.00025 m is too coarse for tool_diameter = "
+                              "0.0009 m: the Z-map needs at least 4 cells across the tool (resolution <= 0.000225 m)"),
+}
+
+
+@pytest.mark.parametrize("case", BAD_TOOLS)
+def test_a_new_tool_the_checks_reject_fails_the_step(fmu: Path, case: str) -> None:
+    tool, message = BAD_TOOLS[case]
+    new = {"tool_diameter": 0.01, "corner_radius": 0.0, "tool_length": 0.0, "flute_length": 0.022, **tool}
+    zmap = ZMap({}, (0.05, 0.03, 0.028))
+    zmap.step((0.0502, 0.03, 0.028), H, SPINDLE)
+    with pytest.raises(WorkpieceError) as raised:
+        zmap.change_tool(*(new[n] for n in (*TOOL, "flute_length")))
+    assert str(raised.value) == f"tool change: {message}"
+    assert zmap.radius == 5 * MM  # nothing changed
+    with Slave(fmu) as slave:
+        slave.instantiate()
+        slave.initialize({"tool_x": 0.05, "tool_y": 0.03, "tool_z": 0.028, "spindle_speed": SPINDLE})
+        assert slave.step(H) == OK
+        slave.set(tool)
+        assert slave.step(H) == ERROR
+        assert slave.last_error() == f"doStep: t = 0.001 s: tool change: {message}"
+        assert slave.messages[-1].category == "logStatusError"
+
+
+def test_a_state_saved_before_a_tool_change_gives_the_old_tool_back(fmu: Path) -> None:
+    """FMU states hold the tool (its parameters, its tables in the heap, whose size changes with it): a state saved
+    before a change and restored after it continues with the old tool, as if there had been no change; a state saved
+    after the change, restored after that, with the new one (both equal to the reference to the last bit)."""
+    points, in_air, _ = two_changes()
+    old_tool = without_changes()
+    later = in_air + 140  # the bull nose cutting
+    with Slave(fmu) as slave:
+        slave.instantiate()
+        slave.initialize({n: v for n, v in points[0].items() if n in slave.vr})
+        rows = []
+        for k, point in enumerate(points[:later + 30]):
+            if k == in_air:
+                before = slave.fmu.getFMUState()
+            if k == later:
+                after = slave.fmu.serializeFMUState(state := slave.fmu.getFMUState())
+                slave.fmu.freeFMUState(state)
+            slave.set(point, include_fixed=False)
+            assert slave.step(H) == OK, slave.messages[-3:]
+            rows.append(slave.get(FMU_OUTPUTS))
+        slave.set_state(before)
+        slave.fmu.freeFMUState(before)
+        assert slave.get(list(TOOL)).tolist() == [FLAT["tool_diameter"], 0.0, 0.0]
+        restored_old = []
+        for point in old_tool[in_air:in_air + 200]:
+            slave.set({n: point[n] for n in ("tool_x", "tool_y", "tool_z")})
+            assert slave.step(H) == OK, slave.messages[-3:]
+            restored_old.append(slave.get(FMU_OUTPUTS))
+        slave.set_state(slave.fmu.deserializeFMUState(after))
+        restored_new = []
+        for point in points[later:later + 30]:
+            slave.set({n: point[n] for n in ("tool_x", "tool_y", "tool_z")})
+            assert slave.step(H) == OK, slave.messages[-3:]
+            restored_new.append(slave.get(FMU_OUTPUTS))
+    expected = reference_trajectory(points[:later + 30], H)
+    assert_bits_equal(np.array(rows), expected)
+    assert_bits_equal(np.array(restored_new), expected[later:])
+    assert np.count_nonzero(expected[later:, OUTPUTS.index("mrr")]) > 10
+    without = reference_trajectory(old_tool[:in_air + 200], H)
+    assert_bits_equal(np.array(restored_old), without[in_air:])
+    mrr = OUTPUTS.index("mrr")
+    assert np.count_nonzero(without[in_air:, mrr]) > 10
+    assert np.sum(without[in_air:, mrr]) > 1.5 * np.sum(expected[in_air:in_air + 180, mrr])  # 10 mm against 6 mm
+
+
+def test_the_shank_warning_is_re_armed_by_a_new_flute_length_and_a_tool_change(fmu: Path) -> None:
+    slot = slot_points((-10 * MM, 30 * MM, 20 * MM), (20 * MM, 30 * MM, 20 * MM), 0.4 * MM)
+    points = tool_path([(FLAT, slot[:40]), (FLAT, slot[40:50]), (FLAT, slot[50:60]),
+                        ({**FLAT, "tool_diameter": 9 * MM}, slot[60:])], {"flute_length": 8 * MM})
+    for k, point in enumerate(points):
+        point["flute_length"] = 9 * MM if 40 <= k < 50 else 8 * MM
+    actual, slave = run_fmu_points(fmu, points)
+    warnings = slave.warnings()
+    slave.unload()
+    zmap = ZMap({"flute_length": 8 * MM}, (points[0]["tool_x"], points[0]["tool_y"], points[0]["tool_z"]))
+    for point in points:
+        zmap.change_tool(point["tool_diameter"], point["corner_radius"], point["tool_length"], point["flute_length"])
+        zmap.step((point["tool_x"], point["tool_y"], point["tool_z"]), H, SPINDLE)
+    assert zmap.warnings == ["shank"] * 4  # the first tool, the flutes of 9 mm, of 8 mm again, the 9 mm tool
+    assert len(warnings) == 4 and all("is more than flute_length" in w for w in warnings)
+    assert "flute_length = 0.009 m" in warnings[1] and "flute_length = 0.008 m" in warnings[2]
 
 
 # ---- cost per step ----

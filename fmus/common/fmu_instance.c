@@ -168,6 +168,23 @@ FmuStatus fmu_allocate_heap(FmuInstance *instance, const char *function, size_t 
     return FMU_OK;
 }
 
+FmuStatus fmu_resize_heap(FmuInstance *instance, const char *function, size_t count) {
+    double *heap;
+    if (count == instance->heap_size) return FMU_OK;
+    if (!instance->heap || count == 0) return fmu_allocate_heap(instance, function, count); /* nothing to keep */
+    heap = count <= SIZE_MAX / sizeof *heap ? realloc(instance->heap, count * sizeof *heap) : NULL;
+    if (!heap) { /* the heap is left as it was */
+        fmu_log(instance, FMU_ERROR, "logStatusError", "%s: out of memory for %zu values (%zu MB)", function, count,
+                count / (((size_t)1 << 20) / sizeof *heap));
+        return FMU_ERROR;
+    }
+    if (count > instance->heap_size)
+        memset(heap + instance->heap_size, 0, (count - instance->heap_size) * sizeof *heap);
+    instance->heap = heap;
+    instance->heap_size = count;
+    return FMU_OK;
+}
+
 void fmu_destroy(FmuInstance *instance) {
     if (!instance) return;
     model_free_internal(instance);

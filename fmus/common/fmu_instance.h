@@ -126,6 +126,10 @@ FmuStatus fmu_unsupported(FmuInstance *instance, const char *function, const cha
 /* Model data whose size is known only at initialization (a grid, a history buffer): `count`
  * doubles, zeroed, owned by the instance, copied into FMU states and their serialization. */
 FmuStatus fmu_allocate_heap(FmuInstance *instance, const char *function, size_t count);
+/* The heap resized to `count` doubles, its first min(count, old size) kept and the rest zeroed (a model whose
+ * data changes size mid-run: the Workpiece's tool tables at a tool change). On failure it logs and returns
+ * FMU_ERROR, the heap unchanged. */
+FmuStatus fmu_resize_heap(FmuInstance *instance, const char *function, size_t count);
 
 /* ---- Hooks each model implements in its model.c ---- */
 

@@ -7,7 +7,8 @@
  *   cos_phi   [n_angles + 1] cos/sin of the angle samples m * pi / n_angles of the front half
  *   sin_phi   [n_angles + 1]
  *   profile_z [n_corner + 1] height above the tip and radius of the profile samples: along the
- *   profile_r [n_corner + 1] corner arc, the last one the cylinder (corner_radius, R) */
+ *   profile_r [n_corner + 1] corner arc, the last one the cylinder (corner_radius, R)
+ * The tables follow the heights: at a tool change they are derived again, the heap resized, the heights kept. */
 #ifndef CONFIG_H
 #define CONFIG_H
 
@@ -26,7 +27,7 @@ typedef struct {
 } ProbeRooms;
 
 typedef struct {
-    /* the grid and the tool, fixed at initialization */
+    /* the grid, fixed at initialization */
     size_t nx, ny;
     double dx, dy;          /* cell size [m] */
     double delta;           /* min(dx, dy): offset of the engagement test outside the cutting circle [m] */
@@ -35,11 +36,16 @@ typedef struct {
                              * test circle meets a wall an earlier level left along an arc of path radius R/2;
                              * the engaged height comes from points farther in (model.c: scan()) [m] */
     double top;             /* top of the stock block [m] */
+    /* the tool, derived at initialization and again at a tool change (model.c: derive_tool()) */
+    double tool_diameter, corner_radius, tool_length; /* the parameters it was derived from: others at a doStep
+                                                       * are a tool change */
+    double flute_length;    /* the value the shank warning was armed for */
     double radius, corner, flat; /* tool radius, corner radius, radius of the flat bottom [m] */
     size_t n_angles, n_corner;
     size_t cos_phi, sin_phi, profile_z, profile_r; /* offsets of the tables in the heap */
     /* kept between steps */
     double x, y, z;         /* tool tip at the end of the last step [m] */
+    double point_z;         /* the controlled point's z (tool_z) then: z + tool_length up to rounding [m] */
     double feed_x, feed_y;  /* unit vector of the last horizontal move (+x before the first) */
     double removed_height;  /* the sum of all height drops so far [m]: removed_volume / (dx dy) */
     /* The cut top (models/workpiece.py, step 2): the highest height before the cut of the cells lowered in the

@@ -57,32 +57,101 @@ static double radius_at(const ModelInternal *w, double height) {
 /* Angle sample m of the front half: m / n_angles of pi (exactly 0 and pi at the ends). */
 static double angle(const ModelInternal *w, size_t m) { return (double)m / (double)w->n_angles * PI; }
 
-FmuStatus model_exit_initialization(FmuInstance *instance) {
-    static const char *const function = "exitInitializationMode";
+/* The checks of the tool against the stock and the grid (models.workpiece.validate_tool): at initialization and
+ * at a tool change; `where` starts the message ("exitInitializationMode", "doStep: t = 1 s: tool change"). */
+static FmuStatus check_tool(FmuInstance *instance, const char *where) {
     const ModelVariables *v = &instance->v;
-    ModelInternal *w = &instance->internal;
-    double nx, ny, arc, *heap;
-    size_t k, count;
-
     if (v->corner_radius > 0.5 * v->tool_diameter) {
         fmu_log(instance, FMU_ERROR, "logStatusError",
                 "%s: corner_radius = %g m is larger than tool_diameter/2 = %g m (0: flat end mill, "
-                "tool_diameter/2: ball end mill)", function, v->corner_radius, 0.5 * v->tool_diameter);
+                "tool_diameter/2: ball end mill)", where, v->corner_radius, 0.5 * v->tool_diameter);
         return FMU_ERROR;
     }
     if (v->tool_diameter > v->stock_length || v->tool_diameter > v->stock_width) {
         fmu_log(instance, FMU_ERROR, "logStatusError",
                 "%s: the tool is larger than the stock: tool_diameter = %g m, stock_length = %g m, stock_width = "
-                "%g m", function, v->tool_diameter, v->stock_length, v->stock_width);
+                "%g m", where, v->tool_diameter, v->stock_length, v->stock_width);
         return FMU_ERROR;
     }
     if (v->tool_diameter < MIN_CELLS_ACROSS_TOOL * v->resolution) {
         fmu_log(instance, FMU_ERROR, "logStatusError",
                 "%s: resolution = %g m is too coarse for tool_diameter = %g m: the Z-map needs at least %g cells "
-                "across the tool (resolution <= %g m)", function, v->resolution, v->tool_diameter,
+                "across the tool (resolution <= %g m)", where, v->resolution, v->tool_diameter,
                 MIN_CELLS_ACROSS_TOOL, v->tool_diameter / MIN_CELLS_ACROSS_TOOL);
         return FMU_ERROR;
     }
+    return FMU_OK;
+}
+
+/* The tool from tool_diameter, corner_radius and tool_length (checked: check_tool()): its geometry in w and its
+ * tables in the heap after the nx * ny heights, the heap resized to fit and the heights kept. At initialization
+ * and at a tool change (models.workpiece.ZMap._derive_tool). Nothing changes when the heap cannot be resized. */
+static FmuStatus derive_tool(FmuInstance *instance, const char *function) {
+    const ModelVariables *v = &instance->v;
+    ModelInternal *w = &instance->internal;
+    const double radius = 0.5 * v->tool_diameter, corner = v->corner_radius;
+    const size_t n_angles = (size_t)ceil(PI * radius / w->delta);
+    const size_t n_corner = corner > 0.0 ? (size_t)ceil(0.5 * PI * corner / w->delta) : 0;
+    const size_t cells = w->nx * w->ny;
+    double arc, *heap;
+    size_t k;
+    if (fmu_resize_heap(instance, function, cells + 2 * (n_angles + 1) + 2 * (n_corner + 1)) != FMU_OK)
+        return FMU_ERROR;
+    w->tool_diameter = v->tool_diameter;
+    w->corner_radius = v->corner_radius;
+    w->tool_length = v->tool_length;
+    w->radius = radius;
+    w->corner = corner;
+    w->flat = w->radius - w->corner;
+    w->arc_margin = w->half_diagonal + 2.0 * w->delta * (1.0 + 0.5 * w->delta / w->radius);
+    w->n_angles = n_angles;
+    w->n_corner = n_corner;
+    w->cos_phi = cells;
+    w->sin_phi = w->cos_phi + w->n_angles + 1;
+    w->profile_z = w->sin_phi + w->n_angles + 1;
+    w->profile_r = w->profile_z + w->n_corner + 1;
+    heap = instance->heap;
+    for (k = 0; k <= w->n_angles; k++) {
+        heap[w->cos_phi + k] = cos(angle(w, k));
+        heap[w->sin_phi + k] = sin(angle(w, k));
+    }
+    arc = w->n_corner ? 0.5 * PI / (double)w->n_corner : 0.0;
+    for (k = 0; k < w->n_corner; k++) {
+        heap[w->profile_z + k] = w->corner * (1.0 - cos((double)k * arc));
+        heap[w->profile_r + k] = w->flat + w->corner * sin((double)k * arc);
+    }
+    heap[w->profile_z + w->n_corner] = w->corner;
+    heap[w->profile_r + w->n_corner] = w->radius;
+    return FMU_OK;
+}
+
+/* Nothing reused from earlier steps: at initialization, and at a tool change, where each would be wrong for the
+ * new tool (all are exact only for the tool they were made with). */
+static void forget_reuse(ModelInternal *w) {
+    size_t k;
+    /* the cleared disc: cells within the old radius of its centre lie at or below a level computed with the old
+     * corner; a larger or rounder tool would skip cells it cuts */
+    w->cleared_valid = false;
+    /* the probe rooms and what their probes found (scan_first/last are old angle samples, the bisected angles
+     * and the outputs the old profile's): the probes lie at the old radius and profile heights */
+    w->scan_rooms.valid = w->bisection_rooms.valid = w->map_rooms.valid = false;
+    /* the angles of the last bisections and their cos and sin: keyed by the angle alone, so still exact, but
+     * the new tool's bisections start from other samples: dropped with the rest */
+    for (k = 0; k < N_BISECTIONS; k++) w->bisection_phi[0][k] = w->bisection_phi[1][k] = -1.0;
+    /* the cut top: the old tool's cuts, within its R to 2R of travel, do not bound the new tool's engaged
+     * height (a larger tool reaches material the old one never cut); the next contact is a first contact */
+    w->stretch_top = w->previous_stretch_top = -INFINITY;
+    w->stretch_travel = 0.0;
+}
+
+FmuStatus model_exit_initialization(FmuInstance *instance) {
+    static const char *const function = "exitInitializationMode";
+    const ModelVariables *v = &instance->v;
+    ModelInternal *w = &instance->internal;
+    double nx, ny;
+    size_t k;
+
+    if (check_tool(instance, function) != FMU_OK) return FMU_ERROR;
     nx = cell_count(v->stock_length, v->resolution);
     ny = cell_count(v->stock_width, v->resolution);
     if (nx * ny > MAX_CELLS) {
@@ -101,40 +170,16 @@ FmuStatus model_exit_initialization(FmuInstance *instance) {
     w->delta = fmin(w->dx, w->dy);
     w->half_diagonal = 0.5 * sqrt(w->dx * w->dx + w->dy * w->dy);
     w->top = v->stock_z_min + v->stock_height;
-    w->radius = 0.5 * v->tool_diameter;
-    w->corner = v->corner_radius;
-    w->flat = w->radius - w->corner;
-    w->arc_margin = w->half_diagonal + 2.0 * w->delta * (1.0 + 0.5 * w->delta / w->radius);
-    w->n_angles = (size_t)ceil(PI * w->radius / w->delta);
-    w->n_corner = w->corner > 0.0 ? (size_t)ceil(0.5 * PI * w->corner / w->delta) : 0;
-    w->cos_phi = w->nx * w->ny;
-    w->sin_phi = w->cos_phi + w->n_angles + 1;
-    w->profile_z = w->sin_phi + w->n_angles + 1;
-    w->profile_r = w->profile_z + w->n_corner + 1;
-    count = w->profile_r + w->n_corner + 1;
-    if (fmu_allocate_heap(instance, function, count) != FMU_OK) return FMU_ERROR;
-    heap = instance->heap;
-    for (k = 0; k < w->nx * w->ny; k++) heap[k] = w->top;
-    for (k = 0; k <= w->n_angles; k++) {
-        heap[w->cos_phi + k] = cos(angle(w, k));
-        heap[w->sin_phi + k] = sin(angle(w, k));
-    }
-    arc = w->n_corner ? 0.5 * PI / (double)w->n_corner : 0.0;
-    for (k = 0; k < w->n_corner; k++) {
-        heap[w->profile_z + k] = w->corner * (1.0 - cos((double)k * arc));
-        heap[w->profile_r + k] = w->flat + w->corner * sin((double)k * arc);
-    }
-    heap[w->profile_z + w->n_corner] = w->corner;
-    heap[w->profile_r + w->n_corner] = w->radius;
-
+    if (derive_tool(instance, function) != FMU_OK) return FMU_ERROR;
+    for (k = 0; k < w->nx * w->ny; k++) instance->heap[k] = w->top;
+    w->flute_length = v->flute_length;
     w->x = v->tool_x;
     w->y = v->tool_y;
-    w->z = v->tool_z;
+    w->point_z = v->tool_z;
+    w->z = v->tool_z - v->tool_length;
     w->feed_x = 1.0;
     w->feed_y = 0.0;
-    w->stretch_top = w->previous_stretch_top = -INFINITY; /* nothing cut yet */
-    for (k = 0; k < N_BISECTIONS; k++) /* no angle of [0, pi] bisected yet */
-        w->bisection_phi[0][k] = w->bisection_phi[1][k] = -1.0;
+    forget_reuse(w); /* nothing cut yet, no angle of [0, pi] bisected yet */
     return FMU_OK;
 }
 
@@ -623,14 +668,50 @@ static bool over_the_stock(const FmuInstance *instance) {
     return gap_x * gap_x + gap_y * gap_y < w->radius * w->radius;
 }
 
+/* A tool change (model_do_step()): the new tool in the spindle from the step's start, its tip below the previous
+ * controlled point by the new tool_length, the tool derived again for it, nothing reused from the old tool, the
+ * shank warning re-armed (models/workpiece.py: a tool change). A tool the checks of initialization reject is an
+ * error, and so is a heap that cannot grow: nothing changed then. */
+static FmuStatus change_tool(FmuInstance *instance, double time) {
+    ModelInternal *w = &instance->internal;
+    const ModelVariables *v = &instance->v;
+    char where[64];
+    snprintf(where, sizeof where, "doStep: t = %g s: tool change", time);
+    if (check_tool(instance, where) != FMU_OK || derive_tool(instance, "doStep") != FMU_OK) return FMU_ERROR;
+    w->z = w->point_z - v->tool_length;
+    forget_reuse(w);
+    w->warned_shank = false;
+    fmu_log(instance, FMU_OK, "logEvents",
+            "%s: tool_diameter = %g m, corner_radius = %g m, tool_length = %g m (%zu angle and %zu corner samples)",
+            where, v->tool_diameter, v->corner_radius, v->tool_length, w->n_angles + 1, w->n_corner + 1);
+    return FMU_OK;
+}
+
 FmuStatus model_do_step(FmuInstance *instance, double time, double step_size) {
     ModelInternal *w = &instance->internal;
     const ModelVariables *v = &instance->v;
-    const double start[3] = {w->x, w->y, w->z}, end[3] = {v->tool_x, v->tool_y, v->tool_z};
-    const double sx = end[0] - start[0], sy = end[1] - start[1], sz = end[2] - start[2];
-    const double travel = sqrt(sx * sx + sy * sy + sz * sz), horizontal = sqrt(sx * sx + sy * sy);
-    double volume, step_top = -INFINITY, stretch_top;
+    double start[3], end[3], sx, sy, sz, travel, horizontal, volume, step_top = -INFINITY, stretch_top;
     FmuStatus status = FMU_OK;
+    /* tunable parameters set since the last step (FMI: between steps): a new tool, or a new flute length */
+    if (v->tool_diameter != w->tool_diameter || v->corner_radius != w->corner_radius ||
+        v->tool_length != w->tool_length) {
+        if (change_tool(instance, time) != FMU_OK) return FMU_ERROR;
+    }
+    if (v->flute_length != w->flute_length) {
+        w->flute_length = v->flute_length;
+        w->warned_shank = false;
+    }
+    start[0] = w->x;
+    start[1] = w->y;
+    start[2] = w->z;
+    end[0] = v->tool_x;
+    end[1] = v->tool_y;
+    end[2] = v->tool_z - v->tool_length;
+    sx = end[0] - start[0];
+    sy = end[1] - start[1];
+    sz = end[2] - start[2];
+    travel = sqrt(sx * sx + sy * sy + sz * sz);
+    horizontal = sqrt(sx * sx + sy * sy);
     if (travel > v->max_tool_speed * step_size) {
         fmu_log(instance, FMU_ERROR, "logStatusError",
                 "doStep: t = %g s: the tool tip moved %g m in %g s (%g m/s), faster than max_tool_speed = %g m/s: "
@@ -648,6 +729,7 @@ FmuStatus model_do_step(FmuInstance *instance, double time, double step_size) {
     w->x = end[0];
     w->y = end[1];
     w->z = end[2];
+    w->point_z = v->tool_z;
     engagement(instance, volume, max2(stretch_top, w->previous_stretch_top));
     if (w->stretch_travel >= w->radius) { /* the stretch ends with this step */
         w->previous_stretch_top = stretch_top;

@@ -72,9 +72,9 @@ recorded data)::
                                       # (orchestrator/calibrate/fmu_outputs.py); "auto": exact where possible
     fd_method = "forward"             # finite differences: "forward" (p runs per Jacobian) or "central" (2p)
     fd_step = 1.5e-8                  # relative step (default sqrt(eps) forward, eps^(1/3) central)
-    workers = 2                       # parallel fit (FMU path: starts and finite-difference columns as tasks,
-                                      # orchestrator/calibrate/parallel.py, the serial result bit for bit): N local
-                                      # worker processes; 0 (default): serial, in this process
+    workers = 2                       # parallel fit through the FMUs (its simulations as tasks, the starts at
+                                      # once; orchestrator/calibrate/parallel.py; the serial result bit for bit):
+                                      # N local worker processes; 0 (default): serial, in this process
     scheduler = "tcp://host:8786"     # or a dask scheduler file (relative to this file): an existing cluster
                                       # instead of local workers (not both)
 

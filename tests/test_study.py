@@ -145,6 +145,9 @@ force.Kac = { kind = "lognormal", median = 222, sigma = 0.1, unit = "N/mm2" }
      "[study.distributions].force.Ktc.std", "finite number"),
     ("[study.grid]\nforce.axial_depth = [1e-5]\n[[study.reduce]]\nkind = \"max\"\nvariable = \"force.torque\"\n",
      "[[study.reduce]][0].variable", "not a recorded output"),
+    ("[study.grid]\nforce.axial_depth = [1e-5]\n[[study.reduce]]\nkind = \"max\"\nvariable = \"force.Fx\"\n"
+     "window = 1\n",
+     "[[study.reduce]][0].window", "unknown key"),
     ("[study.grid]\nforce.axial_depth = [1e-5]\n[[study.reduce]]\nkind = \"maxx\"\n",
      "[[study.reduce]][0].kind", "unknown reduction"),
     ("[study.grid]\nforce.axial_depth = [1e-5]\n[[study.reduce]]\nkind = \"machining_time\"\nwindow = 2\n",
@@ -305,3 +308,38 @@ where = "workpiece.axial_depth"
     path.write_text(bad)
     with pytest.raises(StudyError, match=r"\[\[study.reduce\]\]\[1\].fields: expected a list of machining_time"):
         load_study(path, fmu_dir)
+
+
+def _count_check(table: dict, where: str) -> int:
+    for key, value in table.items():
+        if key != "least" or not isinstance(value, int):
+            raise ValueError(f"{where}: [study.count].{key} = {value!r}: expected least = <whole number>")
+    return table.get("least", 0)
+
+
+def test_a_post_processor_runs_after_the_cases_with_its_table(tmp_path: Path, fmu_dir: Path) -> None:
+    from milling_twin.orchestrator.study.post import POSTS, register_post
+
+    seen: list[tuple[int, int, Path]] = []
+
+    @register_post("count_ok", table="count", check=_count_check)
+    def count_ok(summary: pd.DataFrame, study, folder: Path, least: int) -> None:  # noqa: ANN001
+        seen.append((int((summary["status"] == "ok").sum()), least, folder))
+
+    try:
+        path = write(tmp_path, GRID + REDUCE + "[study.count]\nleast = 3\n")
+        path.write_text(path.read_text().replace('stop_time = 0.005\n', 'stop_time = 0.005\npost = "count_ok"\n'))
+        result = sweep(load_study(path, fmu_dir), tmp_path / "out", workers=0, progress=False)
+        assert seen == [(4, 3, result.folder)]
+        path.write_text(path.read_text().replace("least = 3", "least = \"x\""))
+        with pytest.raises(StudyError) as info:
+            load_study(path, fmu_dir)
+        assert info.value.key == "[study.count].least = 'x'" and "expected least" in info.value.detail
+        path.write_text(path.read_text().replace('post = "count_ok"', 'post = "nope"'))
+        with pytest.raises(StudyError, match=r"study.post: unknown post-processor 'nope'"):
+            load_study(path, fmu_dir)
+        path.write_text(path.read_text().replace('post = "nope"\n', ''))
+        with pytest.raises(StudyError, match=r"study.count: unknown key 'count'"):
+            load_study(path, fmu_dir)
+    finally:
+        POSTS.pop("count_ok", None)

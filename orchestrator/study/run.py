@@ -189,5 +189,14 @@ def sweep(study: Study, out: str | Path, *, workers: int | None = None, schedule
                 _dispatch(executor, tasks, store, bar)
     finally:
         summary = store.consolidate([c.case_id for c in study.cases], study.variables)
+    if study.post is not None:
+        from milling_twin.orchestrator.study.post import get_post
+
+        try:
+            get_post(study.post).run(summary, study, folder, study.post_config)
+        except Exception as exc:
+            exc.add_note(f"post-processor {study.post!r} of {study.path}; the summary is written: "
+                         f"{folder / 'summary.parquet'}")
+            raise
     return StudyResult(study.name, folder, summary, len(tasks), len(study.cases) - len(todo),
                        int((summary["status"] != "ok").sum()), time.perf_counter() - t0, workers)

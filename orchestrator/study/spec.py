@@ -19,7 +19,7 @@ from __future__ import annotations
 import inspect
 import math
 import tomllib
-from dataclasses import dataclass, replace
+from dataclasses import dataclass, field, replace
 from pathlib import Path
 from typing import Any, NoReturn
 
@@ -30,7 +30,7 @@ from milling_twin.orchestrator.study.reduce import PROCESS_FIGURES, STATISTICS, 
 __all__ = ["Case", "ReduceSpec", "Study", "StudyError", "load_study"]
 
 STUDY_KEYS = ("name", "description", "base", "stop_time", "set", "grid", "list", "sample", "distributions",
-              "reduce")
+              "reduce", "post")
 
 
 class StudyError(ValueError):
@@ -64,6 +64,8 @@ class Study:
     stop_time: float | None
     cases: tuple[Case, ...]
     reductions: tuple[ReduceSpec, ...]
+    post: str | None = None  # [study] post: the post-processor run after the cases (orchestrator/study/post.py)
+    post_config: Any = field(default=None, compare=False)  # what its check made of [study.<its table>]
 
     @property
     def variables(self) -> tuple[str, ...]:
@@ -119,6 +121,9 @@ def _reductions(reader: _Reader, study: dict, scenario: Scenario) -> tuple[Reduc
             reader.fail(f"{key}.kind", str(exc.args[0]))
         options = {k: v for k, v in table.items() if k != "kind"}
         if kind in STATISTICS:
+            for option in options:
+                if option not in ("variable", "where", "name"):
+                    reader.fail(f"{key}.{option}", f"unknown key; {kind} takes variable, where and name")
             for option in ("variable", "where"):
                 if option not in options and option == "where":
                     continue
@@ -167,9 +172,13 @@ def load_study(path: str | Path, fmu_dir: str | Path) -> Study:
             reader.fail("study", f"missing required table [study]{hint}")
         reader.fail(other[0], "unknown table; a study file holds [study] and its sub-tables only")
     study = doc["study"]
+    if not isinstance(study, dict):
+        reader.fail("study", f"expected a table, got {study!r}")
+    post_name, post_config, post_table = _post(reader, study)
+    known_keys = (*STUDY_KEYS, *((post_table,) if post_table else ()))
     for name in study:
-        if name not in STUDY_KEYS:
-            reader.fail(f"study.{name}", f"unknown key {name!r}; known keys: {', '.join(STUDY_KEYS)}")
+        if name not in known_keys:
+            reader.fail(f"study.{name}", f"unknown key {name!r}; known keys: {', '.join(known_keys)}")
     name = study.get("name")
     if not isinstance(name, str) or not name or not all(c.isalnum() or c in "_-." for c in name):
         reader.fail("study.name", f"expected a name of letters, digits, '_', '-', '.' (the output folder), "
@@ -226,7 +235,35 @@ def load_study(path: str | Path, fmu_dir: str | Path) -> Study:
         values = {**values, **fixed}
         cid = cases_mod.case_id(values, stop_time)
         cases.setdefault(cid, Case(cid, values, source))  # the same values twice: one case
-    return Study(path, name, description, base, stop_time, tuple(cases.values()), _reductions(reader, study, base))
+    return Study(path, name, description, base, stop_time, tuple(cases.values()), _reductions(reader, study, base),
+                 post_name, post_config)
+
+
+def _post(reader: _Reader, study: dict) -> tuple[str | None, Any, str | None]:
+    """``[study] post`` and its options' table: (name, config, table name)."""
+    from milling_twin.orchestrator.study.post import get_post
+
+    name = study.get("post")
+    if name is None:
+        return None, None, None
+    if not isinstance(name, str):
+        reader.fail("study.post", f"expected the name of a post-processor, got {name!r}")
+    try:
+        post = get_post(name)
+    except KeyError as exc:
+        reader.fail("study.post", str(exc.args[0]))
+    table = study.get(post.table, {})
+    try:
+        config = post.check(table, str(reader.path))
+    except StudyError:
+        raise
+    except ValueError as exc:
+        detail = str(exc).removeprefix(f"{reader.path}: ")
+        key = f"[study.{post.table}]"
+        if detail.startswith(key):
+            key, _, detail = detail.partition(": ")
+        reader.fail(key, detail)
+    return name, config, post.table
 
 
 def _check_section(reader: _Reader, base: Scenario, key: str, section: str, table: dict,

@@ -110,6 +110,7 @@ TINY_STUDY = """
 name = "tiny_map"
 base = "{base}"
 stop_time = 0.1
+post = "stability_map"
 
 [study.grid]
 "force.spindle_speed" = {{ values = [16000, 20000], unit = "rpm" }}
@@ -117,12 +118,17 @@ stop_time = 0.1
 
 [[study.reduce]]
 kind = "chatter_growth"
+
+[study.map]
+growth = ["growth", "chip_growth"]
+curve_points = 4
 """
 
 
-def test_map_of_a_tiny_real_grid_through_the_serial_executor(tmp_path: Path) -> None:
-    """2 speeds x 3 depths of 0.1 s through the study layer in this process: at each speed the semi-discretization
-    onset lies in the co-simulated bracket (0.05-0.1 mm at 16000 rpm, 0.025-0.05 mm at 20000 rpm)."""
+def test_map_of_a_tiny_real_grid_through_the_serial_executor(tmp_path: Path, capsys: pytest.CaptureFixture) -> None:
+    """2 speeds x 3 depths of 0.1 s through the study layer in this process, the map made by the sweep's
+    post-processor: at each speed the semi-discretization onset lies in the co-simulated bracket (0.05-0.1 mm at
+    16000 rpm, 0.025-0.05 mm at 20000 rpm), and the onset is within 15 % of it."""
     from milling_twin.api import sweep
 
     study = tmp_path / "tiny.toml"
@@ -132,12 +138,27 @@ def test_map_of_a_tiny_real_grid_through_the_serial_executor(tmp_path: Path) -> 
     assert list(summary["status"]) == ["ok"] * 6
     assert {"growth_x", "growth_y", "growth", "stable", "chip_growth"} <= set(summary.columns)
     assert list(summary["stable"]) == [float(g <= 1) for g in summary["growth"]]
-    maps = sm.stability_map(summary, load_scenario(SCENARIO, fmu_dir()), tmp_path / "map",
-                            sm.MapConfig(growth=("growth", "chip_growth"), curve_points=4), echo=False)
-    for rows in maps.values():
-        assert [r.speed_rpm for r in rows] == pytest.approx([16000.0, 20000.0])
+    printed = capsys.readouterr().out
+    assert "co-simulation (growth = 1)" in printed and "co-simulation (chip_growth = 1)" in printed
+    for growth, first in (("growth", True), ("chip_growth", False)):
+        csv_path, figure = sm.map_paths(result.folder, growth, first)
+        with csv_path.open() as f:
+            rows = list(csv.DictReader(f))
+        assert [float(r["speed_rpm"]) for r in rows] == [16000.0, 20000.0]
         for r in rows:
-            assert r.stable_depth < r.sd < r.unstable_depth and r.stable_depth < r.cosim < r.unstable_depth
-            assert abs(r.cosim_vs_sd) < 0.15
-    assert (tmp_path / "map" / "stability_map.png").stat().st_size > 20_000
-    assert (tmp_path / "map" / "stability_map_chip_growth.csv").read_text().count("\n") == 3
+            low, high, sd, cosim = (float(r[k]) for k in ("stable_mm", "unstable_mm", "sd_mm", "cosim_mm"))
+            assert low < sd < high and low < cosim < high
+            assert abs(float(r["cosim_vs_sd_pct"])) < 15
+        assert figure.stat().st_size > 20_000
+
+
+def test_study_file_map_errors_name_the_file_and_key(tmp_path: Path) -> None:
+    from milling_twin.orchestrator.study.spec import StudyError, load_study
+
+    study = tmp_path / "bad.toml"
+    study.write_text(TINY_STUDY.format(base=SCENARIO.as_posix()).replace("curve_points = 4", "curve_points = -1"))
+    with pytest.raises(StudyError, match=r"bad\.toml: \[study\.map\]\.curve_points"):
+        load_study(study, fmu_dir())
+    study.write_text(TINY_STUDY.format(base=SCENARIO.as_posix()).replace("curve_points = 4", "speeds = 4"))
+    with pytest.raises(StudyError, match=r"bad\.toml: \[study\.map\]\.speeds: unknown key"):
+        load_study(study, fmu_dir())

@@ -11,8 +11,8 @@ each case and reduces it with ``chatter_growth`` over two windows, the third and
 - ``chip_growth``: the RMS of the dynamic chip r(t) - r(t - tau) of the tip displacement in the second window over
   the first (:func:`dynamic_chip_growth`), where the forced response cancels at every step, not only in samples.
 
-The map (``[study.map]`` of the study; run after the sweep, or by :func:`stability_map` on a summary), for each
-growth column named:
+The map (``[study] post = "stability_map"`` runs it after the sweep with the options of ``[study.map]``, into the
+study's folder; :func:`stability_map` on any summary), for each growth column named:
 
 - the co-simulated onset per speed: going up in depth, the first unstable case and the stable case below it bracket
   the onset; the depth where log(growth) crosses 0, interpolated linearly in depth between the two
@@ -34,6 +34,7 @@ from __future__ import annotations
 
 import csv
 import math
+import time
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
 from pathlib import Path
@@ -42,6 +43,7 @@ from typing import TYPE_CHECKING, Any
 import numpy as np
 
 from milling_twin.models.stability import semi_discretization_limit, stability_lobes
+from milling_twin.orchestrator.study.post import register_post
 from milling_twin.orchestrator.study.reduce import CaseRun, register
 from milling_twin.orchestrator.validation.chatter import ToolAndCut, displacement_growth, tool_and_cut
 
@@ -49,6 +51,7 @@ if TYPE_CHECKING:
     import pandas as pd
 
     from milling_twin.orchestrator.scenario import Scenario
+    from milling_twin.orchestrator.study.spec import Study
 
 __all__ = ["MapConfig", "MapRow", "Onset", "chatter_growth", "dynamic_chip_growth", "growth_windows", "map_config",
            "map_paths", "map_rows", "onset_of", "onsets", "plot_map", "references", "sd_curve", "speed_range",
@@ -352,6 +355,7 @@ def stability_map(summary: pd.DataFrame, base: Scenario, out_dir: Path, config: 
                   echo: bool = True) -> dict[str, list[MapRow]]:
     """The maps of a finished study, one per growth column of ``config``: onsets per speed (co-sim, SD, ZOA) in a CSV
     (printed when ``echo``) and a figure (:func:`map_paths`). ``base``: the study's base scenario (its tool)."""
+    t0 = time.perf_counter()
     tool = tool_and_cut(base)
     failed = int((summary["status"] != "ok").sum()) if "status" in summary.columns else 0
     speeds = [o.speed_rpm for o in onsets(summary, config.speed, config.depth, config.growth[0])]
@@ -373,6 +377,12 @@ def stability_map(summary: pd.DataFrame, base: Scenario, out_dir: Path, config: 
             print(table_text(rows))
             if failed:
                 print(f"{failed} failed cases left out (their errors are in the summary)")
-            print(f"map: {csv_path}, {figure}")
+            print(f"map: {csv_path}, {figure} ({time.perf_counter() - t0:.1f} s since the map began)")
         maps[growth] = rows
     return maps
+
+
+@register_post("stability_map", table="map", check=map_config)
+def _post(summary: pd.DataFrame, study: Study, folder: Path, config: MapConfig) -> None:
+    """``[study] post = "stability_map"``: the maps of the finished sweep into its folder, the tables printed."""
+    stability_map(summary, study.base, folder, config)

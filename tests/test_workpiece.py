@@ -1048,14 +1048,14 @@ TOOL = ("tool_diameter", "corner_radius", "tool_length")
 
 def tool_path(pieces: Sequence[tuple[dict, list]], parameters: dict | None = None) -> list[dict]:
     """Points (dicts of inputs and tunable tool parameters) of pieces of path, each cut with its tool (the values of
-    TOOL; tool_length 0 when not given) from its first point on: the pieces' points are tips, the inputs the
-    controlled point tool_length above. At a change of length the controlled point stays where it was: the new
-    tool's tip starts that much lower (or higher), and a link of 1 mm per step takes it to the piece's first tip.
-    points[0] also holds the fixed ``parameters``."""
+    TOOL; corner_radius and tool_length 0 when not given) from its first point on: the pieces' points are tips,
+    the inputs the controlled point tool_length above. At a change of length the controlled point stays where it
+    was: the new tool's tip starts that much lower (or higher), and a link of 1 mm per step takes it to the
+    piece's first tip. points[0] also holds the fixed ``parameters``."""
     points: list[dict] = []
     length = 0.0
     for tool, tips in pieces:
-        tool = {"tool_length": 0.0, **tool}
+        tool = {"corner_radius": 0.0, "tool_length": 0.0, **tool}
         if points and tool["tool_length"] != length:
             last = points[-1]
             start = (last["tool_x"], last["tool_y"], last["tool_z"] - tool["tool_length"])
@@ -1205,6 +1205,27 @@ def test_a_change_of_length_alone_moves_no_tip(fmu: Path) -> None:
     volume = expected[:, OUTPUTS.index("removed_volume")]
     assert np.all(volume[lifted:] == volume[lifted - 1])
     assert not np.any(expected[lifted:, STEP_OUTPUTS])
+
+
+def test_a_tool_change_at_rest_in_the_cut_forgets_what_the_old_tool_found(fmu: Path) -> None:
+    """A 6 mm flat end mill slots and stops in the cut; at rest an 8 mm bull nose comes in (it cuts the ring the
+    smaller tool left, though the disc the old tool cleared lies at its tip's height), then, still at rest, a
+    5 mm one (inside the cut: it removes nothing, and sees the stock where the first tool's probes were). The
+    FMU reuses between steps what the old tool found (the cleared disc, its probes of the stock) only for that
+    tool: equal to the reference to the last bit."""
+    slot = slot_points((-10 * MM, 30 * MM, 28 * MM), (30 * MM, 30 * MM, 28 * MM), 0.4 * MM)
+    rest = [slot[-1]] * 4
+    points = tool_path([({"tool_diameter": 6 * MM}, slot + rest),
+                        ({"tool_diameter": 8 * MM, "corner_radius": 1 * MM}, rest),
+                        ({"tool_diameter": 5 * MM}, rest + slot_points(slot[-1], (40 * MM, 30 * MM, 28 * MM)))])
+    actual, slave = run_fmu_points(fmu, points)
+    slave.unload()
+    expected = reference_trajectory(points, H)
+    assert_bits_equal(actual, expected)
+    mrr, radial = expected[:, OUTPUTS.index("mrr")], expected[:, OUTPUTS.index("radial_depth")]
+    bull, small = len(slot) + len(rest), len(slot) + 2 * len(rest)
+    assert mrr[bull - 1] == 0 and mrr[bull] > 0 and not np.any(mrr[bull + 1:small + 4])
+    assert radial[bull - 1] > 0 and radial[small - 1] != radial[bull - 1] and radial[small] != radial[small - 1]
 
 
 BAD_TOOLS = {

@@ -91,12 +91,20 @@ def test_jacobian_columns_on_an_executor_are_the_serial_loop(slot, method: str) 
         jac_parallel = parallel.jacobian(theta)
         parallel.jacobian(theta * 1.01)
     assert pool.tasks == 2 * 6 * (1 if method == "forward" else 2)  # the moved runs; the nominal ones here
+    grouped = fresh_fmu(slot, method)
+    grouped.tasks = 2  # a Jacobian's columns in two tasks (as with two workers)
+    with CountingPool() as pool:
+        grouped.executor = pool
+        jac_grouped = grouped.jacobian(theta)
+    assert pool.tasks == 2
     jac = serial.jacobian(theta)
     serial.jacobian(theta * 1.01)
-    assert np.array_equal(jac, jac_parallel) and np.all(np.isfinite(jac))
+    assert np.array_equal(jac, jac_parallel) and np.array_equal(jac, jac_grouped) and np.all(np.isfinite(jac))
     # per Jacobian: the nominal run, and per coefficient one (forward) or two (central) moved runs
     assert serial.simulations == parallel.simulations == 2 * (1 + 6 * (1 if method == "forward" else 2))
     assert list(serial._cache) == list(parallel._cache)
+    assert grouped.simulations == serial.simulations // 2 and list(grouped._cache) == list(serial._cache)[:len(
+        grouped._cache)]
 
 
 def test_a_failed_evaluation_on_a_worker_is_reported_as_in_the_serial_loop(slot, monkeypatch) -> None:

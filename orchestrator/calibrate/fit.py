@@ -75,9 +75,10 @@ def fit(model: ResidualModel, recorded: np.ndarray, *, weights: Sequence[float],
     """Fit ``model`` to ``recorded`` (pairs x outputs). ``lsq``: a solver built for this model
     earlier (synthetic repeats); ``starts`` (rows of SI parameters): instead of the drawn ones;
     ``strategy(lsq, x0, p, index)``: how one start is solved (default: one IPOPT run); ``executor``: where
-    the starts (more than one) and the finite-difference Jacobians' columns of the FMU path run
-    (:mod:`milling_twin.orchestrator.calibrate.parallel`: the same result as without, bit for bit)."""
-    with columns_on(model, executor):
+    the simulations of the FMU path run, the starts (more than one) at once and a Jacobian's columns in
+    ``solver.workers`` tasks (0: one each) (:mod:`milling_twin.orchestrator.calibrate.parallel`: the same result
+    as without, bit for bit)."""
+    with columns_on(model, executor, solver.workers or None):
         return _fit(model, recorded, weights, sigma, solver, statistics, progress, lsq, starts, strategy, executor)
 
 
@@ -94,7 +95,7 @@ def _fit(model: ResidualModel, recorded: np.ndarray, weights: Sequence[float], s
     noise = initial_sigma(recorded, sigma)
     p = model.data_vector(recorded, np.sqrt(user) / noise)
     thetas = starts if starts is not None else draw_starts(model.parameters, solver.starts, solver.seed)
-    parallel = (solve_starts(model, lsq, thetas, p, executor, progress)
+    parallel = (solve_starts(model, lsq, thetas, p, executor, progress, solver.workers or None)
                 if executor is not None and strategy is None and len(thetas) > 1 else None)
     outcomes = parallel if parallel is not None else []
     for i, theta in enumerate(tqdm(thetas if parallel is None else [], desc="calibration starts", unit="start",

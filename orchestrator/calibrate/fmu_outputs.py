@@ -59,7 +59,7 @@ from milling_twin.orchestrator.results import load_results
 from milling_twin.orchestrator.scenario import Ref, Scenario, with_values
 
 __all__ = ["Access", "Evaluation", "FD_METHODS", "FmuOutputs", "JacobianAccess", "Simulation", "default_step",
-           "evaluate", "fmu_residuals"]
+           "evaluate", "evaluate_all", "fmu_residuals"]
 
 FD_METHODS = ("forward", "central")
 EPS = float(np.finfo(float).eps)
@@ -120,6 +120,12 @@ def evaluate(simulation: Simulation, theta: np.ndarray) -> Evaluation:
         return Evaluation(y, None, time.perf_counter() - t0)
     except Exception as exc:  # noqa: BLE001 - any failure of the FMUs or the run is a failed evaluation
         return Evaluation(None, f"{type(exc).__name__}: {exc}", time.perf_counter() - t0)
+
+
+def evaluate_all(simulation: Simulation, thetas: Sequence[np.ndarray]) -> list[Evaluation]:
+    """A task of several evaluations, one after the other (a Jacobian's columns in as many tasks as workers:
+    fewer round trips)."""
+    return [evaluate(simulation, theta) for theta in thetas]
 
 
 @dataclass(frozen=True)
@@ -183,6 +189,7 @@ class FmuOutputs:
         # (None: here, one after the other), and the log of the evaluations asked (None: not kept)
         self.executor: Executor | None = None
         self.remote = False  # every simulation a task of the executor (not only the Jacobian's columns)
+        self.tasks: int | None = None  # a Jacobian's column simulations in this many tasks (None: one each)
         self.log: list[Access | JacobianAccess] | None = None
 
     def detached(self) -> "FmuOutputs":
@@ -191,6 +198,7 @@ class FmuOutputs:
         copy.__dict__.update(self.__dict__)
         copy._cache, copy._jacobians, copy.failures = OrderedDict(), OrderedDict(), []
         copy.simulations, copy.simulation_time, copy.executor, copy.remote, copy.log = 0, 0.0, None, False, None
+        copy.tasks = None
         return copy
 
     def __getstate__(self) -> dict:
@@ -314,7 +322,7 @@ class FmuOutputs:
         serial loop would simulate (the cache's least-recently-used order played on the keys), then account
         for them in that order: the cache and the counts end as the serial loop leaves them."""
         order = OrderedDict((k, None) for k in self._cache)
-        futures: dict[bytes, Future] = {}
+        missing: dict[bytes, np.ndarray] = {}
         for theta in thetas:
             key = theta.tobytes()
             if key in order:
@@ -323,9 +331,18 @@ class FmuOutputs:
             order[key] = None
             if len(order) > self.cache_size:
                 order.popitem(last=False)
-            if key not in futures:
-                futures[key] = self.executor.submit(evaluate, self.simulation, theta)
-        done = {key: self._wait(future) for key, future in futures.items()}  # by key: the order does not matter
+            missing.setdefault(key, theta)
+        keys = list(missing)
+        groups = np.array_split(np.arange(len(keys)), min(self.tasks or len(keys), len(keys))) if keys else []
+        futures = [(group, self.executor.submit(evaluate_all, self.simulation, [missing[keys[i]] for i in group]))
+                   for group in groups]
+        done: dict[bytes, Evaluation] = {}  # by key: the order of completion does not matter
+        for group, future in futures:
+            try:
+                done.update(zip((keys[i] for i in group), future.result()))
+            except Exception as exc:  # noqa: BLE001 - the worker itself failed (e.g. died with its FMU)
+                done.update((keys[i], Evaluation(None, f"the worker failed: {type(exc).__name__}: {exc}", 0.0))
+                            for i in group)
         for theta in thetas:
             key = theta.tobytes()
             if key in self._cache:

@@ -52,9 +52,10 @@ def _fmu(model: ResidualModel) -> tuple[FmuOutputs, Pairs] | None:
 
 
 def solve_starts(model: ResidualModel, lsq: LeastSquaresSolver, thetas: np.ndarray, p: np.ndarray,
-                 executor: Executor, progress: bool = False) -> list[StartOutcome] | None:
-    """Every start of ``thetas`` (rows, SI) at once, their simulations on ``executor``; the outcomes in start
-    order. None: this model's evaluations cannot leave this process (the exact path), the caller runs them."""
+                 executor: Executor, progress: bool = False, tasks: int | None = None) -> list[StartOutcome] | None:
+    """Every start of ``thetas`` (rows, SI) at once, their simulations on ``executor`` (a Jacobian's columns in
+    ``tasks`` tasks; None: one each); the outcomes in start order. None: this model's evaluations cannot leave
+    this process (the exact path), the caller runs them."""
     origin = _fmu(model)
     if origin is None:
         return None
@@ -68,7 +69,7 @@ def solve_starts(model: ResidualModel, lsq: LeastSquaresSolver, thetas: np.ndarr
                                      f"the start's initial simulation failed: {type(exc).__name__}: {exc}"))
             continue
         own = fmu.detached()
-        own.executor, own.remote, own.log = executor, True, []
+        own.executor, own.remote, own.tasks, own.log = executor, True, tasks, []
         own_model = fmu_residuals(own, pairs)
         runs.append((own, own_model, LeastSquaresSolver(own_model.problem, max_iterations=lsq.max_iterations,
                                                          tolerance=lsq.tolerance, hessian=lsq.hessian), x0))
@@ -93,18 +94,20 @@ def solve_starts(model: ResidualModel, lsq: LeastSquaresSolver, thetas: np.ndarr
 
 
 @contextmanager
-def columns_on(model: ResidualModel, executor: Executor | None) -> Iterator[None]:
-    """Within: the finite-difference Jacobians of ``model`` (FMU path) simulate their columns on ``executor``."""
+def columns_on(model: ResidualModel, executor: Executor | None, tasks: int | None = None) -> Iterator[None]:
+    """Within: the finite-difference Jacobians of ``model`` (FMU path) simulate their columns on ``executor``,
+    in ``tasks`` tasks (None: one per simulation)."""
     origin = _fmu(model) if executor is not None else None
     if origin is None:
         yield
         return
     fmu = origin[0]
-    before, fmu.executor = fmu.executor, executor
+    before = fmu.executor, fmu.tasks
+    fmu.executor, fmu.tasks = executor, tasks
     try:
         yield
     finally:
-        fmu.executor = before
+        fmu.executor, fmu.tasks = before
 
 
 @contextmanager

@@ -89,13 +89,15 @@ def loop_case(fmu_dir: Path, tmp: Path) -> Case:
     return Case("closed loop 1 s (2 parameters, 3 starts)", study.prepared, study.learning, study.learning.recorded)
 
 
-def run_fit(case: Case, executor) -> tuple[FitOutcome, int, float, float]:
+def run_fit(case: Case, executor, workers: int = 0) -> tuple[FitOutcome, int, float, float]:
+    """The case's fit, serial (no executor) or with its simulations on ``executor``'s ``workers`` local workers
+    (as ``calibrate --workers`` runs it)."""
     spec = case.prepared.spec
     model = case.prepared.residual_model(case.learning)
     t0 = time.perf_counter()
     outcome = fit(model, case.recorded, weights=[o.weight for o in case.prepared.outputs],
-                  sigma=[None] * len(case.prepared.outputs), solver=spec.solver, statistics=spec.statistics,
-                  executor=executor)
+                  sigma=[None] * len(case.prepared.outputs), solver=replace(spec.solver, workers=workers),
+                  statistics=spec.statistics, executor=executor)
     fmu = model.keep_alive.fmu
     return outcome, fmu.simulations, fmu.simulation_time, time.perf_counter() - t0
 
@@ -120,7 +122,7 @@ def main() -> None:
         t0 = time.perf_counter()
         with open_executor(args.workers) as executor:
             print(f"cluster of {args.workers} local worker processes started in {time.perf_counter() - t0:.2f} s")
-            run_fit(cases[0], executor)  # the workers import the package and unpack the FMUs once
+            run_fit(cases[0], executor, args.workers)  # the workers import the package and unpack the FMUs once
             print(f"| case | simulations per fit | mean simulation [s] | serial [s] | {args.workers} workers [s] "
                   "| ratio | same numbers |")
             print("|---|---:|---:|---:|---:|---:|---|")
@@ -129,7 +131,8 @@ def main() -> None:
                 reference = None
                 for k in range(args.rounds):
                     for mode in (("serial", "parallel") if k % 2 == 0 else ("parallel", "serial")):
-                        result = run_fit(case, executor if mode == "parallel" else None)
+                        result = (run_fit(case, executor, args.workers) if mode == "parallel" else
+                                  run_fit(case, None))
                         (serial if mode == "serial" else parallel).append(result)
                         reference = reference or result
                         identical = identical and same(reference, result)

@@ -167,7 +167,7 @@ CUTTING_FORCE = ModelDefinition(
         Variable("helix_angle", "Float64", "parameter", "Helix angle of the flutes (right-hand)", unit="rad",
                  display_unit="deg", start=_deg(30.0), min=0.0, max=_deg(80.0)),
         Variable("n_flutes", "Int32", "parameter", f"Number of flutes (1 .. {MAX_FLUTES}), evenly spaced",
-                 start=2, min=1, max=MAX_FLUTES, variability="fixed"),
+                 start=2, min=1, max=MAX_FLUTES),
         Variable("runout_offset", "Float64", "parameter", "Radial offset of the tool axis (runout)",
                  unit="m", display_unit="um", start=0.0, min=0.0, max=1e-3),
         Variable("runout_angle", "Float64", "parameter",

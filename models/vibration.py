@@ -88,8 +88,9 @@ def update(v: Mapping[str, ca.SX], h: ca.SX) -> dict[str, ca.SX]:
 def _variables() -> tuple[Variable, ...]:
     variables: list[Variable] = []
     for d in DIRECTIONS:
-        variables.append(Variable(f"n_modes_{d}", "Int32", "parameter", f"Number of active modes in {d}",
-                                  start=1, min=0, max=MAX_MODES, variability="fixed"))
+        variables.append(Variable(f"n_modes_{d}", "Int32", "parameter",
+                                  f"Number of active modes in {d} (a mode switched on starts at rest)",
+                                  start=1, min=0, max=MAX_MODES))
         for i, (f, zeta, k, phi) in enumerate(DEFAULT_MODES):
             names, n = mode_names(d, i), i + 1
             variables += [

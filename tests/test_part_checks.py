@@ -38,12 +38,57 @@ def test_a_tool_the_tool_table_does_not_hold_is_refused(tmp_path: Path, fmu_dir:
                        f"for T7 (the table has no tool 7)")
 
 
-def test_a_program_cutting_with_two_tools_is_refused(tmp_path: Path, fmu_dir: Path) -> None:
-    program = PROGRAM.replace("M5\n", "T2 M6\nG0 X-10 Y5\nG1 Z-1 F300\nG1 X60\nG0 Z5\nM5\n")
-    path, message = _error(tmp_path, fmu_dir, program)
-    assert message == (f"{path}: [part].program: {tmp_path / 'prog.nc'}: the program cuts the stock with 2 tools, "
-                       f"T1 (from line 6) and T2 (from line 11); the Workpiece and the force model take one tool's "
-                       f"geometry per run: split the program into one part per tool")
+TWO_TOOLS = PROGRAM.replace("M5\n", "T2 M6\nG43 H2 Z5\nG0 X-10 Y5\nG1 Z-1 F300\nG1 X60\nG0 Z5\nM5\n").replace(
+    "T1 M6\n", "T1 M6\nG43 H1\n")
+TWO_LENGTHS = "T1 P1 D10 Z50 ; corner_radius=0.5 flutes=3 helix=30 stick_out=25\nT2 P2 D6 Z42 ; flutes=2 stick_out=20\n"
+
+
+def test_a_program_cutting_with_two_tools_changes_the_tool_at_its_m6(tmp_path: Path, fmu_dir: Path) -> None:
+    """Each tool's geometry, modes and length (the G43 lengths 50 and 42 mm: T2's tip 8 mm nearer the spindle's
+    position than T1's) from the communication point the Interpolator shows it."""
+    modes = ("[part.tool_modes]\n", "[part.tool_modes]\nT2 = { x = [ { frequency = 2500.0, damping = 0.04, "
+             "stiffness = 5.0e7 } ], y = [] }\n")
+    scenario = load_scenario(write_part(tmp_path, modes, program=TWO_TOOLS, tools=TWO_LENGTHS), fmu_dir)
+    part = scenario.part
+    assert [c.tool.number for c in part.cutting_tools] == [1, 2] and part.warnings == ()
+    assert [c.length for c in part.cutting_tools] == pytest.approx([0.008, 0.0])
+    assert part.program_zero == pytest.approx((0.0, 0.0, 0.042))
+    assert part.later_tools[0].modes_x[0].frequency == 2500.0 and part.later_tools[0].modes_y == ()
+    assert scenario.instance("workpiece").parameters["tool_length"] == pytest.approx(0.008)
+    changes = {c.equals: c.table()["set"] for c in scenario.on_change}
+    assert [c.output for c in scenario.on_change] == [scenario.on_change[0].output] * 2
+    assert str(scenario.on_change[0].output) == "interp.tool_number"
+    assert changes[2]["workpiece.tool_diameter"] == pytest.approx(0.006)
+    assert changes[2]["workpiece.tool_length"] == 0.0 and changes[1]["workpiece.tool_length"] == pytest.approx(0.008)
+    assert changes[2]["force.n_flutes"] == 2 and changes[2]["vibration.n_modes_y"] == 0
+    assert changes[2]["vibration.frequency_x1"] == 2500.0 and changes[1]["force.n_flutes"] == 3
+
+
+def test_a_tool_without_modes_is_named(tmp_path: Path, fmu_dir: Path) -> None:
+    modes = ("[part.tool_modes]\nx = [ { frequency = 1200.0, damping = 0.03, stiffness = 2.0e7 } ]\ny = [ { frequency = "
+             "1300.0, damping = 0.02, stiffness = { value = 30, unit = \"N/um\" } },\n      { frequency = 3000.0, "
+             "damping = 0.05, stiffness = 8.0e7 } ]\n", "[part.tool_modes]\nT1 = { x = [], y = [] }\n")
+    path = write_part(tmp_path, modes, program=TWO_TOOLS)
+    with pytest.raises(ScenarioError) as info:
+        load_scenario(path, fmu_dir)
+    assert str(info.value) == (f"{path}: [part.tool_modes]: no modes for T2, which cuts the part: give x and y "
+                               f"(every tool's modes), or T2 = {{ x = [...], y = [...] }}")
+
+
+def test_each_tool_is_checked_against_its_own_flute_length(tmp_path: Path, fmu_dir: Path) -> None:
+    deep = TWO_TOOLS.replace("G1 Z-1 F300", "G1 Z-8 F300")
+    tools = TWO_LENGTHS.replace("stick_out=20", "stick_out=6")
+    assert _warnings(tmp_path, fmu_dir, deep, tools) == (
+        f"{tmp_path / 'prog.nc'} line 13: T2 cuts 8.000 mm below the stock top, deeper than its flute length "
+        f"6.000 mm",)
+
+
+def test_forcenet_takes_one_tool(tmp_path: Path, fmu_dir: Path) -> None:
+    path = write_part(tmp_path, ("[part]\n", "[part]\nforce_model = \"ForceNet\"\n"), program=TWO_TOOLS)
+    with pytest.raises(ScenarioError) as info:
+        load_scenario(path, fmu_dir)
+    assert str(info.value) == (f"{path}: [part].force_model: \"ForceNet\" learned the forces of one tool; the "
+                               f"program cuts with 2 tools (T1, T2): use \"CuttingForce\", or one part per tool")
 
 
 def test_a_second_tool_that_never_reaches_the_stock_is_accepted(tmp_path: Path, fmu_dir: Path) -> None:
@@ -133,10 +178,10 @@ def test_the_checks_take_milliseconds_on_the_largest_program(tmp_path: Path) -> 
     def fail(message: str) -> None:
         raise AssertionError(message)
 
-    tool = checks.cutting_tool(path, (tools[3],), stock, fail)
-    warnings = checks.check_part(path, tool, stock, 0.035, fail)
+    cutting = checks.cutting_tools(path, (tools[3],), stock, fail)
+    warnings = checks.check_part(path, (tools[3],), [(cutting[0], 0.035)], stock, fail)
     elapsed = time.perf_counter() - start
-    assert tool.number == 4 and warnings == [] and len(path.points) > 1000
+    assert [t.number for t in cutting] == [4] and warnings == [] and len(path.points) > 1000
     assert elapsed < 0.5, elapsed
 
 

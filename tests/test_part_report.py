@@ -213,7 +213,7 @@ def test_process_report_of_a_part_run(part_run: tuple[Part, pd.DataFrame, Path, 
     text = report.html.read_text(encoding="utf-8")
     for section in ("Headline", "Force, torque and power over time", "Tool path: resultant force",
                     "Tool path: chatter indicator", "Machined surface: final Z-map heights",
-                    "Stability lobes and the cutting blocks", "Blocks", "a run warning"):
+                    "Stability lobes of T1 and its cutting blocks", "Blocks", "a run warning"):
         assert section in text, section
     assert "http://" not in text and "https://" not in text and "<script" not in text
     assert set(re.findall(r"src='([a-z]+):", text)) == {"data"} and text.count("src=") == 5

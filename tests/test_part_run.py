@@ -9,6 +9,7 @@ import sys
 from pathlib import Path
 
 import numpy as np
+import pandas as pd
 
 import milling_twin
 from cases.part_case import write_part
@@ -54,3 +55,29 @@ def test_variable_step_agrees_with_the_all_fine_run(tmp_path: Path, fmu_dir: Pat
     assert variable.process_report.removed_volume_zmap is not None
     assert abs(variable.process_report.removed_volume_zmap - variable.process_report.removed_volume) \
         <= 1e-9 * variable.process_report.removed_volume
+
+
+def test_a_two_tool_part_cuts_each_slot_with_its_tool(tmp_path: Path, fmu_dir: Path) -> None:
+    """T1 (D10, corner 0.5 mm, G43 50 mm) slots 2 mm deep through the 50 mm block at y 10; T2 (D6, G43 42 mm) 1 mm
+    deep at y 5, half in T1's slot. The Workpiece removes T1's slot (50 x 10 x 2 mm less the corner fillets) and
+    T2's new 3 mm (50 x 3 x 1): 1144.6 mm3; with T1's diameter it would be 1244.6, with T1's length nothing or a
+    plunge 8 mm deep. The process report gives each block its own tool."""
+    from test_part_checks import TWO_LENGTHS, TWO_TOOLS
+
+    result = milling_twin.simulate(milling_twin.load_scenario(
+        write_part(tmp_path / "part", program=TWO_TOOLS, tools=TWO_LENGTHS), fmu_dir), out=tmp_path / "runs")
+    assert [(e.output, e.value) for e in result.run.events] == [("interp.tool_number", 1), ("interp.tool_number", 2)]
+    frame = result.frame
+    fillets = 2 * (0.5 ** 2 - np.pi * 0.5 ** 2 / 4) * 50           # mm3: T1's corner radius along the slot
+    expected = (50 * 10 * 2 - fillets + 50 * 3 * 1) * 1e-9
+    removed = frame["workpiece.removed_volume"].to_numpy()[-1]
+    assert abs(removed - expected) < 0.01 * expected, (removed, expected)
+    second = frame[(frame["interp.line_number"] == 13) & (frame["interp.x_program"].between(0.01, 0.04))]
+    assert len(second) > 100 and np.allclose(second["workpiece.axial_depth"], 0.001, atol=1e-4)
+    assert np.allclose(second["workpiece.radial_depth"], 0.003, atol=6e-4)  # the 3 mm T1 left
+    blocks = result.process_report
+    assert blocks is not None
+    table = pd.read_parquet(blocks.blocks_parquet)
+    assert set(table.loc[table["axial_depth_max"] > 0, "tool"]) == {1, 2}
+    html = blocks.html.read_text(encoding="utf-8")
+    assert "Stability lobes of T1 and its cutting blocks" in html and "Stability lobes of T2" in html

@@ -14,14 +14,14 @@ sample the tool, of the radius its tool table entry gives, is
 Errors (:class:`ScenarioError`, naming the scenario file, the key and the program file and line):
 
 - the program selects a tool the tool table does not hold (the parser's refusal, naming the line and T);
-- the program cuts (is in the stock) with more than one tool: the Workpiece and the force model take one tool's
-  geometry per run, so a program with a tool change is split into one part scenario per tool;
 - it cuts with no tool selected (no ``T.. M6``) while the tool table holds more than one tool;
 - the tip goes below the stock bottom while over the stock (the depth below the bottom, mm);
-- the program zero moves between cutting moves (another work offset, G52 or G43 tool length): the Workpiece is fed
-  the machine position, continuous through such changes, and holds the stock at the program zero of the cut.
+- the program zero moves between cutting moves other than by the tools' G43 lengths (another work offset or G52;
+  one tool at two lengths): the Workpiece is fed the machine position, continuous through such changes, and holds
+  the stock at the program zero of the cut; each tool's length is its tip's distance below that position.
 
-Warnings (logged on the logger ``milling_twin.part`` and returned, so a run summary or report can list them):
+Warnings (logged on the logger ``milling_twin.part`` and returned, so a run summary or report can list them), for
+each tool that cuts where it is in the spindle:
 
 - no feed move is ever in the stock (the stock is never touched: wrong origin, or a program for another setup);
 - the tip goes deeper below the stock top than the tool's flute length while over the stock (line and tool);
@@ -134,10 +134,11 @@ def _radii(numbers: np.ndarray, tools: Sequence[Tool]) -> np.ndarray:
     return np.array([table.get(int(n), 0.0) for n in numbers], dtype=float)
 
 
-def cutting_tool(path: FeedPath, tools: Sequence[Tool], stock: Stock,
-                 fail: Callable[[str], NoReturn]) -> Tool:
-    """The one tool the program cuts the stock with. ``fail(message)`` raises the caller's error when it cuts
-    with more than one, with none selected among several, or has no tool to cut with at all."""
+def cutting_tools(path: FeedPath, tools: Sequence[Tool], stock: Stock,
+                  fail: Callable[[str], NoReturn]) -> list[Tool]:
+    """The tools the program cuts the stock with, in the order of their first cut. ``fail(message)`` raises the
+    caller's error when it cuts with none selected among several, or has no tool to cut with at all. A program that
+    never reaches the stock (a warning of check_part) gives the first tool a feed move runs with."""
     if not tools:
         fail("the tool table holds no tool")
     numbers = _effective_tools(path, tools)
@@ -145,76 +146,95 @@ def cutting_tool(path: FeedPath, tools: Sequence[Tool], stock: Stock,
     cutting = numbers[inside]
     lines = path.lines[inside]
     used = list(dict.fromkeys(int(n) for n in cutting))
-    if not used:  # the stock is never touched (a warning of check_part): the first tool a feed move runs with
+    if not used:
         selected = [n for n in path.selected if n != 0]
         if selected:
-            return find_tool(tools, selected[0]) or tools[0]
+            return [find_tool(tools, selected[0]) or tools[0]]
         if len(tools) == 1:
-            return tools[0]
+            return [tools[0]]
         fail(f"{path.file}: no feed move reaches the stock and the program selects no tool (T.. M6), while the "
              f"tool table holds {len(tools)} tools: the part's tool is unknown")
-    first_line = {n: int(lines[np.argmax(cutting == n)]) for n in used}
     if 0 in used:
-        fail(f"{path.file} line {first_line[0]}: cuts the stock with no tool selected (no T.. M6 before it) while "
-             f"the tool table holds {len(tools)} tools: select the tool with T<n> M6")
-    if len(used) > 1:
-        listing = " and ".join(f"T{n} (from line {first_line[n]})" for n in used)
-        fail(f"{path.file}: the program cuts the stock with {len(used)} tools, {listing}; the Workpiece and the "
-             f"force model take one tool's geometry per run: split the program into one part per tool")
-    tool = find_tool(tools, used[0])
-    assert tool is not None  # the parser refuses a T the table does not hold
-    return tool
+        line = int(lines[np.argmax(cutting == 0)])
+        fail(f"{path.file} line {line}: cuts the stock with no tool selected (no T.. M6 before it) while the tool "
+             f"table holds {len(tools)} tools: select the tool with T<n> M6")
+    found = [find_tool(tools, n) for n in used]
+    assert all(t is not None for t in found)  # the parser refuses a T the table does not hold
+    return found  # type: ignore[return-value]
 
 
-def cutting_offset(path: FeedPath, tool: Tool, stock: Stock,
-                   fail: Callable[[str], NoReturn]) -> tuple[float, float, float]:
-    """The machine position of the program zero while the tool cuts the stock (work offset, G52 and the G43 tool
-    length: the Workpiece, fed with the machine position, holds the stock there); the first feed move's without a
-    cut; ``fail(message)`` when the cutting moves have two (the stock would have to move)."""
+def _cut_by(path: FeedPath, tools: Sequence[Tool], tool: Tool, stock: Stock) -> np.ndarray:
+    """Per sample: ``tool`` is in the spindle and in the stock."""
+    mine = _effective_tools(path, tools) == tool.number
+    return mine & _over(path, stock, 0.5 * tool.diameter) & (path.points[:, 2] < stock.top - TOLERANCE)
+
+
+def cutting_offsets(path: FeedPath, tools: Sequence[Tool], cutting: Sequence[Tool], stock: Stock,
+                    fail: Callable[[str], NoReturn]) -> list[tuple[float, float, float]]:
+    """For each tool of ``cutting``: the machine position of the program zero while it cuts the stock (work offset,
+    G52 and its G43 tool length: the Workpiece, fed with the machine position, holds the stock there); the first
+    feed move's when nothing cuts. ``fail(message)`` when the cuts have two zeros other than by the tools' lengths
+    (the stock would have to move): one tool at two zeros, or two tools at two x-y positions of it."""
     if not len(path.points):
-        return (0.0, 0.0, 0.0)
-    inside = _over(path, stock, 0.5 * tool.diameter) & (path.points[:, 2] < stock.top - TOLERANCE)
-    offsets = path.offsets[inside] if inside.any() else path.offsets[:1]
-    lines = path.lines[inside] if inside.any() else path.lines[:1]
-    differ = np.any(np.abs(offsets - offsets[0]) > TOLERANCE, axis=1)
-    if differ.any():
-        other = int(np.argmax(differ))
-        fail(f"{path.file} lines {int(lines[0])} and {int(lines[other])}: the program cuts the stock with two "
-             f"positions of its zero, x y z = {' '.join(_mm(v) for v in offsets[0])} and "
-             f"{' '.join(_mm(v) for v in offsets[other])} mm in machine coordinates (work offset G54..G59, G52, "
-             f"G43 tool length): the stock is placed with one")
-    return tuple(float(v) for v in offsets[0])  # type: ignore[return-value]
+        return [(0.0, 0.0, 0.0) for _ in cutting]
+    zeros: list[tuple[float, float, float]] = []
+    first_line = 0
+    for tool in cutting:
+        inside = _cut_by(path, tools, tool, stock)
+        offsets = path.offsets[inside] if inside.any() else path.offsets[:1]
+        lines = path.lines[inside] if inside.any() else path.lines[:1]
+        differ = np.any(np.abs(offsets - offsets[0]) > TOLERANCE, axis=1)
+        if differ.any():
+            _two_zeros(path, int(lines[0]), int(lines[int(np.argmax(differ))]), offsets[0],
+                       offsets[int(np.argmax(differ))], fail)
+        if zeros and np.any(np.abs(offsets[0][:2] - np.asarray(zeros[0][:2])) > TOLERANCE):
+            _two_zeros(path, first_line, int(lines[0]), np.asarray(zeros[0]), offsets[0], fail)
+        if not zeros:
+            first_line = int(lines[0])
+        zeros.append(tuple(float(v) for v in offsets[0]))  # type: ignore[arg-type]
+    return zeros
 
 
-def check_part(path: FeedPath, tool: Tool, stock: Stock, flute_length: float,
+def _two_zeros(path: FeedPath, line_a: int, line_b: int, a: np.ndarray, b: np.ndarray,
+               fail: Callable[[str], NoReturn]) -> NoReturn:
+    fail(f"{path.file} lines {line_a} and {line_b}: the program cuts the stock with two positions of its zero, "
+         f"x y z = {' '.join(_mm(v) for v in a)} and {' '.join(_mm(v) for v in b)} mm in machine coordinates (work "
+         f"offset G54..G59, G52, G43 tool length): the stock is placed with one")
+
+
+def check_part(path: FeedPath, tools: Sequence[Tool], cutting: Sequence[tuple[Tool, float]], stock: Stock,
                fail: Callable[[str], NoReturn]) -> list[str]:
-    """The checks of the module's docstring for the program's one tool; returns (and logs) the warnings,
-    ``fail(message)`` raises the caller's error."""
+    """The checks of the module's docstring for each tool of ``cutting`` (the tool and its flute length) where it is
+    in the spindle; returns (and logs) the warnings, ``fail(message)`` raises the caller's error."""
     z = path.points[:, 2]
-    over = _over(path, stock, 0.5 * tool.diameter)
-    inside = over & (z < stock.top - TOLERANCE)
+    numbers = _effective_tools(path, tools)
     warnings: list[str] = []
-    if not inside.any():
+    if not any(_cut_by(path, tools, tool, stock).any() for tool, _ in cutting):
         warnings.append(f"{path.file}: no feed move reaches the stock (x {_mm(stock.origin[0])} .. "
                         f"{_mm(stock.origin[0] + stock.size[0])}, y {_mm(stock.origin[1])} .. "
                         f"{_mm(stock.origin[1] + stock.size[1])}, z {_mm(stock.origin[2])} .. {_mm(stock.top)} mm): "
                         f"the program never cuts it")
     bottom = stock.origin[2]
-    below = over & (z < bottom - TOLERANCE)
-    if below.any():
-        k = int(np.argmax(below))
-        line = int(path.lines[k])
-        lowest = float(z[below & (path.lines == line)].min())
-        fail(f"{path.file} line {line}: the tool tip goes down to z = {_mm(lowest)} mm over the stock, "
-             f"{_mm(bottom - lowest)} mm below the stock bottom (z = {_mm(bottom)} mm)")
-    deep = over & (stock.top - z > flute_length + TOLERANCE)
-    if deep.any():
-        deep_lines = list(dict.fromkeys(int(n) for n in path.lines[deep]))
-        depth = stock.top - float(z[deep].min())
-        more = f" (and {len(deep_lines) - 1} more lines)" if len(deep_lines) > 1 else ""
-        warnings.append(f"{path.file} line {deep_lines[0]}{more}: T{tool.number} cuts {_mm(depth)} mm below the "
-                        f"stock top, deeper than its flute length {_mm(flute_length)} mm")
-    stopped = inside & ~path.spindle_on
+    stopped = np.zeros(len(z), dtype=bool)
+    for tool, flute_length in cutting:
+        # a single tool's checks cover every sample (as the run does: the Workpiece has its geometry throughout)
+        mine = numbers == tool.number if len(cutting) > 1 else np.ones(len(z), dtype=bool)
+        over = mine & _over(path, stock, 0.5 * tool.diameter)
+        below = over & (z < bottom - TOLERANCE)
+        if below.any():
+            k = int(np.argmax(below))
+            line = int(path.lines[k])
+            lowest = float(z[below & (path.lines == line)].min())
+            fail(f"{path.file} line {line}: the tool tip goes down to z = {_mm(lowest)} mm over the stock, "
+                 f"{_mm(bottom - lowest)} mm below the stock bottom (z = {_mm(bottom)} mm)")
+        deep = over & (stock.top - z > flute_length + TOLERANCE)
+        if deep.any():
+            deep_lines = list(dict.fromkeys(int(n) for n in path.lines[deep]))
+            depth = stock.top - float(z[deep].min())
+            more = f" (and {len(deep_lines) - 1} more lines)" if len(deep_lines) > 1 else ""
+            warnings.append(f"{path.file} line {deep_lines[0]}{more}: T{tool.number} cuts {_mm(depth)} mm below "
+                            f"the stock top, deeper than its flute length {_mm(flute_length)} mm")
+        stopped |= over & (z < stock.top - TOLERANCE) & ~path.spindle_on
     if stopped.any():
         stopped_lines = list(dict.fromkeys(int(n) for n in path.lines[stopped]))
         more = f" (and {len(stopped_lines) - 1} more lines)" if len(stopped_lines) > 1 else ""

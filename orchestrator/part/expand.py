@@ -20,7 +20,8 @@ from typing import Any
 import tomli_w
 
 from milling_twin.orchestrator.gcode.program_summary import summarize
-from milling_twin.orchestrator.part.model import FORCE, INTERPOLATOR, POWER, VIBRATION, WORKPIECE, Part
+from milling_twin.orchestrator.part.model import (FORCE, INTERPOLATOR, POWER, VIBRATION, WORKPIECE, CutTool,
+                                                   Part)
 from milling_twin.orchestrator.part.spec import read_part
 from milling_twin.orchestrator.scenario import (ScenarioError, Variable, _Ctx, _load_fmu, _parameters, _variables,
                                                 on_change_toml)
@@ -70,6 +71,9 @@ def expand_document(ctx: TomlAccess, doc: dict[str, Any], fmu_dir: Path) -> tupl
         ctx.fail("[part].cutting_power", f"\"force\" needs SpindlePower's input cutting_power, which the FMU in "
                                          f"{fmu_dir} does not have (built before it was added): rebuild the FMUs, "
                                          f"or use cutting_power = \"mrr\"")
+    if len(part.cutting_tools) > 1 and "tool_length" not in variables[WORKPIECE]:
+        ctx.fail("[part].program", f"the program cuts with {len(part.cutting_tools)} tools, and the Workpiece FMU in "
+                                   f"{fmu_dir} has no tool_length (built before tool changes): rebuild the FMUs")
     scenario = dict(ctx.table(doc.get("scenario"), "[scenario]", (
         "name", "description", "start_time", "stop_time", "output_interval", "parameter_sets")))
     scenario.setdefault("output_interval", DEFAULT_OUTPUT_INTERVAL)
@@ -123,24 +127,22 @@ def explicit_scenario(part: Part, variables: Mapping[str, Mapping[str, Variable]
         **({"tool_table": {"path": str(part.tool_table)}} if part.tool_table else {}), **part.machine}
     # the Workpiece follows the machine position: the stock (program coordinates) at the program zero of the cut
     x0, y0, z0 = (o + zero for o, zero in zip(part.stock.origin, part.program_zero))
+    cutting = part.cutting_tools
+    several = len(cutting) > 1
     workpiece: dict[str, Any] = {
         "stock_x_min": x0, "stock_y_min": y0, "stock_z_min": z0,
         "stock_length": part.stock.size[0], "stock_width": part.stock.size[1], "stock_height": part.stock.size[2],
-        "resolution": part.stock.resolution, "tool_diameter": tool.diameter, "corner_radius": tool.corner_radius,
-        "flute_count": tool.flutes, "helix_angle": tool.helix, "flute_length": part.flute_length}
+        "resolution": part.stock.resolution, **_workpiece_tool(cutting[0], several),
+        "flute_count": tool.flutes, "helix_angle": tool.helix}
     if "clearance_range" in has[WORKPIECE]:
         workpiece["clearance_range"] = CLEARANCE_MARGIN * part.lookahead
     fastest = max(part.machine.get("rapid_feed", 0.0), part.machine.get("max_feed", 0.0))
     if fastest * 1.5 > 2.0:  # the Workpiece's default max_tool_speed (2 m/s) refuses faster jumps
         workpiece["max_tool_speed"] = 1.5 * fastest
-    force: dict[str, Any] = {"n_flutes": tool.flutes, "tool_diameter": tool.diameter, "helix_angle": tool.helix}
+    force: dict[str, Any] = _force_tool(cutting[0])
     if part.force_model == "CuttingForce":
         force.update(part.material.coefficients)
-    vibration: dict[str, Any] = {"n_modes_x": len(part.modes_x), "n_modes_y": len(part.modes_y)}
-    for axis, modes in (("x", part.modes_x), ("y", part.modes_y)):
-        for i, mode in enumerate(modes, start=1):
-            vibration.update({f"frequency_{axis}{i}": mode.frequency, f"damping_{axis}{i}": mode.damping,
-                              f"stiffness_{axis}{i}": mode.stiffness})
+    vibration = _vibration_tool(cutting[0])
     power: dict[str, Any] = dict(part.spindle)
     from_force = part.cutting_power == "force"
     if "cutting_power_from_force" in has[POWER]:
@@ -178,12 +180,38 @@ def explicit_scenario(part: Part, variables: Mapping[str, Mapping[str, Variable]
     doc: dict[str, Any] = {"scenario": dict(scenario), "fmus": fmus, "connections": connections,
                            "stepping": {"coarse_step": part.coarse_step, "variable": [FORCE, VIBRATION],
                                         "fine_when": fine_when}}
+    if several:  # the tool change: the next tool's geometry and modes from the communication point it shows
+        doc["on_change"] = [{"output": f"{INTERPOLATOR}.tool_number", "equals": c.tool.number, "set": {
+            **{f"{WORKPIECE}.{k}": v for k, v in _workpiece_tool(c, True).items()},
+            **{f"{FORCE}.{k}": v for k, v in _force_tool(c).items()},
+            **{f"{VIBRATION}.{k}": v for k, v in _vibration_tool(c).items()}}} for c in cutting]
     for name in ("recorded", "inputs", "compare", "alignment"):
         if name in beside:
             doc[name] = copy.deepcopy(beside[name])
     doc["outputs"] = copy.deepcopy(beside["outputs"]) if "outputs" in beside else {"record": [
         f"{inst}.{v}" for inst, names in RECORD.items() for v in names if v in has[inst]]}
     return doc
+
+
+def _workpiece_tool(c: CutTool, with_length: bool) -> dict[str, Any]:
+    """The Workpiece's parameters of one tool (tool_length only where the part has several: older FMUs lack it)."""
+    values = {"tool_diameter": c.tool.diameter, "corner_radius": c.tool.corner_radius, "flute_length": c.flute_length}
+    return {**values, "tool_length": c.length} if with_length else values
+
+
+def _force_tool(c: CutTool) -> dict[str, Any]:
+    return {"n_flutes": c.tool.flutes, "tool_diameter": c.tool.diameter, "helix_angle": c.tool.helix}
+
+
+def _vibration_tool(c: CutTool) -> dict[str, Any]:
+    """ToolVibration's modes of one tool; with tool changes the unused modes of a direction are switched off by
+    n_modes (their values stay those of the tool that had them)."""
+    vibration: dict[str, Any] = {"n_modes_x": len(c.modes_x), "n_modes_y": len(c.modes_y)}
+    for axis, modes in (("x", c.modes_x), ("y", c.modes_y)):
+        for i, mode in enumerate(modes, start=1):
+            vibration.update({f"frequency_{axis}{i}": mode.frequency, f"damping_{axis}{i}": mode.damping,
+                              f"stiffness_{axis}{i}": mode.stiffness})
+    return vibration
 
 
 def _instance(model: str, step: float, parameters: dict[str, Any], inputs: dict[str, Any] | None = None) -> dict:

@@ -24,7 +24,7 @@ from milling_twin.models.units import conversion_factor
 from milling_twin.orchestrator.part import chatter, plots
 from milling_twin.orchestrator.part.blocks import (BY_NAME, COLUMNS, BlockColumn, Signals, block_spans, block_table,
                                                    programmed_feeds, write_block_table)
-from milling_twin.orchestrator.part.model import FORCE, INTERPOLATOR, POWER, WORKPIECE, Part
+from milling_twin.orchestrator.part.model import FORCE, INTERPOLATOR, POWER, WORKPIECE, CutTool, Part
 from milling_twin.orchestrator.part.surface import (ZMapGrid, analytic_volumes, load_zmap, surface_location_errors,
                                                     write_stl)
 
@@ -205,13 +205,18 @@ def write_process_report(part: Part, frame: pd.DataFrame, run_dir: Path, *, zmap
     table = block_table(signals, spans, feeds)
     lap("blocks")
 
-    n_flutes = int(part.tool.flutes)
+    # each block's tool: its flutes (tooth passing), diameter (analytic volumes), modes (lobes)
+    cutting = part.cutting_tools
+    block_tool = [part.cutting_tool(int(n)) or cutting[0] for n in table["tool"].to_numpy()] if len(cutting) > 1 \
+        else [cutting[0]] * len(table)
+    flutes = np.array([int(c.tool.flutes) for c in block_tool], dtype=np.int64)
     in_cut = signals.in_cut()
     dx, dy = signals.deflection()
-    if n_flutes < 1:
-        notes.append(f"tool T{part.tool.number} has no flute count (tool table): no chatter indicator and no surface "
-                     "location error")
-    elif np.isnan(dx).all():
+    for c in cutting:
+        if c.tool.flutes < 1:
+            notes.append(f"tool T{c.tool.number} has no flute count (tool table): no chatter indicator and no "
+                         "surface location error")
+    if np.isnan(dx).all():
         notes.append("vibration.tip_displacement_x/y not recorded: no chatter indicator, deflection or surface "
                      "location error")
     else:
@@ -221,15 +226,24 @@ def write_process_report(part: Part, frame: pd.DataFrame, run_dir: Path, *, zmap
         for b, (a, c) in enumerate(zip(spans.starts, spans.stops)):
             if in_cut[a:c].sum() < chatter.MIN_SAMPLES:
                 continue
-            result = chatter.analyse(t[a:c], dx[a:c], dy[a:c], in_cut[a:c], speeds[b], n_flutes)
+            if flutes[b] < 1:
+                continue
+            result = chatter.analyse(t[a:c], dx[a:c], dy[a:c], in_cut[a:c], speeds[b], int(flutes[b]))
             indicator[b], growth[b] = result.indicator, result.growth
         table["chatter_indicator"], table["chatter_growth"] = indicator, growth
         table["chatter"] = table["chatter_indicator"].to_numpy() > chatter.CHATTER_THRESHOLD
     lap("chatter")
-    if n_flutes >= 1:
-        sle_mean, sle_max, _ = surface_location_errors(signals, spans, n_flutes, part.coarse_step)
+    sle_mean, sle_max = np.full(len(table), np.nan), np.full(len(table), np.nan)
+    analytic, removed_window = np.full(len(table), np.nan), np.full(len(table), np.nan)
+    for c in cutting:  # each tool's figures for its own blocks
+        mine = np.array([b is c for b in block_tool], dtype=bool) if len(cutting) > 1 else np.ones(len(table), bool)
+        if c.tool.flutes >= 1:
+            tool_mean, tool_max, _ = surface_location_errors(signals, spans, int(c.tool.flutes), part.coarse_step)
+            sle_mean[mine], sle_max[mine] = tool_mean[mine], tool_max[mine]
+        tool_analytic, tool_removed = analytic_volumes(signals, spans, c.tool.diameter, part.stock.resolution)
+        analytic[mine], removed_window[mine] = tool_analytic[mine], tool_removed[mine]
+    if (flutes >= 1).any():
         table["sle_mean"], table["sle_max"] = sle_mean, sle_max
-    analytic, removed_window = analytic_volumes(signals, spans, part.tool.diameter, part.stock.resolution)
     table["analytic_volume"] = analytic
     with np.errstate(invalid="ignore", divide="ignore"):
         table["volume_ratio"] = removed_window / analytic
@@ -318,6 +332,10 @@ def write_process_report(part: Part, frame: pd.DataFrame, run_dir: Path, *, zmap
                             "time bin)."))
     # in the program's coordinates, where the part gives the stock: machine position - program zero
     x_mm, y_mm, z_mm = ((signals[f"{INTERPOLATOR}.{a}"] - zero) * 1e3 for a, zero in zip("xyz", part.program_zero))
+    if len(cutting) > 1 and signals.has(f"{INTERPOLATOR}.tool_number"):  # each tool's tip: its own length
+        lengths = {c.tool.number: c.length for c in cutting}
+        number = np.nan_to_num(signals[f"{INTERPOLATOR}.tool_number"]).astype(np.int64)
+        z_mm = z_mm - np.array([lengths.get(int(n), 0.0) for n in number]) * 1e3
     if signals.has(f"{INTERPOLATOR}.rapid"):
         rapid = np.nan_to_num(signals[f"{INTERPOLATOR}.rapid"]) > 0.5
     else:
@@ -346,23 +364,26 @@ def write_process_report(part: Part, frame: pd.DataFrame, run_dir: Path, *, zmap
                             f"{stl_path.name if stl_path else ''} "
                             f"({triangles} triangles, mm)."))
     ktc, krc = part.material.coefficients.get("Ktc"), part.material.coefficients.get("Krc")
-    if (part.modes_x or part.modes_y) and ktc and krc is not None and n_flutes >= 1:
-        lobes = stability_lobes(tuple(part.modes_x), tuple(part.modes_y), ktc, krc, n_flutes)
-        cutting = table["axial_depth_max"].to_numpy() > 0
+    for c in cutting:
+        if not ((c.modes_x or c.modes_y) and ktc and krc is not None and c.tool.flutes >= 1):
+            notes.append(f"no stability lobes of T{c.tool.number}: no modes, or the material no Ktc/Krc, or the tool "
+                         f"no flutes")
+            continue
+        lobes = stability_lobes(tuple(c.modes_x), tuple(c.modes_y), ktc, krc, int(c.tool.flutes))
+        mine = np.array([b is c for b in block_tool], dtype=bool) if len(cutting) > 1 else np.ones(len(table), bool)
+        cuts = (table["axial_depth_max"].to_numpy() > 0) & mine
         rpm = np.abs(table["spindle_speed"].to_numpy()) * BY_NAME["spindle_speed"].factor
-        depth_mm = table["axial_depth_max"].to_numpy()[cutting] * 1e3
-        indicators = table["chatter_indicator"].to_numpy()[cutting]
-        title = f"Stability lobes of T{part.tool.number} in {part.material.name} (slotting)"
-        names = [f"L{line}" for line in table["line"].to_numpy()[cutting]]
-        png = plots.lobes_png(lobes, rpm[cutting], depth_mm, indicators, chatter.CHATTER_THRESHOLD, title, names)
+        depth_mm = table["axial_depth_max"].to_numpy()[cuts] * 1e3
+        indicators = table["chatter_indicator"].to_numpy()[cuts]
+        title = f"Stability lobes of T{c.tool.number} in {part.material.name} (slotting)"
+        names = [f"L{line}" for line in table["line"].to_numpy()[cuts]]
+        png = plots.lobes_png(lobes, rpm[cuts], depth_mm, indicators, chatter.CHATTER_THRESHOLD, title, names)
         figures.append(_img(png,
-                            "Stability lobes and the cutting blocks",
-                            "Zero-order (Altintas-Budak) limit for full immersion (slotting) from the part's modes "
-                            "and the material's Ktc, Krc; each cutting block at its spindle speed and largest axial "
-                            "depth, coloured by its chatter indicator (hollow: no indicator). A block cutting at "
-                            "partial immersion has its own, different limit."))
-    else:
-        notes.append("no stability lobes: the part has no modes, or the material no Ktc/Krc, or the tool no flutes")
+                            f"Stability lobes of T{c.tool.number} and its cutting blocks",
+                            "Zero-order (Altintas-Budak) limit for full immersion (slotting) from the tool's modes "
+                            "and the material's Ktc, Krc; each cutting block of the tool at its spindle speed and "
+                            "largest axial depth, coloured by its chatter indicator (hollow: no indicator). A block "
+                            "cutting at partial immersion has its own, different limit."))
     lap("figures")
 
     # comparisons with recordings
@@ -392,8 +413,7 @@ def write_process_report(part: Part, frame: pd.DataFrame, run_dir: Path, *, zmap
     parts = [f"<!DOCTYPE html><html lang='en'><head><meta charset='utf-8'><title>{html.escape(title)}</title>"
              f"<style>{STYLE}</style></head><body><h1>{html.escape(title)}</h1>",
              f"<p class='note'>Program <code>{html.escape(str(part.program))}</code> ({html.escape(part.dialect)}), "
-             f"tool T{part.tool.number} {html.escape(part.tool.name)} D {part.tool.diameter * 1e3:.4g} mm, "
-             f"{n_flutes} flutes; material {html.escape(part.material.name)}; stock "
+             f"{_tools_text(cutting)}; material {html.escape(part.material.name)}; stock "
              f"{' x '.join(f'{s * 1e3:.4g}' for s in part.stock.size)} mm, Z-map cell "
              f"{part.stock.resolution * 1e3:.3g} mm; force model {html.escape(part.force_model)}.</p>",
              "<h2>Headline</h2><div class='summary'><table>"
@@ -417,3 +437,10 @@ def write_process_report(part: Part, frame: pd.DataFrame, run_dir: Path, *, zmap
                               "description": c.description} for c in COLUMNS]}
     result.json.write_text(json.dumps(jsonable(doc), indent=2), encoding="utf-8")
     return result
+
+
+def _tools_text(cutting: Sequence[CutTool]) -> str:
+    """The cutting tools for the report's first line (HTML)."""
+    text = ", ".join(f"T{c.tool.number} {html.escape(c.tool.name)} D {c.tool.diameter * 1e3:.4g} mm, "
+                     f"{int(c.tool.flutes)} flutes" for c in cutting)
+    return f"tool {text}" if len(cutting) == 1 else f"tools {text}"

@@ -2,7 +2,7 @@
 
 Every value is a number in SI units or ``{ value = ..., unit = "..." }`` (``models/units.py``), like the rest of
 a scenario; every mistake is a :class:`ScenarioError` naming the scenario file and the key. The format is in
-``docs/part.md``. The program is parsed here as the Interpolator parses it (to find the one tool it cuts with)
+``docs/part.md``. The program is parsed here as the Interpolator parses it (to find the tools it cuts with)
 and checked against the stock and the tool (``orchestrator/part/checks.py``) before anything runs.
 """
 from __future__ import annotations
@@ -20,7 +20,7 @@ from milling_twin.models.materials import COEFFICIENTS, MATERIALS
 from milling_twin.models.stability import Mode
 from milling_twin.models.units import UnitError, conversion_factor
 from milling_twin.orchestrator.part import checks
-from milling_twin.orchestrator.part.model import Material, Part, Stock
+from milling_twin.orchestrator.part.model import CutTool, Material, Part, Stock
 from milling_twin.orchestrator.scenario import Variable, _parameters
 from milling_twin.orchestrator.toml_access import TomlAccess
 
@@ -111,8 +111,8 @@ def _material(ctx: TomlAccess, raw: Any) -> Material:
     return Material(ctx.string(table, key, "name", "custom"), coefficients, ctx.string(table, key, "source", ""))
 
 
-def _modes(ctx: TomlAccess, table: Mapping, axis: str) -> tuple[Mode, ...]:
-    key = f"[part.tool_modes].{axis}"
+def _modes(ctx: TomlAccess, table: Mapping, axis: str, key: str = "[part.tool_modes]") -> tuple[Mode, ...]:
+    key = f"{key}.{axis}"
     items = table.get(axis)
     if not isinstance(items, list) or len(items) > MAX_MODES:
         ctx.fail(key, f"expected a list of at most {MAX_MODES} modes "
@@ -170,8 +170,8 @@ def read_part(ctx: TomlAccess, raw: Any, variables: Mapping[str, Mapping[str, Va
     spindle = _named(ctx, table.get("spindle"), "[part.spindle]", variables["SpindlePower"], "SpindlePower",
                      _SPINDLE_OWN)
 
-    modes_table = ctx.table(table.get("tool_modes"), "[part.tool_modes]", ("x", "y"))
-    modes_x, modes_y = _modes(ctx, modes_table, "x"), _modes(ctx, modes_table, "y")
+    modes_table = ctx.table(table.get("tool_modes"), "[part.tool_modes]",
+                            ("x", "y", *(f"T{t.number}" for t in tools)))
 
     step_table = ctx.table(table.get("stepping", {}), "[part.stepping]", ("fine_step", "coarse_step", "lookahead"))
     period = float(machine.get("period", default_parameters()["period"]))
@@ -197,24 +197,48 @@ def read_part(ctx: TomlAccess, raw: Any, variables: Mapping[str, Mapping[str, Va
     def fail(message: str) -> NoReturn:
         ctx.fail("[part].program", message)
 
-    tool = checks.cutting_tool(path, tools, stock, fail)
-    _tool_geometry(ctx, tool, tool_table)
-    zero = checks.cutting_offset(path, tool, stock, fail)
-    flute_length = quantity(ctx, table, "[part]", "flute_length", "m", tool.stick_out)
-    if flute_length <= 0.0:
-        ctx.fail("[part].flute_length", f"T{tool.number} of {tool_table} gives no stick_out= (the flute length of "
-                                        f"the Workpiece and the depth check): add stick_out=<mm> to its comment "
-                                        f"or set [part].flute_length")
-    warnings = checks.check_part(path, tool, stock, flute_length, fail)
+    cutting = checks.cutting_tools(path, tools, stock, fail)
+    if force_model == "ForceNet" and len(cutting) > 1:
+        ctx.fail("[part].force_model", f"\"ForceNet\" learned the forces of one tool; the program cuts with "
+                                       f"{len(cutting)} tools ({', '.join(f'T{t.number}' for t in cutting)}): use "
+                                       f"\"CuttingForce\", or one part per tool")
+    zeros = checks.cutting_offsets(path, tools, cutting, stock, fail)
+    base = min(z[2] for z in zeros)  # the lowest zero: every tool's length above it is >= 0
+    cut_tools = []
+    for tool, zero in zip(cutting, zeros):
+        _tool_geometry(ctx, tool, tool_table)
+        flute_length = quantity(ctx, table, "[part]", "flute_length", "m", tool.stick_out)
+        if flute_length <= 0.0:
+            ctx.fail("[part].flute_length", f"T{tool.number} of {tool_table} gives no stick_out= (the flute length "
+                                            f"of the Workpiece and the depth check): add stick_out=<mm> to its "
+                                            f"comment or set [part].flute_length")
+        modes_x, modes_y = _tool_modes(ctx, modes_table, tool)
+        cut_tools.append(CutTool(tool, modes_x, modes_y, flute_length, zero[2] - base))
+    warnings = checks.check_part(path, tools, [(c.tool, c.flute_length) for c in cut_tools], stock, fail)
+    first = cut_tools[0]
     if force_model == "ForceNet" and material.name != FORCENET_MATERIAL:
         warnings.append(f"[part].material: ForceNet learned the forces of {FORCENET_MATERIAL}; the material "
                         f"{material.name!r} is not used by it (use force_model = \"CuttingForce\")")
         _log.warning("%s", warnings[-1])
-    return Part(program=program, dialect=dialect, tool_table=tool_table, tool=tool, stock=stock, material=material,
-                modes_x=modes_x, modes_y=modes_y, force_model=force_model, cutting_power=cutting_power,
-                fine_step=fine, coarse_step=coarse, lookahead=lookahead, machine=machine, spindle=spindle,
-                feed_override=feed_override, flute_length=flute_length, program_zero=zero, warnings=tuple(warnings),
-                tools=tuple(tools))
+    return Part(program=program, dialect=dialect, tool_table=tool_table, tool=first.tool, stock=stock,
+                material=material, modes_x=first.modes_x, modes_y=first.modes_y, force_model=force_model,
+                cutting_power=cutting_power, fine_step=fine, coarse_step=coarse, lookahead=lookahead, machine=machine,
+                spindle=spindle, feed_override=feed_override, flute_length=first.flute_length,
+                program_zero=(zeros[0][0], zeros[0][1], base), warnings=tuple(warnings), tools=tuple(tools),
+                tool_length=first.length, later_tools=tuple(cut_tools[1:]))
+
+
+def _tool_modes(ctx: TomlAccess, table: Mapping, tool: Tool) -> tuple[tuple[Mode, ...], tuple[Mode, ...]]:
+    """The tip modes of ``tool``: ``[part.tool_modes].T<n>`` (x and y) when given, else ``x`` and ``y``."""
+    own = f"T{tool.number}"
+    if own in table:
+        key = f"[part.tool_modes.{own}]"
+        modes = ctx.table(table[own], key, ("x", "y"))
+        return _modes(ctx, modes, "x", key), _modes(ctx, modes, "y", key)
+    if "x" not in table and "y" not in table:
+        ctx.fail("[part.tool_modes]", f"no modes for T{tool.number}, which cuts the part: give x and y (every tool's "
+                                      f"modes), or {own} = {{ x = [...], y = [...] }}")
+    return _modes(ctx, table, "x"), _modes(ctx, table, "y")
 
 
 def _tool_geometry(ctx: TomlAccess, tool: Tool, tool_table: Path) -> None:

@@ -144,6 +144,20 @@ def test_chatter_indicator_of_a_growing_mode_is_large() -> None:
     assert math.isnan(short.indicator)
 
 
+def test_a_dying_mode_vibration_is_no_chatter() -> None:
+    """The free vibration after the flutes leave a cut: at the mode's frequency (a high indicator) but dying out
+    (by e^-6 over the 0.2 s; the fitted rate is lower, the harmonics being in the RMS); the same vibration held at
+    its amplitude (saturated chatter) is chatter."""
+    t = np.arange(0, 0.2, 1 / FS)
+    x, y = _harmonics(t)
+    for rate, chatters in ((-30.0, False), (0.0, True)):
+        mode = 20e-6 * np.exp(rate * t)
+        result = chatter.analyse(t, x + mode * np.cos(2 * np.pi * 922.0 * t), y + mode * np.sin(2 * np.pi * 922.0 * t),
+                                 np.ones(t.size, bool), 2 * np.pi * F_TP / 2, 2)
+        assert result.indicator > chatter.CHATTER_THRESHOLD and result.duration == pytest.approx(0.2, abs=2e-4)
+        assert result.dies_out is not chatters and result.chatter is chatters, (rate, result)
+
+
 def test_chatter_indicator_separates_stable_and_chattering_co_simulations(fmu_dir: Path, tmp_path: Path) -> None:
     """scenarios/chatter.toml at 0.03 mm (stable, 0.75 of the zero-order limit) and at 0.08 mm (twice the limit)."""
     base = load_scenario(REPO / "scenarios" / "chatter.toml", fmu_dir)

@@ -16,7 +16,10 @@ the tool that is not a harmonic and that grows until the flutes leave the cut. F
   repeats every tooth period (slope 0); the transient of an entry dies out (negative); chatter grows (positive
   until the flutes leave the cut and it saturates).
 
-A block chatters when its indicator exceeds :data:`CHATTER_THRESHOLD` (docs/process_report.md says why).
+A block chatters when its indicator exceeds :data:`CHATTER_THRESHOLD` (docs/process_report.md says why) and its
+vibration does not die out: a growth rate that shrinks it by a factor e or more over the analysed run (growth x
+run length <= -:data:`DECAY_LIMIT`) is the free vibration after the flutes leave a cut or an entry's transient,
+which has the mode's frequency (so a high indicator) but is no self-excited vibration.
 """
 from __future__ import annotations
 
@@ -28,9 +31,11 @@ import numpy as np
 HARMONIC_BAND = 0.02      # relative half-width of the band around each tooth-passing harmonic
 MIN_TOOTH_PERIODS = 4     # fewer in-cut tooth periods in a block: no indicator (NaN)
 MIN_SAMPLES = 32          # fewer in-cut samples in a run: too short for a spectrum
-CHATTER_THRESHOLD = 0.5   # indicator above: the block chatters
+CHATTER_THRESHOLD = 0.5   # indicator above: the block chatters (unless its vibration dies out)
+DECAY_LIMIT = 1.0         # growth x run length at or below -this: a dying transient, not chatter
 
-__all__ = ["ChatterResult", "CHATTER_THRESHOLD", "analyse", "growth_rate", "indicator", "in_cut_runs"]
+__all__ = ["ChatterResult", "CHATTER_THRESHOLD", "DECAY_LIMIT", "analyse", "growth_rate", "indicator",
+           "in_cut_runs"]
 
 
 @dataclass(frozen=True)
@@ -38,10 +43,16 @@ class ChatterResult:
     indicator: float   # 0..1; NaN: too few in-cut tooth periods or no vibration
     growth: float      # 1/s; NaN as the indicator
     samples: int       # in-cut samples analysed
+    duration: float = math.nan  # s: the run the growth rate is fitted over
+
+    @property
+    def dies_out(self) -> bool:
+        """The vibration shrinks by a factor e or more over the run (NaN growth: not known to)."""
+        return bool(self.growth * self.duration <= -DECAY_LIMIT)
 
     @property
     def chatter(self) -> bool:
-        return bool(self.indicator > CHATTER_THRESHOLD)
+        return bool(self.indicator > CHATTER_THRESHOLD) and not self.dies_out
 
 
 def _energies(dx: np.ndarray, dy: np.ndarray, fs: float, f_tp: float) -> tuple[float, float]:
@@ -114,4 +125,5 @@ def analyse(t: np.ndarray, dx: np.ndarray, dy: np.ndarray, in_cut: np.ndarray, s
         off, total = off + o, total + e
     a, b = max(runs, key=lambda r: r[1] - r[0])
     value = off / total if total > 0 else math.nan
-    return ChatterResult(value, growth_rate(t[a:b], dx[a:b], dy[a:b], f_tp) if total > 0 else math.nan, samples)
+    return ChatterResult(value, growth_rate(t[a:b], dx[a:b], dy[a:b], f_tp) if total > 0 else math.nan, samples,
+                         float(t[b - 1] - t[a]))

@@ -223,15 +223,16 @@ def write_process_report(part: Part, frame: pd.DataFrame, run_dir: Path, *, zmap
         indicator = table["chatter_indicator"].to_numpy(dtype=float, copy=True)
         growth = table["chatter_growth"].to_numpy(dtype=float, copy=True)
         speeds = table["spindle_speed"].to_numpy()
+        chattering = np.zeros(len(table), dtype=bool)
         for b, (a, c) in enumerate(zip(spans.starts, spans.stops)):
             if in_cut[a:c].sum() < chatter.MIN_SAMPLES:
                 continue
             if flutes[b] < 1:
                 continue
             result = chatter.analyse(t[a:c], dx[a:c], dy[a:c], in_cut[a:c], speeds[b], int(flutes[b]))
-            indicator[b], growth[b] = result.indicator, result.growth
+            indicator[b], growth[b], chattering[b] = result.indicator, result.growth, result.chatter
         table["chatter_indicator"], table["chatter_growth"] = indicator, growth
-        table["chatter"] = table["chatter_indicator"].to_numpy() > chatter.CHATTER_THRESHOLD
+        table["chatter"] = chattering
     lap("chatter")
     sle_mean, sle_max = np.full(len(table), np.nan), np.full(len(table), np.nan)
     analytic, removed_window = np.full(len(table), np.nan), np.full(len(table), np.nan)
@@ -308,7 +309,7 @@ def write_process_report(part: Part, frame: pd.DataFrame, run_dir: Path, *, zmap
         ("removed volume: run / stock - final Z-map",
          f"{_q(removed_run, 'removed_volume', 7)} / {_q(removed_zmap, 'removed_volume', 7)}"),
         ("blocks / in chatter", f"{len(table)} / {report['chatter_blocks']} (indicator above "
-                                f"{chatter.CHATTER_THRESHOLD:g})"),
+                                f"{chatter.CHATTER_THRESHOLD:g}, not dying out)"),
     ]
     lap("headline")
 

@@ -16,7 +16,10 @@ failure's cause):
   solver and cache (:meth:`FmuOutputs.detached`); every simulation they ask for is a task, a Jacobian's columns
   submitted together, so the workers share the simulations of all starts whatever each start's length;
 * one start, the second (noise-weighted) stage and the statistics: each finite-difference Jacobian's column
-  simulations are submitted together.
+  simulations are submitted together;
+* a Jacobian's column simulations go out in as many tasks as there are local workers
+  (:func:`~milling_twin.orchestrator.calibrate.fmu_outputs.evaluate_all`: fewer round trips), one task each on a
+  scheduler's cluster (its size is not known here).
 
 The same numbers come out because every evaluation is deterministic (the calibration checks that a re-run at the
 initial values reproduces the initial run bit for bit) and nothing is combined in completion order: each start's
@@ -25,7 +28,7 @@ replayed into this process's cache in that order (:meth:`FmuOutputs.replay`), so
 simulations and the failures are those of the serial loop, and the second stage and the statistics that follow
 find what they would have found; a Jacobian is assembled column by column. The seeded starts are drawn here.
 Only the wall times differ. The exact path (casadi derivatives of the models/ equations, no simulation in the
-fit) keeps its starts in this process: a start takes milliseconds there.
+fit) starts no workers and keeps its starts in this process (scenario_fit.py).
 """
 from __future__ import annotations
 

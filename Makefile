@@ -43,6 +43,7 @@ MILLING_TWIN := $(abspath $(VENV))/bin/milling-twin
 demo: fmus
 	$(MILLING_TWIN) run scenarios/umich_part.toml --fmu-dir $(BUILD)/fmus --out runs --no-progress
 	$(MILLING_TWIN) run scenarios/al_bracket.toml --fmu-dir $(BUILD)/fmus --out runs --no-progress
+	$(MILLING_TWIN) run scenarios/al_plate.toml --fmu-dir $(BUILD)/fmus --out runs --no-progress
 
 # clang for the short libFuzzer runs of tests/test_fuzz.py: installed when missing and we are root
 # (CI); otherwise that run is skipped with its reason and the corpus replay in ctest still runs.

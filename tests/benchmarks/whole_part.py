@@ -1,7 +1,7 @@
 """The whole-part scenarios: the engagement-driven variable step against the all-fine-step run, speed, volumes.
 
     .venv/bin/python tests/benchmarks/whole_part.py [--fmu-dir build/fmus] [--out runs/benchmarks/whole_part]
-        [--parts scenarios/al_bracket.toml scenarios/umich_part.toml] [--repeat 3]
+        [--parts scenarios/al_bracket.toml scenarios/umich_part.toml scenarios/al_plate.toml] [--repeat 3]
 
 Per part, in one process and one after the other (ratios of runs made minutes apart on the same machine):
 
@@ -35,7 +35,8 @@ from milling_twin.api import default_fmu_dir
 from milling_twin.orchestrator.part.model import FORCE, INTERPOLATOR, VIBRATION, WORKPIECE
 
 REPO = Path(__file__).resolve().parents[2]
-PARTS = (REPO / "scenarios" / "al_bracket.toml", REPO / "scenarios" / "umich_part.toml")
+PARTS = (REPO / "scenarios" / "al_bracket.toml", REPO / "scenarios" / "umich_part.toml",
+         REPO / "scenarios" / "al_plate.toml")
 COMPARED = (f"{FORCE}.Fx", f"{FORCE}.Fy", f"{FORCE}.torque", f"{VIBRATION}.tip_displacement_x",
             f"{VIBRATION}.tip_displacement_y")
 

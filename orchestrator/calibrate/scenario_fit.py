@@ -479,8 +479,8 @@ def _calibrate_scenario(prepared: Prepared, fmu_dir: Path, out_dir: Path, progre
         where = (f"{spec.solver.workers} local worker processes" if spec.solver.workers else
                  f"the cluster of {spec.solver.scheduler}")
         notes += [f"Fitted through the FMUs because {prepared.fd_reason}.",
-                  *([f"Parallel fit on {where}: the starts (more than one) and the finite-difference Jacobians' "
-                     "columns as tasks, combined in a fixed order (the serial result, bit for bit)."]
+                  *([f"Parallel fit on {where}: the simulations as tasks, the starts at once, a Jacobian's "
+                     "columns together, accounted in the serial order (the serial result, bit for bit)."]
                     if executor is not None else []),
                   f"FMU evaluations: {fmu.simulations} simulations ({fmu.simulation_time:.3g} s) for the starts and "
                   f"the statistics, {len(fmu.failures)} failed; re-run at the initial values vs the initial run at "

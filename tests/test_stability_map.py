@@ -162,3 +162,17 @@ def test_study_file_map_errors_name_the_file_and_key(tmp_path: Path) -> None:
     study.write_text(TINY_STUDY.format(base=SCENARIO.as_posix()).replace("curve_points = 4", "speeds = 4"))
     with pytest.raises(StudyError, match=r"bad\.toml: \[study\.map\]\.speeds: unknown key"):
         load_study(study, fmu_dir())
+
+
+def test_the_sd_limits_through_an_executor_are_the_serial_ones_in_order() -> None:
+    """The map computes its semi-discretization limits on the study's workers; any executor gives the same
+    numbers in the speeds' order."""
+    from concurrent.futures import ThreadPoolExecutor
+
+    tool = tool_and_cut(load_scenario(SCENARIO, fmu_dir()))
+    speeds = [6000.0, 9000.0, 11000.0]
+    with ThreadPoolExecutor(2) as executor:
+        parallel = sm.sd_limits(tool, speeds, executor)
+    assert np.array_equal(parallel, sm.sd_limits(tool, speeds))
+    assert parallel[0] == semi_discretization_limit(tool.modes_x, tool.modes_y, tool.ktc, tool.krc, tool.n_flutes,
+                                                    6000.0, tool.entry, tool.exit)

@@ -320,17 +320,18 @@ def _count_check(table: dict, where: str) -> int:
 def test_a_post_processor_runs_after_the_cases_with_its_table(tmp_path: Path, fmu_dir: Path) -> None:
     from milling_twin.orchestrator.study.post import POSTS, register_post
 
-    seen: list[tuple[int, int, Path]] = []
+    seen: list[tuple[int, int, Path, int]] = []
 
     @register_post("count_ok", table="count", check=_count_check)
-    def count_ok(summary: pd.DataFrame, study, folder: Path, least: int) -> None:  # noqa: ANN001
-        seen.append((int((summary["status"] == "ok").sum()), least, folder))
+    def count_ok(summary: pd.DataFrame, study, folder: Path, least: int, executor) -> None:  # noqa: ANN001
+        # the study's executor, still open: the post-processor's own work may use the workers
+        seen.append((int((summary["status"] == "ok").sum()), least, folder, executor.submit(len, "abc").result()))
 
     try:
         path = write(tmp_path, GRID + REDUCE + "[study.count]\nleast = 3\n")
         path.write_text(path.read_text().replace('stop_time = 0.005\n', 'stop_time = 0.005\npost = "count_ok"\n'))
         result = sweep(load_study(path, fmu_dir), tmp_path / "out", workers=0, progress=False)
-        assert seen == [(4, 3, result.folder)]
+        assert seen == [(4, 3, result.folder, 3)]
         path.write_text(path.read_text().replace("least = 3", "least = \"x\""))
         with pytest.raises(StudyError) as info:
             load_study(path, fmu_dir)

@@ -3,7 +3,7 @@
 A post-processor is registered with its options' table and their reader::
 
     @register_post("stability_map", table="map", check=map_config)
-    def _map(summary: pd.DataFrame, study: Study, folder: Path, config: MapConfig) -> None: ...
+    def _map(summary: pd.DataFrame, study: Study, folder: Path, config: MapConfig, executor: Executor) -> None: ...
 
 - ``table``: the study's sub-table holding its options (``"map"``: ``[study.map]``), allowed in a study file only when
   its ``post`` names this post-processor; absent, ``check`` gets an empty table;
@@ -11,8 +11,9 @@ A post-processor is registered with its options' table and their reader::
   a ``ValueError`` whose message names the key (``"[study.map].growth = ...: ..."``, optionally after ``where: ``)
   becomes a :class:`~milling_twin.orchestrator.study.spec.StudyError` naming the file and that key;
 - the function: called by ``sweep`` on the command's process after the summary is written (``summary``: the
-  consolidated summary, failed rows included; ``folder``: ``<out>/<study name>/``, where its files go). It may print
-  what a reader of the command wants to see.
+  consolidated summary, failed rows included; ``folder``: ``<out>/<study name>/``, where its files go; ``executor``:
+  the study's executor, still open, for work of its own that parallelises). It may print what a reader of the
+  command wants to see.
 
 Modules that register one are listed in :data:`milling_twin.orchestrator.study.reduce.PLUGIN_MODULES` (imported on
 demand, as for reductions).
@@ -32,7 +33,7 @@ class PostProcess:
     name: str
     table: str  # the [study.<table>] of its options
     check: Callable[[Mapping[str, Any], str], Any]  # (table, where) -> config
-    run: Callable[..., Any]  # run(summary, study, folder, config)
+    run: Callable[..., Any]  # run(summary, study, folder, config, executor)
 
 
 POSTS: dict[str, PostProcess] = {}
@@ -40,7 +41,7 @@ POSTS: dict[str, PostProcess] = {}
 
 def register_post(name: str, *, table: str,
                   check: Callable[[Mapping[str, Any], str], Any]) -> Callable[[Callable[..., Any]], Callable[..., Any]]:
-    """Decorator registering ``fn(summary, study, folder, config)`` as the post-processor ``name``."""
+    """Decorator registering ``fn(summary, study, folder, config, executor)`` as the post-processor ``name``."""
     def add(fn: Callable[..., Any]) -> Callable[..., Any]:
         POSTS[name] = PostProcess(name, table, check, fn)
         return fn

@@ -14,6 +14,7 @@ import math
 import time
 import traceback
 from collections.abc import Mapping
+from contextlib import nullcontext
 from concurrent.futures import FIRST_COMPLETED, Executor, Future, wait
 from dataclasses import dataclass
 from pathlib import Path
@@ -182,21 +183,24 @@ def sweep(study: Study, out: str | Path, *, workers: int | None = None, schedule
     cases_dir = folder / CASES
     cases_dir.mkdir(parents=True, exist_ok=True)
     tasks = [CaseTask(case, base, cases_dir, study.reductions, study.variables, stepping) for case in todo]
-    try:
-        if tasks:
-            with open_executor(workers, scheduler) as executor, \
-                    tqdm(total=len(tasks), unit="case", desc=study.name, disable=not progress) as bar:
-                _dispatch(executor, tasks, store, bar)
-    finally:
-        summary = store.consolidate([c.case_id for c in study.cases], study.variables)
+    post = None
     if study.post is not None:
         from milling_twin.orchestrator.study.post import get_post
 
+        post = get_post(study.post)
+    with open_executor(workers, scheduler) if tasks or post else nullcontext() as executor:
         try:
-            get_post(study.post).run(summary, study, folder, study.post_config)
-        except Exception as exc:
-            exc.add_note(f"post-processor {study.post!r} of {study.path}; the summary is written: "
-                         f"{folder / 'summary.parquet'}")
-            raise
+            if tasks:
+                with tqdm(total=len(tasks), unit="case", desc=study.name, disable=not progress) as bar:
+                    _dispatch(executor, tasks, store, bar)
+        finally:
+            summary = store.consolidate([c.case_id for c in study.cases], study.variables)
+        if post is not None:  # on the same executor: its own parallel work (the map's references) uses the workers
+            try:
+                post.run(summary, study, folder, study.post_config, executor)
+            except Exception as exc:
+                exc.add_note(f"post-processor {study.post!r} of {study.path}; the summary is written: "
+                             f"{folder / 'summary.parquet'}")
+                raise
     return StudyResult(study.name, folder, summary, len(tasks), len(study.cases) - len(todo),
                        int((summary["status"] != "ok").sum()), time.perf_counter() - t0, workers)

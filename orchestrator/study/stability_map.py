@@ -36,6 +36,7 @@ import csv
 import math
 import time
 from collections.abc import Mapping, Sequence
+from concurrent.futures import Executor
 from dataclasses import dataclass
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
@@ -148,12 +149,21 @@ def onsets(summary: pd.DataFrame, speed: str = "force.spindle_speed", depth: str
     return result
 
 
-def references(tool: ToolAndCut, speeds_rpm: Sequence[float], zoa_lobes: int = 60) -> tuple[np.ndarray, np.ndarray]:
+def sd_limits(tool: ToolAndCut, speeds_rpm: Sequence[float], executor: Executor | None = None) -> np.ndarray:
+    """Semi-discretization onsets [m] at ``speeds_rpm``, one task per speed on ``executor`` (in order; in this
+    process without one): each takes tens of milliseconds, the map needs about 140."""
+    tasks = [(tool.modes_x, tool.modes_y, tool.ktc, tool.krc, tool.n_flutes, float(n), tool.entry, tool.exit)
+             for n in speeds_rpm]
+    if executor is None:
+        return np.array([semi_discretization_limit(*t) for t in tasks], dtype=float)
+    return np.array(list(executor.map(semi_discretization_limit, *zip(*tasks))) if tasks else [], dtype=float)
+
+
+def references(tool: ToolAndCut, speeds_rpm: Sequence[float], zoa_lobes: int = 60,
+               executor: Executor | None = None) -> tuple[np.ndarray, np.ndarray]:
     """(semi-discretization, zero-order) onsets [m] at ``speeds_rpm`` for the tool, coefficients and immersion."""
     speeds = np.asarray(speeds_rpm, dtype=float)
-    sd = np.array([semi_discretization_limit(tool.modes_x, tool.modes_y, tool.ktc, tool.krc, tool.n_flutes, float(n),
-                                             tool.entry, tool.exit) for n in speeds])
-    return sd, _zero_order(tool, zoa_lobes).limit(speeds)
+    return sd_limits(tool, speeds, executor), _zero_order(tool, zoa_lobes).limit(speeds)
 
 
 def _zero_order(tool: ToolAndCut, lobes: int):  # -> Lobes
@@ -250,11 +260,11 @@ def speed_range(cases: pd.DataFrame, speed: str) -> tuple[float, float]:
     return low - margin, high + margin
 
 
-def sd_curve(tool: ToolAndCut, speeds: tuple[float, float], points: int) -> tuple[np.ndarray, np.ndarray]:
+def sd_curve(tool: ToolAndCut, speeds: tuple[float, float], points: int,
+             executor: Executor | None = None) -> tuple[np.ndarray, np.ndarray]:
     """(speeds [rpm], semi-discretization onsets [m]) at ``points`` speeds evenly over ``speeds``."""
     n = np.linspace(speeds[0], speeds[1], points)
-    return n, np.array([semi_discretization_limit(tool.modes_x, tool.modes_y, tool.ktc, tool.krc, tool.n_flutes,
-                                                  float(x), tool.entry, tool.exit) for x in n])
+    return n, sd_limits(tool, n, executor)
 
 
 def plot_map(path: Path, cases: pd.DataFrame, rows: Sequence[MapRow], tool: ToolAndCut, speed: str, depth: str,
@@ -352,15 +362,17 @@ def map_paths(out_dir: Path, growth: str, first: bool) -> tuple[Path, Path]:
 
 
 def stability_map(summary: pd.DataFrame, base: Scenario, out_dir: Path, config: MapConfig = MapConfig(),
-                  echo: bool = True) -> dict[str, list[MapRow]]:
+                  echo: bool = True, executor: Executor | None = None) -> dict[str, list[MapRow]]:
     """The maps of a finished study, one per growth column of ``config``: onsets per speed (co-sim, SD, ZOA) in a CSV
-    (printed when ``echo``) and a figure (:func:`map_paths`). ``base``: the study's base scenario (its tool)."""
+    (printed when ``echo``) and a figure (:func:`map_paths`). ``base``: the study's base scenario (its tool);
+    ``executor``: where the semi-discretization limits are computed (the study's workers; None: here)."""
     t0 = time.perf_counter()
     tool = tool_and_cut(base)
     failed = int((summary["status"] != "ok").sum()) if "status" in summary.columns else 0
     speeds = [o.speed_rpm for o in onsets(summary, config.speed, config.depth, config.growth[0])]
-    reference = dict(zip(speeds, zip(*references(tool, speeds, config.zoa_lobes))))  # once for every growth column
-    curve = sd_curve(tool, speed_range(summary, config.speed), config.curve_points) if config.curve_points else None
+    reference = dict(zip(speeds, zip(*references(tool, speeds, config.zoa_lobes, executor))))  # for every column
+    curve = (sd_curve(tool, speed_range(summary, config.speed), config.curve_points, executor)
+             if config.curve_points else None)
     maps: dict[str, list[MapRow]] = {}
     for k, growth in enumerate(config.growth):
         found = onsets(summary, config.speed, config.depth, growth)
@@ -383,6 +395,7 @@ def stability_map(summary: pd.DataFrame, base: Scenario, out_dir: Path, config: 
 
 
 @register_post("stability_map", table="map", check=map_config)
-def _post(summary: pd.DataFrame, study: Study, folder: Path, config: MapConfig) -> None:
-    """``[study] post = "stability_map"``: the maps of the finished sweep into its folder, the tables printed."""
-    stability_map(summary, study.base, folder, config)
+def _post(summary: pd.DataFrame, study: Study, folder: Path, config: MapConfig, executor: Executor) -> None:
+    """``[study] post = "stability_map"``: the maps of the finished sweep into its folder, the tables printed; the
+    semi-discretization limits on the study's workers."""
+    stability_map(summary, study.base, folder, config, executor=executor)

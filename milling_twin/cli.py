@@ -151,12 +151,9 @@ def _calibrate(p: argparse.ArgumentParser) -> None:
     p.add_argument("--write-set", type=Path, metavar="PATH",
                    help="also publish the calibrated parameter set here (e.g. the spec's parameter_set, to "
                         "update the committed one); without it only OUT is written")
-    where = p.add_mutually_exclusive_group()
-    where.add_argument("--workers", type=_workers, default=None, metavar="N",
-                       help="a fit through the FMUs runs its starts and finite-difference columns on N local worker "
-                            "processes, with the serial result (0: serially; default: the spec's [solver] workers)")
-    where.add_argument("--scheduler", default=None, metavar="ADDR|FILE",
-                       help="the same on an existing dask cluster: its scheduler's address (tcp://host:8786) or file")
+    _add_workers(p, "a fit through the FMUs runs its starts and finite-difference columns on N local worker "
+                    "processes, with the serial result (0: serially; default: the spec's [solver] workers)",
+                 "the same on an existing dask cluster: its scheduler's address (tcp://host:8786) or file")
     p.add_argument("--no-progress", action="store_true", help="no progress bars")
 
 
@@ -261,6 +258,13 @@ def _train_rbf(p: argparse.ArgumentParser) -> None:
     p.add_argument("--epochs", type=int, default=None, help="gradient-descent epochs")
 
 
+def _add_workers(p: argparse.ArgumentParser, workers_help: str, scheduler_help: str) -> None:
+    """--workers N or --scheduler ADDR|FILE (one of them): where the parallel work runs."""
+    where = p.add_mutually_exclusive_group()
+    where.add_argument("--workers", type=_workers, default=None, metavar="N", help=workers_help)
+    where.add_argument("--scheduler", default=None, metavar="ADDR|FILE", help=scheduler_help)
+
+
 def _workers(text: str) -> int:
     try:
         n = int(text)
@@ -276,12 +280,9 @@ def _sweep(p: argparse.ArgumentParser) -> None:
     _add_fmu_dir(p)
     p.add_argument("--out", type=Path, default=Path("runs"),
                    help="the study goes to OUT/<study name>/: summary.parquet, summary/, cases/ (default: runs)")
-    where = p.add_mutually_exclusive_group()
-    where.add_argument("--workers", type=_workers, default=None, metavar="N",
-                       help="N local worker processes (0: serially in this process); default: an embedded dask "
-                            "cluster with one worker per core")
-    where.add_argument("--scheduler", default=None, metavar="ADDR|FILE",
-                       help="an existing dask cluster: its scheduler's address (tcp://host:8786) or scheduler file")
+    _add_workers(p, "N local worker processes (0: serially in this process); default: an embedded dask cluster with "
+                    "one worker per core",
+                 "an existing dask cluster: its scheduler's address (tcp://host:8786) or scheduler file")
     p.add_argument("--resume", action="store_true",
                    help="skip the cases the summary has as ok (a killed or failed study goes on)")
     p.add_argument("--no-progress", action="store_true", help="no progress bar")

@@ -145,7 +145,7 @@ import fmpy
 import tomli_w
 from fmpy import read_model_description
 
-from milling_twin.orchestrator.toml_access import TomlAccess
+from milling_twin.orchestrator.toml_access import FileKeyError, TomlAccess
 from milling_twin.orchestrator.part.model import Part
 from milling_twin.orchestrator.recorded import ChannelSpec, RecordedData, RecordedDataError, load_recorded
 from milling_twin.orchestrator.recording_checks_spec import check_table
@@ -165,12 +165,8 @@ _SUPPORTED_TYPES = {"Real": "real", "Float64": "real", "Boolean": "bool", "Integ
 _NAME_RE = re.compile(r"^[A-Za-z0-9_.-]+$")
 
 
-class ScenarioError(ValueError):
+class ScenarioError(FileKeyError):
     """An invalid scenario; the message names the scenario file and the TOML key."""
-
-    def __init__(self, path: Path | str, key: str, message: str) -> None:
-        self.path, self.key, self.detail = Path(path), key, message
-        super().__init__(f"{path}: {key}: {message}" if key else f"{path}: {message}")
 
 
 @dataclass(frozen=True)

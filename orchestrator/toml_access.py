@@ -15,6 +15,15 @@ from typing import Any, Callable, NoReturn
 KINDS = {"scenario": ("scenario file", "run"), "calibration": ("calibration spec", "calibrate")}
 
 
+class FileKeyError(ValueError):
+    """A bad input file: ``path``, the TOML ``key`` (may be empty) and what is wrong (``detail``); the message is
+    ``"<path>: <key>: <detail>"``. The scenario, calibration-spec and study errors are its kinds."""
+
+    def __init__(self, path: Path | str, key: str, message: str) -> None:
+        self.path, self.key, self.detail = Path(path), key, message
+        super().__init__(f"{path}: {key}: {message}" if key else f"{path}: {message}")
+
+
 class TomlAccess:
     error: Callable[[Path, str, str], Exception]
 

@@ -20,7 +20,6 @@ demand, as for reductions).
 """
 from __future__ import annotations
 
-import importlib
 from collections.abc import Callable, Mapping
 from dataclasses import dataclass
 from typing import Any
@@ -51,14 +50,9 @@ def register_post(name: str, *, table: str,
 def get_post(name: str) -> PostProcess:
     """The post-processor ``name`` (importing the plugin modules first if needed); KeyError naming the known ones."""
     if name not in POSTS:
-        from milling_twin.orchestrator.study.reduce import PLUGIN_MODULES
+        from milling_twin.orchestrator.study.reduce import import_plugins
 
-        for module in PLUGIN_MODULES:
-            try:
-                importlib.import_module(module)
-            except ModuleNotFoundError as exc:
-                if exc.name != module:
-                    raise
+        import_plugins()
     if name not in POSTS:
         known = ", ".join(sorted(POSTS)) or "none registered"
         raise KeyError(f"unknown post-processor {name!r}; known: {known}")

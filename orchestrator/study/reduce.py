@@ -93,16 +93,22 @@ def register(name: str) -> Callable[[Reduction], Reduction]:
     return add
 
 
+def import_plugins() -> None:
+    """Import :data:`PLUGIN_MODULES` (which register reductions and post-processors); one that is not installed is
+    left out, an error inside one is raised."""
+    for module in PLUGIN_MODULES:
+        try:
+            importlib.import_module(module)
+        except ModuleNotFoundError as exc:
+            if exc.name != module:
+                raise
+
+
 def get_reduction(kind: str) -> Reduction:
     """The reduction registered as ``kind`` (importing :data:`PLUGIN_MODULES` first if needed), or the function
     ``"package.module:function"``. Raises KeyError naming the known kinds."""
     if kind not in REDUCTIONS:
-        for module in PLUGIN_MODULES:
-            try:
-                importlib.import_module(module)
-            except ModuleNotFoundError as exc:
-                if exc.name != module:
-                    raise
+        import_plugins()
     if kind in REDUCTIONS:
         return REDUCTIONS[kind]
     if ":" in kind:

@@ -26,6 +26,7 @@ from typing import Any, NoReturn
 from milling_twin.orchestrator.scenario import Scenario, ScenarioError, load_scenario, with_values
 from milling_twin.orchestrator.study import cases as cases_mod
 from milling_twin.orchestrator.study.reduce import PROCESS_FIGURES, STATISTICS, get_reduction
+from milling_twin.orchestrator.toml_access import FileKeyError
 
 __all__ = ["Case", "ReduceSpec", "Study", "StudyError", "load_study"]
 
@@ -33,12 +34,8 @@ STUDY_KEYS = ("name", "description", "base", "stop_time", "set", "grid", "list",
               "reduce", "post")
 
 
-class StudyError(ValueError):
+class StudyError(FileKeyError):
     """An invalid study file: names the file and the key."""
-
-    def __init__(self, path: Path | str, key: str, message: str) -> None:
-        self.path, self.key, self.detail = Path(path), key, message
-        super().__init__(f"{path}: {key}: {message}" if key else f"{path}: {message}")
 
 
 @dataclass(frozen=True)

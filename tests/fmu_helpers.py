@@ -579,3 +579,23 @@ if __name__ == "__main__":
     job_file.write_text(json.dumps(job))
     _remove_extracted()
     print(f"exercised {len(results)} FMUs")
+
+
+# ---- both stepping paths of one scenario ----
+
+def bits(frame) -> np.ndarray:
+    """A results frame's values as their bit patterns (equal only when bit for bit equal)."""
+    return frame.to_numpy(dtype=np.float64).view(np.uint64)
+
+
+def run_both(scenario, out: Path, must_complete: bool = True, **kwargs) -> dict:
+    """{path: (RunResult, frame)} of ``scenario`` on the Python and the fast path (``kwargs``: more of ``run``'s)."""
+    from milling_twin.orchestrator.master import run
+    from milling_twin.orchestrator.results import load_results
+
+    both = {}
+    for path in ("python", "fast"):
+        result = run(scenario, out / path, progress=False, stepping=path, **kwargs)
+        assert result.stepping == path and (result.status == "completed" or not must_complete), result.status
+        both[path] = result, load_results(result.run_dir)
+    return both

@@ -14,6 +14,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+from fmu_helpers import bits, run_both
 from milling_twin.cli import main
 from milling_twin.orchestrator import fastpath
 from milling_twin.orchestrator.master import FiredEvent, run
@@ -100,17 +101,6 @@ def write(folder: Path, entries: str = ENTRIES, fmi: int = 3, extra: str = "") -
     return path
 
 
-def bits(frame) -> np.ndarray:
-    return frame.to_numpy(dtype=np.float64).view(np.uint64)
-
-
-def run_both(scenario, out: Path) -> dict:
-    both = {}
-    for path in ("python", "fast"):
-        result = run(scenario, out / path, progress=False, stepping=path)
-        assert result.status == "completed" and result.stepping == path
-        both[path] = result, load_results(result.run_dir)
-    return both
 
 
 def assert_identical(both: dict) -> None:

@@ -12,6 +12,7 @@ import numpy as np
 import pytest
 
 from conftest import REPO_ROOT
+from fmu_helpers import bits, run_both
 from milling_twin.cli import main
 from milling_twin.orchestrator import fastpath
 from milling_twin.orchestrator.master import run
@@ -58,18 +59,6 @@ def write(tmp_path: Path, stepping: str | None = None, fmi: int = 3, name: str =
     return path
 
 
-def bits(frame) -> np.ndarray:
-    return frame.to_numpy(dtype=np.float64).view(np.uint64)
-
-
-def run_both(scenario, out: Path) -> dict:
-    """{path: (RunResult, frame)} of ``scenario`` on the Python and the fast path."""
-    both = {}
-    for path in ("python", "fast"):
-        result = run(scenario, out / path, progress=False, stepping=path)
-        assert result.status == "completed" and result.stepping == path
-        both[path] = result, load_results(result.run_dir)
-    return both
 
 
 def assert_identical(both: dict) -> None:

@@ -80,3 +80,35 @@ def test_repeated_lifecycles_do_not_grow_memory(fmu: Path) -> None:
     growth = [b - a for a, b in zip(marks, marks[1:])]
     assert min(growth) < MAX_GROWTH, (f"{fmu.name}: RSS grew by {growth[0] / 1024:.0f} KiB and "
                                       f"{growth[1] / 1024:.0f} KiB over two runs of {half} cycles")
+
+
+FMI2_FMUS = [f for f in all_fmus() if f.stem.endswith("_fmi2")]
+
+
+@pytest.mark.parametrize("fmu", FMI2_FMUS, ids=fmu_id)
+def test_a_status_the_fmu_does_not_provide_is_discard_and_the_next_step_runs(fmu: Path) -> None:
+    """FMI 2.0, 4.2.3: fmi2GetStatus and the typed status functions return fmi2Discard for a status the FMU does
+    not provide, without putting the instance in the Error state; fmi2LastSuccessfulTime and fmi2Terminated are
+    provided."""
+    import fmpy.fmi2 as fmi2
+
+    require_fmu(fmu)
+    slave = Slave(fmu)
+    slave.instantiate()
+    slave.initialize({})
+    assert slave.step(1e-3) in (OK, WARNING)
+    status = fmi2.fmi2Status()
+    integer, string, real, boolean = fmi2.fmi2Integer(), fmi2.fmi2String(), fmi2.fmi2Real(), fmi2.fmi2Boolean()
+    component = slave.fmu.component
+    discard = 2
+    assert slave.fmu.dll.fmi2GetStatus(component, fmi2.fmi2DoStepStatus, ctypes.byref(status)) == discard
+    assert slave.fmu.dll.fmi2GetIntegerStatus(component, fmi2.fmi2DoStepStatus, ctypes.byref(integer)) == discard
+    assert slave.fmu.dll.fmi2GetStringStatus(component, fmi2.fmi2PendingStatus, ctypes.byref(string)) == discard
+    assert slave.fmu.dll.fmi2GetRealStatus(component, fmi2.fmi2DoStepStatus, ctypes.byref(real)) == discard
+    assert slave.fmu.dll.fmi2GetRealStatus(component, fmi2.fmi2LastSuccessfulTime, ctypes.byref(real)) == 0
+    assert real.value == pytest.approx(1e-3)
+    assert slave.fmu.dll.fmi2GetBooleanStatus(component, fmi2.fmi2Terminated, ctypes.byref(boolean)) == 0
+    assert slave.step(1e-3) in (OK, WARNING)                    # not in the Error state
+    assert slave.fmu.dll.fmi2GetStatus(component, fmi2.fmi2DoStepStatus, None) == 3   # a NULL value is an Error
+    assert any("value is NULL" in m for m in map(str, slave.messages))
+    slave.free_instance()                                       # (Error: only reset or free is allowed now)

@@ -224,36 +224,56 @@ fmi2Status fmi2CancelStep(fmi2Component c) {
     RETURN(fmu_unsupported(INSTANCE, function, "doStep never returns fmi2Pending"));
 }
 
+/* The status functions: a status this FMU does not provide is fmi2Discard (FMI 2.0, 4.2.3), which leaves the
+ * instance as it was, so the next doStep is still accepted; only a NULL value pointer is an Error. The Discard is
+ * logged with debug logging on only: an importer may ask after every step. */
+static fmi2Status no_status(FmuInstance *instance, const char *function, const char *why) {
+    if (instance->logging_on)
+        fmu_log(instance, FMU_DISCARD, "logStatusWarning", "%s: no such status (%s): fmi2Discard", function, why);
+    return fmi2Discard;
+}
+
+static FmuStatus null_value(FmuInstance *instance, const char *function) {
+    fmu_log(instance, FMU_ERROR, "logStatusError", "%s: value is NULL: it must point to where the status goes",
+            function);
+    return FMU_ERROR;
+}
+
 fmi2Status fmi2GetStatus(fmi2Component c, const fmi2StatusKind s, fmi2Status *value) {
     BEGIN("fmi2GetStatus", STATES_GET);
-    (void)s, (void)value;
-    RETURN(fmu_unsupported(INSTANCE, function, "doStep never returns fmi2Pending"));
+    (void)s;
+    if (!value) RETURN(null_value(INSTANCE, function));
+    return no_status(INSTANCE, function, "doStep never returns fmi2Pending");
 }
 
 fmi2Status fmi2GetRealStatus(fmi2Component c, const fmi2StatusKind s, fmi2Real *value) {
     BEGIN("fmi2GetRealStatus", STATES_GET);
-    if (s != fmi2LastSuccessfulTime || !value) RETURN(fmu_unsupported(INSTANCE, function, "only fmi2LastSuccessfulTime"));
+    if (!value) RETURN(null_value(INSTANCE, function));
+    if (s != fmi2LastSuccessfulTime) return no_status(INSTANCE, function, "only fmi2LastSuccessfulTime");
     *value = INSTANCE->time;
     return fmi2OK;
 }
 
 fmi2Status fmi2GetIntegerStatus(fmi2Component c, const fmi2StatusKind s, fmi2Integer *value) {
     BEGIN("fmi2GetIntegerStatus", STATES_GET);
-    (void)s, (void)value;
-    RETURN(fmu_unsupported(INSTANCE, function, "no integer status"));
+    (void)s;
+    if (!value) RETURN(null_value(INSTANCE, function));
+    return no_status(INSTANCE, function, "no integer status");
 }
 
 fmi2Status fmi2GetBooleanStatus(fmi2Component c, const fmi2StatusKind s, fmi2Boolean *value) {
     BEGIN("fmi2GetBooleanStatus", STATES_GET);
-    if (s != fmi2Terminated || !value) RETURN(fmu_unsupported(INSTANCE, function, "only fmi2Terminated"));
+    if (!value) RETURN(null_value(INSTANCE, function));
+    if (s != fmi2Terminated) return no_status(INSTANCE, function, "only fmi2Terminated");
     *value = fmi2False;
     return fmi2OK;
 }
 
 fmi2Status fmi2GetStringStatus(fmi2Component c, const fmi2StatusKind s, fmi2String *value) {
     BEGIN("fmi2GetStringStatus", STATES_GET);
-    (void)s, (void)value;
-    RETURN(fmu_unsupported(INSTANCE, function, "no string status"));
+    (void)s;
+    if (!value) RETURN(null_value(INSTANCE, function));
+    return no_status(INSTANCE, function, "no string status");
 }
 
 /* ---- Model exchange: not offered; exported so importers that resolve every symbol can load us ---- */

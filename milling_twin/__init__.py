@@ -1,7 +1,8 @@
 """Milling twin: FMUs of CNC milling co-simulated against recorded machine data, aligned and calibrated.
 
 The Python API (:mod:`milling_twin.api`): :func:`simulate`, :func:`calibrate`, :func:`load_results`,
-:func:`load_scenario`, :func:`sweep` (studies), :class:`Results`. The command line: ``milling-twin`` (:mod:`milling_twin.cli`).
+:func:`load_scenario`, :func:`sweep` (studies), :class:`Results`. The command line: ``milling-twin``
+(:mod:`milling_twin.cli`).
 Subpackages: ``milling_twin.models`` (the equations, the single source of every FMU),
 ``milling_twin.orchestrator`` (scenarios, co-simulation, alignment, calibration, validation),
 ``milling_twin.training`` (the learned model parts), ``milling_twin.datasets`` (published data sets).

@@ -9,7 +9,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from cases.part_case import PROGRAM, write_part
+from cases.part_case import MODES, PROGRAM, write_part
 from milling_twin.api import simulate
 from milling_twin.models.interpolator.tool_table import read_tool_table
 from milling_twin.orchestrator.part import checks
@@ -65,9 +65,7 @@ def test_a_program_cutting_with_two_tools_changes_the_tool_at_its_m6(tmp_path: P
 
 
 def test_a_tool_without_modes_is_named(tmp_path: Path, fmu_dir: Path) -> None:
-    modes = ("[part.tool_modes]\nx = [ { frequency = 1200.0, damping = 0.03, stiffness = 2.0e7 } ]\ny = [ { frequency = "
-             "1300.0, damping = 0.02, stiffness = { value = 30, unit = \"N/um\" } },\n      { frequency = 3000.0, "
-             "damping = 0.05, stiffness = 8.0e7 } ]\n", "[part.tool_modes]\nT1 = { x = [], y = [] }\n")
+    modes = (MODES, "[part.tool_modes]\nT1 = { x = [], y = [] }\n")  # T1's own modes only
     path = write_part(tmp_path, modes, program=TWO_TOOLS)
     with pytest.raises(ScenarioError) as info:
         load_scenario(path, fmu_dir)

@@ -17,8 +17,17 @@ $(VENV)/.installed: pyproject.toml
 
 # `make test` also needs torch (the 'train' extra: tests/test_forcenet_train.py trains a small network on the
 # CPU); `make demo` does not: neither the FMUs nor the orchestrator use it.
+# torch from PyPI is the CUDA wheel with its libraries: ~3 GB downloaded, ~5.5 GB installed. Without pip's wheel
+# cache (--no-cache-dir) a fresh machine needs the download once, not twice. Short free space is named before pip
+# starts (a warning, not a refusal: the estimate is rough), so an ENOSPC halfway through explains itself.
+TRAIN_FREE_GB := 9
 $(VENV)/.installed-train: $(VENV)/.installed
-	$(VENV_PYTHON) -m pip install --quiet -e '.[test,train]'
+	@free_kb=$$(df -Pk . 2>/dev/null | awk 'NR==2 {print $$4}'); \
+	  if [ -n "$$free_kb" ] && [ "$$free_kb" -lt $$(( $(TRAIN_FREE_GB) * 1024 * 1024 )) ]; then \
+	    echo "make test installs torch (the 'train' extra), which needs about $(TRAIN_FREE_GB) GB free;" \
+	         "$$(( free_kb / 1024 / 1024 )) GB are free here. If pip fails with 'No space left', free some." >&2; \
+	  fi
+	$(VENV_PYTHON) -m pip install --quiet --no-cache-dir -e '.[test,train]'
 	touch $@
 
 setup: $(VENV)/.installed

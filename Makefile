@@ -5,6 +5,9 @@ VENV := .venv
 BUILD := build
 VENV_PYTHON := $(abspath $(VENV))/bin/python
 JOBS ?= 2
+# pytest's tests spread over JOBS processes (pytest-xdist): the suite is CPU-bound, so on the 2 cores of CI this
+# halves its time. `pytest tests/x.py` by hand stays one process. PYTEST_PARALLEL= runs `make test` serially.
+PYTEST_PARALLEL ?= -n $(JOBS)
 
 .PHONY: setup configure fmus build demo test test-sanitize clean fuzz fuzz-tools
 
@@ -63,7 +66,7 @@ fuzz-tools:
 
 test: build $(VENV)/.installed-train fuzz-tools
 	cd $(BUILD) && ctest --output-on-failure
-	MILLING_TWIN_FMU_DIR=$(abspath $(BUILD))/fmus $(VENV_PYTHON) -m pytest
+	MILLING_TWIN_FMU_DIR=$(abspath $(BUILD))/fmus $(VENV_PYTHON) -m pytest $(PYTEST_PARALLEL)
 	$(MAKE) test-sanitize
 
 # The sanitizer stage: every FMU and the stepper library built with ASan + UBSan (build-asan/, UBSan not
@@ -91,7 +94,7 @@ SANITIZE_DESELECT := test_fmu_lifecycle.py::test_repeated_lifecycles_do_not_grow
 test-sanitize: setup
 	cmake -S . -B $(ASAN_BUILD) -DFMU_SANITIZE=ON -DPython3_EXECUTABLE=$(VENV_PYTHON) -DCMAKE_BUILD_TYPE=RelWithDebInfo
 	cmake --build $(ASAN_BUILD) -j $(JOBS) --target fmu_binaries
-	sh tests/run_sanitized.sh $(VENV_PYTHON) $(ASAN_BUILD) -q --durations=10 $(addprefix --ignore=tests/,$(SANITIZE_IGNORE)) \
+	sh tests/run_sanitized.sh $(VENV_PYTHON) $(ASAN_BUILD) $(PYTEST_PARALLEL) -q --durations=10 $(addprefix --ignore=tests/,$(SANITIZE_IGNORE)) \
 	  $(addprefix --deselect=tests/,$(SANITIZE_DESELECT))
 
 # libFuzzer on one fuzz target for FUZZ_TIME seconds (installs clang when missing; tests/fuzz/README.md):

@@ -133,7 +133,6 @@ from __future__ import annotations
 
 import math
 import re
-import tomllib
 import zipfile
 from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass, field, replace
@@ -547,12 +546,7 @@ def _parameter_set(ctx: _Ctx, key: str, path: Path, instances: Mapping[str, FmuI
     any problem is reported under ``key`` of the scenario, naming the set file and its key."""
     own = _Ctx(path)
     try:
-        try:
-            doc = tomllib.loads(path.read_text(encoding="utf-8"))
-        except FileNotFoundError:
-            own.fail("", "parameter set file not found")
-        except (tomllib.TOMLDecodeError, UnicodeDecodeError) as exc:
-            own.fail("", f"invalid TOML: {exc}")
+        _, doc = own.parse("parameter set file")
         own.table(doc, "", ("description", "source", "parameters"))
         own.string(doc, "", "description", "")
         if not isinstance(doc.get("source", {}), dict):

@@ -33,16 +33,21 @@ class TomlAccess:
     def fail(self, key: str, message: str) -> NoReturn:
         raise type(self).error(self.path, key, message)
 
+    def parse(self, what: str) -> tuple[bytes, dict[str, Any]]:
+        """The file's bytes and its parsed TOML; a missing file fails as "``what`` not found", a file that is not
+        UTF-8 TOML as "invalid TOML" with the parser's line and column."""
+        try:
+            raw = self.path.read_bytes()
+            return raw, tomllib.loads(raw.decode("utf-8"))
+        except FileNotFoundError:
+            self.fail("", f"{what} not found")
+        except (tomllib.TOMLDecodeError, UnicodeDecodeError) as exc:
+            self.fail("", f"invalid TOML: {exc}")
+
     def document(self, kind: str) -> tuple[bytes, dict[str, Any]]:
         """The file's bytes and its parsed TOML, a file of ``kind`` ("scenario" or "calibration"); a missing
         file, invalid TOML, or a file of the other kind fails, the last saying which command takes it."""
-        try:
-            raw = self.path.read_bytes()
-            doc = tomllib.loads(raw.decode("utf-8"))
-        except FileNotFoundError:
-            self.fail("", f"{KINDS[kind][0]} not found")
-        except (tomllib.TOMLDecodeError, UnicodeDecodeError) as exc:
-            self.fail("", f"invalid TOML: {exc}")
+        raw, doc = self.parse(KINDS[kind][0])
         other = next(k for k in KINDS if k != kind)
         if other in doc and kind not in doc:
             what, command = KINDS[other]

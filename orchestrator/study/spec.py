@@ -18,15 +18,14 @@ from __future__ import annotations
 
 import inspect
 import math
-import tomllib
 from dataclasses import dataclass, field, replace
 from pathlib import Path
-from typing import Any, NoReturn
+from typing import Any
 
 from milling_twin.orchestrator.scenario import Scenario, ScenarioError, load_scenario, with_values
 from milling_twin.orchestrator.study import cases as cases_mod
 from milling_twin.orchestrator.study.reduce import PROCESS_FIGURES, STATISTICS, get_reduction
-from milling_twin.orchestrator.toml_access import FileKeyError
+from milling_twin.orchestrator.toml_access import FileKeyError, TomlAccess
 
 __all__ = ["Case", "ReduceSpec", "Study", "StudyError", "load_study"]
 
@@ -74,12 +73,8 @@ class Study:
         return self.base if self.stop_time is None else replace(self.base, stop_time=self.stop_time)
 
 
-class _Reader:
-    def __init__(self, path: Path) -> None:
-        self.path = path
-
-    def fail(self, key: str, message: str) -> NoReturn:
-        raise StudyError(self.path, key, message)
+class _Reader(TomlAccess):
+    error = StudyError
 
 
 def _blocks(reader: _Reader, study: dict, name: str) -> list[tuple[str, dict]]:
@@ -156,12 +151,7 @@ def load_study(path: str | Path, fmu_dir: str | Path) -> Study:
     """Read and check a study file; the base scenario is loaded with ``fmu_dir`` (made absolute)."""
     path = Path(path)
     reader = _Reader(path)
-    try:
-        doc = tomllib.loads(path.read_text(encoding="utf-8"))
-    except FileNotFoundError:
-        reader.fail("", "study file not found")
-    except (tomllib.TOMLDecodeError, UnicodeDecodeError) as exc:
-        reader.fail("", f"invalid TOML: {exc}")
+    _, doc = reader.parse("study file")
     if set(doc) != {"study"}:
         other = sorted(set(doc) - {"study"})
         if "study" not in doc:

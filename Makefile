@@ -11,11 +11,12 @@ PYTEST_PARALLEL ?= -n $(JOBS)
 
 .PHONY: setup configure fmus build demo test test-sanitize clean fuzz fuzz-tools
 
-# Reinstalled only when the dependency pins change.
-$(VENV)/.installed: pyproject.toml
+# Reinstalled only when the dependencies change: pyproject.toml's ranges, installed at constraints.txt's exact versions
+# (the same set on every machine and in CI; docs/packaging.md).
+$(VENV)/.installed: pyproject.toml constraints.txt
 	$(PYTHON) -m venv $(VENV)
 	$(VENV_PYTHON) -m pip install --quiet --upgrade pip
-	$(VENV_PYTHON) -m pip install --quiet -e '.[test]'
+	$(VENV_PYTHON) -m pip install --quiet -c constraints.txt -e '.[test]'
 	touch $@
 
 # `make test` also needs torch (the 'train' extra: tests/test_forcenet_train.py trains a small network on the
@@ -30,7 +31,7 @@ $(VENV)/.installed-train: $(VENV)/.installed
 	    echo "make test installs torch (the 'train' extra), which needs about $(TRAIN_FREE_GB) GB free;" \
 	         "$$(( free_kb / 1024 / 1024 )) GB are free here. If pip fails with 'No space left', free some." >&2; \
 	  fi
-	$(VENV_PYTHON) -m pip install --quiet --no-cache-dir -e '.[test,train]'
+	$(VENV_PYTHON) -m pip install --quiet --no-cache-dir -c constraints.txt -e '.[test,train]'
 	touch $@
 
 setup: $(VENV)/.installed

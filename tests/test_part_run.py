@@ -79,5 +79,9 @@ def test_a_two_tool_part_cuts_each_slot_with_its_tool(tmp_path: Path, fmu_dir: P
     assert blocks is not None
     table = pd.read_parquet(blocks.blocks_parquet)
     assert set(table.loc[table["axial_depth_max"] > 0, "tool"]) == {1, 2}
+    # each tool's straight slot gets its volume check with its own diameter (not only the last tool's blocks)
+    checked = table[table["analytic_volume"].notna()]
+    assert set(checked["tool"]) == {1, 2}, table[["line", "tool", "analytic_volume"]]
+    assert np.all(np.abs(checked["volume_ratio"] - 1) < 0.05), checked[["line", "tool", "volume_ratio"]]
     html = blocks.html.read_text(encoding="utf-8")
     assert "Stability lobes of T1 and its cutting blocks" in html and "Stability lobes of T2" in html

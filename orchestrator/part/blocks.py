@@ -145,6 +145,13 @@ class Spans:
     def __len__(self) -> int:
         return int(self.starts.size)
 
+    def per_sample(self, per_block: np.ndarray, n: int, fill: float = math.nan) -> np.ndarray:
+        """A value per block spread over that block's samples, ``fill`` on the ``n`` samples outside every block."""
+        out = np.full(n, fill, dtype=float)
+        for value, a, c in zip(per_block, self.starts, self.stops):
+            out[a:c] = value
+        return out
+
 
 def block_spans(line_number: np.ndarray) -> Spans:
     """Runs of equal line numbers, without line 0 (before the start) and missing values."""

@@ -116,13 +116,6 @@ def _sample_weights(t: np.ndarray) -> np.ndarray:
     return np.r_[dt, np.median(dt)]
 
 
-def _per_sample(values: np.ndarray, starts: np.ndarray, stops: np.ndarray, n: int) -> np.ndarray:
-    out = np.full(n, np.nan)
-    for v, a, b in zip(values, starts, stops):
-        out[a:b] = v
-    return out
-
-
 def _img(png: bytes, title: str, caption: str = "") -> str:
     data = base64.b64encode(png).decode("ascii")
     return (f"<h3>{html.escape(title)}</h3><img alt='{html.escape(title)}' src='data:image/png;base64,{data}'>"
@@ -234,15 +227,9 @@ def write_process_report(part: Part, frame: pd.DataFrame, run_dir: Path, *, zmap
         table["chatter_indicator"], table["chatter_growth"] = indicator, growth
         table["chatter"] = chattering
     lap("chatter")
-    sle_mean, sle_max = np.full(len(table), np.nan), np.full(len(table), np.nan)
-    analytic, removed_window = np.full(len(table), np.nan), np.full(len(table), np.nan)
-    for c in cutting:  # each tool's figures for its own blocks
-        mine = np.array([b is c for b in block_tool], dtype=bool) if len(cutting) > 1 else np.ones(len(table), bool)
-        if c.tool.flutes >= 1:
-            tool_mean, tool_max, _ = surface_location_errors(signals, spans, int(c.tool.flutes), part.coarse_step)
-            sle_mean[mine], sle_max[mine] = tool_mean[mine], tool_max[mine]
-        tool_analytic, tool_removed = analytic_volumes(signals, spans, c.tool.diameter, part.stock.resolution)
-        analytic[mine], removed_window[mine] = tool_analytic[mine], tool_removed[mine]
+    sle_mean, sle_max, _ = surface_location_errors(signals, spans, flutes, part.coarse_step)
+    diameters = np.array([c.tool.diameter for c in block_tool], dtype=float)
+    analytic, removed_window = analytic_volumes(signals, spans, diameters, part.stock.resolution)
     if (flutes >= 1).any():
         table["sle_mean"], table["sle_max"] = sle_mean, sle_max
     table["analytic_volume"] = analytic
@@ -350,7 +337,7 @@ def write_process_report(part: Part, frame: pd.DataFrame, run_dir: Path, *, zmap
                             "Tool path: resultant force",
                             "Rapid moves dashed grey; the stock block's edges thin grey; the program's coordinates "
                             "(machine position - program zero), mm."))
-        per_sample = _per_sample(table["chatter_indicator"].to_numpy(), spans.starts, spans.stops, signals.n)
+        per_sample = spans.per_sample(table["chatter_indicator"].to_numpy(), signals.n)
         figures.append(_img(plots.toolpath_png(x_mm, y_mm, z_mm, per_sample, rapid, "chatter indicator",
                                                "Tool path coloured by the block's chatter indicator", box,
                                                cmap="coolwarm", vmin=0.0, vmax=1.0),

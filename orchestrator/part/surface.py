@@ -151,13 +151,15 @@ def feed_direction(signals: Signals, interpolation_period: float) -> np.ndarray:
     return np.arctan2(y[ahead] - y[behind], x[ahead] - x[behind])
 
 
-def surface_location_errors(signals: Signals, spans: Spans, n_flutes: int, interpolation_period: float
+def surface_location_errors(signals: Signals, spans: Spans, n_flutes: int | np.ndarray, interpolation_period: float
                             ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """Per block: mean SLE, largest |SLE| (m) and the number of wall-generating flute passes (module text)."""
+    """Per block: mean SLE, largest |SLE| (m) and the number of wall-generating flute passes (module text).
+    ``n_flutes``: the tool's flutes, or each block's (a part with several tools); a block with none has NaN."""
     n_blocks = len(spans)
     nan = np.full(n_blocks, np.nan)
+    flutes = np.broadcast_to(np.asarray(n_flutes, dtype=np.int64), (n_blocks,))
     dx, dy = signals.deflection()
-    if n_blocks == 0 or n_flutes < 1 or np.isnan(dx).all() or signals.n < 2:
+    if n_blocks == 0 or not (flutes >= 1).any() or np.isnan(dx).all() or signals.n < 2:
         return nan, nan.copy(), np.zeros(n_blocks, dtype=np.int64)
     in_cut = signals.in_cut()
     entry = np.nan_to_num(signals[f"{WORKPIECE}.entry_angle"], nan=-1.0)
@@ -166,9 +168,12 @@ def surface_location_errors(signals: Signals, spans: Spans, n_flutes: int, inter
     feed = np.unwrap(feed_direction(signals, interpolation_period))
     normal_x, normal_y = -np.sin(feed), np.cos(feed)          # +y of the feed frame (left of the feed)
     normal = np.nan_to_num(dx) * normal_x + np.nan_to_num(dy) * normal_y
-    pitch = 2.0 * math.pi / n_flutes
+    sample_flutes = spans.per_sample(flutes, signals.n, 0.0)
+    has_flutes = sample_flutes >= 1
+    pitch = 2.0 * math.pi / np.where(has_flutes, sample_flutes, 1.0)
     values, indices = [], []
-    both = in_cut[:-1] & in_cut[1:]
+    # a pass counts between two samples of one tool's cut (a tool change between them changes the pitch)
+    both = in_cut[:-1] & in_cut[1:] & has_flutes[:-1] & (sample_flutes[1:] == sample_flutes[:-1])
     for wall, side, sign in ((math.pi, exit_ >= math.pi - WALL_ANGLE_TOLERANCE, 1.0),
                              (0.0, (entry >= 0.0) & (entry <= WALL_ANGLE_TOLERANCE), -1.0)):
         g = theta + feed - wall
@@ -177,7 +182,7 @@ def surface_location_errors(signals: Signals, spans: Spans, n_flutes: int, inter
         if crossing.size == 0:
             continue
         g0, g1 = g[crossing], g[crossing + 1]
-        s = np.clip((k[crossing + 1] * pitch - g0) / (g1 - g0), 0.0, 1.0)
+        s = np.clip((k[crossing + 1] * pitch[crossing] - g0) / (g1 - g0), 0.0, 1.0)
         values.append(sign * (normal[crossing] + s * (normal[crossing + 1] - normal[crossing])))
         indices.append(crossing)
     if not values:
@@ -201,11 +206,13 @@ def _constant(values: np.ndarray, median: float, resolution: float) -> bool:
     return spread <= max(0.5 * resolution, 0.01 * median)
 
 
-def analytic_volumes(signals: Signals, spans: Spans, tool_diameter: float, resolution: float
+def analytic_volumes(signals: Signals, spans: Spans, tool_diameter: float | np.ndarray, resolution: float
                      ) -> tuple[np.ndarray, np.ndarray]:
     """Per block: the analytic volume of the steady part of a straight cut at constant depth and the volume the
-    Workpiece removed over the same samples (m3; NaN where the block is not such a cut; module text)."""
+    Workpiece removed over the same samples (m3; NaN where the block is not such a cut; module text).
+    ``tool_diameter``: the tool's, or each block's (a part with several tools)."""
     n_blocks = len(spans)
+    radii = 0.5 * np.broadcast_to(np.asarray(tool_diameter, dtype=float), (n_blocks,))
     analytic, removed = np.full(n_blocks, np.nan), np.full(n_blocks, np.nan)
     if not signals.has(f"{WORKPIECE}.removed_volume"):
         return analytic, removed
@@ -215,8 +222,7 @@ def analytic_volumes(signals: Signals, spans: Spans, tool_diameter: float, resol
     in_cut = signals.in_cut()
     step = np.r_[0.0, np.hypot(np.diff(x), np.diff(y))]
     travel = np.cumsum(np.nan_to_num(step))
-    radius = 0.5 * tool_diameter
-    for b, (i0, i1) in enumerate(zip(spans.starts, spans.stops)):
+    for b, (i0, i1, radius) in enumerate(zip(spans.starts, spans.stops, radii)):
         cut = np.flatnonzero(in_cut[i0:i1]) + i0
         if cut.size < 10:
             continue

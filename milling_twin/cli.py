@@ -120,7 +120,7 @@ def _columns(text: str) -> list[str]:
 # --- the subcommands ----------------------------------------------------------------------------------------
 
 def _run(p: argparse.ArgumentParser) -> None:
-    p.add_argument("scenario", type=Path, help="scenario TOML file")
+    p.add_argument("scenario", type=Path, help="scenario TOML file, or an SSP archive (.ssp, e.g. from export-ssp)")
     _add_fmu_dir(p)
     p.add_argument("--out", type=Path, default=Path("runs"), help="results go to OUT/<scenario name>/ (default: runs)")
     _add_set(p)
@@ -319,6 +319,15 @@ def _expand(p: argparse.ArgumentParser) -> None:
     _add_fmu_dir(p)
 
 
+def _export_ssp(p: argparse.ArgumentParser) -> None:
+    p.add_argument("scenario", type=Path, help="scenario TOML file (a whole-part one is exported as it expands)")
+    p.add_argument("-o", "--output", type=Path, required=True, help="SSP archive to write (e.g. twin.ssp)")
+    _add_fmu_dir(p)
+    _add_set(p)
+    p.add_argument("--parameter-set", type=Path, action="append", default=[], metavar="FILE",
+                   help="a parameter set (TOML) applied after the scenario's own (repeatable)")
+
+
 @dataclass(frozen=True)
 class Subcommand:
     name: str
@@ -368,6 +377,9 @@ COMMANDS: tuple[Subcommand | Group, ...] = (
                "modelled, or the line it refuses", _program, "milling_twin.orchestrator.gcode.program_summary:command"),
     Subcommand("expand", "write a whole-part scenario ([part]) as the explicit scenario it runs: instances, "
                "parameters, connections, stepping", _expand, "milling_twin.orchestrator.part.expand:command"),
+    Subcommand("export-ssp", "write a scenario as an SSP 1.0 archive (SSD, parameter sets, the FMUs) for other "
+               "co-simulation tools; `run` takes the archive back", _export_ssp,
+               "milling_twin.orchestrator.ssp.export:command"),
     Subcommand("reconstruct", "rebuild a part program (G-code) from a UMich recording, one per consistent segment",
                _reconstruct,
                "milling_twin.orchestrator.gcode.reconstruct:command"),

@@ -56,7 +56,16 @@ def run_summary(results: api.Results) -> str:
 
 
 def run(args: argparse.Namespace) -> int:
-    scenario = api.load_scenario(args.scenario, args.fmu_dir, parameter_sets=args.parameter_set,
+    if args.scenario.suffix.lower() == ".ssp":  # an SSP archive: run the scenario its SSD describes (docs/ssp.md)
+        from milling_twin.orchestrator.ssp.importer import opened
+
+        with opened(args.scenario) as scenario_file:
+            return _run(args, scenario_file)
+    return _run(args, args.scenario)
+
+
+def _run(args: argparse.Namespace, scenario_file: Path) -> int:
+    scenario = api.load_scenario(scenario_file, args.fmu_dir, parameter_sets=args.parameter_set,
                                  overrides=overrides_of(args), recording=args.recording)
     run_dir = args.out / scenario.name
     logger = None

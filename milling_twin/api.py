@@ -32,8 +32,17 @@ FMU_DIR_ENV = "MILLING_TWIN_FMU_DIR"
 
 
 def default_fmu_dir() -> Path:
-    """$MILLING_TWIN_FMU_DIR, else build/fmus (relative to the working directory)."""
-    return Path(os.environ.get(FMU_DIR_ENV, "build/fmus"))
+    """$MILLING_TWIN_FMU_DIR, else build/fmus (relative to the working directory) when it exists, else the FMUs
+    installed with the package (a wheel's milling_twin/fmus/), else build/fmus (which errors then name)."""
+    env = os.environ.get(FMU_DIR_ENV)
+    if env:
+        return Path(env)
+    build = Path("build/fmus")
+    if build.is_dir():
+        return build
+    from milling_twin.orchestrator.packaged import packaged_fmu_dir
+
+    return packaged_fmu_dir() or build
 
 
 @dataclass(frozen=True)

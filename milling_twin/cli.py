@@ -101,7 +101,8 @@ def overrides_of(args: argparse.Namespace) -> dict[str, object]:
 
 def _add_fmu_dir(p: argparse.ArgumentParser) -> None:
     p.add_argument("--fmu-dir", type=Path, default=default_fmu_dir(),
-                   help=f"folder of the built FMUs (default: ${FMU_DIR_ENV} or build/fmus; `make build` makes them)")
+                   help=f"folder of the built FMUs (default: ${FMU_DIR_ENV}, else build/fmus when it exists "
+                        "(`make build` makes them), else the FMUs installed with the package)")
 
 
 def _add_set(p: argparse.ArgumentParser) -> None:

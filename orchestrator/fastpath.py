@@ -39,8 +39,9 @@ chunk and is reported back (instance, function, status, time) so the master rais
 
 The library is found, in this order: ``$MILLING_TWIN_STEPPER`` (the path of the ``.so``; an empty
 value or ``off`` disables the fast path), then ``stepper/libmilling_stepper.so`` next to the folder
-of the scenario's FMUs (``build/stepper/`` beside ``build/fmus/``), then the repository's
-``build/stepper/``.
+of the scenario's FMUs (``build/stepper/`` beside ``build/fmus/``, ``milling_twin/stepper/`` beside an installed
+wheel's ``milling_twin/fmus/``), then the repository's ``build/stepper/``, then the installed package's
+``milling_twin/stepper/`` (:mod:`milling_twin.orchestrator.packaged`).
 """
 from __future__ import annotations
 
@@ -54,6 +55,7 @@ from typing import Any
 
 import numpy as np
 
+from milling_twin.orchestrator.packaged import packaged_file
 from milling_twin.orchestrator.scenario import Scenario
 
 __all__ = ["LIBRARY_ENV", "LIBRARY_NAME", "Choice", "FastPathUnavailable", "Stepper", "choose",
@@ -159,8 +161,10 @@ def find_library(scenario: Scenario) -> tuple[Path | None, str]:
             return None, f"disabled by ${LIBRARY_ENV}={env!r}"
         path = Path(env)
         return (path, "") if path.is_file() else (None, f"${LIBRARY_ENV} = {env}: no such file")
+    packaged = packaged_file("stepper", LIBRARY_NAME)
     candidates = list(dict.fromkeys([inst.path.resolve().parent.parent / "stepper" / LIBRARY_NAME
-                                     for inst in scenario.instances] + [_REPO_BUILD]))
+                                     for inst in scenario.instances] + [_REPO_BUILD]
+                                    + ([packaged] if packaged is not None else [])))
     for path in candidates:
         if path.is_file():
             return path, ""

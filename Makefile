@@ -9,7 +9,7 @@ JOBS ?= 2
 # halves its time. `pytest tests/x.py` by hand stays one process. PYTEST_PARALLEL= runs `make test` serially.
 PYTEST_PARALLEL ?= -n $(JOBS)
 
-.PHONY: setup configure fmus build demo test test-sanitize clean fuzz fuzz-tools
+.PHONY: setup configure fmus build demo test test-sanitize clean fuzz fuzz-tools wheel release
 
 # Reinstalled only when the dependencies change: pyproject.toml's ranges, installed at constraints.txt's exact versions
 # (the same set on every machine and in CI; docs/packaging.md).
@@ -58,6 +58,23 @@ demo: fmus
 	$(MILLING_TWIN) run scenarios/al_bracket.toml --fmu-dir $(BUILD)/fmus --out runs --no-progress
 	$(MILLING_TWIN) run scenarios/al_plate.toml --fmu-dir $(BUILD)/fmus --out runs --no-progress
 
+# The package (docs/packaging.md): dist/milling_twin-<version>-py3-none-manylinux_<glibc>_<arch>.whl with every FMU
+# of WHEEL_FMUS (the cross-compiled build/fmus-all/ when it exists, else build/fmus/) and the stepper library; its
+# tag names the newest glibc the binaries need. setup.py copies them in; it compiles nothing.
+WHEEL_FMUS ?= $(if $(wildcard build/fmus-all),build/fmus-all,$(BUILD)/fmus)
+WHEEL_STEPPER ?= $(BUILD)/stepper/libmilling_stepper.so
+wheel: fmus
+	rm -rf build/python-wheel dist/milling_twin-*.whl
+	MILLING_TWIN_WHEEL_FMUS=$(abspath $(WHEEL_FMUS)) MILLING_TWIN_WHEEL_STEPPER=$(abspath $(WHEEL_STEPPER)) \
+	  $(VENV_PYTHON) -m pip wheel --no-deps --quiet -w dist .
+	@ls dist/milling_twin-*.whl
+
+# The FMUs alone, for users of other FMI tools: dist/milling-twin-fmus-<version>.tar.gz (the .fmu files of
+# WHEEL_FMUS, a README listing them, the licence LICENSE_FILE and the FMI headers' notice).
+LICENSE_FILE ?= LICENSE
+release: fmus
+	$(VENV_PYTHON) -m buildtools.release --fmus $(WHEEL_FMUS) --licence $(LICENSE_FILE) --out dist
+
 # clang for the short libFuzzer runs of tests/test_fuzz.py: installed when missing and we are root
 # (CI); otherwise that run is skipped with its reason and the corpus replay in ctest still runs.
 fuzz-tools:
@@ -75,7 +92,8 @@ test: build $(VENV)/.installed-train fuzz-tools
 # fails it (tests/run_sanitized.sh). Left out, and why: test_forcenet_train.py (torch: trains a network, slow
 # under the preloaded ASan; its FMU-vs-torch check of the C code runs in the plain pytest run), test_fuzz.py
 # (builds clang fuzzers, no FMU simulation), test_fmu_sanitizers.py (builds and preloads build-asan itself),
-# test_stability.py, test_units.py and test_packaging.py (Python only: no FMU), test_calibrate_{fit,slot,spec,
+# test_stability.py, test_units.py and test_packaging.py (Python only: no FMU), test_wheel.py (packaging: its FMUs run
+# from a fresh venv's wheel, built from the plain build), test_calibrate_{fit,slot,spec,
 # report,fmu_path,outputs}.py and test_documented_commands.py (it runs the docs' calibrate commands): their fits
 # run casadi's IPOPT, whose plugin casadi loads with RTLD_DEEPBIND, which the ASan runtime refuses outright
 # (google/sanitizers#611); the FMU simulations they drive go through the same master and stepper paths as the
@@ -88,7 +106,7 @@ ASAN_BUILD := build-asan
 SANITIZE_IGNORE := test_forcenet_train.py test_fuzz.py test_fmu_sanitizers.py test_stability.py test_units.py \
                    test_packaging.py test_calibrate_fit.py test_calibrate_slot.py test_calibrate_spec.py \
                    test_calibrate_report.py test_calibrate_fmu_path.py test_calibrate_outputs.py \
-                   test_calibrate_runs.py test_calibrate_parallel.py test_documented_commands.py
+                   test_calibrate_runs.py test_calibrate_parallel.py test_documented_commands.py test_wheel.py
 SANITIZE_DESELECT := test_fmu_lifecycle.py::test_repeated_lifecycles_do_not_grow_memory \
                      test_interpolator_programs.py::test_parsing_is_linear_in_the_program_size \
                      test_fmu_loading.py::test_loading_is_cheaper_than_fmpys

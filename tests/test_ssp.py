@@ -114,12 +114,46 @@ def test_a_whole_part_exports_its_files_arrays_stepping_and_tool_changes(fmu_dir
     assert engagement.find(".//{urn:milling-twin:ssp:1}Array").get("shape") == "8,24"
 
 
+def test_fmpy_reads_the_archive_with_its_parameter_bindings(fmu_dir: Path, tmp_path: Path) -> None:
+    """Another reader: FMPy's SSD parser, validating against its copy of the schemas."""
+    from fmpy.ssp.ssd import find_components, read_ssd
+
+    archive = export_ssp(_short("chatter.toml", 0.02, fmu_dir), tmp_path / "chatter.ssp").path
+    components = {c.name: c for c in find_components(read_ssd(str(archive), validate=True).system)}
+    assert list(components) == ["force", "vibration"]
+    force_set = components["force"].parameterBindings[0].parameterValues[0]
+    assert int({p.name: p.value for p in force_set.parameters}["n_flutes"]) == 2  # FMPy keeps the text
+
+
+def test_a_calibrated_set_is_bound_through_a_parameter_mapping(fmu_dir: Path, tmp_path: Path) -> None:
+    """The scenario's parameter set (the calibration's, names "instance.variable") as an SSV with an SSM per
+    component; a value changed in that SSV is the value the archive runs with (it is bound after the component's
+    own set)."""
+    scenario = _short("calibration/umich_power_calibrated.toml", 0.2, fmu_dir)
+    archive = export_ssp(scenario, tmp_path / "calibrated.ssp").path
+    with zipfile.ZipFile(archive) as zf:
+        values = etree.fromstring(zf.read("resources/sets/umich_power.params.ssv"))
+        mapping = etree.fromstring(zf.read("resources/sets/umich_power.params.power.ssm"))
+        ssd = zf.read(SSD_NAME).decode()
+    assert schema_errors(values, "ssv", SCHEMAS) == [] and schema_errors(mapping, "ssm", SCHEMAS) == []
+    entries = {e.get("source"): e.get("target") for e in mapping.iter(q("ssm", "MappingEntry"))}
+    assert entries["power.c1"] == "c1" and all(k == f"power.{v}" for k, v in entries.items())
+    assert 'source="resources/sets/umich_power.params.power.ssm"' in ssd
+    c1 = scenario.instance("power").parameters["c1"]
+    text = etree.tostring(values).decode().replace(f'value="{c1!r}"', 'value="0.125"')
+    assert "0.125" in text
+    changed = _rewrite(archive, tmp_path / "changed.ssp", resources__sets__umich_power_DOT_params_DOT_ssv=text.encode())
+    with opened(changed) as path:
+        assert mt.load_scenario(path).instance("power").parameters["c1"] == 0.125
+
+
 # ---- scenario -> SSP -> run = scenario run ----
 
 
 @pytest.mark.parametrize("name, stop", [("chatter.toml", 0.05), ("slot_milling.toml", 0.02),
                                         ("slot_entry_variable.toml", 0.2), ("umich_power.toml", 0.2),
-                                        ("chatter_forcenet.toml", 0.02), ("al_plate.toml", 0.2)])
+                                        ("chatter_forcenet.toml", 0.02), ("al_plate.toml", 0.2),
+                                        ("calibration/umich_power_calibrated.toml", 0.2)])
 def test_the_archive_runs_as_the_scenario_bit_for_bit(name: str, stop: float, fmu_dir: Path, tmp_path: Path) -> None:
     """Delays, step sizes, [stepping], recorded inputs, FMI 3 arrays, a tool change: all restored from the
     annotations, so every column is identical."""

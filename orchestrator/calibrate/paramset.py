@@ -14,10 +14,10 @@ import math
 import os
 from collections.abc import Mapping, Sequence
 from pathlib import Path
-from xml.sax.saxutils import quoteattr
 
 from milling_twin.orchestrator.calibrate.parameters import Parameter
 from milling_twin.orchestrator.calibrate.statistics import ParameterStatistics
+from milling_twin.orchestrator.ssp.ssv import SsvValue, parameter_set
 
 __all__ = ["write_parameter_set", "write_ssv"]
 
@@ -63,13 +63,10 @@ def write_parameter_set(path: Path, parameters: Sequence[Parameter], estimates: 
 
 def write_ssv(path: Path, name: str, parameters: Sequence[Parameter], estimates: Sequence[float]) -> Path:
     """The same values as an SSP 1.0 parameter set (SystemStructureParameterValues), names
-    "instance.variable", SI values (no unit attribute: the FMU's unit)."""
-    rows = [f'    <ssv:Parameter name={quoteattr(q.name)}><ssv:Real value="{min(max(float(v), q.lower), q.upper)!r}"/>'
-            "</ssv:Parameter>" for q, v in zip(parameters, estimates) if not q.nuisance]
-    text = ('<?xml version="1.0" encoding="UTF-8"?>\n'
-            '<ssv:ParameterSet xmlns:ssv="http://ssp-standard.org/SSP1/SystemStructureParameterValues" '
-            f'version="1.0" name={quoteattr(name)}>\n  <ssv:Parameters>\n' + "\n".join(rows)
-            + "\n  </ssv:Parameters>\n</ssv:ParameterSet>\n")
+    "instance.variable", SI values with the FMU variable's unit (the SSP export's writer; its archives bind such
+    a set to the components through a parameter mapping, docs/ssp.md)."""
+    values = [SsvValue(q.name, min(max(float(v), q.lower), q.upper), q.unit)
+              for q, v in zip(parameters, estimates) if not q.nuisance]
     path.parent.mkdir(parents=True, exist_ok=True)
-    path.write_text(text, encoding="utf-8")
+    path.write_bytes(parameter_set(name, values))
     return path

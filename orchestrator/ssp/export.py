@@ -24,6 +24,7 @@ from lxml import etree
 from milling_twin.orchestrator.scenario import FmuInstance, Scenario, Variable
 from milling_twin.orchestrator.ssp.common import (FMU_MIME, MT_TYPE, NSMAP, OSP_TYPE, SSD_NAME, SspError, annotation,
                                                   q, schema_errors, ssp_unit, unit_element)
+from milling_twin.orchestrator.ssp.ssv import SsvValue, parameter_mapping, parameter_set
 
 __all__ = ["ExportResult", "command", "export_ssp", "ssd_tree"]
 
@@ -56,6 +57,13 @@ class _Archive:
                 return name
         raise SspError(f"{path}: too many files named {path.name}")
 
+    def add_bytes(self, folder: str, name: str, content: bytes) -> str:
+        member = f"{folder}/{name}"
+        if member in self.members:
+            raise SspError(f"two archive members would be called {member}")
+        self.members[member] = content
+        return member
+
 
 def _connectors(inst: FmuInstance) -> list[Variable]:
     """The connectors of an instance: its inputs, outputs and parameters, FMI 3 arrays whole (SSP 1.0 connectors
@@ -70,36 +78,35 @@ def _connectors(inst: FmuInstance) -> list[Variable]:
     return out
 
 
-def _value_element(parent: Any, prefix: str, var: Variable, value: Any, units: dict[str, dict[str, str]]) -> None:
-    """``<ssv:Real value=... unit=...>`` (or Integer, Boolean, String) under ``parent``."""
-    kind = _SSC_TYPES[var.type]
-    if kind == "Real":
-        attributes = {"value": repr(float(value))}
-        unit = ssp_unit(var.unit)
-        if unit is not None:
-            attributes["unit"] = unit[0]
-            units[unit[0]] = unit[1]
-        etree.SubElement(parent, q(prefix, kind), **attributes)
-    elif kind == "Boolean":
-        etree.SubElement(parent, q(prefix, kind), value="true" if value else "false")
-    else:
-        etree.SubElement(parent, q(prefix, kind), value=str(value))
-
-
 def _parameter_set(inst: FmuInstance, values: Mapping[str, Any]) -> bytes:
     """The SSV of an instance: its parameters and constant inputs, named as the FMU names them."""
-    root = etree.Element(q("ssv", "ParameterSet"), nsmap={"ssv": NSMAP["ssv"], "ssc": NSMAP["ssc"]},
-                         version="1.0", name=inst.name)
-    parameters = etree.SubElement(root, q("ssv", "Parameters"))
-    units: dict[str, dict[str, str]] = {}
-    for name, value in values.items():
-        parameter = etree.SubElement(parameters, q("ssv", "Parameter"), name=name)
-        _value_element(parameter, "ssv", inst.variables[name], value, units)
-    unit_element(root, "ssv", units)
-    errors = schema_errors(root, "ssv")
-    if errors:
-        raise SspError(f"resources/{inst.name}.ssv does not follow the SSP 1.0 schema: {'; '.join(errors)}")
-    return etree.tostring(root, xml_declaration=True, encoding="UTF-8", pretty_print=True)
+    return parameter_set(inst.name, [SsvValue(name, value, inst.variables[name].unit)
+                                     for name, value in values.items()])
+
+
+def _applied_sets(scenario: Scenario, archive: _Archive, elements: Any) -> list[str]:
+    """The scenario's parameter sets (a calibration's, say) as SSVs named as such a set names its values
+    ("instance.variable", the calibration's .ssv), bound to each component they set through an SSM that maps the
+    names to its connectors; the values are those the scenario runs with (also in the component's own SSV)."""
+    names = []
+    for set_path in scenario.parameter_sets:
+        tables = tomllib.loads(set_path.read_text(encoding="utf-8")).get("parameters", {})
+        values = [(inst, var) for inst, table in tables.items() for var in table]
+        member = archive.add_bytes("resources/sets", f"{set_path.stem}.ssv", parameter_set(set_path.stem, [
+            SsvValue(f"{inst}.{var}", scenario.instance(inst).parameters[var],
+                     scenario.instance(inst).variables[var].unit) for inst, var in values]))
+        for inst in tables:
+            mapping = archive.add_bytes("resources/sets", f"{set_path.stem}.{inst}.ssm", parameter_mapping(
+                {f"{inst}.{var}": var for i, var in values if i == inst}))
+            component = elements.find(f"{q('ssd', 'Component')}[@name='{inst}']")
+            bindings = component.find(q("ssd", "ParameterBindings"))
+            if bindings is None:
+                bindings = etree.Element(q("ssd", "ParameterBindings"))
+                component.find(q("ssd", "Connectors")).addnext(bindings)
+            binding = etree.SubElement(bindings, q("ssd", "ParameterBinding"), source=member)
+            etree.SubElement(binding, q("ssd", "ParameterMapping"), source=mapping)
+        names.append(member)
+    return names  # their archive members
 
 
 def _is_file(value: Any) -> bool:
@@ -193,6 +200,7 @@ def ssd_tree(scenario: Scenario, archive: _Archive) -> tuple[Any, list[str]]:
     if arrays:
         warnings.append(f"FMI 3 arrays ({', '.join(arrays)}): SSP 1.0 connectors are scalars; each array is one "
                         "connector of its name with its shape in an annotation")
+    _applied_sets(scenario, archive, elements)
     _, delayed = _connections(scenario, system)
     if delayed:
         warnings.append(f"delay = true ({', '.join(delayed)}): SSP 1.0 connections have no delay; it is in the "

@@ -101,7 +101,8 @@ def _mapping(reader: _Reader, binding: Any) -> dict[str, str]:
 
 
 def _bindings(reader: _Reader, component: Any, connectors: dict[str, str], files: set[str]) -> tuple[dict, dict]:
-    """The parameter values and constant inputs a component's parameter bindings give, later bindings winning."""
+    """The parameter values and constant inputs a component's parameter bindings give, later bindings winning; of a
+    binding with a parameter mapping the entries the mapping names, of one with a prefix those that start with it."""
     parameters: dict[str, Any] = {}
     inputs: dict[str, Any] = {}
     name = component.get("name")
@@ -116,8 +117,14 @@ def _bindings(reader: _Reader, component: Any, connectors: dict[str, str], files
                 reader.fail(SSD_NAME, f"{describe(binding)}: neither a source nor inline ssd:ParameterValues")
         mapping, prefix = _mapping(reader, binding), binding.get("prefix", "")
         for parameter in root.findall(f"{q('ssv', 'Parameters')}/{q('ssv', 'Parameter')}"):
-            target = mapping.get(parameter.get("name"), parameter.get("name"))
-            if prefix and target.startswith(prefix):
+            target = parameter.get("name")
+            if mapping:  # a set with a mapping (a calibration's, "instance.variable"): the entries it maps
+                if target not in mapping:
+                    continue
+                target = mapping[target]
+            elif prefix:  # the entries named with the prefix, without it
+                if not target.startswith(prefix):
+                    continue
                 target = target[len(prefix):]
             kind, value, unit = _value(reader, member, parameter)
             if target not in connectors:

@@ -13,7 +13,7 @@ import logging
 import math
 import time
 import traceback
-from collections.abc import Mapping
+from collections.abc import Callable, Mapping
 from contextlib import nullcontext
 from concurrent.futures import FIRST_COMPLETED, Executor, Future, wait
 from dataclasses import dataclass
@@ -26,7 +26,8 @@ from tqdm import tqdm
 from milling_twin.orchestrator.scenario import Scenario
 from milling_twin.orchestrator.study.executor import SerialExecutor, open_executor
 from milling_twin.orchestrator.study.reduce import CaseRun, get_reduction
-from milling_twin.orchestrator.study.spec import Case, ReduceSpec, Study
+from milling_twin.orchestrator.study.refine import refined_values
+from milling_twin.orchestrator.study.spec import Case, ReduceSpec, Study, StudyError
 from milling_twin.orchestrator.study.summary import SummaryStore
 
 __all__ = ["CaseTask", "StudyResult", "run_case", "sweep"]
@@ -157,12 +158,48 @@ def _dispatch(executor: Executor, tasks: list[CaseTask], store: SummaryStore, ba
             bar.update()
 
 
-def _study_doc(study: Study, workers: int | None, scheduler: str | None) -> dict[str, Any]:
+def _study_doc(study: Study, cases: list[Case], workers: int | None, scheduler: str | None) -> dict[str, Any]:
+    refine = None if study.refine is None else {k: v for k, v in vars(study.refine).items() if k != "key"}
     return {"study": str(study.path.resolve()), "name": study.name, "description": study.description,
             "base": str(study.base.path), "stop_time": study.stop_time, "variables": list(study.variables),
-            "reductions": [{"kind": r.kind, **r.options} for r in study.reductions],
+            "reductions": [{"kind": r.kind, **r.options} for r in study.reductions], "refine": refine,
             "workers": workers, "scheduler": scheduler,
-            "cases": [{"case_id": c.case_id, "source": c.source, "values": c.values} for c in study.cases]}
+            "cases": [{"case_id": c.case_id, "source": c.source, "values": c.values} for c in cases]}
+
+
+def _run_cases(executor: Executor, study: Study, cases: list[Case], done: set[str], store: SummaryStore,
+               folder: Path, stepping: str, progress: bool, desc: str) -> int:
+    """Run those of ``cases`` not in ``done``, each row written as it finishes; the number run."""
+    todo = [case for case in cases if case.case_id not in done]
+    if todo:
+        base, cases_dir = study.scenario(), folder / CASES
+        tasks = [CaseTask(case, base, cases_dir, study.reductions, study.variables, stepping) for case in todo]
+        with tqdm(total=len(tasks), unit="case", desc=desc, disable=not progress) as bar:
+            _dispatch(executor, tasks, store, bar)
+    return len(todo)
+
+
+def _refine(executor: Executor, study: Study, cases: list[Case], done: set[str], store: SummaryStore,
+            folder: Path, stepping: str, progress: bool, doc: Callable[[], dict[str, Any]]) -> int:
+    """The rounds of ``[study.refine]``: each adds its cases to ``cases`` (in place) and runs them; the number run."""
+    spec, ran = study.refine, 0
+    assert spec is not None
+    for round_number in range(1, spec.rounds + 1):
+        summary = store.consolidate([c.case_id for c in cases], study.variables)
+        known = {c.case_id: c for c in cases}
+        try:
+            made = refined_values(summary, spec, study.variables, {k: c.values for k, c in known.items()},
+                                  study.stop_time)
+        except KeyError as exc:
+            raise StudyError(study.path, f"{spec.key}.output", exc.args[0]) from None
+        new = [Case(cid, values, f"{spec.key} round {round_number}") for cid, values in made if cid not in known]
+        if not new:
+            break
+        cases.extend(new)
+        store.write_study(doc())
+        ran += _run_cases(executor, study, new, done, store, folder, stepping, progress,
+                          f"{study.name} refine {round_number}/{spec.rounds}")
+    return ran
 
 
 def sweep(study: Study, out: str | Path, *, workers: int | None = None, scheduler: str | None = None,
@@ -177,24 +214,27 @@ def sweep(study: Study, out: str | Path, *, workers: int | None = None, schedule
     else:
         store.clear()
         done = set()
-    todo = [case for case in study.cases if case.case_id not in done]
-    store.write_study(_study_doc(study, workers, scheduler))
-    base = study.scenario()
-    cases_dir = folder / CASES
-    cases_dir.mkdir(parents=True, exist_ok=True)
-    tasks = [CaseTask(case, base, cases_dir, study.reductions, study.variables, stepping) for case in todo]
+    cases = list(study.cases)  # [study.refine] adds its rounds' cases
+
+    def doc() -> dict[str, Any]:
+        return _study_doc(study, cases, workers, scheduler)
+
+    store.write_study(doc())
+    (folder / CASES).mkdir(parents=True, exist_ok=True)
     post = None
     if study.post is not None:
         from milling_twin.orchestrator.study.post import get_post
 
         post = get_post(study.post)
-    with open_executor(workers, scheduler) if tasks or post else nullcontext() as executor:
+    needed = post is not None or study.refine is not None or any(c.case_id not in done for c in cases)
+    ran = 0
+    with open_executor(workers, scheduler) if needed else nullcontext() as executor:
         try:
-            if tasks:
-                with tqdm(total=len(tasks), unit="case", desc=study.name, disable=not progress) as bar:
-                    _dispatch(executor, tasks, store, bar)
+            ran += _run_cases(executor, study, cases, done, store, folder, stepping, progress, study.name)
+            if study.refine is not None:
+                ran += _refine(executor, study, cases, done, store, folder, stepping, progress, doc)
         finally:
-            summary = store.consolidate([c.case_id for c in study.cases], study.variables)
+            summary = store.consolidate([c.case_id for c in cases], study.variables)
         if post is not None:  # on the same executor: its own parallel work (the map's references) uses the workers
             try:
                 post.run(summary, study, folder, study.post_config, executor)
@@ -202,5 +242,5 @@ def sweep(study: Study, out: str | Path, *, workers: int | None = None, schedule
                 exc.add_note(f"post-processor {study.post!r} of {study.path}; the summary is written: "
                              f"{folder / 'summary.parquet'}")
                 raise
-    return StudyResult(study.name, folder, summary, len(tasks), len(study.cases) - len(todo),
+    return StudyResult(study.name, folder, summary, ran, len(cases) - ran,
                        int((summary["status"] != "ok").sum()), time.perf_counter() - t0, workers)

@@ -9,6 +9,7 @@
     [[study.reduce]]                      # what each case gives the summary (orchestrator/study/reduce.py)
     kind = "max"
     variable = "force.Fx"
+    [study.refine]                        # optional: more cases where an output crosses a threshold (refine.py)
 
 Every error is a :class:`StudyError` naming the study file and the key. The variables and values of grids and lists
 are checked against the base scenario here (``with_values``: causality, type, unit, range), those of samples at
@@ -25,12 +26,13 @@ from typing import Any
 from milling_twin.orchestrator.scenario import Scenario, ScenarioError, load_scenario, with_values
 from milling_twin.orchestrator.study import cases as cases_mod
 from milling_twin.orchestrator.study.reduce import PROCESS_FIGURES, STATISTICS, get_reduction
+from milling_twin.orchestrator.study.refine import RefineSpec, read_refine
 from milling_twin.orchestrator.toml_access import FileKeyError, TomlAccess
 
 __all__ = ["Case", "ReduceSpec", "Study", "StudyError", "load_study"]
 
 STUDY_KEYS = ("name", "description", "base", "stop_time", "set", "grid", "list", "sample", "distributions",
-              "reduce", "post")
+              "reduce", "post", "refine")
 
 
 class StudyError(FileKeyError):
@@ -62,6 +64,7 @@ class Study:
     reductions: tuple[ReduceSpec, ...]
     post: str | None = None  # [study] post: the post-processor run after the cases (orchestrator/study/post.py)
     post_config: Any = field(default=None, compare=False)  # what its check made of [study.<its table>]
+    refine: RefineSpec | None = None  # [study.refine]: rounds of cases where an output crosses a threshold
 
     @property
     def variables(self) -> tuple[str, ...]:
@@ -222,8 +225,10 @@ def load_study(path: str | Path, fmu_dir: str | Path) -> Study:
         values = {**values, **fixed}
         cid = cases_mod.case_id(values, stop_time)
         cases.setdefault(cid, Case(cid, values, source))  # the same values twice: one case
+    variables = tuple(dict.fromkeys(name for case in cases.values() for name in case.values))
+    refine = read_refine(study["refine"], variables, reader.fail) if "refine" in study else None
     return Study(path, name, description, base, stop_time, tuple(cases.values()), _reductions(reader, study, base),
-                 post_name, post_config)
+                 post_name, post_config, refine)
 
 
 def _post(reader: _Reader, study: dict) -> tuple[str | None, Any, str | None]:

@@ -46,6 +46,7 @@ import numpy as np
 from milling_twin.models.stability import semi_discretization_limit, stability_lobes
 from milling_twin.orchestrator.study.post import register_post
 from milling_twin.orchestrator.study.reduce import CaseRun, register
+from milling_twin.orchestrator.study.refine import first_crossing
 from milling_twin.orchestrator.validation.chatter import ToolAndCut, displacement_growth, tool_and_cut
 
 if TYPE_CHECKING:
@@ -117,12 +118,12 @@ def onset_of(speed_rpm: float, depths: Sequence[float], growths: Sequence[float]
     d, g = d[keep][order], g[keep][order]
     if d.size == 0:
         return Onset(speed_rpm, math.nan, math.nan, math.nan, "no case")
-    unstable = np.flatnonzero(g > 1.0)
-    if unstable.size == 0:
+    crossing = first_crossing(d, g, 1.0)
+    if crossing is None and not (g > 1.0).any():
         return Onset(speed_rpm, math.nan, float(d[-1]), math.nan, f"stable up to {d[-1] * 1e3:.4g} mm")
-    i = int(unstable[0])
-    if i == 0:
+    if crossing is None:
         return Onset(speed_rpm, math.nan, math.nan, float(d[0]), f"chatter from {d[0] * 1e3:.4g} mm")
+    i = crossing[1]
     low, high = float(d[i - 1]), float(d[i])
     note = "stable again above" if np.any(g[i + 1:] <= 1.0) else ""
     log_low = math.log(max(float(g[i - 1]), 1e-300))

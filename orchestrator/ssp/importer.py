@@ -50,7 +50,7 @@ class _Reader:
         try:
             root = etree.fromstring(self.zf.read(member))
         except etree.XMLSyntaxError as exc:
-            self.fail(member, f"invalid XML: {exc}")
+            self.fail(member, f"invalid XML: {exc.msg}")  # the message gives the line and column
         errors = schema_errors(root, kind)
         if errors:
             self.fail(member, f"does not follow the SSP 1.0 schema: {'; '.join(errors[:5])}")

@@ -62,10 +62,13 @@ demo: fmus
 # of WHEEL_FMUS (the cross-compiled build/fmus-all/ when it exists, else build/fmus/) and the stepper library; its
 # tag names the newest glibc the binaries need. setup.py copies them in; it compiles nothing.
 WHEEL_FMUS ?= $(if $(wildcard build/fmus-all),build/fmus-all,$(BUILD)/fmus)
-WHEEL_STEPPER ?= $(BUILD)/stepper/libmilling_stepper.so
+# WHEEL_STEPPER: the stepper library (default: WHEEL_FMUS/stepper/<arch>-linux/ from the cross-compilation, else
+# build/stepper/); e.g. build/fmus-all/stepper/aarch64-linux/libmilling_stepper.so makes the aarch64 wheel.
+WHEEL_STEPPER ?=
 wheel: fmus
 	rm -rf build/python-wheel dist/milling_twin-*.whl
-	MILLING_TWIN_WHEEL_FMUS=$(abspath $(WHEEL_FMUS)) MILLING_TWIN_WHEEL_STEPPER=$(abspath $(WHEEL_STEPPER)) \
+	MILLING_TWIN_WHEEL_FMUS=$(abspath $(WHEEL_FMUS)) \
+	  MILLING_TWIN_WHEEL_STEPPER=$(if $(WHEEL_STEPPER),$(abspath $(WHEEL_STEPPER))) \
 	  $(VENV_PYTHON) -m pip wheel --no-deps --quiet -w dist .
 	@ls dist/milling_twin-*.whl
 

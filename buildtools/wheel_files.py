@@ -3,8 +3,9 @@ they give it.
 
 Where they come from: ``$MILLING_TWIN_WHEEL_FMUS`` (a folder of ``.fmu`` files; ``none``: a Python-only wheel),
 else ``build/fmus-all/`` (the cross-compiled multi-platform FMUs) when it exists, else ``build/fmus/``; the stepper
-library from ``$MILLING_TWIN_WHEEL_STEPPER``, else ``build/stepper/libmilling_stepper.so``. Nothing is compiled
-here: ``make wheel`` builds them with CMake first.
+library from ``$MILLING_TWIN_WHEEL_STEPPER``, else the cross-compiled one for this machine beside those FMUs
+(``<fmus>/stepper/x86_64-linux/``), else ``build/stepper/libmilling_stepper.so``. Nothing is compiled here:
+``make wheel`` builds them with CMake first.
 
 The tag: the stepper library is native code loaded by ctypes (no CPython ABI), so the wheel is
 ``py3-none-manylinux_<glibc>_<arch>``, where <glibc> is the newest GLIBC_x.y symbol version the stepper library and
@@ -13,6 +14,7 @@ the FMUs' Linux binaries of the same architecture reference (2.17, manylinux2014
 from __future__ import annotations
 
 import os
+import platform
 import zipfile
 from collections.abc import Mapping
 from dataclasses import dataclass
@@ -105,8 +107,13 @@ def select(root: Path, environ: Mapping[str, str] = os.environ) -> WheelFiles:
         raise WheelFilesError(f"{fmu_dir} ({origin}): every FMU is packaged in FMI 3 and FMI 2; missing: "
                               f"{', '.join(missing)}")
     raw_stepper = environ.get(STEPPER_ENV, "").strip()
-    stepper = _path(root, raw_stepper) if raw_stepper else root / "build" / "stepper" / STEPPER_NAME
+    if raw_stepper:
+        stepper, origin = _path(root, raw_stepper), f"${STEPPER_ENV}"
+    else:  # the cross-compiled one beside cross-compiled FMUs (for this machine's platform), else CMake's
+        origin = "the default"
+        candidates = [fmu_dir / "stepper" / f"{platform.machine()}-linux" / STEPPER_NAME,
+                      root / "build" / "stepper" / STEPPER_NAME]
+        stepper = next((c for c in candidates if c.is_file()), candidates[-1])
     if not stepper.is_file():
-        origin = f"${STEPPER_ENV}" if raw_stepper else "the default"
         raise WheelFilesError(f"{stepper} ({origin}): no stepper library: {hint}")
     return WheelFiles(fmus, stepper)

@@ -6,6 +6,7 @@ from __future__ import annotations
 
 import json
 import os
+import platform
 import re
 import shutil
 import subprocess
@@ -97,6 +98,11 @@ def test_the_cross_compiled_fmus_are_preferred(tmp_path: Path) -> None:
     (tmp_path / "build" / "stepper" / STEPPER_NAME).write_bytes(b"")
     files = select(tmp_path, {})
     assert {p.parent.name for p in files.fmus} == {"fmus-all"}
+    assert files.stepper == tmp_path / "build" / "stepper" / STEPPER_NAME
+    cross = tmp_path / "build" / "fmus-all" / "stepper" / f"{platform.machine()}-linux" / STEPPER_NAME
+    cross.parent.mkdir(parents=True)
+    cross.write_bytes(b"")
+    assert select(tmp_path, {}).stepper == cross  # the cross-compiled library beside the cross-compiled FMUs
 
 
 # --- the FMU lookup -------------------------------------------------------------------------------------------

@@ -6,12 +6,17 @@ from __future__ import annotations
 
 import argparse
 import logging
+from collections.abc import Callable
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 from milling_twin import api
 from milling_twin.cli import overrides_of
 from milling_twin.models.units import conversion_factor
 from milling_twin.orchestrator.master import SimulationError
+
+if TYPE_CHECKING:
+    from milling_twin.orchestrator.scenario import Scenario
 
 _fmi_log = logging.getLogger("milling_twin.fmi")
 
@@ -57,15 +62,15 @@ def run_summary(results: api.Results) -> str:
 
 def run(args: argparse.Namespace) -> int:
     if args.scenario.suffix.lower() == ".ssp":  # an SSP archive: run the scenario its SSD describes (docs/ssp.md)
-        from milling_twin.orchestrator.ssp.importer import opened
+        from milling_twin.orchestrator.ssp.importer import load_scenario, opened
 
         with opened(args.scenario) as scenario_file:
-            return _run(args, scenario_file)
-    return _run(args, args.scenario)
+            return _run(args, scenario_file, load_scenario)
+    return _run(args, args.scenario, api.load_scenario)
 
 
-def _run(args: argparse.Namespace, scenario_file: Path) -> int:
-    scenario = api.load_scenario(scenario_file, args.fmu_dir, parameter_sets=args.parameter_set,
+def _run(args: argparse.Namespace, scenario_file: Path, load: Callable[..., Scenario]) -> int:
+    scenario = load(scenario_file, args.fmu_dir, parameter_sets=args.parameter_set,
                                  overrides=overrides_of(args), recording=args.recording)
     run_dir = args.out / scenario.name
     logger = None

@@ -18,7 +18,7 @@ from milling_twin.cli import main
 from milling_twin.orchestrator.scenario import Scenario
 from milling_twin.orchestrator.ssp.common import MT_TYPE, SSD_NAME, SspError, q, schema_errors
 from milling_twin.orchestrator.ssp.export import export_ssp
-from milling_twin.orchestrator.ssp.importer import opened
+from milling_twin.orchestrator.ssp.importer import load_scenario, opened
 
 SCHEMAS = REPO_ROOT / "tests" / "data" / "ssp"  # the standard's XSDs (BSD-2-Clause), not fmpy's copy
 
@@ -160,6 +160,23 @@ def test_the_archive_runs_as_the_scenario_bit_for_bit(name: str, stop: float, fm
     direct, again = _round_trip(_short(name, stop, fmu_dir), tmp_path / "twin.ssp")
     assert list(again.columns) == list(direct.columns) and len(direct) > 1
     assert direct.equals(again)
+
+
+def test_a_whole_part_from_the_archive_has_its_part_and_process_report(fmu_dir: Path, tmp_path: Path) -> None:
+    scenario = _short("al_plate.toml", 0.2, fmu_dir)
+    archive = export_ssp(scenario, tmp_path / "plate.ssp").path
+    direct = mt.simulate(scenario, out=tmp_path / "toml")
+    with opened(archive) as path:
+        loaded = load_scenario(path)
+        assert loaded.part.program.parent == path.parent / "resources" / "files" / "interp"
+        assert dataclasses.replace(loaded.part, program=scenario.part.program,
+                                   tool_table=scenario.part.tool_table) == scenario.part
+        again = mt.simulate(loaded, out=tmp_path / "ssp")
+    assert again.frame.equals(direct.frame)
+    first, second = direct.process_report, again.process_report
+    assert second is not None and second.html.is_file()
+    assert (second.machining_time, second.blocks, second.max_force, second.removed_volume) == \
+        (first.machining_time, first.blocks, first.max_force, first.removed_volume)
 
 
 def test_the_cli_exports_and_runs_the_archive(fmu_dir: Path, tmp_path: Path, capsys) -> None:

@@ -21,6 +21,7 @@ from typing import Any
 import tomli_w
 from lxml import etree
 
+from milling_twin.orchestrator.part.model import INTERPOLATOR
 from milling_twin.orchestrator.scenario import FmuInstance, Scenario, Variable
 from milling_twin.orchestrator.ssp.common import (FMU_MIME, MT_TYPE, NSMAP, OSP_TYPE, SSD_NAME, SspError, annotation,
                                                   q, schema_errors, ssp_unit, unit_element)
@@ -146,6 +147,24 @@ def _scenario_toml(scenario: Scenario, archive: _Archive) -> tuple[str, list[str
     return tomli_w.dumps(doc), warnings
 
 
+def _part_toml(scenario: Scenario, archive: _Archive) -> str:
+    """A whole part's ``[part]`` (its program and tool table in the archive) with the ``[scenario]`` keys and the
+    tables beside it that its reading depends on: what the importer reads the part from again (for the process
+    report), not what it runs (the components are the expansion)."""
+    raw = tomllib.loads(scenario.path.read_text(encoding="utf-8"))
+    part = dict(raw["part"])
+    part["program"] = archive.add_file(f"resources/files/{INTERPOLATOR}", scenario.part.program)
+    if scenario.part.tool_table is not None:
+        part["tool_table"] = archive.add_file(f"resources/files/{INTERPOLATOR}", scenario.part.tool_table)
+    doc: dict[str, Any] = {"scenario": {k: v for k, v in raw["scenario"].items() if k != "parameter_sets"},
+                           "part": part}
+    if "recorded" in raw:  # its presence decides the stop time; the part does not read the recording
+        doc["recorded"] = {"file": f"resources/recorded/{Path(raw['recorded']['file']).name}"}
+    if "inputs" in raw:
+        doc["inputs"] = raw["inputs"]
+    return tomli_w.dumps(doc)
+
+
 def ssd_tree(scenario: Scenario, archive: _Archive) -> tuple[Any, list[str]]:
     """The SSD of ``scenario`` (FMUs, SSVs and files added to ``archive``) and the export's warnings."""
     warnings: list[str] = []
@@ -208,7 +227,7 @@ def ssd_tree(scenario: Scenario, archive: _Archive) -> tuple[Any, list[str]]:
                         "connection)")
     if scenario.part is not None:
         warnings.append("[part]: the whole-part scenario is exported as the explicit scenario it expands to "
-                        "(`milling-twin expand`); the process report of a whole-part run is not made from the SSP")
+                        "(`milling-twin expand`); its [part] is in an annotation, for the process report")
     toml_text, more = _scenario_toml(scenario, archive)
     warnings += more
     own = etree.SubElement(annotation(system, "ssd", MT_TYPE), q("mt", "Scenario"),
@@ -219,6 +238,8 @@ def ssd_tree(scenario: Scenario, archive: _Archive) -> tuple[Any, list[str]]:
         etree.SubElement(outputs, q("mt", "Output"), ref=str(ref))
     if toml_text:
         etree.SubElement(own, q("mt", "Toml")).text = etree.CDATA(toml_text)
+    if scenario.part is not None:
+        etree.SubElement(own, q("mt", "Part")).text = etree.CDATA(_part_toml(scenario, archive))
     unit_element(root, "ssd", units)
     experiment = etree.SubElement(root, q("ssd", "DefaultExperiment"), startTime=repr(scenario.start_time),
                                   stopTime=repr(scenario.stop_time))

@@ -15,8 +15,9 @@ import re
 import tempfile
 import tomllib
 import zipfile
-from collections.abc import Iterator
+from collections.abc import Iterator, Mapping, Sequence
 from contextlib import contextmanager
+from dataclasses import replace
 from pathlib import Path, PurePosixPath
 from typing import Any
 
@@ -24,13 +25,15 @@ import tomli_w
 from fmpy import read_model_description
 from lxml import etree
 
-from milling_twin.orchestrator.scenario import ScenarioError
+from milling_twin.orchestrator.scenario import Scenario, ScenarioError, _Ctx, with_values
+from milling_twin.orchestrator.scenario import load_scenario as load
 from milling_twin.orchestrator.ssp.common import (MT_TYPE, OSP_TYPE, SSD_NAME, SspError, describe, find_annotation, q,
                                                   schema_errors)
 
-__all__ = ["opened", "scenario_document"]
+__all__ = ["load_scenario", "opened", "scenario_document"]
 
 _VALUE_TYPES = ("Real", "Integer", "Boolean", "String")
+PART_FILE = "part.toml"  # a whole part's [part], beside the scenario written from the archive
 
 
 class _Reader:
@@ -227,6 +230,9 @@ def scenario_document(reader: _Reader, folder: Path) -> dict[str, Any]:
         outputs = [o.get("ref") for o in own.findall(f"{q('mt', 'Outputs')}/{q('mt', 'Output')}")]
         if outputs:
             doc["outputs"] = {"record": outputs}
+        part = own.find(q("mt", "Part"))
+        if part is not None and part.text:
+            (folder / PART_FILE).write_text(part.text, encoding="utf-8")
         text = own.find(q("mt", "Toml"))
         if text is not None and text.text:
             try:
@@ -242,6 +248,25 @@ def _extract(reader: _Reader, folder: Path) -> None:
         if PurePosixPath(name).is_absolute() or ".." in parts:
             reader.fail(name, "a member outside the archive's folder")
     reader.zf.extractall(folder)
+
+
+def load_scenario(path: Path, fmu_dir: str | Path | None = None, *, parameter_sets: Sequence[str | Path] = (),
+                  overrides: Mapping[str, Any] | None = None, recording: str | Path | None = None) -> Scenario:
+    """The scenario :func:`opened` wrote, loaded as :func:`milling_twin.api.load_scenario` loads a file (the FMUs
+    are the archive's: ``fmu_dir`` is not used); a whole part's with its Part read again from the archive's
+    ``[part]`` (the process report of the run needs it)."""
+    from milling_twin.orchestrator.part.expand import expand_document
+
+    scenario = load(path, path.parent, parameter_sets=parameter_sets, recording=recording)
+    if overrides:
+        scenario = with_values(scenario, overrides)
+    part_file = path.parent / PART_FILE
+    if not part_file.is_file():
+        return scenario
+    ctx = _Ctx(part_file)
+    _, doc = ctx.parse("part")
+    _, part = expand_document(ctx, doc, path.parent / "resources")
+    return replace(scenario, part=part)
 
 
 @contextmanager

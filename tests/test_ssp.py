@@ -231,6 +231,29 @@ def test_libcosim_runs_the_fmi2_archive_within_1e_6_of_the_orchestrator(fmu_dir:
     assert np.abs(theirs[:, :2] - ours[:, :2]).max() <= 1e-6
 
 
+def test_an_archive_without_the_projects_annotations_runs_as_libcosim_runs_it(fmu_dir: Path, tmp_path: Path) -> None:
+    """Another tool's SSD: steps from libcosim's osp annotations, every connection delayed, every output recorded,
+    the output interval the base step; the FMI 2 chatter with every connection delayed gives the same values."""
+    scenario = mt.load_scenario(_fmi2_chatter(tmp_path, delay_force=True), fmu_dir)
+    archive = export_ssp(scenario, tmp_path / "twin.ssp").path
+    ssd = etree.fromstring(_ssd(archive).encode())
+    for item in list(ssd.iter(q("ssc", "Annotation"))):
+        if item.get("type") == MT_TYPE:
+            item.getparent().remove(item)
+    for holder in list(ssd.iter(q("ssd", "Annotations"))):
+        if len(holder) == 0:
+            holder.getparent().remove(holder)
+    assert schema_errors(ssd, "ssd", SCHEMAS) == []
+    foreign = _rewrite(archive, tmp_path / "foreign.ssp", SystemStructure_DOT_ssd=etree.tostring(ssd))
+    with opened(foreign) as path:
+        loaded = mt.load_scenario(path)
+        frame = mt.simulate(loaded).frame
+    assert [i.step_size for i in loaded.instances] == [1e-5, 1e-5] and loaded.output_interval == 1e-5
+    assert all(c.delay for c in loaded.connections) and len(frame.columns) > 5
+    reference = mt.simulate(scenario).frame
+    assert frame[reference.columns].equals(reference)
+
+
 def test_libcosim_refuses_fmi3_components(fmu_dir: Path, tmp_path: Path) -> None:
     """A known limit of libcosim (documented in docs/ssp.md): no FMI 3; the error says so."""
     from libcosimpy._internal import get_last_error_message

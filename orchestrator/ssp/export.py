@@ -246,8 +246,8 @@ def ssd_tree(scenario: Scenario, archive: _Archive) -> tuple[Any, list[str]]:
     algorithm = etree.SubElement(annotation(experiment, "ssd", OSP_TYPE), q("osp", "Algorithm"))
     etree.SubElement(algorithm, q("osp", "FixedStepAlgorithm"), baseStepSize=repr(scenario.base_step))
     if any(inst.fmi_version == 3 for inst in scenario.instances):
-        warnings.append("FMI 3 FMUs: SSP 1.0 names FMI 2 components; importers without FMI 3 (libcosim) cannot "
-                        "run them (export an fmi = 2 scenario for those)")
+        warnings.append("FMI 3 FMUs: SSP 1.0 (2019) predates FMI 3; importers without FMI 3 (libcosim) cannot run "
+                        "them (export a scenario with fmi = 2 for those)")
     return root, warnings
 
 

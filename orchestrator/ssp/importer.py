@@ -6,7 +6,8 @@ when there is one, as parameters or, bound to an input connector, constant input
 ``[[connections]]``, the default experiment the start and stop time; the project's annotations (written by
 ``export-ssp``) restore what SSP 1.0 cannot say: step sizes, ``delay``, the output interval and record list,
 ``[stepping]``, ``[[on_change]]``, the recording and its inputs. Without them (an SSP from another tool) a
-component's step is libcosim's ``osp:StepSizeHint`` or the base step of its ``osp:FixedStepAlgorithm``.
+component's step is libcosim's ``osp:StepSizeHint`` or the base step of its ``osp:FixedStepAlgorithm``, and every
+connection is delayed (the FMUs step in parallel, as in libcosim).
 Every error is an :class:`SspError` naming the archive, the member file, its line and the element.
 """
 from __future__ import annotations
@@ -219,8 +220,10 @@ def scenario_document(reader: _Reader, folder: Path) -> dict[str, Any]:
                                    for child in connection):
             reader.fail(SSD_NAME, f"{describe(connection)}: transformations on connections are not supported")
         mark = find_annotation(connection, "ssd", MT_TYPE, q("mt", "Connection"))
-        connections.append({"from": ends[0], "to": ends[1],
-                            "delay": mark is not None and mark.get("delay") == "true"})
+        # without the project's annotations (another tool's SSD) every connection is delayed, as a master that
+        # steps all FMUs in parallel (libcosim) runs it
+        delay = own is None or (mark is not None and mark.get("delay") == "true")
+        connections.append({"from": ends[0], "to": ends[1], "delay": delay})
     if connections:
         doc["connections"] = connections
     steps = [table["step_size"] for table in doc["fmus"].values()]

@@ -2,7 +2,7 @@
 they give it.
 
 Where they come from: ``$MILLING_TWIN_WHEEL_FMUS`` (a folder of ``.fmu`` files; ``none``: a Python-only wheel),
-else ``build/fmus-all/`` (the cross-compiled multi-platform FMUs) when it exists, else ``build/fmus/``; the stepper
+else ``build/fmus-all/`` (the cross-compiled multi-platform FMUs) when it holds FMUs, else ``build/fmus/``; the stepper
 library from ``$MILLING_TWIN_WHEEL_STEPPER``, else the cross-compiled one for this machine beside those FMUs
 (``<fmus>/stepper/x86_64-linux/``), else ``build/stepper/libmilling_stepper.so``. Nothing is compiled here:
 ``make wheel`` builds them with CMake first.
@@ -93,7 +93,7 @@ def select(root: Path, environ: Mapping[str, str] = os.environ) -> WheelFiles:
         fmu_dir, origin = _path(root, raw), f"${FMUS_ENV}"
     else:
         fmu_dir = root / "build" / "fmus-all"
-        fmu_dir = fmu_dir if fmu_dir.is_dir() else root / "build" / "fmus"
+        fmu_dir = fmu_dir if any(fmu_dir.glob("*.fmu")) else root / "build" / "fmus"
         origin = "the default"
     fmus = tuple(sorted(fmu_dir.glob("*.fmu"))) if fmu_dir.is_dir() else ()
     hint = (f"build them first (`make wheel` runs CMake, then builds the wheel), set ${FMUS_ENV} to their folder, "

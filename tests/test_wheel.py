@@ -103,6 +103,9 @@ def test_the_cross_compiled_fmus_are_preferred(tmp_path: Path) -> None:
     cross.parent.mkdir(parents=True)
     cross.write_bytes(b"")
     assert select(tmp_path, {}).stepper == cross  # the cross-compiled library beside the cross-compiled FMUs
+    for fmu in (tmp_path / "build" / "fmus-all").glob("*.fmu"):
+        fmu.unlink()  # an empty build/fmus-all/ (a cross-compilation under way or failed) is not taken
+    assert {p.parent.name for p in select(tmp_path, {}).fmus} == {"fmus"}
 
 
 # --- the FMU lookup -------------------------------------------------------------------------------------------

@@ -43,6 +43,14 @@ configure: setup
 fmus: configure
 	cmake --build $(BUILD) -j $(JOBS) --target fmu_binaries
 
+# Every FMU (FMI 2 and 3) and the stepper library for Linux x86_64/aarch64 (glibc 2.17), Windows x86_64 and macOS
+# x86_64/arm64, cross-compiled from build/fmus' sources/ with zig's cc into build/fmus-all/ (docs/portability.md);
+# build/fmus/ stays as it is. zig: the `ziglang` package of the test extra.
+.PHONY: fmus-all-platforms
+fmus-all-platforms: fmus
+	@$(VENV_PYTHON) -c 'import ziglang' 2>/dev/null || $(VENV_PYTHON) -m pip install --quiet -c constraints.txt ziglang
+	$(VENV_PYTHON) fmus/cross/build_all_platforms.py --fmu-dir $(BUILD)/fmus --out $(BUILD)/fmus-all --jobs $(JOBS)
+
 # Everything, also the C lifecycle tests and the fuzz-corpus replays that ctest runs.
 build: configure
 	cmake --build $(BUILD) -j $(JOBS)

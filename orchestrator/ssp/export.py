@@ -307,6 +307,6 @@ def command(args: argparse.Namespace) -> int:
     for warning in result.warnings:
         print(f"warning: SSP 1.0 cannot express {warning}", file=sys.stderr)
     print(f"wrote {result.path}: {result.components} components, {result.connections} connections"
-          + (f"; {len(result.warnings)} things SSP 1.0 cannot express are in its annotations"
-             if result.warnings else ""))
+          + (f"; {len(result.warnings)} thing{'s' if len(result.warnings) > 1 else ''} SSP 1.0 cannot express "
+             f"{'are' if len(result.warnings) > 1 else 'is'} in its annotations" if result.warnings else ""))
     return 0

@@ -112,7 +112,7 @@ public final class Fmi4jDriver {
                  BufferedWriter out = Files.newBufferedWriter(outFile, StandardCharsets.UTF_8)) {
                 StringBuilder header = new StringBuilder("time");
                 for (TypedScalarVariable<?> v : outputs) {
-                    header.append(',').append(v.getName());
+                    header.append(',').append(csvField(v.getName()));
                 }
                 out.write(header.append('\n').toString());
                 simulate(slave, plan, outputs, out, fmuFile.getName());
@@ -149,6 +149,14 @@ public final class Fmi4jDriver {
         }
     }
 
+    /** A CSV field, quoted when it holds a comma or a quote (FMI 2 array elements are named "name[i,j]"). */
+    private static String csvField(String text) {
+        if (text.indexOf(',') < 0 && text.indexOf('"') < 0 && text.indexOf('\n') < 0) {
+            return text;
+        }
+        return '"' + text.replace("\"", "\"\"") + '"';
+    }
+
     /** 17 significant digits of the exact binary value: parses back to the same double. */
     private static String format(double value) {
         if (Double.isNaN(value) || Double.isInfinite(value)) {
@@ -175,7 +183,7 @@ public final class Fmi4jDriver {
             } else if (type == VariableType.INTEGER || type == VariableType.ENUMERATION) {
                 status = slave.writeInteger(vr, new int[] {Integer.parseInt(a.value)});
             } else if (type == VariableType.BOOLEAN) {
-                status = slave.writeBoolean(vr, new boolean[] {parseBoolean(a.value, a.where, name)});
+                status = slave.writeBoolean(vr, fmi2Booleans(parseBoolean(a.value, a.where, name)));
             } else {
                 status = slave.writeString(vr, new String[] {a.value});
             }
@@ -186,6 +194,19 @@ public final class Fmi4jDriver {
             throw new DriverException(a.where + ": " + fmuName + ": setting " + name + " = " + a.value
                     + " returned " + status);
         }
+    }
+
+    /**
+     * FMI4j 0.38's native setBoolean hands the JVM's 1-byte jboolean array to fmi2SetBoolean as the 4-byte
+     * fmi2Boolean array it expects (see docs/importers.md), so the FMU reads the value together with 3 bytes of
+     * whatever follows it, and false arrives as true. The array below gives every value its own 4 bytes: the
+     * value in the lowest-addressed byte and zeros after it, which is the int 0 or 1 on a little-endian
+     * machine (x86_64, aarch64). FMI4j's getBoolean converts element by element and needs nothing.
+     */
+    static boolean[] fmi2Booleans(boolean value) {
+        boolean[] bytes = new boolean[Integer.BYTES];
+        bytes[java.nio.ByteOrder.nativeOrder() == java.nio.ByteOrder.LITTLE_ENDIAN ? 0 : Integer.BYTES - 1] = value;
+        return bytes;
     }
 
     private static boolean parseBoolean(String text, String where, String name) throws DriverException {
@@ -220,7 +241,7 @@ public final class Fmi4jDriver {
         } else {
             String[] value = new String[1];
             status = slave.readString(vr, value);
-            text = '"' + value[0].replace("\"", "\"\"") + '"';
+            text = csvField(value[0]);
         }
         if (status != FmiStatus.OK && status != FmiStatus.Warning) {
             throw new DriverException(fmuName + ": reading output " + v.getName() + " returned " + status);
@@ -237,7 +258,7 @@ public final class Fmi4jDriver {
             if (line.isEmpty() || line.startsWith("#")) {
                 continue;
             }
-            String[] f = line.split(",", -1);
+            String[] f = fields(line);
             try {
                 switch (f[0]) {
                     case "step_size":
@@ -272,6 +293,28 @@ public final class Fmi4jDriver {
             throw new DriverException(planFile + ": needs a step_size line and a steps line");
         }
         return plan;
+    }
+
+    /**
+     * The fields of a plan line. A variable name may hold commas (FMI 2 array elements "name[i,j]"): the
+     * directive (and an input's step) come first, the value after the last comma, the name is what is between.
+     */
+    private static String[] fields(String line) {
+        String[] head = line.split(",", 2);
+        if (head.length == 1) {
+            return head;
+        }
+        String rest = head[1];
+        int last = rest.lastIndexOf(',');
+        if (head[0].equals("start") && last >= 0) {
+            return new String[] {head[0], rest.substring(0, last), rest.substring(last + 1)};
+        }
+        int first = rest.indexOf(',');
+        if (head[0].equals("input") && first >= 0 && last > first) {
+            return new String[] {head[0], rest.substring(0, first), rest.substring(first + 1, last),
+                rest.substring(last + 1)};
+        }
+        return line.split(",", -1);
     }
 
     private static void expect(String[] fields, int count, String where) throws DriverException {

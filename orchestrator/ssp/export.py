@@ -29,7 +29,7 @@ from milling_twin.orchestrator.ssp.ssv import SsvValue, parameter_mapping, param
 
 __all__ = ["ExportResult", "command", "export_ssp", "ssd_tree"]
 
-_KINDS = {"input": "input", "output": "output", "parameter": "parameter", "calculatedParameter": "calculatedParameter"}
+_KINDS = ("input", "output", "parameter", "calculatedParameter")  # the causalities that are SSP connector kinds
 _SSC_TYPES = {"real": "Real", "real[]": "Real", "int": "Integer", "bool": "Boolean", "string": "String"}
 _BESIDE = ("recorded", "inputs", "compare", "alignment")  # scenario tables carried as TOML in the annotation
 
@@ -85,11 +85,10 @@ def _parameter_set(inst: FmuInstance, values: Mapping[str, Any]) -> bytes:
                                      for name, value in values.items()])
 
 
-def _applied_sets(scenario: Scenario, archive: _Archive, elements: Any) -> list[str]:
+def _applied_sets(scenario: Scenario, archive: _Archive, elements: Any) -> None:
     """The scenario's parameter sets (a calibration's, say) as SSVs named as such a set names its values
     ("instance.variable", the calibration's .ssv), bound to each component they set through an SSM that maps the
     names to its connectors; the values are those the scenario runs with (also in the component's own SSV)."""
-    names = []
     for set_path in scenario.parameter_sets:
         tables = tomllib.loads(set_path.read_text(encoding="utf-8")).get("parameters", {})
         values = [(inst, var) for inst, table in tables.items() for var in table]
@@ -106,8 +105,6 @@ def _applied_sets(scenario: Scenario, archive: _Archive, elements: Any) -> list[
                 component.find(q("ssd", "Connectors")).addnext(bindings)
             binding = etree.SubElement(bindings, q("ssd", "ParameterBinding"), source=member)
             etree.SubElement(binding, q("ssd", "ParameterMapping"), source=mapping)
-        names.append(member)
-    return names  # their archive members
 
 
 def _is_file(value: Any) -> bool:
@@ -124,7 +121,7 @@ def _scenario_toml(scenario: Scenario, archive: _Archive) -> tuple[str, list[str
             doc[table] = raw[table]
     if "recorded" in doc:
         recorded = dict(doc["recorded"])
-        recorded["file"] = archive.add_file("resources/recorded", (scenario.path.parent / recorded["file"]).resolve())
+        recorded["file"] = archive.add_file("resources/recorded", scenario.recorded.path)
         doc["recorded"] = recorded
         warnings.append(f"recorded inputs: [recorded] ({Path(recorded['file']).name}, packed in the archive) and "
                         f"{len(scenario.inputs)} [[inputs]] from it have no SSP 1.0 form (an SSP importer sees "
@@ -159,7 +156,7 @@ def _part_toml(scenario: Scenario, archive: _Archive) -> str:
     doc: dict[str, Any] = {"scenario": {k: v for k, v in raw["scenario"].items() if k != "parameter_sets"},
                            "part": part}
     if "recorded" in raw:  # its presence decides the stop time; the part does not read the recording
-        doc["recorded"] = {"file": f"resources/recorded/{Path(raw['recorded']['file']).name}"}
+        doc["recorded"] = {"file": archive.add_file("resources/recorded", scenario.recorded.path)}
     if "inputs" in raw:
         doc["inputs"] = raw["inputs"]
     return tomli_w.dumps(doc)
@@ -195,8 +192,8 @@ def ssd_tree(scenario: Scenario, archive: _Archive) -> tuple[Any, list[str]]:
                 etree.SubElement(annotation(connector, "ssd", MT_TYPE), q("mt", "Array"),
                                  shape=",".join(str(n) for n in var.shape))
         values: dict[str, Any] = {**inst.parameters, **inst.inputs}
-        files = [name for name, value in values.items() if _is_file(value)]
-        for name in files:  # a file-valued String parameter: the file goes into the archive
+        file_parameters = [name for name, value in values.items() if _is_file(value)]
+        for name in file_parameters:  # a file-valued String parameter: the file goes into the archive
             values[name] = archive.add_file(f"resources/files/{inst.name}", Path(values[name]))
         if values:
             archive.members[f"resources/{inst.name}.ssv"] = _parameter_set(inst, values)
@@ -204,7 +201,7 @@ def ssd_tree(scenario: Scenario, archive: _Archive) -> tuple[Any, list[str]]:
             etree.SubElement(bindings, q("ssd", "ParameterBinding"), source=f"resources/{inst.name}.ssv")
         own = etree.SubElement(annotation(component, "ssd", MT_TYPE), q("mt", "Component"),
                                stepSize=repr(inst.step_size), fmiVersion=str(inst.fmi_version))
-        for name in files:
+        for name in file_parameters:
             etree.SubElement(own, q("mt", "File"), parameter=name)
         etree.SubElement(annotation(component, "ssd", OSP_TYPE), q("osp", "StepSizeHint"),
                          value=repr(inst.step_size))
@@ -220,7 +217,7 @@ def ssd_tree(scenario: Scenario, archive: _Archive) -> tuple[Any, list[str]]:
         warnings.append(f"FMI 3 arrays ({', '.join(arrays)}): SSP 1.0 connectors are scalars; each array is one "
                         "connector of its name with its shape in an annotation")
     _applied_sets(scenario, archive, elements)
-    _, delayed = _connections(scenario, system)
+    delayed = _connections(scenario, system)
     if delayed:
         warnings.append(f"delay = true ({', '.join(delayed)}): SSP 1.0 connections have no delay; it is in the "
                         "connections' annotations (an SSP importer that steps all FMUs in parallel delays every "
@@ -251,17 +248,21 @@ def ssd_tree(scenario: Scenario, archive: _Archive) -> tuple[Any, list[str]]:
     return root, warnings
 
 
-def _connections(scenario: Scenario, system: Any) -> tuple[int, list[str]]:
+def _connections(scenario: Scenario, system: Any) -> list[str]:
     """ssd:Connections of the scenario's connections (an FMI 3 array's elements as one connection of the arrays);
-    their number and the delayed ones."""
+    the delayed ones."""
     seen: dict[tuple[str, str, str, str], bool] = {}
     for conn in scenario.connections:
         src, dst = scenario.variable(conn.source), scenario.variable(conn.target)
+        if bool(src.array) != bool(dst.array):
+            raise SspError(f"{scenario.path}: the connection {conn.source} -> {conn.target} joins an element of an "
+                           "FMI 3 array with a scalar of an FMI 2 FMU: SSP 1.0 cannot express it (use FMUs of one "
+                           "FMI version)")
         key = (conn.source.instance, src.array or conn.source.variable,
                conn.target.instance, dst.array or conn.target.variable)
         seen.setdefault(key, conn.delay)
     if not seen:
-        return 0, []
+        return []
     holder = etree.SubElement(system, q("ssd", "Connections"))
     delayed = []
     for (start, start_connector, end, end_connector), delay in seen.items():
@@ -270,7 +271,7 @@ def _connections(scenario: Scenario, system: Any) -> tuple[int, list[str]]:
         if delay:
             delayed.append(f"{start}.{start_connector} -> {end}.{end_connector}")
             etree.SubElement(annotation(connection, "ssd", MT_TYPE), q("mt", "Connection"), delay="true")
-    return len(seen), delayed
+    return delayed
 
 
 def export_ssp(scenario: Scenario, output: str | Path) -> ExportResult:

@@ -26,7 +26,7 @@ from buildtools.release import ReleaseError, write_release  # noqa: E402
 from buildtools.wheel_files import FMUS_ENV, STEPPER_ENV, STEPPER_NAME, WheelFilesError, select  # noqa: E402
 
 COMPILERS = ("cmake", "gcc", "cc", "c++", "g++", "clang", "zig")
-# what the wheel is built from: the tracked build inputs (a copy, so that nothing is written into the repository)
+# what the wheel is built from: the build inputs (a copy, so that nothing is written into the repository)
 WHEEL_SOURCES = ("pyproject.toml", "README.md", "setup.py", "MANIFEST.in", "constraints.txt", "buildtools",
                  "milling_twin", "models", "orchestrator")
 
@@ -175,8 +175,9 @@ def _without_compilers(path: str) -> str:
 
 
 def _copy_tracked(target: Path) -> None:
-    tracked = subprocess.run(["git", "ls-files", *WHEEL_SOURCES], cwd=REPO_ROOT, capture_output=True, text=True,
-                             check=True).stdout.split()
+    # tracked and new (not ignored) files: the tree as `pip wheel .` sees it, without build/ and caches
+    tracked = subprocess.run(["git", "ls-files", "--cached", "--others", "--exclude-standard", *WHEEL_SOURCES],
+                             cwd=REPO_ROOT, capture_output=True, text=True, check=True).stdout.split()
     for name in tracked:
         if (REPO_ROOT / name).is_file():
             (target / name).parent.mkdir(parents=True, exist_ok=True)

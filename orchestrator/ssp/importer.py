@@ -20,7 +20,7 @@ from collections.abc import Iterator, Mapping, Sequence
 from contextlib import contextmanager
 from dataclasses import replace
 from pathlib import Path, PurePosixPath
-from typing import Any
+from typing import Any, NoReturn
 
 import tomli_w
 from fmpy import read_model_description
@@ -34,7 +34,8 @@ from milling_twin.orchestrator.ssp.common import (MT_TYPE, OSP_TYPE, SSD_NAME, S
 __all__ = ["load_scenario", "opened", "scenario_document"]
 
 _VALUE_TYPES = ("Real", "Integer", "Boolean", "String")
-PART_FILE = "part.toml"  # a whole part's [part], beside the scenario written from the archive
+SCENARIO_FILE = "milling-twin.scenario.toml"  # the scenario written from the archive, at the unpacked archive's root
+PART_FILE = "milling-twin.part.toml"  # a whole part's [part], beside it
 
 
 class _Reader:
@@ -44,7 +45,7 @@ class _Reader:
         self.path, self.zf = path, zf
         self.names = set(zf.namelist())
 
-    def fail(self, member: str, message: str) -> None:
+    def fail(self, member: str, message: str) -> NoReturn:
         raise SspError(f"{self.path}: {member}: {message}")
 
     def xml(self, member: str, kind: str) -> Any:
@@ -288,7 +289,7 @@ def opened(path: str | Path) -> Iterator[Path]:
         reader = _Reader(path, zf)
         _extract(reader, folder)
         doc = scenario_document(reader, folder)
-        scenario = folder / f"{doc['scenario']['name']}.toml"
+        scenario = folder / SCENARIO_FILE
         scenario.write_text(f"# {path}: the scenario its {SSD_NAME} describes\n" + tomli_w.dumps(doc),
                             encoding="utf-8")
         try:

@@ -69,7 +69,7 @@ demo: fmus
 # The package (docs/packaging.md): dist/milling_twin-<version>-py3-none-manylinux_<glibc>_<arch>.whl with every FMU
 # of WHEEL_FMUS (the cross-compiled build/fmus-all/ when it holds FMUs, else build/fmus/) and the stepper library; its
 # tag names the newest glibc the binaries need. setup.py copies them in; it compiles nothing.
-WHEEL_FMUS ?= $(if $(wildcard build/fmus-all/*.fmu),build/fmus-all,$(BUILD)/fmus)
+WHEEL_FMUS ?= $(if $(wildcard $(BUILD)/fmus-all/*.fmu),$(BUILD)/fmus-all,$(BUILD)/fmus)
 # WHEEL_STEPPER: the stepper library (default: WHEEL_FMUS/stepper/<arch>-linux/ from the cross-compilation, else
 # build/stepper/); e.g. build/fmus-all/stepper/aarch64-linux/libmilling_stepper.so makes the aarch64 wheel.
 WHEEL_STEPPER ?=

@@ -235,6 +235,7 @@ def test_the_wheel_installs_and_runs_without_a_compiler(tmp_path: Path) -> None:
     meta = json.loads((work / "out" / "slot_entry_variable" / "run.json").read_text())
     site = venv.resolve()
     assert meta["status"] == "completed"
+    assert meta["stepping"]["path"] == "fast" and Path(meta["stepping"]["library"]).resolve().is_relative_to(site)
     assert all(Path(f["path"]).resolve().is_relative_to(site) for f in meta["fmus"]), [f["path"] for f in meta["fmus"]]
     check = subprocess.run([str(venv / "bin" / "python"), "-c",
                             "import milling_twin as mt, sys; f = mt.load_results(sys.argv[1]); "

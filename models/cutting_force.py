@@ -47,6 +47,7 @@ import casadi as ca
 import numpy as np
 
 from milling_twin.models.definition import ModelDefinition, State, Variable
+from milling_twin.models.step_clock import StepClock
 
 AXIAL_SLICES = 16
 MAX_FLUTES = 6
@@ -142,6 +143,11 @@ CUTTING_FORCE = ModelDefinition(
     equations=equations,
     update=update,
     native_states=("delayed_displacement_x", "delayed_displacement_y"),
+    # model.c interpolates the history at t - T, T = 2 pi/(N omega), the current displacement being its last sample;
+    # before the first step there is no history and the delayed displacement is the current one
+    native_dependencies=(("delayed_displacement_x", ("n_flutes", "spindle_speed", "displacement_x")),
+                         ("delayed_displacement_y", ("n_flutes", "spindle_speed", "displacement_y"))),
+    native_initial_states=(("delayed_displacement_x", "displacement_x"), ("delayed_displacement_y", "displacement_y")),
     specialize_on="n_flutes",  # C code per flute count: absent flutes cost nothing
     constants=(("OMEGA_MIN", OMEGA_MIN), ("TWO_PI", TWO_PI)),  # model.c: model_constants.h
     states=(
@@ -297,7 +303,8 @@ class ForceReference:
         self.model = CUTTING_FORCE
         names = {v.name for v in self.model.of("parameter") + self.model.of("input")}
         self.values = {k: x for k, x in {**self.model.defaults(), **values}.items() if k in names}
-        self.time = start_time
+        self.start_time = self.time = start_time  # time: the importer's; the model advances by the step clock
+        self.clock = StepClock()
         self.history = DisplacementHistory(int(self.values["history_size"]))
         self.angle = 0.0
 
@@ -308,8 +315,8 @@ class ForceReference:
         return tooth_period(self.values)
 
     def delayed(self) -> tuple[float, float]:
-        return self.history.delayed(self.time, self.tooth_period(), self.values["displacement_x"],
-                                    self.values["displacement_y"])
+        return self.history.delayed(self.start_time + self.clock.seconds(), self.tooth_period(),
+                                    self.values["displacement_x"], self.values["displacement_y"])
 
     def outputs(self) -> np.ndarray:
         dx, dy = self.delayed()
@@ -319,9 +326,11 @@ class ForceReference:
 
     def step(self, h: float) -> np.ndarray:
         v = self.values
-        self.history.record(self.time, h, v["displacement_x"], v["displacement_y"], self.tooth_period(),
+        start = self.start_time + self.clock.seconds()
+        taken = self.clock.advance(self.time, h)
+        self.history.record(start, taken, v["displacement_x"], v["displacement_y"], self.tooth_period(),
                             v["spindle_speed"] >= OMEGA_MIN and v["axial_depth"] > 0)
-        new = self.model.step(h, **v, angle=self.angle, delayed_displacement_x=0.0,
+        new = self.model.step(taken, **v, angle=self.angle, delayed_displacement_x=0.0,
                               delayed_displacement_y=0.0)
         self.angle = float(new["angle"])
         self.time = self.time + h

@@ -108,6 +108,18 @@ class ModelDefinition:
     # float or a tuple of floats): models.codegen writes them into the generated model_constants.h, so they
     # are written once, here.
     constants: tuple[tuple[str, int | float | tuple[float, ...]], ...] = ()
+    # What model.c computes reads, declared (casadi cannot see into C): native output or native state -> the inputs
+    # and parameters (any variability) its value at a communication point depends on directly, that is not through
+    # something kept from an earlier step. Every native output and native state needs an entry (codegen refuses to
+    # write the <ModelStructure> otherwise); the generated outputs' dependencies are derived from their equations.
+    native_dependencies: tuple[tuple[str, tuple[str, ...]], ...] = ()
+    # The same in Initialization Mode, for the native outputs whose values there come from other variables (e.g. the
+    # Interpolator's start position); an output not listed has its native_dependencies there too.
+    native_initial_dependencies: tuple[tuple[str, tuple[str, ...]], ...] = ()
+    # Native states that in Initialization Mode equal one of the equations' arguments (e.g. the delayed displacement
+    # is the current one while there is no history): the argument replaces the state in the equations there, so
+    # what cancels (x - x) drops out of the dependencies.
+    native_initial_states: tuple[tuple[str, str], ...] = ()
     _cache: dict = field(default_factory=dict, compare=False, repr=False)
 
     def __post_init__(self) -> None:
@@ -230,6 +242,61 @@ class ModelDefinition:
         """The states after one step of size ``h`` with the given parameters, inputs and states."""
         return self._evaluate(self.update_function(), [s.name for s in self.updated_states], {"h": h}, values)
 
+    def direct_dependencies(self, initial: bool = False) -> dict[str, tuple[str, ...]]:
+        """Output -> the inputs and parameters (definition order, any variability) its value depends on directly: at
+        a communication point (``initial``: in Initialization Mode, the states at their start values), not through a
+        state kept from an earlier step.
+        Generated outputs: structurally, from the instructions of their equations (those the C code runs: one copy
+        per value of ``specialize_on``), a native state among their arguments counting with its declared
+        dependencies; native outputs: as declared. Raises ValueError for a native output or state without a
+        declaration, or a declaration naming what is no input or parameter."""
+        key = f"dependencies_{initial}"
+        if key in self._cache:
+            return self._cache[key]
+        knowns = [v.name for v in self.of("parameter") + self.of("input")]
+        declared = dict(self.native_dependencies)
+        if initial:
+            declared.update(self.native_initial_dependencies)
+        for name in self.native_outputs + self.native_states:
+            if name not in declared:
+                raise ValueError(f"{self.identifier}.{name} is computed by model.c: declare the inputs and parameters "
+                                 "it depends on in native_dependencies (models/), none: an empty tuple")
+        for name, names in declared.items():
+            if name not in self.native_outputs + self.native_states:
+                raise ValueError(f"{self.identifier}: native_dependencies names '{name}', which is no native output "
+                                 "or native state")
+            unknown = [n for n in names if n not in knowns]
+            if unknown:
+                raise ValueError(f"{self.identifier}.{name}: native_dependencies names {unknown}, no inputs or "
+                                 "parameters of the model")
+        # in Initialization Mode the generated states hold their start values (constants: what they multiply drops
+        # out) and the native states named in native_initial_states are the arguments they equal
+        substitutes = dict(self.native_initial_states) if initial else {}
+        symbols = self._symbols()
+        starts = {s.name: ca.SX(float(s.start)) for s in self.updated_states} if initial else {}
+        given = {**symbols, **starts, **{s: symbols[a] for s, a in substitutes.items()}}
+        # the generic equations (the C code picks the copy by the value of specialize_on: a dependency on it), then
+        # the copies the C code runs with specialize_on folded in (what they drop is no dependency)
+        values = [None] + list(self.specialized_values())
+        found: dict[str, set[str]] = {v.name: set() for v in self.computed_outputs}
+        names = [v.name for v in self.arguments]
+        for value in values:
+            fixed = given if value is None else {**given, self.specialize_on: ca.SX(float(value))}
+            outputs = self.equations(fixed) if self.equations else {}
+            function = ca.Function("dependencies", [symbols[n] for n in names],
+                                   [outputs[v.name] for v in self.computed_outputs])
+            for output, arguments in zip(found, _instruction_dependencies(function)):
+                for index in arguments:
+                    name = names[index]
+                    if value is None and self.specialize_on is not None and name != self.specialize_on:
+                        continue
+                    found[output] |= set(declared[name]) if name in self.native_states else (
+                        set() if any(s.name == name for s in self.states) else {name})
+        result = {v.name: tuple(n for n in knowns if n in (found[v.name] if v.name in found else declared[v.name]))
+                  for v in self.of("output")}
+        self._cache[key] = result
+        return result
+
     def instantiation_token(self) -> str:
         """A GUID that changes whenever the variables or equations change."""
         function, update = self.function(), self.update_function()
@@ -238,3 +305,23 @@ class ModelDefinition:
                        + str(update(*update.sx_in())) + self.identifier)
         digest = hashlib.sha256(fingerprint.encode()).hexdigest()
         return "{" + str(uuid.UUID(digest[:32])) + "}"
+
+
+
+def _instruction_dependencies(function: ca.Function) -> list[set[int]]:
+    """For each output of a scalar SX Function, the indices of the inputs its instructions read (what the
+    translated C code computes it from; casadi has already dropped what cancels, e.g. x - x)."""
+    reads: dict[int, set[int]] = {}
+    result: list[set[int]] = [set() for _ in range(function.n_out())]
+    for k in range(function.n_instructions()):
+        op = function.instruction_id(k)
+        ins, outs = function.instruction_input(k), function.instruction_output(k)
+        if op == ca.OP_INPUT:
+            reads[outs[0]] = {ins[0]}
+        elif op == ca.OP_OUTPUT:
+            result[outs[0]] |= reads[ins[0]]
+        elif op == ca.OP_CONST:
+            reads[outs[0]] = set()
+        else:
+            reads[outs[0]] = set().union(*(reads[i] for i in ins if i >= 0))
+    return result

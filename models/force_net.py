@@ -80,6 +80,7 @@ from milling_twin.models.cutting_force import AL7075_CARBIDE, CUTTING_FORCE, OME
 from milling_twin.models.cutting_force import tooth_period as history_period
 from milling_twin.models.cutting_force import update as _angle_update
 from milling_twin.models.definition import ModelDefinition, State, Variable
+from milling_twin.models.step_clock import StepClock
 from milling_twin.models.workpiece import N_THETA as MAP_COLUMNS
 from milling_twin.models.workpiece import N_Z as MAP_ROWS
 
@@ -114,6 +115,14 @@ _SHARED_INPUTS = ("spindle_speed", "feed_velocity_x", "feed_velocity_y", "axial_
                   "displacement_x", "displacement_y")
 _SHARED_OUTPUTS = ("Fx", "Fy", "Fz", "torque", "power", "spindle_angle", "feed_per_tooth")
 NATIVE_OUTPUTS = ("Fx", "Fy", "Fz", "torque", "power", "Mx", "My", "Mz")
+# what model.c hands the net for the native outputs (ForceNetCut)
+_NET_INPUTS = (*_SHARED_INPUTS, "engagement")
+
+
+def _net_parameters(output: str) -> tuple[str, ...]:
+    """The tool parameters the net's output reads; the height of the moment point only matters to Mx and My."""
+    tool = ("tool_diameter", "helix_angle", "n_flutes", "runout_offset", "runout_angle")
+    return tool + (("moment_height",) if output in ("Mx", "My") else ())
 
 FORCE_NET = ModelDefinition(
     identifier="ForceNet",
@@ -125,6 +134,15 @@ FORCE_NET = ModelDefinition(
     update=_angle_update,
     native_outputs=NATIVE_OUTPUTS,
     native_states=("delayed_displacement_x", "delayed_displacement_y"),
+    # the net reads the tool, the cut and the regenerative displacement (current minus delayed: none in
+    # Initialization Mode, where there is no history and the delayed displacement is the current one)
+    native_dependencies=(*((n, _net_parameters(n) + _NET_INPUTS) for n in NATIVE_OUTPUTS),
+                         ("delayed_displacement_x", ("n_flutes", "spindle_speed", "displacement_x")),
+                         ("delayed_displacement_y", ("n_flutes", "spindle_speed", "displacement_y"))),
+    native_initial_dependencies=tuple(
+        (n, _net_parameters(n) + tuple(i for i in _NET_INPUTS if not i.startswith("displacement_")))
+        for n in NATIVE_OUTPUTS),
+    native_initial_states=(("delayed_displacement_x", "displacement_x"), ("delayed_displacement_y", "displacement_y")),
     # model.c, forcenet.c and forcenet.h read these from the generated model_constants.h
     constants=(("OMEGA_MIN", OMEGA_MIN), ("TWO_PI", TWO_PI), ("PI", math.pi), ("N_FEATURES", N_FEATURES),
                ("N_LOADS", N_LOADS), ("MAX_WIDTH", MAX_WIDTH), ("MAX_BLOCKS", MAX_BLOCKS),
@@ -631,21 +649,26 @@ _ARGUMENTS = {v.name for v in FORCE_NET.arguments if isinstance(v, Variable)}  #
 
 class ForceNetReference:
     """The FMU step by step: the displacement history of CuttingForce (:class:`DisplacementHistory`), the
-    spindle angle advanced by the generated update, the outputs at the angle reached (:func:`tool_outputs`)."""
+    spindle angle advanced by the generated update, the outputs at the angle reached (:func:`tool_outputs`);
+    both advance by the FMU's step clock (:class:`StepClock`), ``time`` is the importer's."""
 
-    def __init__(self, values: Mapping[str, float], weights: Weights | None = None):
+    def __init__(self, values: Mapping[str, float], weights: Weights | None = None, start_time: float = 0.0):
         self.names = {v.name for v in FORCE_NET.of("parameter") + FORCE_NET.of("input")}
         self.values = {k: x for k, x in {**FORCE_NET.defaults(), **values}.items() if k in self.names}
         self.angle = 0.0
-        self.time = 0.0
+        self.start_time = self.time = start_time
+        self.clock = StepClock()
         self.history = DisplacementHistory(int(self.values["history_size"]))
         self.weights = weights
 
     def set(self, values: Mapping[str, float]) -> None:
         self.values.update({k: x for k, x in values.items() if k in self.names})
 
+    def clock_time(self) -> float:
+        return self.start_time + self.clock.seconds()
+
     def delayed(self) -> tuple[float, float]:
-        return self.history.delayed(self.time, history_period(self.values), self.values["displacement_x"],
+        return self.history.delayed(self.clock_time(), history_period(self.values), self.values["displacement_x"],
                                     self.values["displacement_y"])
 
     def outputs(self) -> np.ndarray:
@@ -653,10 +676,12 @@ class ForceNetReference:
 
     def step(self, h: float) -> np.ndarray:
         v = self.values
-        self.history.record(self.time, h, v["displacement_x"], v["displacement_y"], history_period(v),
+        start = self.clock_time()
+        taken = self.clock.advance(self.time, h)
+        self.history.record(start, taken, v["displacement_x"], v["displacement_y"], history_period(v),
                             v["spindle_speed"] >= OMEGA_MIN and v["axial_depth"] > 0)
         scalars = {k: x for k, x in v.items() if k in _ARGUMENTS}
-        self.angle = float(FORCE_NET.step(h, **scalars, angle=self.angle, delayed_displacement_x=0.0,
+        self.angle = float(FORCE_NET.step(taken, **scalars, angle=self.angle, delayed_displacement_x=0.0,
                                           delayed_displacement_y=0.0)["angle"])
         self.time = self.time + h
         return self.outputs()

@@ -95,6 +95,7 @@ _DIMENSIONLESS: Final = _d()
 _LENGTH: Final = _d(m=1)
 _VELOCITY: Final = _d(m=1, s=-1)
 _ACCELERATION: Final = _d(m=1, s=-2)
+_JERK: Final = _d(m=1, s=-3)
 _TIME: Final = _d(s=1)
 _ANGLE: Final = _d(rad=1)
 _ANGULAR_VELOCITY: Final = _d(s=-1, rad=1)
@@ -120,6 +121,7 @@ _DIMENSION_NAMES: Final[dict[tuple[int, ...], str]] = {
     _LENGTH: "length",
     _VELOCITY: "velocity",
     _ACCELERATION: "acceleration",
+    _JERK: "jerk",
     _TIME: "time",
     _ANGLE: "angle",
     _ANGULAR_VELOCITY: "angular velocity",
@@ -146,6 +148,7 @@ SI_UNITS: Final[dict[tuple[int, ...], str]] = {
     _LENGTH: "m",
     _VELOCITY: "m/s",
     _ACCELERATION: "m/s2",
+    _JERK: "m/s3",
     _TIME: "s",
     _ANGLE: "rad",
     _ANGULAR_VELOCITY: "rad/s",
@@ -175,6 +178,7 @@ def _table() -> dict[str, Unit]:
         ("m", _LENGTH, 1.0),
         ("m/s", _VELOCITY, 1.0),
         ("m/s2", _ACCELERATION, 1.0),
+        ("m/s3", _JERK, 1.0),
         ("s", _TIME, 1.0),
         ("rad", _ANGLE, 1.0),
         ("rad/s", _ANGULAR_VELOCITY, 1.0),
@@ -201,6 +205,7 @@ def _table() -> dict[str, Unit]:
         ("mm/min", _VELOCITY, 1e-3 / 60.0),
         ("m/min", _VELOCITY, 1.0 / 60.0),
         ("mm/s2", _ACCELERATION, 1e-3),
+        ("mm/s3", _JERK, 1e-3),
         ("min", _TIME, 60.0),
         ("ms", _TIME, 1e-3),
         ("rpm", _ANGULAR_VELOCITY, _TWO_PI / 60.0),

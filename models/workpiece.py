@@ -268,6 +268,9 @@ WORKPIECE = ModelDefinition(
     equations=None,
     variables=_variables(),
     native_outputs=SCALAR_OUTPUTS + ("engagement",),
+    # model.c computes every output in doStep, from the inputs held over the step: none depends directly on an
+    # input set at the communication point (nor, in Initialization Mode, on anything: they are 0 until the first step)
+    native_dependencies=tuple((n, ()) for n in SCALAR_OUTPUTS + ("engagement",)),
     # model.c and config.h read these from the generated model_constants.h
     constants=(("N_Z", N_Z), ("N_THETA", N_THETA), ("N_BISECTIONS", N_BISECTIONS), ("MAX_CELLS", float(MAX_CELLS)),
                ("MIN_CELLS_ACROSS_TOOL", MIN_CELLS_ACROSS_TOOL), ("DESCEND_PER_SUBSEGMENT", DESCEND_PER_SUBSEGMENT),

@@ -24,7 +24,7 @@ RBF_DEFAULTS: dict[str, float] = {
 }
 # END RBF DEFAULTS
 
-JERK_UNIT = ""  # m/s3: not yet in models/units.py (display units); documented in the descriptions
+JERK_UNIT = "m/s3"
 
 
 def _variables() -> tuple[Variable, ...]:
@@ -65,8 +65,8 @@ def _variables() -> tuple[Variable, ...]:
         Variable("acceleration", "Float64", "parameter", "Tangential (path) acceleration limit",
                  unit="m/s2", display_unit="mm/s2", start=1.0, min=1e-3, max=1e3, variability=fixed),
         Variable("jerk", "Float64", "parameter",
-                 "Tangential jerk limit, also the curvature jerk limit v^3 kappa^2 [m/s3]",
-                 unit=JERK_UNIT, start=100.0, min=1e-2, max=1e6, variability=fixed),
+                 "Tangential jerk limit, also the curvature jerk limit v^3 kappa^2",
+                 unit=JERK_UNIT, display_unit="mm/s3", start=100.0, min=1e-2, max=1e6, variability=fixed),
         Variable("centripetal_acceleration", "Float64", "parameter", "Centripetal acceleration limit v^2 kappa",
                  unit="m/s2", display_unit="mm/s2", start=1.0, min=1e-3, max=1e3, variability=fixed),
         Variable("chord_error", "Float64", "parameter", "Largest distance between the path and the chord "
@@ -79,7 +79,7 @@ def _variables() -> tuple[Variable, ...]:
                           start=2.0, min=1e-3, max=1e4, variability=fixed))
     for axis in "xyz":
         v.append(Variable(f"axis_jerk_{axis}", "Float64", "parameter",
-                          f"Jerk limit of the {axis.upper()} axis [m/s3]", unit=JERK_UNIT, start=300.0,
+                          f"Jerk limit of the {axis.upper()} axis", unit=JERK_UNIT, display_unit="mm/s3", start=300.0,
                           min=1e-2, max=1e7, variability=fixed))
     for axis in "xyz":
         v.append(Variable(f"start_{axis}", "Float64", "parameter",
@@ -177,6 +177,12 @@ def _constants() -> tuple[tuple[str, int | float | tuple[float, ...]], ...]:
     return (("PI", math.pi),) + tuple((n, getattr(module, n)) for module, group in names.items() for n in group)
 
 
+_NATIVE_OUTPUTS = (
+    "x", "y", "z", "x_program", "y_program", "z_program", "feed_velocity_x", "feed_velocity_y", "feed_velocity_z",
+    "feed", "path_acceleration", "u", "line_number", "block_number", "spindle_speed", "spindle_on", "rapid",
+    "finished", "tool_number", "tool_diameter", "tool_corner_radius", "tool_length", "tool_stick_out",
+    "tool_helix_angle", "tool_flutes", "coolant")
+
 INTERPOLATOR = ModelDefinition(
     identifier="Interpolator",
     description="CNC interpolator: G-code with NURBS blocks to tool positions every interpolation period, "
@@ -186,11 +192,13 @@ INTERPOLATOR = ModelDefinition(
     equations=None,
     variables=_variables(),
     constants=_constants(),
-    native_outputs=tuple(n for n in (
-        "x", "y", "z", "x_program", "y_program", "z_program", "feed_velocity_x", "feed_velocity_y",
-        "feed_velocity_z", "feed", "path_acceleration", "u", "line_number", "block_number", "spindle_speed",
-        "spindle_on", "rapid", "finished", "tool_number", "tool_diameter", "tool_corner_radius", "tool_length",
-        "tool_stick_out", "tool_helix_angle", "tool_flutes", "coolant")),
+    native_outputs=_NATIVE_OUTPUTS,
+    # model.c interpolates in doStep (the feed override held over the step): at a communication point no output
+    # depends directly on an input; in Initialization Mode the position is the start point (its G54 program
+    # coordinates) and the other outputs are 0
+    native_dependencies=tuple((n, ()) for n in _NATIVE_OUTPUTS),
+    native_initial_dependencies=tuple((f"{a}{suffix}", (f"start_{a}",) + ((f"g54_{a}",) if suffix else ()))
+                                      for a in "xyz" for suffix in ("", "_program")),
 )
 
 OUTPUTS = tuple(v.name for v in INTERPOLATOR.of("output"))

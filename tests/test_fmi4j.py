@@ -9,6 +9,8 @@ artifact, else online); the tests skip when java or mvn is missing or Maven Cent
 from __future__ import annotations
 
 import csv
+import fcntl
+import os
 import shutil
 import subprocess
 import urllib.error
@@ -70,7 +72,16 @@ def build_driver(build_dir: Path) -> Path:
 
 @pytest.fixture(scope="session")
 def fmi4j_driver(tmp_path_factory) -> Path:
-    return build_driver(tmp_path_factory.mktemp("fmi4j-build"))
+    """Built once per run: under pytest-xdist the workers share one build (the first one to take the lock builds,
+    the others wait and reuse its jar) in the run's common temporary folder."""
+    if not os.environ.get("PYTEST_XDIST_WORKER"):
+        return build_driver(tmp_path_factory.mktemp("fmi4j-build"))
+    root = tmp_path_factory.getbasetemp().parent
+    with (root / "fmi4j-build.lock").open("w") as lock:
+        fcntl.flock(lock, fcntl.LOCK_EX)
+        build_dir = root / "fmi4j-build"
+        jar = build_dir / "fmi4j-driver.jar"
+        return jar if jar.is_file() else build_driver(build_dir)
 
 
 @pytest.fixture(params=FMI2_FMUS, ids=fmu_id)

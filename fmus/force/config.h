@@ -8,10 +8,12 @@
 
 #include <stdbool.h>
 #include "displacement_history.h"
+#include "step_clock.h"
 #include "model_generated.h"
 
 typedef struct {
     DisplacementHistory history; /* the ring in the instance heap (from its start) */
+    StepClock clock;             /* the time since the start that the angle and the history advance by */
     bool warned_stopped;         /* warned (once) that the spindle is stopped while feeding into the cut */
 } ModelInternal;
 

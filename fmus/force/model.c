@@ -16,8 +16,15 @@ static double tooth_period(const ModelVariables *v) {
     return TWO_PI / ((double)v->n_flutes * fmax(v->spindle_speed, OMEGA_MIN));
 }
 
+/* The model's time: the start time plus the step clock's (fmus/common/step_clock.h, as ForceNet's). */
+static double clock_time(const FmuInstance *instance) {
+    return instance->start_time + step_clock_seconds(&instance->internal.clock);
+}
+
 FmuStatus model_exit_initialization(FmuInstance *instance) {
     instance->internal.warned_stopped = false;
+    instance->internal.clock.ns = 0.0;
+    instance->internal.clock.rest = 0.0;
     return history_start(instance, &instance->internal.history, 0, instance->v.history_size,
                          "ExitInitializationMode") == 0 ? FMU_OK : FMU_ERROR;
 }
@@ -25,8 +32,10 @@ FmuStatus model_exit_initialization(FmuInstance *instance) {
 FmuStatus model_do_step(FmuInstance *instance, double time, double step_size) {
     ModelVariables *v = &instance->v;
     ModelInternal *in = &instance->internal;
+    StepClock clock = in->clock;
+    const double start = clock_time(instance), h = step_clock_advance(&clock, time, step_size);
     FmuStatus status;
-    if (history_record(instance, &in->history, v->history_size, time, step_size, v->displacement_x,
+    if (history_record(instance, &in->history, v->history_size, start, h, v->displacement_x,
                        v->displacement_y, tooth_period(v), v->spindle_speed >= OMEGA_MIN && v->axial_depth > 0.0,
                        v->n_flutes, v->spindle_speed) != 0)
         return FMU_ERROR;
@@ -34,13 +43,14 @@ FmuStatus model_do_step(FmuInstance *instance, double time, double step_size) {
     status = warn_feeding_a_stopped_spindle(instance, time, v->spindle_speed, OMEGA_MIN, v->feed_velocity_x,
                                             v->feed_velocity_y, v->axial_depth, v->entry_angle, v->exit_angle,
                                             &in->warned_stopped);
-    model_update_states(v, step_size);
+    model_update_states(v, h);
+    in->clock = clock;
     return status;
 }
 
 void model_update_outputs(FmuInstance *instance) {
     ModelVariables *v = &instance->v;
-    history_delayed(instance, &instance->internal.history, instance->time, tooth_period(v), v->displacement_x,
+    history_delayed(instance, &instance->internal.history, clock_time(instance), tooth_period(v), v->displacement_x,
                     v->displacement_y, &v->states.delayed_displacement_x, &v->states.delayed_displacement_y);
     model_evaluate_equations(v);
 }

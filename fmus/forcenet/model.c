@@ -8,7 +8,9 @@
  *   weights.bin in the FMU (models.force_net.install_weights): no recompilation.
  * - each doStep advances the spindle angle (generated), and the outputs are one evaluation of the tool at
  *   the angle reached (forcenet_tool: elements in contact, network, forces and moments). Material comes from
- *   the engagement map input where its cells are given (>= 0), else from the entry/exit window. */
+ *   the engagement map input where its cells are given (>= 0), else from the entry/exit window.
+ * - the angle and the displacement history advance by the step clock (fmus/common/step_clock.h), so the same
+ *   steps give the same outputs however the importer computed its communication points and step sizes. */
 #include <math.h>
 #include <stdlib.h>
 #include <string.h>
@@ -68,6 +70,11 @@ FmuStatus model_instantiate(FmuInstance *instance, const char *function) {
     return FMU_OK;
 }
 
+/* The model's time: the start time plus the clock's. */
+static double clock_time(const FmuInstance *instance) {
+    return instance->start_time + step_clock_seconds(&instance->internal.clock);
+}
+
 static double tooth_period(const ModelVariables *v) {
     return TWO_PI / ((double)v->n_flutes * fmax(v->spindle_speed, OMEGA_MIN));
 }
@@ -75,6 +82,8 @@ static double tooth_period(const ModelVariables *v) {
 FmuStatus model_exit_initialization(FmuInstance *instance) {
     ModelInternal *in = &instance->internal;
     in->warned_stopped = false;
+    in->clock.ns = 0.0;
+    in->clock.rest = 0.0;
     if (!in->loaded) {
         fmu_log(instance, FMU_ERROR, "logStatusError", "ExitInitializationMode: no force-net weights are loaded");
         return FMU_ERROR;
@@ -86,15 +95,19 @@ FmuStatus model_exit_initialization(FmuInstance *instance) {
 
 FmuStatus model_do_step(FmuInstance *instance, double time, double step_size) {
     ModelVariables *v = &instance->v;
+    ModelInternal *in = &instance->internal;
+    StepClock clock = in->clock;
+    const double start = clock_time(instance), h = step_clock_advance(&clock, time, step_size);
     FmuStatus status;
-    if (history_record(instance, &instance->internal.history, v->history_size, time, step_size, v->displacement_x,
-                       v->displacement_y, tooth_period(v), v->spindle_speed >= OMEGA_MIN && v->axial_depth > 0.0,
-                       v->n_flutes, v->spindle_speed) != 0)
+    if (history_record(instance, &in->history, v->history_size, start, h, v->displacement_x, v->displacement_y,
+                       tooth_period(v), v->spindle_speed >= OMEGA_MIN && v->axial_depth > 0.0, v->n_flutes,
+                       v->spindle_speed) != 0)
         return FMU_ERROR;
     status = warn_feeding_a_stopped_spindle(instance, time, v->spindle_speed, OMEGA_MIN, v->feed_velocity_x,
                                             v->feed_velocity_y, v->axial_depth, v->entry_angle, v->exit_angle,
-                                            &instance->internal.warned_stopped);
-    model_update_states(v, step_size);
+                                            &in->warned_stopped);
+    model_update_states(v, h);
+    in->clock = clock;
     return status;
 }
 
@@ -104,7 +117,7 @@ void model_update_outputs(FmuInstance *instance) {
     ForceNetTool tool;
     memset(&tool, 0, sizeof tool);
     /* (before the first step the history is empty: the delayed displacement is the current one) */
-    history_delayed(instance, &instance->internal.history, instance->time, tooth_period(v), v->displacement_x,
+    history_delayed(instance, &instance->internal.history, clock_time(instance), tooth_period(v), v->displacement_x,
                     v->displacement_y, &v->states.delayed_displacement_x, &v->states.delayed_displacement_y);
     model_evaluate_equations(v);
     if (instance->internal.loaded) {

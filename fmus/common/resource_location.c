@@ -32,6 +32,10 @@ int fmu_resource_file(const char *location, const char *name, char *path, size_t
             else if (*s != '/')
                 return fail(message, message_size, location, "is not a local file URI");
         }
+#if defined(_WIN32)
+        /* file:///C:/dir: the path is C:/dir, not /C:/dir */
+        if (s[0] == '/' && ((s[1] >= 'A' && s[1] <= 'Z') || (s[1] >= 'a' && s[1] <= 'z')) && s[2] == ':') s++;
+#endif
     }
     while (*s) {
         char c = *s;
@@ -47,6 +51,9 @@ int fmu_resource_file(const char *location, const char *name, char *path, size_t
         path[n++] = c;
     }
     if (*s || n + 1 + name_length + 1 > size) return fail(message, message_size, location, "is too long");
+#if defined(_WIN32)
+    if (n > 0 && path[n - 1] == '\\') n--; /* an FMI 3 resource path ending in a backslash */
+#endif
     if (n == 0 || path[n - 1] != '/') path[n++] = '/';
     memcpy(path + n, name, name_length + 1);
     return 0;

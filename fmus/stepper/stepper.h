@@ -27,7 +27,9 @@
 
 #define STP_ABI_VERSION 6
 
-#if defined(__GNUC__)
+#if defined(_WIN32)
+#define STP_EXPORT __declspec(dllexport)
+#elif defined(__GNUC__)
 #define STP_EXPORT __attribute__((visibility("default")))
 #else
 #define STP_EXPORT

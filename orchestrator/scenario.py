@@ -377,6 +377,7 @@ def _variables(md: Any) -> dict[str, Variable]:
     out = {}
     for v in md.modelVariables:
         unit = v.unit or (v.declaredType.unit if v.declaredType is not None else None) or ""
+        unit = "" if unit == "1" else unit  # the descriptions' dimensionless unit: none, as in models/
         display = v.displayUnit or (v.declaredType.displayUnit if v.declaredType is not None else None) or ""
         kind = _SUPPORTED_TYPES.get(v.type, v.type) if not v.dimensions else f"{_SUPPORTED_TYPES.get(v.type, v.type)}[]"
         bound = lambda x: float(x) if x is not None and kind in ("real", "int", "real[]") else None  # noqa: E731

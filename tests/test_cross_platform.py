@@ -247,6 +247,14 @@ def test_linux_binaries_need_glibc_2_17_at_most(cross, tmp_path):
             target.parent.mkdir()
             target.write_bytes(archive.read(f"binaries/{folder}/{identifier}.so"))
             libraries.append(target)
+    for name in ALL_PLATFORM_FMUS:  # built for aarch64 too
+        with zipfile.ZipFile(cross / name) as archive:
+            identifier = model_identifier(archive)
+            target = tmp_path / f"aarch64-{name}" / f"{identifier}.so"
+            target.parent.mkdir()
+            target.write_bytes(archive.read(f"binaries/aarch64-linux/{identifier}.so"))
+            libraries.append(target)
+    libraries.append(cross / "stepper" / "aarch64-linux" / "libmilling_stepper.so")
     for library in libraries:
         versions = glibc_versions(library)
         assert versions, f"objdump -T {library} shows no GLIBC_ version: is it dynamically linked?"

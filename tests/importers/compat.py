@@ -119,6 +119,12 @@ def read_csv(path: Path) -> tuple[list[str], list[list[str]]]:
     return [h.strip() for h in rows[0]], rows[1:]
 
 
+def number(text: str) -> float:
+    """A CSV value: a number, or a Boolean written as a word."""
+    word = text.strip().lower()
+    return 1.0 if word == "true" else 0.0 if word == "false" else float(text)
+
+
 def compare(case: Case, path: Path, importer: str) -> Outcome:
     """Every output of ``case`` in the importer's CSV ``path`` (a time column and one column per output, or per FMI 2
     array element, or an FMI 3 array's values separated by spaces) against fmpy at the same communication points."""
@@ -138,7 +144,7 @@ def compare(case: Case, path: Path, importer: str) -> Outcome:
         actual = []
         for r, k in zip(rows, keep):
             if k:
-                actual.append([float(x) for i in columns for x in r[i].replace(";", " ").split()])
+                actual.append([number(x) for i in columns for x in r[i].replace(";", " ").split()])
         expected = case.reference[name][index[keep]]
         if any(len(a) != expected.shape[1] for a in actual):
             return Outcome(importer, case.fmu.name, False,
@@ -161,8 +167,9 @@ def run(command: list[str], what: str, timeout: float = 600) -> str | None:
     except (OSError, subprocess.TimeoutExpired) as error:
         return f"{what}: {error}"
     if done.returncode != 0:
-        lines = (done.stderr.strip() or done.stdout.strip()).splitlines()
-        return f"{what} exited {done.returncode}: {lines[-1][:200] if lines else ''}"
+        lines = [line.strip() for line in (done.stderr + done.stdout).splitlines() if line.strip()]
+        errors = [line for line in lines if "error" in line.lower()] or lines[-1:]
+        return f"{what} exited {done.returncode}: {errors[0][:200] if errors else ''}"
     return None
 
 

@@ -5,7 +5,7 @@ pass/fail and the largest relative difference (the measure of tests/fmu_helpers.
 
 Importers (each skipped with a reason when it cannot be had):
 - ``fmi4j``:   FMI4j 0.38 on the JVM through tests/importers/fmi4j (needs java and mvn; FMI 1/2 only).
-- ``fmi-sim``: the Rust ``fmi-sim`` from crates.io, built with ``cargo install`` into --tools-dir (about 37 min
+- ``fmi-sim``: the Rust ``fmi-sim`` from crates.io, built with ``cargo install`` into --tools-dir (25.5 min
                with one job on two cores; --jobs sets cargo's -j). Or give a built one with --fmi-sim PATH.
 - ``fmusim``:  the Modelica Reference-FMUs ``fmusim``, which no package registry carries: give its path with
                --fmusim PATH (a release archive of github.com/modelica/Reference-FMUs holds it for Linux, Windows and
@@ -218,9 +218,9 @@ class FmiSim:
         elif shutil.which("cargo") is None:
             self.reason, self.binary = "cargo not on PATH (rustup.rs)", None
         else:
-            print(f"building fmi-sim {FMI_SIM_VERSION} with cargo -j{jobs} (about 37 min with one job on two cores)",
+            print(f"building fmi-sim {FMI_SIM_VERSION} with cargo -j{jobs} (25.5 min with one job on two shared cores)",
                   file=sys.stderr)
-            error = run(["nice", "-n", "19", "cargo", "install", "fmi-sim", "--version", FMI_SIM_VERSION, "--locked",
+            error = run(["nice", "-n", "19", "cargo", "install", "fmi-sim", "--version", FMI_SIM_VERSION,
                          "--root", str(tools / "fmi-sim"), "-j", str(jobs)], "cargo install fmi-sim", timeout=4 * 3600)
             if error:
                 self.reason, self.binary = error, None

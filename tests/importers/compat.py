@@ -262,7 +262,8 @@ def markdown(outcomes: list[Outcome], importers: list[str], notes: dict[str, str
     cells = {(o.fmu, o.importer): o.cell() for o in outcomes}
     lines = ["| FMU | " + " | ".join(importers) + " |", "|---" * (len(importers) + 1) + "|"]
     for fmu in fmus:
-        lines.append(f"| {fmu} | " + " | ".join(cells.get((fmu, i), "") for i in importers) + " |")
+        lines.append(f"| {fmu} | " + " | ".join(cells.get((fmu, i), "not run" if i in notes else "")
+                                                  for i in importers) + " |")
     for importer, note in notes.items():
         lines.append(f"\n{importer}: not run: {note}")
     return "\n".join(lines) + "\n"

@@ -29,7 +29,7 @@ GLIBC_LIMIT = (2, 17)
 TOLERANCE = 1e-12
 
 # every FMU for the platforms the glibc and wine checks use; these FMUs also for every platform
-ALL_PLATFORM_FMUS = ("SpindlePower.fmu", "SpindlePower_fmi2.fmu", "ForceNet.fmu", "ForceNet_fmi2.fmu")
+ALL_PLATFORM_FMUS = ("SpindlePower.fmu", "SpindlePower_fmi2.fmu")
 PLATFORMS_FMI3 = {"x86_64-linux": ("ELF", "x86_64"), "aarch64-linux": ("ELF", "aarch64"),
                   "x86_64-windows": ("PE", "x86_64"), "x86_64-darwin": ("Mach-O", "x86_64"),
                   "aarch64-darwin": ("Mach-O", "arm64")}

@@ -103,9 +103,10 @@ test: build $(VENV)/.installed-train fuzz-tools
 # fails it (tests/run_sanitized.sh). Left out, and why: test_forcenet_train.py (torch: trains a network, slow
 # under the preloaded ASan; its FMU-vs-torch check of the C code runs in the plain pytest run), test_fuzz.py
 # (builds clang fuzzers, no FMU simulation), test_fmu_sanitizers.py (builds and preloads build-asan itself),
-# test_stability.py, test_units.py and test_packaging.py (Python only: no FMU), test_wheel.py (packaging: its FMUs run
-# from a fresh venv's wheel, built from the plain build), test_calibrate_{fit,slot,spec,
-# report,fmu_path,outputs}.py and test_documented_commands.py (it runs the docs' calibrate commands): their fits
+# test_stability.py, test_units.py and test_packaging.py (Python only: no FMU), test_wheel.py (packaging: its FMUs
+# run from a fresh venv's wheel, built from the plain build), test_cross_platform.py (it compiles the FMUs' sources
+# with zig, uninstrumented, and runs those binaries), test_calibrate_{fit,slot,spec,report,fmu_path,outputs}.py
+# and test_documented_commands.py (it runs the docs' calibrate commands): their fits
 # run casadi's IPOPT, whose plugin casadi loads with RTLD_DEEPBIND, which the ASan runtime refuses outright
 # (google/sanitizers#611); the FMU simulations they drive go through the same master and stepper paths as the
 # scenario, master, fast-path and CLI tests that do run here.
@@ -117,7 +118,8 @@ ASAN_BUILD := build-asan
 SANITIZE_IGNORE := test_forcenet_train.py test_fuzz.py test_fmu_sanitizers.py test_stability.py test_units.py \
                    test_packaging.py test_calibrate_fit.py test_calibrate_slot.py test_calibrate_spec.py \
                    test_calibrate_report.py test_calibrate_fmu_path.py test_calibrate_outputs.py \
-                   test_calibrate_runs.py test_calibrate_parallel.py test_documented_commands.py test_wheel.py
+                   test_calibrate_runs.py test_calibrate_parallel.py test_documented_commands.py test_wheel.py \
+                   test_cross_platform.py
 SANITIZE_DESELECT := test_fmu_lifecycle.py::test_repeated_lifecycles_do_not_grow_memory \
                      test_interpolator_programs.py::test_parsing_is_linear_in_the_program_size \
                      test_fmu_loading.py::test_loading_is_cheaper_than_fmpys

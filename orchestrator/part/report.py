@@ -22,8 +22,8 @@ from milling_twin.orchestrator.json_values import jsonable
 from milling_twin.models.stability import stability_lobes
 from milling_twin.models.units import conversion_factor
 from milling_twin.orchestrator.part import chatter, plots
-from milling_twin.orchestrator.part.blocks import (BY_NAME, COLUMNS, BlockColumn, Signals, block_spans, block_table,
-                                                   programmed_feeds, write_block_table)
+from milling_twin.orchestrator.part.blocks import (BY_NAME, COLUMNS, BlockColumn, Signals, Spans, block_spans,
+                                                   block_table, programmed_feeds, write_block_table)
 from milling_twin.orchestrator.part.model import FORCE, INTERPOLATOR, POWER, WORKPIECE, CutTool, Part
 from milling_twin.orchestrator.part.surface import (ZMapGrid, analytic_volumes, load_zmap, surface_location_errors,
                                                     write_stl)
@@ -116,6 +116,35 @@ def _sample_weights(t: np.ndarray) -> np.ndarray:
     return np.r_[dt, np.median(dt)]
 
 
+# m3: a rapid move that removes less than this (a thousandth of a mm3) is rounding at a surface, not a collision
+RAPID_CUT_TOLERANCE = 1e-12
+
+
+def rapid_cuts(signals: Signals, spans: Spans, table: pd.DataFrame) -> list[str]:
+    """A warning for every block whose rapid move (G0) removes material: on the machine a collision. The program
+    checks before the run cannot see it (what a rapid passes through depends on what earlier blocks removed); the
+    Workpiece does: the volume it removes between two samples of the block that are both in a rapid move
+    (``interp.rapid`` when recorded, else the block's programmed feed: 0 for a line of rapids)."""
+    if not signals.has(f"{WORKPIECE}.removed_volume") or signals.n < 2:
+        return []
+    if signals.has(f"{INTERPOLATOR}.rapid"):
+        rapid = np.nan_to_num(signals[f"{INTERPOLATOR}.rapid"]) > 0.5
+    else:
+        rapid = spans.per_sample((table["feed_programmed"] == 0).to_numpy(dtype=float), signals.n, 0.0) > 0.5
+    removed = np.r_[0.0, np.diff(np.nan_to_num(signals[f"{WORKPIECE}.removed_volume"]))]
+    removed[~(rapid & np.r_[False, rapid[:-1]])] = 0.0
+    found = []
+    for b, (a, c) in enumerate(zip(spans.starts, spans.stops)):
+        inside = removed[a + 1:c]  # from the block's first sample on: what led to it belongs to the block before
+        volume = float(inside.sum())
+        if volume > RAPID_CUT_TOLERANCE:
+            first = a + 1 + int(np.flatnonzero(inside > 0)[0])
+            found.append(f"line {int(spans.lines[b])}: the rapid move (G0) with T{int(table['tool'].iloc[b])} removes "
+                         f"{volume * 1e9:.3g} mm3 of material from t = {signals.time[first]:.4f} s: on the "
+                         "machine a collision (feed into the material with G1)")
+    return found
+
+
 def _img(png: bytes, title: str, caption: str = "") -> str:
     data = base64.b64encode(png).decode("ascii")
     return (f"<h3>{html.escape(title)}</h3><img alt='{html.escape(title)}' src='data:image/png;base64,{data}'>"
@@ -196,6 +225,7 @@ def write_process_report(part: Part, frame: pd.DataFrame, run_dir: Path, *, zmap
     if reason:
         notes.append(reason)
     table = block_table(signals, spans, feeds)
+    notes.extend(rapid_cuts(signals, spans, table))
     lap("blocks")
 
     # each block's tool: its flutes (tooth passing), diameter (analytic volumes), modes (lobes)

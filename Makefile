@@ -55,10 +55,11 @@ fmus-all-platforms: fmus
 build: configure
 	cmake --build $(BUILD) -j $(JOBS)
 
-# The whole-part twin, twice: UMich run 01's program engraving its wax block through every model (Interpolator,
-# Workpiece, CuttingForce <-> ToolVibration, SpindlePower), compared with the recorded positions and spindle power
-# after aligning the recording in time; then the aluminium bracket's process report (forces, torque, power,
-# deflection and chatter block by block, the machined surface as a Z-map and STL). Results in runs/<part>/.
+# The whole-part twin, three times: UMich run 01's program engraving its wax block through every model
+# (Interpolator, Workpiece, CuttingForce <-> ToolVibration, SpindlePower), compared with the recorded positions and
+# spindle power after aligning the recording in time; then the process reports of the aluminium bracket and of the
+# plate cut with two tools (forces, torque, power, deflection and chatter block by block, the machined surface as a
+# Z-map and STL). Results in runs/<part>/.
 # Builds only what it runs (`make fmus`), not the C test binaries.
 MILLING_TWIN := $(abspath $(VENV))/bin/milling-twin
 demo: fmus

@@ -29,12 +29,11 @@ import numpy as np
 import pandas as pd
 
 from milling_twin.orchestrator.study.cases import case_id
+from milling_twin.orchestrator.study.summary import FIRST, LAST
 
 __all__ = ["Bracket", "RefineSpec", "first_crossing", "read_refine", "refined_values"]
 
 REFINE_KEYS = ("variable", "output", "threshold", "rounds", "scale", "tolerance")
-# the summary's own columns besides the variables and the reductions' outputs
-SUMMARY_COLUMNS = ("case_id", "status", "error", "run_status", "wall_time", "run_dir")
 # the new value stays this share of the bracket away from either end, so that a round always shrinks it
 SAFEGUARD = 0.1
 
@@ -88,7 +87,7 @@ def first_crossing(x: Sequence[float], y: Sequence[float], threshold: float
 def brackets(summary: pd.DataFrame, spec: RefineSpec, variables: Sequence[str]) -> list[Bracket]:
     """The bracket of every group of finished cases (same values of every variable but ``spec.variable``)."""
     if spec.output not in summary.columns:
-        given = [str(c) for c in summary.columns if c not in variables and c not in SUMMARY_COLUMNS]
+        given = [str(c) for c in summary.columns if c not in variables and c not in (*FIRST, *LAST)]
         raise KeyError(f"{spec.output!r} is no output of the reductions (they give {', '.join(given) or 'none'})")
     rows = summary[(summary["status"] == "ok") & summary[spec.variable].notna() & summary[spec.output].notna()]
     others = [v for v in variables if v != spec.variable and v in rows.columns]

@@ -19,6 +19,7 @@ from __future__ import annotations
 
 import inspect
 import math
+from collections.abc import Iterable
 from dataclasses import dataclass, field, replace
 from pathlib import Path
 from typing import Any
@@ -69,11 +70,16 @@ class Study:
     @property
     def variables(self) -> tuple[str, ...]:
         """Every variable some case sets, in order of first appearance (the summary's input columns)."""
-        return tuple(dict.fromkeys(name for case in self.cases for name in case.values))
+        return variables_of_cases(self.cases)
 
     def scenario(self) -> Scenario:
         """The base scenario as every case starts from (with the study's stop time)."""
         return self.base if self.stop_time is None else replace(self.base, stop_time=self.stop_time)
+
+
+def variables_of_cases(cases: Iterable[Case]) -> tuple[str, ...]:
+    """Every variable some of ``cases`` sets, in order of first appearance."""
+    return tuple(dict.fromkeys(name for case in cases for name in case.values))
 
 
 class _Reader(TomlAccess):
@@ -225,8 +231,8 @@ def load_study(path: str | Path, fmu_dir: str | Path) -> Study:
         values = {**values, **fixed}
         cid = cases_mod.case_id(values, stop_time)
         cases.setdefault(cid, Case(cid, values, source))  # the same values twice: one case
-    variables = tuple(dict.fromkeys(name for case in cases.values() for name in case.values))
-    refine = read_refine(study["refine"], variables, reader.fail) if "refine" in study else None
+    refine = read_refine(study["refine"], variables_of_cases(cases.values()), reader.fail) if "refine" in study \
+        else None
     return Study(path, name, description, base, stop_time, tuple(cases.values()), _reductions(reader, study, base),
                  post_name, post_config, refine)
 

@@ -10,7 +10,7 @@ import html
 import json
 import math
 import time
-from collections.abc import Sequence
+from collections.abc import Mapping, Sequence
 from dataclasses import asdict, dataclass, field
 from pathlib import Path
 from typing import Any
@@ -120,17 +120,24 @@ def _sample_weights(t: np.ndarray) -> np.ndarray:
 RAPID_CUT_TOLERANCE = 1e-12
 
 
-def rapid_cuts(signals: Signals, spans: Spans, table: pd.DataFrame) -> list[str]:
+def rapid_samples(signals: Signals, feeds: Mapping[int, float]) -> np.ndarray:
+    """The samples in a rapid move: ``interp.rapid`` when recorded, else those of a line whose programmed feed is 0
+    (a line of rapids; ``feeds``: line -> programmed feed)."""
+    if signals.has(f"{INTERPOLATOR}.rapid"):
+        return np.nan_to_num(signals[f"{INTERPOLATOR}.rapid"]) > 0.5
+    line = np.nan_to_num(signals[f"{INTERPOLATOR}.line_number"]).astype(np.int64)
+    lines, where = np.unique(line, return_inverse=True)
+    return np.array([feeds.get(int(v), 1.0) == 0.0 for v in lines], dtype=bool)[where.ravel()]
+
+
+def rapid_cuts(signals: Signals, spans: Spans, table: pd.DataFrame, feeds: Mapping[int, float]) -> list[str]:
     """A warning for every block whose rapid move (G0) removes material: on the machine a collision. The program
     checks before the run cannot see it (what a rapid passes through depends on what earlier blocks removed); the
     Workpiece does: the volume it removes between two samples of the block that are both in a rapid move
-    (``interp.rapid`` when recorded, else the block's programmed feed: 0 for a line of rapids)."""
+    (:func:`rapid_samples`)."""
     if not signals.has(f"{WORKPIECE}.removed_volume") or signals.n < 2:
         return []
-    if signals.has(f"{INTERPOLATOR}.rapid"):
-        rapid = np.nan_to_num(signals[f"{INTERPOLATOR}.rapid"]) > 0.5
-    else:
-        rapid = spans.per_sample((table["feed_programmed"] == 0).to_numpy(dtype=float), signals.n, 0.0) > 0.5
+    rapid = rapid_samples(signals, feeds)
     removed = np.r_[0.0, np.diff(np.nan_to_num(signals[f"{WORKPIECE}.removed_volume"]))]
     removed[~(rapid & np.r_[False, rapid[:-1]])] = 0.0
     found = []
@@ -225,7 +232,7 @@ def write_process_report(part: Part, frame: pd.DataFrame, run_dir: Path, *, zmap
     if reason:
         notes.append(reason)
     table = block_table(signals, spans, feeds)
-    notes.extend(rapid_cuts(signals, spans, table))
+    notes.extend(rapid_cuts(signals, spans, table, feeds))
     lap("blocks")
 
     # each block's tool: its flutes (tooth passing), diameter (analytic volumes), modes (lobes)
@@ -354,12 +361,7 @@ def write_process_report(part: Part, frame: pd.DataFrame, run_dir: Path, *, zmap
         lengths = {c.tool.number: c.length for c in cutting}
         number = np.nan_to_num(signals[f"{INTERPOLATOR}.tool_number"]).astype(np.int64)
         z_mm = z_mm - np.array([lengths.get(int(n), 0.0) for n in number]) * 1e3
-    if signals.has(f"{INTERPOLATOR}.rapid"):
-        rapid = np.nan_to_num(signals[f"{INTERPOLATOR}.rapid"]) > 0.5
-    else:
-        line = np.nan_to_num(signals[f"{INTERPOLATOR}.line_number"]).astype(np.int64)
-        lines, where = np.unique(line, return_inverse=True)
-        rapid = np.array([feeds.get(int(v), 1.0) == 0.0 for v in lines], dtype=bool)[where.ravel()]
+    rapid = rapid_samples(signals, feeds)
     if signals.has(f"{INTERPOLATOR}.x") and signals.n > 1:
         box = [(o * 1e3, (o + s) * 1e3) for o, s in zip(part.stock.origin, part.stock.size)]
         figures.append(_img(plots.toolpath_png(x_mm, y_mm, z_mm, resultant, rapid, "resultant force [N]",

@@ -8,26 +8,74 @@ of the UMich scenarios takes (docs/performance.md). The classes here compute the
 fmpy's own rules the first time a class is loaded and then only bind the library's functions.
 Everything else (loading the library, instantiating, the convenience calls, error handling) is
 fmpy's; ``tests/test_fmu_loading.py`` checks that the bound functions equal fmpy's, name by name.
+
+Loading a binary, fmpy changes the working directory to the binary's folder and changes it back only
+when the library loads: here the working directory is always restored, and a binary that cannot be
+loaded (not a shared library, another platform, a missing FMI function) raises :class:`FmuLoadError`
+naming the FMU and the binary, ``FMU <model> (instance <name>): its binary <path> cannot be loaded:
+<reason>``. Loads are serialised by a lock, so that threads loading FMUs do not change each other's
+working directory.
 """
 from __future__ import annotations
 
+import contextlib
 import ctypes
 import inspect
+import os
 import threading
 import types
 import typing
+from collections.abc import Iterator
 from typing import Any
 
 from fmpy.fmi2 import FMU2Slave as _FmpyFMU2Slave
 from fmpy.fmi3 import FMU3Slave as _FmpyFMU3Slave
 
-__all__ = ["FMU2Slave", "FMU3Slave", "function_table"]
+__all__ = ["FMU2Slave", "FMU3Slave", "FmuLoadError", "function_table"]
 
 # (method name, argument names, argtypes, restype) of every FMI function a class binds
 FunctionTable = tuple[tuple[str, tuple[str, ...], tuple[Any, ...], Any], ...]
 
 _tables: dict[type, FunctionTable] = {}
 _lock = threading.Lock()
+_loading_lock = threading.Lock()  # fmpy changes the process's working directory while it loads a binary
+
+
+class FmuLoadError(ValueError):
+    """An FMU whose binary cannot be loaded (the FMU's problem, not the run's)."""
+
+
+def _binary(kwargs: dict[str, Any]) -> str:
+    """The shared library fmpy loads for these constructor arguments (as fmpy finds it)."""
+    from fmpy import platform, sharedLibraryExtension
+
+    if kwargs.get("libraryPath"):
+        return str(kwargs["libraryPath"])
+    return os.path.abspath(os.path.join(str(kwargs.get("unzipDirectory", "")), "binaries", platform,
+                                        f"{kwargs.get('modelIdentifier')}{sharedLibraryExtension}"))
+
+
+def _reason(message: str, binary: str) -> str:
+    """fmpy's and the loader's message without the binary's path they repeat."""
+    for prefix in (f"Failed to load shared library {binary}. ", f"{binary}: ", "Cannot find shared library "):
+        message = message[len(prefix):] if message.startswith(prefix) else message
+    return "the file does not exist" if message.rstrip(".") == binary else message
+
+
+@contextlib.contextmanager
+def _loading(kwargs: dict[str, Any]) -> Iterator[None]:
+    """Around fmpy's constructor: the working directory restored, a load failure made an FmuLoadError."""
+    with _loading_lock:
+        cwd = os.getcwd()
+        try:
+            yield
+        except Exception as exc:  # fmpy raises a bare Exception; ctypes an OSError or AttributeError
+            binary = _binary(kwargs)
+            raise FmuLoadError(f"FMU {kwargs.get('modelIdentifier')} (instance {kwargs.get('instanceName')}): "
+                               f"its binary {binary} cannot be loaded: {_reason(str(exc), binary)}") from exc
+        finally:
+            if os.getcwd() != cwd:
+                os.chdir(cwd)
 
 
 def function_table(fmu: Any) -> FunctionTable:
@@ -65,12 +113,20 @@ def _bind(fmu: Any) -> None:
 class FMU2Slave(_FmpyFMU2Slave):
     """fmpy's FMU2Slave; the FMI function table is introspected once per class (see the module doc)."""
 
+    def __init__(self, **kwargs: Any) -> None:
+        with _loading(kwargs):
+            super().__init__(**kwargs)
+
     def _loadFunctions(self) -> None:
         _bind(self)
 
 
 class FMU3Slave(_FmpyFMU3Slave):
     """fmpy's FMU3Slave; the FMI function table is introspected once per class (see the module doc)."""
+
+    def __init__(self, **kwargs: Any) -> None:
+        with _loading(kwargs):
+            super().__init__(**kwargs)
 
     def _loadFunctions(self) -> None:
         _bind(self)

@@ -22,6 +22,9 @@ That is how a recording that starts earlier, waits where the program does not (d
 or runs at another feed override is compared with a simulation on its own time axis. The time map is written as
 ``time_map.csv`` (recorded_time, simulated_time, confidence) and summarised in ``report.json`` (``alignment``);
 plots are over recorded time.
+
+Every file is written atomically (``orchestrator.atomic_files``): a full disk leaves no truncated report.json
+or PNG and no temporary file, and the error names the file.
 """
 from __future__ import annotations
 
@@ -34,6 +37,7 @@ import numpy as np
 import pandas as pd
 from matplotlib.figure import Figure  # no pyplot: no global figure state, Agg by default
 
+from milling_twin.orchestrator import atomic_files
 from milling_twin.orchestrator.json_values import jsonable
 from milling_twin.orchestrator.results import load_results
 from milling_twin.orchestrator.scenario import Compare, Scenario
@@ -143,7 +147,7 @@ def _plot(path: Path, c: Comparison, variable: str, t: np.ndarray, simulated: np
     bottom.set_ylabel(f"error [{c.display_unit}]")
     bottom.set_xlabel(f"{time_label} [s]")
     bottom.grid(True, alpha=0.3)
-    fig.savefig(path, dpi=100)
+    atomic_files.write_with(path, lambda tmp: fig.savefig(tmp, dpi=100, format="png"))
 
 
 def write_report(scenario: Scenario, run_dir: str | Path, results: pd.DataFrame | None = None) -> Report:
@@ -159,9 +163,7 @@ def write_report(scenario: Scenario, run_dir: str | Path, results: pd.DataFrame 
     if time_map is not None:
         doc["alignment"] = {"method": time_map.method, "samples": int(time_map.recorded_time.size),
                             "mean_confidence": float(np.mean(time_map.confidence)), "time_map": "time_map.csv"}
-    tmp = path.with_name(".report.json.tmp")
-    tmp.write_text(json.dumps(jsonable(doc), indent=2))
-    tmp.replace(path)
+    atomic_files.write_text(path, json.dumps(jsonable(doc), indent=2))
     return Report(path, comparisons)
 
 
@@ -173,9 +175,7 @@ def _align(scenario: Scenario, results: pd.DataFrame, run_dir: Path) -> TimeMap:
                              alignment.method)
     table = pd.DataFrame({"recorded_time": time_map.recorded_time, "simulated_time": time_map.simulated_time,
                           "confidence": time_map.confidence})
-    tmp = run_dir / ".time_map.csv.tmp"
-    table.to_csv(tmp, index=False)
-    tmp.replace(run_dir / "time_map.csv")
+    atomic_files.write_with(run_dir / "time_map.csv", lambda tmp: table.to_csv(tmp, index=False))
     return time_map
 
 

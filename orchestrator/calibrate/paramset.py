@@ -15,6 +15,7 @@ import os
 from collections.abc import Mapping, Sequence
 from pathlib import Path
 
+from milling_twin.orchestrator import atomic_files
 from milling_twin.orchestrator.calibrate.parameters import Parameter
 from milling_twin.orchestrator.calibrate.statistics import ParameterStatistics
 from milling_twin.orchestrator.ssp.ssv import SsvValue, parameter_set
@@ -68,5 +69,4 @@ def write_ssv(path: Path, name: str, parameters: Sequence[Parameter], estimates:
     values = [SsvValue(q.name, min(max(float(v), q.lower), q.upper), q.unit)
               for q, v in zip(parameters, estimates) if not q.nuisance]
     path.parent.mkdir(parents=True, exist_ok=True)
-    path.write_bytes(parameter_set(name, values))
-    return path
+    return atomic_files.write_bytes(path, parameter_set(name, values))

@@ -8,6 +8,9 @@ the parameter table (initial, estimate, bounds, standard error, 95 % interval, f
 correlation matrix and the near-singular directions; per output and data set the fit before and
 after calibration and the residuals (plots and statistics); the alignment; the solver trace per
 start and the time of every stage; kind-specific figures and tables.
+
+Every file is written atomically (``orchestrator.atomic_files``): figures first, then report.md, report.html and
+calibration.json, each complete or unchanged; an earlier report's figures beyond this one's are removed last.
 """
 from __future__ import annotations
 
@@ -20,6 +23,7 @@ from typing import Any
 
 import numpy as np
 
+from milling_twin.orchestrator import atomic_files
 from milling_twin.orchestrator.json_values import jsonable
 from milling_twin.models.units import display_value, format_quantity
 from milling_twin.orchestrator.calibrate.plots import correlation_png, fit_png, residual_png, trace_png
@@ -205,8 +209,6 @@ def write_report(result: CalibrationResult) -> tuple[Path, Path]:
     """Write report.html, report.md, figures/*.png and calibration.json into ``result.out_dir``."""
     out = result.out_dir
     (out / "figures").mkdir(parents=True, exist_ok=True)
-    for stale in (out / "figures").glob("*.png"):
-        stale.unlink()
     figures = _figures(result)
     tables = _tables(result)
     spec = result.spec
@@ -233,7 +235,7 @@ def write_report(result: CalibrationResult) -> tuple[Path, Path]:
     md += ["## Figures", ""]
     for i, fig in enumerate(figures):
         name = f"figures/{i + 1:02d}.png"
-        (out / name).write_bytes(fig.png)
+        atomic_files.write_bytes(out / name, fig.png)
         data = base64.b64encode(fig.png).decode("ascii")
         parts.append(f"<h3>{html.escape(fig.title)}</h3><img alt='{html.escape(fig.title)}' "
                      f"src='data:image/png;base64,{data}'>"
@@ -241,8 +243,8 @@ def write_report(result: CalibrationResult) -> tuple[Path, Path]:
         md += [f"### {fig.title}", "", f"![{fig.title}]({name})", "", fig.caption, ""]
     parts.append("</body></html>")
     html_path, md_path = out / "report.html", out / "report.md"
-    html_path.write_text("".join(parts), encoding="utf-8")
-    md_path.write_text("\n".join(md) + "\n", encoding="utf-8")
+    atomic_files.write_text(md_path, "\n".join(md) + "\n")
+    atomic_files.write_text(html_path, "".join(parts))
     doc = {
         "spec": str(spec.path), "spec_sha256": spec.sha256, "kind": spec.kind, "derivatives": result.fit.derivatives,
         "parameter_set": str(result.parameter_set),
@@ -259,6 +261,10 @@ def write_report(result: CalibrationResult) -> tuple[Path, Path]:
         "tables": [{"title": t.title, "header": t.header, "rows": t.rows} for t in result.tables],
         "alignment": result.alignment.__dict__ if result.alignment else None,
     }
-    (out / "calibration.json").write_text(json.dumps(jsonable(doc), indent=2), encoding="utf-8")
+    atomic_files.write_text(out / "calibration.json", json.dumps(jsonable(doc), indent=2))
+    written = {f"{i + 1:02d}.png" for i in range(len(figures))}
+    for stale in (out / "figures").glob("*.png"):  # an earlier report's figures beyond this one's
+        if stale.name not in written and not stale.name.startswith("."):
+            stale.unlink()
     result.report_html, result.report_md = html_path, md_path
     return html_path, md_path

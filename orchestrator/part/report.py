@@ -2,6 +2,7 @@
 style, no scripts, no external references), the per-block table as Parquet (SI, units in the field metadata)
 and CSV (display units in the headers), the machined part as binary STL (mm) and ``process_report.json`` with
 the headline figures. What each column, figure and indicator means: docs/process_report.md.
+Every file is written atomically (``orchestrator.atomic_files``): complete or unchanged, no temporary file left.
 """
 from __future__ import annotations
 
@@ -18,6 +19,7 @@ from typing import Any
 import numpy as np
 import pandas as pd
 
+from milling_twin.orchestrator import atomic_files
 from milling_twin.orchestrator.json_values import jsonable
 from milling_twin.models.stability import stability_lobes
 from milling_twin.models.units import conversion_factor
@@ -275,7 +277,8 @@ def write_process_report(part: Part, frame: pd.DataFrame, run_dir: Path, *, zmap
     lap("surface")
 
     parquet, csv = run_dir / "blocks.parquet", run_dir / "blocks.csv"
-    write_block_table(table, parquet, csv)
+    atomic_files.write_with(parquet, lambda tmp_parquet: atomic_files.write_with(
+        csv, lambda tmp_csv: write_block_table(table, tmp_parquet, tmp_csv)))
     lap("tables")
 
     # the final Z-map
@@ -299,7 +302,8 @@ def write_process_report(part: Part, frame: pd.DataFrame, run_dir: Path, *, zmap
         cells = grid.x.size * grid.y.size
         if cells <= STL_MAX_CELLS:
             stl_path = run_dir / "part.stl"
-            triangles = write_stl(grid, bottom, stl_path)
+            surface = grid
+            triangles = atomic_files.write_with(stl_path, lambda tmp: write_stl(surface, bottom, tmp))
         else:
             notes.append(f"{zmap_file}: no STL: the Z-map has {cells} cells, more than {STL_MAX_CELLS} (the STL "
                          f"takes 100 bytes a cell: {cells * 1e-4:.0f} MB; a coarser [part.stock] resolution gives one)")
@@ -442,7 +446,7 @@ def write_process_report(part: Part, frame: pd.DataFrame, run_dir: Path, *, zmap
              f"<h2>Blocks</h2><p class='note'>{html.escape(blocks_note)} Rows in chatter are shaded. Units in the "
              "headers; definitions in docs/process_report.md.</p>", blocks_html, "</body></html>"]
     html_path = run_dir / "process_report.html"
-    html_path.write_text("".join(parts), encoding="utf-8")
+    atomic_files.write_text(html_path, "".join(parts))
     lap("html")
     wall = time.perf_counter() - t_start
     result = ProcessReport(html=html_path, json=run_dir / "process_report.json", blocks_parquet=parquet,
@@ -455,7 +459,7 @@ def write_process_report(part: Part, frame: pd.DataFrame, run_dir: Path, *, zmap
            "comparisons": [asdict(c) for c in comparisons],
            "block_columns": [{"name": c.name, "unit": c.unit, "display_unit": c.display_unit,
                               "description": c.description} for c in COLUMNS]}
-    result.json.write_text(json.dumps(jsonable(doc), indent=2), encoding="utf-8")
+    atomic_files.write_text(result.json, json.dumps(jsonable(doc), indent=2))
     return result
 
 

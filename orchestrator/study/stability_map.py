@@ -44,6 +44,7 @@ from typing import TYPE_CHECKING, Any
 import numpy as np
 
 from milling_twin.models.stability import semi_discretization_limit, stability_lobes
+from milling_twin.orchestrator import atomic_files
 from milling_twin.orchestrator.study.post import register_post
 from milling_twin.orchestrator.study.reduce import CaseRun, register
 from milling_twin.orchestrator.study.refine import first_crossing
@@ -218,7 +219,7 @@ def _csv_values(row: MapRow) -> list[Any]:
 def write_csv(rows: Sequence[MapRow], path: Path) -> None:
     """The table, one row per speed (depths in mm, differences in %; empty where not bracketed)."""
     path.parent.mkdir(parents=True, exist_ok=True)
-    with path.open("w", newline="") as f:
+    with atomic_files.writing(path, "w", newline="") as f:
         writer = csv.writer(f)
         writer.writerow(CSV_COLUMNS)
         writer.writerows(_csv_values(r) for r in rows)
@@ -315,7 +316,7 @@ def plot_map(path: Path, cases: pd.DataFrame, rows: Sequence[MapRow], tool: Tool
     ax.grid(alpha=0.3)
     ax.legend(fontsize=8, loc="upper left")
     path.parent.mkdir(parents=True, exist_ok=True)
-    fig.savefig(path, dpi=110)
+    atomic_files.write_with(path, lambda tmp: fig.savefig(tmp, dpi=110, format="png"))
 
 
 @dataclass(frozen=True)

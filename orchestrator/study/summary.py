@@ -2,8 +2,7 @@
 
 Layout of ``<out>/<study name>/``:
 
-- ``summary/<case id>.parquet``: one file per finished case (written to a temporary name, then renamed: a killed
-  study leaves only whole files), the Parquet dataset of the finished cases;
+- ``summary/<case id>.parquet``: one file per finished case, the Parquet dataset of the finished cases;
 - ``summary.parquet`` and ``summary.csv``: the rows of the study's cases in the study's order, rewritten at the end
   of every sweep (also an interrupted one);
 - ``study.json``: what ran (the study file, the base scenario, the cases with their values, the reductions).
@@ -12,11 +11,13 @@ A row: ``case_id``, ``status`` ("ok" or "failed"), ``error`` (the message, "" wh
 the variable's SI unit as the case ran them (None when the case failed before it could set them), the reductions'
 outputs (NaN when missing), ``run_status`` (the master's: "completed", "terminated: ..."), ``wall_time`` (s, the
 case on its worker: setup, run, reductions) and ``run_dir`` (the case's run folder).
+
+Every file is written atomically (``orchestrator.atomic_files``: a temporary name, then renamed): a killed study
+or a full disk leaves only whole files and no temporary ones.
 """
 from __future__ import annotations
 
 import json
-import os
 from collections.abc import Iterable, Mapping
 from pathlib import Path
 from typing import Any
@@ -25,6 +26,7 @@ import pandas as pd
 import pyarrow as pa
 import pyarrow.parquet as pq
 
+from milling_twin.orchestrator import atomic_files
 __all__ = ["SummaryStore"]
 
 PARTS = "summary"
@@ -47,10 +49,8 @@ class SummaryStore:
 
     def write(self, row: Mapping[str, Any]) -> None:
         self.parts.mkdir(parents=True, exist_ok=True)
-        path = self.parts / f"{row['case_id']}.parquet"
-        tmp = path.with_name(f".{path.name}.{os.getpid()}.tmp")
-        pq.write_table(pa.Table.from_pylist([dict(row)]), tmp)
-        os.replace(tmp, path)
+        table = pa.Table.from_pylist([dict(row)])
+        atomic_files.write_with(self.parts / f"{row['case_id']}.parquet", lambda tmp: pq.write_table(table, tmp))
 
     def rows(self) -> dict[str, dict[str, Any]]:
         """The rows of every finished case, by case id."""
@@ -75,15 +75,9 @@ class SummaryStore:
         self.folder.mkdir(parents=True, exist_ok=True)
         for name, write in (("summary.parquet", lambda p: frame.to_parquet(p, index=False)),
                             ("summary.csv", lambda p: frame.to_csv(p, index=False))):
-            path = self.folder / name
-            tmp = path.with_name(f".{name}.tmp")
-            write(tmp)
-            os.replace(tmp, path)
+            atomic_files.write_with(self.folder / name, write)
         return frame
 
     def write_study(self, doc: Mapping[str, Any]) -> None:
         self.folder.mkdir(parents=True, exist_ok=True)
-        path = self.folder / "study.json"
-        tmp = path.with_name(".study.json.tmp")
-        tmp.write_text(json.dumps(doc, indent=2, default=str))
-        os.replace(tmp, path)
+        atomic_files.write_text(self.folder / "study.json", json.dumps(doc, indent=2, default=str))

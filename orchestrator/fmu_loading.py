@@ -22,6 +22,7 @@ import contextlib
 import ctypes
 import inspect
 import os
+import re
 import threading
 import types
 import typing
@@ -45,34 +46,36 @@ class FmuLoadError(ValueError):
     """An FMU whose binary cannot be loaded (the FMU's problem, not the run's)."""
 
 
-def _binary(kwargs: dict[str, Any]) -> str:
-    """The shared library fmpy loads for these constructor arguments (as fmpy finds it)."""
-    from fmpy import platform, sharedLibraryExtension
+def _binary(kwargs: dict[str, Any], fmi3: bool, message: str) -> tuple[str, str]:
+    """The shared library fmpy tried to load and why it failed, from fmpy's ``message`` (else as fmpy finds it)."""
+    from fmpy import platform, platform_tuple, sharedLibraryExtension
 
+    for pattern in (rf"Failed to load shared library (.+?{re.escape(sharedLibraryExtension)})\. (.*)",
+                    r"Cannot find shared library (.+)\.()"):
+        match = re.fullmatch(pattern, message, re.DOTALL)
+        if match:
+            binary, reason = match.group(1), match.group(2)
+            reason = reason[len(binary) + 2:] if reason.startswith(f"{binary}: ") else reason
+            return binary, reason or "the file does not exist"
     if kwargs.get("libraryPath"):
-        return str(kwargs["libraryPath"])
-    return os.path.abspath(os.path.join(str(kwargs.get("unzipDirectory", "")), "binaries", platform,
-                                        f"{kwargs.get('modelIdentifier')}{sharedLibraryExtension}"))
-
-
-def _reason(message: str, binary: str) -> str:
-    """fmpy's and the loader's message without the binary's path they repeat."""
-    for prefix in (f"Failed to load shared library {binary}. ", f"{binary}: ", "Cannot find shared library "):
-        message = message[len(prefix):] if message.startswith(prefix) else message
-    return "the file does not exist" if message.rstrip(".") == binary else message
+        return str(kwargs["libraryPath"]), message
+    binary = os.path.abspath(os.path.join(str(kwargs.get("unzipDirectory", "")), "binaries",
+                                          platform_tuple if fmi3 else platform,
+                                          f"{kwargs.get('modelIdentifier')}{sharedLibraryExtension}"))
+    return binary, message.replace(f"{binary}: ", "")
 
 
 @contextlib.contextmanager
-def _loading(kwargs: dict[str, Any]) -> Iterator[None]:
+def _loading(kwargs: dict[str, Any], fmi3: bool) -> Iterator[None]:
     """Around fmpy's constructor: the working directory restored, a load failure made an FmuLoadError."""
     with _loading_lock:
         cwd = os.getcwd()
         try:
             yield
         except Exception as exc:  # fmpy raises a bare Exception; ctypes an OSError or AttributeError
-            binary = _binary(kwargs)
+            binary, reason = _binary(kwargs, fmi3, str(exc))
             raise FmuLoadError(f"FMU {kwargs.get('modelIdentifier')} (instance {kwargs.get('instanceName')}): "
-                               f"its binary {binary} cannot be loaded: {_reason(str(exc), binary)}") from exc
+                               f"its binary {binary} cannot be loaded: {reason}") from exc
         finally:
             if os.getcwd() != cwd:
                 os.chdir(cwd)
@@ -114,7 +117,7 @@ class FMU2Slave(_FmpyFMU2Slave):
     """fmpy's FMU2Slave; the FMI function table is introspected once per class (see the module doc)."""
 
     def __init__(self, **kwargs: Any) -> None:
-        with _loading(kwargs):
+        with _loading(kwargs, fmi3=False):
             super().__init__(**kwargs)
 
     def _loadFunctions(self) -> None:
@@ -125,7 +128,7 @@ class FMU3Slave(_FmpyFMU3Slave):
     """fmpy's FMU3Slave; the FMI function table is introspected once per class (see the module doc)."""
 
     def __init__(self, **kwargs: Any) -> None:
-        with _loading(kwargs):
+        with _loading(kwargs, fmi3=True):
             super().__init__(**kwargs)
 
     def _loadFunctions(self) -> None:

@@ -30,16 +30,28 @@ Boolean channels:
 
 from __future__ import annotations
 
+import codecs
 import csv
 import math
+import os
 import re
-from collections.abc import Sequence
+from array import array
+from collections.abc import Callable, Iterator, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
+from typing import Any, BinaryIO
 
 import numpy as np
 
+try:  # the parser of the re module, to check a pattern's structure before it is run
+    import re._constants as _sre
+    import re._parser as _sre_parse
+except ImportError:  # Python < 3.11
+    import sre_constants as _sre  # type: ignore[no-redef]
+    import sre_parse as _sre_parse  # type: ignore[no-redef]
+
 from milling_twin.models.units import UnitError, convert, parse_unit, si_unit_of
+from milling_twin.orchestrator.input_files import InputFileError, open_input, text_position
 from milling_twin.orchestrator.recording_checks import RecordingCheck
 
 __all__ = [
@@ -213,6 +225,65 @@ class RecordedData:
         return np.asarray(result)
 
 
+# --------------------------------------------------------------------------- patterns
+
+#: Bounds of a channel's ``match``: its length, the characters of a cell it is matched against, the unbounded
+#: repeats (``*``, ``+``, ``{n,}``) it may hold. With no repeat inside another, no alternation inside a repeat and
+#: no backreference, the backtracking engine's time is polynomial in the cell's length, of a degree at most the
+#: number of unbounded repeats: at most 1000^2 steps for a cell.
+MAX_PATTERN_LENGTH = 200
+MAX_MATCH_TEXT = 1000
+MAX_UNBOUNDED_REPEATS = 2
+
+
+class PatternError(ValueError):
+    """A ``match`` pattern refused: invalid, or of a structure whose matching time can explode."""
+
+
+def check_pattern(pattern: str) -> None:
+    """Refuse a regular expression that is invalid, longer than MAX_PATTERN_LENGTH, or can take exponential time:
+    a backreference, a repeat inside a repeat (``(a+)+``), an alternation inside a repeat (``(a|aa)*``), more than
+    MAX_UNBOUNDED_REPEATS unbounded repeats."""
+    if len(pattern) > MAX_PATTERN_LENGTH:
+        raise PatternError(f"a pattern of {len(pattern)} characters, more than {MAX_PATTERN_LENGTH}")
+    try:
+        parsed = _sre_parse.parse(pattern)
+    except re.error as exc:
+        raise PatternError(f"invalid regular expression: {exc}") from None
+    unbounded = [0]
+
+    def walk(items: Any, in_repeat: bool) -> None:
+        for op, av in items:
+            if op in (_sre.GROUPREF, _sre.GROUPREF_EXISTS):
+                raise PatternError("a backreference (\\1, (?P=name), (?(1)...)) can take exponential time: "
+                                   "not allowed")
+            if op in (_sre.MAX_REPEAT, _sre.MIN_REPEAT, getattr(_sre, "POSSESSIVE_REPEAT", None)):
+                low, high, body = av
+                repeats = high > 1
+                if repeats and in_repeat:
+                    raise PatternError("a repeat inside a repeat (like (a+)+) can take exponential time: "
+                                       "write it with one quantifier")
+                unbounded[0] += high == _sre.MAXREPEAT
+                walk(body, in_repeat or repeats)
+            elif op is _sre.BRANCH:
+                if in_repeat:
+                    raise PatternError("an alternation inside a repeat (like (a|ab)*) can take exponential time: "
+                                       "use a character class or several channels")
+                for branch in av[1]:
+                    walk(branch, in_repeat)
+            elif op is _sre.SUBPATTERN:
+                walk(av[3], in_repeat)
+            elif op in (_sre.ASSERT, _sre.ASSERT_NOT):
+                walk(av[1], in_repeat)
+            elif op is getattr(_sre, "ATOMIC_GROUP", None):
+                walk(av, in_repeat)
+
+    walk(parsed, False)
+    if unbounded[0] > MAX_UNBOUNDED_REPEATS:
+        raise PatternError(f"{unbounded[0]} unbounded repeats (*, +, {{n,}}), more than {MAX_UNBOUNDED_REPEATS}: "
+                           f"the matching time grows as the cell's length to that power")
+
+
 # --------------------------------------------------------------------------- loading
 
 
@@ -261,41 +332,83 @@ def _check_specs(path: Path, channels: Sequence[ChannelSpec]) -> None:
                     f"got {spec.unit!r}"
                 )
             try:
-                re.compile(spec.match)
-            except re.error as exc:
-                raise RecordedDataError(
-                    f"{where}: invalid regular expression {spec.match!r}: {exc}"
-                ) from None
+                check_pattern(spec.match)
+            except PatternError as exc:
+                raise RecordedDataError(f"{where}: match {spec.match!r}: {exc}") from None
 
 
-@dataclass(frozen=True)
-class _Layout:
+@dataclass
+class _Rows:
+    """What one pass over the file keeps: the header, the text of the needed columns (by field index) and the
+    file line at which each kept data row starts."""
     header: list[str]
-    row_lines: list[int]  # file line number at which each data row starts
+    texts: dict[int, list[str]]
+    row_lines: array
 
 
-def _scan(path: Path) -> _Layout:
-    """Check the file's structure: exists, non-empty, header, field counts."""
-    if not path.exists():
+#: Bytes that never occur in a CSV text file (C0 controls but tab, line feed, form feed and carriage return).
+_BINARY = re.compile(rb"[\x00-\x08\x0b\x0e-\x1f\x7f]")
+_SNIFF_BYTES = 65536
+_SHOWN_COLUMNS = 30  # header names listed in a message
+
+
+def _not_csv(path: Path, why: str) -> RecordedDataError:
+    return RecordedDataError(f"{path}: not a CSV recording ({why})")
+
+
+def _sniff(path: Path, fh: BinaryIO) -> None:
+    """Refuse a file that is not CSV text at all, without quoting it: control bytes in its first 64 KiB."""
+    start = fh.read(_SNIFF_BYTES)
+    fh.seek(0)
+    if not start.strip():
+        raise RecordedDataError(f"{path}: file is empty")
+    binary = _BINARY.search(start)
+    if binary:
+        line, column = text_position(start, binary.start())
+        raise _not_csv(path, f"binary content: byte 0x{start[binary.start()]:02x} at line {line}, column {column}")
+
+
+def _text_lines(path: Path, fh: BinaryIO) -> Iterator[str]:
+    """The file's lines decoded one at a time (a byte that is not UTF-8 is named by its line and column)."""
+    for number, raw in enumerate(fh, 1):
+        if number == 1 and raw.startswith(codecs.BOM_UTF8):
+            raw = raw[len(codecs.BOM_UTF8):]
+        try:
+            yield raw.decode("utf-8")
+        except UnicodeDecodeError as exc:
+            column = len(raw[:exc.start].decode("utf-8", errors="replace")) + 1
+            raise RecordedDataError(f"{_where(path, number)}, column {column}: byte 0x{raw[exc.start]:02x} is not "
+                                    f"valid UTF-8: a recording must be UTF-8 text") from None
+
+
+def _read(path: Path, needed: Callable[[list[str]], dict[str, int]], stop: Callable[[int, list[str]], bool]
+          ) -> _Rows:
+    """One pass over the file: the header (``needed`` gives the field index of each column wanted), then the
+    data rows, each checked for its field count, keeping the text of the needed fields, until ``stop(rows, record)``
+    (after the row is kept: the run uses no later row)."""
+    if not os.path.lexists(path):
         raise RecordedDataError(f"{path}: file not found")
-    if not path.is_file():
-        raise RecordedDataError(f"{path}: not a regular file")
     try:
-        with path.open("r", encoding="utf-8-sig", newline="") as fh:
-            text_start = fh.read(4096)
-            if not text_start.strip():
-                raise RecordedDataError(f"{path}: file is empty")
-            fh.seek(0)
-            reader = csv.reader(fh)
-            header: list[str] | None = None
-            row_lines: list[int] = []
-            previous_end = 0
+        fh = open_input(path, "recording")
+    except InputFileError as exc:
+        raise RecordedDataError(exc.detail) from None
+    with fh:
+        _sniff(path, fh)
+        reader = csv.reader(_text_lines(path, fh))
+        header: list[str] | None = None
+        indices: list[int] = []
+        texts: dict[int, list[str]] = {}
+        row_lines = array("q")
+        previous_end = 0
+        try:
             for record in reader:
                 start = previous_end + 1
                 previous_end = reader.line_num
                 if header is None:
                     header = record
                     _check_header(path, header)
+                    indices = sorted(set(needed(header).values()))
+                    texts = {i: [] for i in indices}
                     continue
                 if len(record) != len(header):
                     what = "blank line" if not record else f"{len(record)} fields"
@@ -304,14 +417,16 @@ def _scan(path: Path) -> _Layout:
                         f"{_where(path, start)}: {kind}: {what}, but the header "
                         f"(line 1) has {len(header)} fields"
                     )
+                for i in indices:
+                    texts[i].append(record[i])
                 row_lines.append(start)
-    except UnicodeDecodeError as exc:
-        raise RecordedDataError(f"{path}: not a UTF-8 text file ({exc})") from None
-    except csv.Error as exc:
-        raise RecordedDataError(f"{_where(path, reader.line_num)}: {exc}") from None
-    if header is None:  # only whitespace beyond the first 4096 characters: unreachable
+                if stop(len(row_lines), record):
+                    break
+        except csv.Error as exc:
+            raise RecordedDataError(f"{_where(path, reader.line_num)}: {exc}") from None
+    if header is None:  # only whitespace beyond the first 64 KiB: unreachable
         raise RecordedDataError(f"{path}: file is empty")
-    return _Layout(header=header, row_lines=row_lines)
+    return _Rows(header=header, texts=texts, row_lines=row_lines)
 
 
 def _is_number(text: str) -> bool:
@@ -335,10 +450,15 @@ def _check_header(path: Path, header: list[str]) -> None:
 
 def _column_index(path: Path, header: list[str], column: str, role: str) -> int:
     hits = [i for i, name in enumerate(header) if name == column]
+    if not hits and len(header) < 2:  # no comma in line 1: not a table of named columns
+        raise _not_csv(path, f"line 1 is not a header of comma-separated column names; looked for the column "
+                             f"{column!r}")
     if not hits:
+        shown = ", ".join(repr(h if len(h) <= 40 else h[:40] + "...") for h in header[:_SHOWN_COLUMNS])
+        more = f", ... ({len(header)} columns)" if len(header) > _SHOWN_COLUMNS else ""
         raise RecordedDataError(
             f"{_where(path, 1, column)}: {role}: column not found in header; "
-            f"available columns: {', '.join(repr(h) for h in header)}"
+            f"available columns: {shown}{more}"
         )
     if len(hits) > 1:
         raise RecordedDataError(
@@ -393,11 +513,14 @@ def load_recorded(
     time_column: str | None = None,
     time_unit: str = "s",
     sample_period: float | None = None,
+    until: float | None = None,
 ) -> RecordedData:
     """Load the requested channels of a CSV recording, validated and in SI units.
 
     Exactly one of ``time_column`` (values in ``time_unit``) and ``sample_period``
-    (seconds) must be given.  Raises :class:`RecordedDataError` for any problem, with
+    (seconds) must be given.  ``until`` (seconds): the file is read up to and including
+    the first row at or after this time, and no further (what a run ending there uses);
+    None reads it all.  Raises :class:`RecordedDataError` for any problem, with
     the file, line and column in the message.
     """
     path = Path(path)
@@ -427,48 +550,38 @@ def load_recorded(
             )
     _check_specs(path, channels)
 
-    layout = _scan(path)
-    header = layout.header
-
     needed: dict[str, int] = {}
-    if time_column is not None:
-        needed[time_column] = _column_index(path, header, time_column, "time column")
-    for spec in channels:
-        needed[spec.column] = _column_index(
-            path, header, spec.column, f"channel {spec.name!r}"
-        )
 
-    n_rows = len(layout.row_lines)
+    def find_columns(header: list[str]) -> dict[str, int]:
+        if time_column is not None:
+            needed[time_column] = _column_index(path, header, time_column, "time column")
+        for spec in channels:
+            needed[spec.column] = _column_index(path, header, spec.column, f"channel {spec.name!r}")
+        return needed
+
+    limit = None if until is None or not math.isfinite(until) else float(until)
+    factor = float(convert(1.0, time_unit, "s")) if time_column is not None else 0.0
+
+    def stop(rows: int, record: list[str]) -> bool:
+        """The first row at or after ``until`` ends the reading (the row is kept: it brackets ``until``)."""
+        if limit is None or rows < 2:
+            return False
+        if sample_period is not None:
+            return (rows - 1) * sample_period >= limit
+        try:
+            return float(record[needed[time_column]]) * factor >= limit
+        except ValueError:  # not a number: the time column's check names it
+            return False
+
+    read = _read(path, find_columns, stop)
+    n_rows = len(read.row_lines)
     if n_rows < 2:
         raise RecordedDataError(
             f"{path}: fewer than 2 data rows (found {n_rows}); a recording needs at "
             f"least 2 samples"
         )
-
-    import pandas as pd
-
-    indices = sorted(set(needed.values()))
-    try:
-        frame = pd.read_csv(
-            path,
-            header=0,
-            usecols=indices,
-            dtype=str,
-            na_filter=False,
-            skip_blank_lines=False,
-            encoding="utf-8-sig",
-        )
-    except (ValueError, pd.errors.ParserError) as exc:  # ParserError is a ValueError
-        raise RecordedDataError(f"{path}: cannot be read as CSV: {exc}") from None
-    if len(frame) != n_rows or frame.shape[1] != len(indices):
-        raise RecordedDataError(  # defensive: pandas and csv disagree on the layout
-            f"{path}: pandas read {frame.shape[0]} rows x {frame.shape[1]} columns, "
-            f"expected {n_rows} x {len(indices)}; check quoting in the file"
-        )
-    texts = {
-        idx: frame.iloc[:, k].to_numpy(dtype=object) for k, idx in enumerate(indices)
-    }
-    lines = layout.row_lines
+    texts = {idx: np.array(values, dtype=object) for idx, values in read.texts.items()}
+    lines = read.row_lines
 
     if time_column is not None:
         raw = _parse_numeric(path, time_column, texts[needed[time_column]], lines)
@@ -493,10 +606,16 @@ def load_recorded(
         col = texts[needed[spec.column]]
         if spec.match is not None:
             _missing_check(path, spec.column, col, lines)
+            long = np.flatnonzero([len(v) > MAX_MATCH_TEXT for v in col])
+            if long.size:
+                raise RecordedDataError(
+                    f"{_where(path, lines[long[0]], spec.column)}: a cell of {len(col[long[0]])} characters, more "
+                    f"than the {MAX_MATCH_TEXT} a 'match' channel reads (channel {spec.name!r})"
+                )
             pattern = re.compile(spec.match)
-            out[spec.name] = np.array(
-                [pattern.search(str(v)) is not None for v in col], dtype=bool
-            )
+            distinct, where_in = np.unique(col.astype(str), return_inverse=True)  # a label repeats over rows
+            hits = np.array([pattern.search(str(v)) is not None for v in distinct], dtype=bool)
+            out[spec.name] = hits[where_in.reshape(-1)]
             units[spec.name] = "bool"
         elif spec.above is not None:
             values = _parse_numeric(path, spec.column, col, lines)

@@ -146,6 +146,7 @@ from fmpy import read_model_description
 
 from milling_twin.orchestrator.toml_access import FileKeyError, TomlAccess
 from milling_twin.orchestrator.part.model import Part
+from milling_twin.orchestrator.gcode.recognise import FILE_PARAMETERS, NotThatFileError
 from milling_twin.orchestrator.recorded import ChannelSpec, RecordedData, RecordedDataError, load_recorded
 from milling_twin.orchestrator.recording_checks_spec import check_table
 from milling_twin.models.units import UnitError, conversion_factor
@@ -487,9 +488,12 @@ def _parameters(ctx: _Ctx, inst: str, table: Any, variables: Mapping[str, Variab
             if isinstance(raw, dict):
                 ctx.table(raw, k, ("path",))
                 resolved = (ctx.path.parent / ctx.string(raw, k, "path")).resolve()
-                if not resolved.is_file():
+                if not resolved.exists():
                     ctx.fail(f"{k}.path", f"no file {resolved}")
+                _check_file_parameter(ctx, f"{k}.path", model, name, resolved)
                 raw = str(resolved)
+            elif isinstance(raw, str) and raw and (Path(raw).exists() or Path(raw).is_symlink()):  # a path, as given
+                _check_file_parameter(ctx, k, model, name, Path(raw))
             if not isinstance(raw, str):
                 ctx.fail(k, f"{name!r} is a String: give text or {{ path = \"...\" }}, got {raw!r}")
             values[name] = raw
@@ -567,7 +571,18 @@ def _parameter_set(ctx: _Ctx, key: str, path: Path, instances: Mapping[str, FmuI
     return values
 
 
-def _recorded(ctx: _Ctx, table: Any, recording: Path | None = None) -> RecordedData:
+def _check_file_parameter(ctx: _Ctx, key: str, model: str, name: str, path: Path) -> None:
+    """A String parameter that names a file the FMU parses (the Interpolator's program and tool table): a regular
+    file of that kind, else an error under ``key`` without the file's content (orchestrator/gcode/recognise.py)."""
+    check = FILE_PARAMETERS.get((model, name))
+    if check is not None:
+        try:
+            check(path)
+        except NotThatFileError as exc:
+            ctx.fail(key, str(exc))
+
+
+def _recorded(ctx: _Ctx, table: Any, recording: Path | None = None, until: float | None = None) -> RecordedData:
     key = "[recorded]"
     ctx.table(table, key, ("file", "sample_period", "time_column", "time_unit", "channels", "checks"))
     file = ctx.path.parent / ctx.string(table, key, "file") if recording is None else recording
@@ -589,7 +604,7 @@ def _recorded(ctx: _Ctx, table: Any, recording: Path | None = None) -> RecordedD
                                  above=ctx.number(spec, k, "above", None), match=match))
     try:
         data = load_recorded(file, specs, time_column=time_column, time_unit=time_unit,
-                             sample_period=sample_period)
+                             sample_period=sample_period, until=until)
     except RecordedDataError as exc:
         culprit = next((s.name for s in specs if f"channel {s.name!r}" in str(exc)), None)
         ctx.fail(f"[recorded.channels].{culprit}" if culprit else
@@ -760,7 +775,9 @@ def load_scenario(path: str | Path, fmu_dir: str | Path, parameter_sets: Sequenc
 
     if recording is not None and "recorded" not in doc:
         ctx.fail("[recorded]", f"a recording ({recording}) is given, but the scenario has no [recorded] table")
-    recorded = _recorded(ctx, doc["recorded"], None if recording is None else Path(recording)) \
+    # a run ending at stop_time reads the recording up to there (not when [alignment] maps other times onto it)
+    until = ctx.number(sc, "[scenario]", "stop_time", None) if "alignment" not in doc else None
+    recorded = _recorded(ctx, doc["recorded"], None if recording is None else Path(recording), until) \
         if "recorded" in doc else None
     if "stop_time" in sc:
         stop = ctx.number(sc, "[scenario]", "stop_time")

@@ -17,6 +17,8 @@ from milling_twin.models.interpolator.engine import Interpolator
 from milling_twin.models.interpolator.parser import (DIALECTS, MOVE_ARC, MOVE_DWELL, MOVE_LINE, MOVE_NURBS,
                                                     MOVE_RAPID, Tool)
 from milling_twin.models.interpolator.tool_table import find_tool, read_tool_table
+from milling_twin.orchestrator.gcode.recognise import check_part_program, check_tool_table
+from milling_twin.orchestrator.input_files import read_input
 
 KIND_NAMES = {MOVE_RAPID: "rapid", MOVE_LINE: "line", MOVE_ARC: "arc", MOVE_NURBS: "NURBS", MOVE_DWELL: "dwell"}
 MAX_TICKS = 50_000_000  # 14 h at 1 ms: a program longer than that is reported as not finished
@@ -64,10 +66,13 @@ class ProgramSummary:
 
 def summarize(program: Path, dialect: str = "fanuc", tools: Sequence[Tool] = (),
               parameters: Mapping[str, float] | None = None) -> ProgramSummary:
-    """Reads and interpolates ``program``; raises ``ProgramError`` (a ValueError) for a program the FMU refuses."""
+    """Reads and interpolates ``program``; raises ``ProgramError`` (a ValueError) for a program the FMU refuses,
+    ``NotThatFileError`` (a ValueError) for a path that is not a regular file or a file that is not a program."""
     if dialect not in DIALECTS:
         raise ValueError(f"dialect {dialect!r}: expected one of {', '.join(DIALECTS)}")
-    engine = Interpolator(program.read_text(encoding="latin-1"), dict(parameters or {}), str(program),
+    check_part_program(program)
+    text = read_input(program, "part program").decode("latin-1")
+    engine = Interpolator(text, dict(parameters or {}), str(program),
                           dialect=DIALECTS[dialect], tools=tools)
     moves = engine.program.moves
     counts = {name: sum(1 for m in moves if m.kind == kind) for kind, name in KIND_NAMES.items()}
@@ -101,6 +106,8 @@ def command(args: argparse.Namespace) -> int:
             raise ValueError(f"--param {text!r}: expected NAME=VALUE in SI units, e.g. acceleration=2") from None
         if not eq:
             raise ValueError(f"--param {text!r}: expected NAME=VALUE in SI units, e.g. acceleration=2")
+    if args.tool_table:
+        check_tool_table(args.tool_table)
     tools = read_tool_table(args.tool_table) if args.tool_table else ()
     summary = summarize(args.program, args.dialect, tools, parameters)
     for line in summary.lines():

@@ -19,6 +19,7 @@ from milling_twin.models.interpolator.tool_table import read_tool_table
 from milling_twin.models.materials import COEFFICIENTS, MATERIALS
 from milling_twin.models.stability import Mode
 from milling_twin.models.units import UnitError, conversion_factor
+from milling_twin.orchestrator.gcode.recognise import NotThatFileError, check_part_program, check_tool_table
 from milling_twin.orchestrator.part import checks
 from milling_twin.orchestrator.part.model import CutTool, Material, Part, Stock
 from milling_twin.orchestrator.scenario import Variable, _parameters
@@ -92,8 +93,12 @@ def _factor(ctx: TomlAccess, key: str, given: str | None, unit: str) -> float:
 
 def _file(ctx: TomlAccess, table: Mapping, name: str) -> Path:
     resolved = (ctx.path.parent / ctx.string(table, "[part]", name)).resolve()
-    if not resolved.is_file():
+    if not resolved.exists():
         ctx.fail(f"[part].{name}", f"no file {resolved}")
+    try:  # a regular file that looks like a program (tool table): a parser's message quotes only such a file
+        (check_part_program if name == "program" else check_tool_table)(resolved)
+    except NotThatFileError as exc:
+        ctx.fail(f"[part].{name}", str(exc))
     return resolved
 
 

@@ -23,6 +23,7 @@ if TYPE_CHECKING:  # the heavy modules load when a function is called, not on `i
     from milling_twin.orchestrator.master import RunResult
     from milling_twin.orchestrator.part.report import ProcessReport
     from milling_twin.orchestrator.report import Report
+    from milling_twin.orchestrator.results import RunFolder
     from milling_twin.orchestrator.scenario import Scenario
     from milling_twin.orchestrator.study.run import StudyResult
 
@@ -91,13 +92,15 @@ def load_results(path: str | Path) -> pd.DataFrame:
 def simulate(scenario: Scenario | str | Path, *, fmu_dir: str | Path | None = None,
              overrides: Mapping[str, Any] | None = None, parameter_sets: Sequence[str | Path] = (),
              out: str | Path | None = None, stepping: str = "auto", progress: bool = False,
-             fmi_call_logger: Callable[[str], None] | None = None) -> Results:
+             fmi_call_logger: Callable[[str], None] | None = None, if_busy: str = "refuse") -> Results:
     """Co-simulate a scenario (a file or a loaded :class:`Scenario`).
 
     ``out``: results go to ``out/<scenario name>/`` (Parquet chunks, run.json, the report and its plots);
     None keeps them in memory only. ``stepping``: "auto", "fast" or "python". ``fmi_call_logger`` receives
     every FMI call (the python stepping loop runs). Raises ``SimulationError`` when an FMU call fails
     (with ``out``, the rows so far are on disk) and ``ScenarioError`` for an invalid scenario or override.
+    The run owns its folder until its report is written; ``if_busy``: what to do when another run owns it,
+    "refuse" (raise ``RunFolderBusy``), "wait" or "new" (a new folder ``<name>-2``, ...; ``Results.run_dir``).
     """
     from milling_twin.orchestrator.master import run
     from milling_twin.orchestrator.scenario import with_values
@@ -111,13 +114,25 @@ def simulate(scenario: Scenario | str | Path, *, fmu_dir: str | Path | None = No
             scenario = with_values(scenario, overrides)
     if out is None:
         with tempfile.TemporaryDirectory(prefix="milling-twin-") as folder:
-            results = _run_and_report(run, scenario, Path(folder), stepping, progress, fmi_call_logger)
+            results = _run_and_report(run, scenario, Path(folder), stepping, progress, fmi_call_logger, if_busy)
             return Results(results.frame, results.run, results.scenario, results.report, None)
-    return _run_and_report(run, scenario, Path(out), stepping, progress, fmi_call_logger)
+    return _run_and_report(run, scenario, Path(out), stepping, progress, fmi_call_logger, if_busy)
 
 
 def _run_and_report(run: Callable[..., RunResult], scenario: Scenario, out: Path, stepping: str, progress: bool,
-                    fmi_call_logger: Callable[[str], None] | None) -> Results:
+                    fmi_call_logger: Callable[[str], None] | None, if_busy: str) -> Results:
+    """The run and its reports in the run folder, owned (locked) from before the run until the reports are
+    written (so that another run cannot start there in between)."""
+    from milling_twin.orchestrator.results import RunFolder
+    from milling_twin.orchestrator.safe_names import check_name
+
+    check_name(scenario.name, f"{scenario.path}: [scenario].name")
+    with RunFolder.claim(out / scenario.name, if_busy) as folder:
+        return _reported(run, scenario, out, folder, stepping, progress, fmi_call_logger)
+
+
+def _reported(run: Callable[..., RunResult], scenario: Scenario, out: Path, folder: RunFolder, stepping: str,
+              progress: bool, fmi_call_logger: Callable[[str], None] | None) -> Results:
     """The run, then its comparisons with the recording and, for a whole-part scenario, the process report (the
     Workpiece writes its final Z-map into the run folder for it)."""
     zmap = None
@@ -126,9 +141,10 @@ def _run_and_report(run: Callable[..., RunResult], scenario: Scenario, out: Path
         from milling_twin.orchestrator.scenario import with_values
 
         if "zmap_file" in scenario.instance(WORKPIECE).variables:
-            zmap = (out / scenario.name / "final_zmap.asc").resolve()
+            zmap = (folder.path / "final_zmap.asc").resolve()
             scenario = with_values(scenario, {f"{WORKPIECE}.zmap_file": str(zmap)})
-    result = run(scenario, out, progress=progress, stepping=stepping, fmi_call_logger=fmi_call_logger)
+    result = run(scenario, out, progress=progress, stepping=stepping, fmi_call_logger=fmi_call_logger,
+                 folder=folder)
     frame = load_results(result.run_dir)
     report = process = None
     if scenario.compare and result.rows:

@@ -41,7 +41,8 @@ class ExitCode:
 # The one table of exit codes for every subcommand (docs/orchestrator.md lists it). First match wins, so the
 # more specific classes stand first. 0 is success; 3 (a result rejected) is returned, not raised.
 EXIT_CODES: tuple[ExitCode, ...] = (
-    ExitCode("builtins", "KeyboardInterrupt", 130, "interrupted (Ctrl-C); results so far are kept"),
+    ExitCode("builtins", "KeyboardInterrupt", 130,
+             "interrupted (Ctrl-C, SIGTERM or SIGHUP during a run); results so far are kept"),
     ExitCode("milling_twin.cli", "UsageError", 2, "a command-line value is invalid"),
     ExitCode("milling_twin.orchestrator.scenario", "ScenarioError", 2,
              "invalid scenario, parameter set or --set override"),
@@ -56,6 +57,9 @@ EXIT_CODES: tuple[ExitCode, ...] = (
     ExitCode("builtins", "FileNotFoundError", 2, "an input file does not exist"),
     ExitCode("milling_twin.orchestrator.master", "SimulationError", 1, "an FMU call failed; results so far are kept"),
     ExitCode("milling_twin.orchestrator.calibrate.errors", "CalibrationError", 1, "the calibration failed"),
+    ExitCode("milling_twin.orchestrator.results", "RunFolderBusy", 1,
+             "the run folder is in use by another run (see run --if-busy)"),
+    ExitCode("milling_twin.orchestrator.results", "MixedRunError", 1, "a run folder holds chunks of two runs"),
     ExitCode("builtins", "OSError", 1, "a file could not be read or written"),
     ExitCode("builtins", "ValueError", 2, "an input file holds an invalid value"),
 )
@@ -137,6 +141,9 @@ def _run(p: argparse.ArgumentParser) -> None:
     p.add_argument("--fmi-logging", action="store_true",
                    help="log every FMI call and every FMU message (runs the python stepping loop)")
     p.add_argument("--no-progress", action="store_true", help="no progress bar")
+    p.add_argument("--if-busy", choices=("refuse", "wait", "new"), default="refuse",
+                   help="when another run is writing into OUT/<scenario name>/: refuse (default: exit 1, nothing "
+                        "written), wait until it ends, or write to a new folder OUT/<scenario name>-2/ (-3, ...)")
 
 
 def _calibrate(p: argparse.ArgumentParser) -> None:

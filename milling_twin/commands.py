@@ -79,7 +79,7 @@ def _run(args: argparse.Namespace, scenario_file: Path, load: Callable[..., Scen
         logger = _fmi_log.info
     try:
         results = api.simulate(scenario, out=args.out, stepping=args.path, progress=not args.no_progress,
-                               fmi_call_logger=logger)
+                               fmi_call_logger=logger, if_busy=getattr(args, "if_busy", "refuse"))
     except (KeyboardInterrupt, SimulationError) as exc:
         exc.add_note(f"results so far in {run_dir}")
         raise

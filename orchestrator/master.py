@@ -58,11 +58,13 @@ Semantics of :func:`run` (``base`` = the scenario's base step, ``t_k = start + k
   the step covering that time).
 * Stopping. A doStep returning Discard/Error/Fatal raises :class:`SimulationError`
   (instance, time, status) after the rows so far are written and ``run.json``
-  says ``failed: ...``. Ctrl-C (SIGINT, main thread only) or ``should_stop(t)``
-  returning True at an output row ends the run after the current tick with status
-  ``interrupted``; a second Ctrl-C raises ``KeyboardInterrupt`` at once (rows so far
-  are still written). An FMI 3 FMU asking to terminate ends the run as
-  ``terminated: ...``.
+  says ``failed: ...``. Ctrl-C (SIGINT), SIGTERM or SIGHUP (main thread only; from the
+  start of the setup to the final ``run.json``) or ``should_stop(t)`` returning True at an
+  output row ends the run after the current tick with status ``interrupted`` (``run.json``'s
+  ``"signal"`` names the signal); a second signal raises ``KeyboardInterrupt`` at once (rows so
+  far are still written). An FMI 3 FMU asking to terminate ends the run as ``terminated: ...``.
+  A file that cannot be written ends the run with ``ResultsWriteError`` naming it
+  (``run.json``: ``failed: cannot write ...``).
 
 Two implementations of this loop give bit-identical results (same FMI calls in the same order,
 same arithmetic): the Python loop below, the reference, and the compiled fast path
@@ -104,7 +106,8 @@ from tqdm import tqdm
 
 from milling_twin.orchestrator import fastpath, fmu_cache
 from milling_twin.orchestrator.fmu_loading import FMU2Slave, FMU3Slave
-from milling_twin.orchestrator.results import RunWriter, sha256_of
+from milling_twin.orchestrator.results import RunFolder, RunWriter, sha256_of
+from milling_twin.orchestrator.safe_names import check_name
 from milling_twin.orchestrator.scenario import FmuInstance, Scenario
 
 __all__ = ["FiredEvent", "RunResult", "SimulationError", "run"]
@@ -169,6 +172,7 @@ class RunResult:
     fine_intervals: int = 0  # [stepping]: coarse intervals evaluated fine (0 without [stepping])
     coarse_intervals: int = 0  # [stepping]: coarse intervals evaluated coarse (0 without [stepping])
     events: tuple[FiredEvent, ...] = ()  # [[on_change]]: the entries that fired, in order
+    signal: str | None = None  # the signal (SIGINT, SIGTERM, SIGHUP) that stopped the run, if one did
 
 
 class _Slave:
@@ -530,36 +534,58 @@ class _Writer(RunWriter):
 
     def finish(self, status: str, **extra: Any) -> None:
         # the chunk in flight first; the rest is written here, as the caller waits for it anyway (a short run
-        # then never starts the worker thread)
+        # then never starts the worker thread). A chunk the worker could not write fails the run, which
+        # run.json then says.
+        error: OSError | None = None
         if self._pool is not None:
             try:
                 self.wait()
+            except OSError as exc:
+                self._in_flight = None
+                if not status.startswith("failed"):
+                    error, status = exc, f"failed: {exc}"
             finally:
                 self._pool.shutdown()
                 self._pool = None
         super().finish(status, **extra)
+        if error is not None:
+            raise error
+
+
+# the signals that end a run like Ctrl-C (SIGHUP: not on Windows)
+_STOP_SIGNALS = tuple(getattr(signal, name) for name in ("SIGINT", "SIGTERM", "SIGHUP") if hasattr(signal, name))
 
 
 class _StopFlag:
-    """Set by the first Ctrl-C, which also restores the previous handler."""
+    """Set by the first SIGINT (Ctrl-C), SIGTERM or SIGHUP, whose name goes to ``signal``; a second one raises
+    ``KeyboardInterrupt`` at once. Installed in the main thread only; a signal the process ignores (SIG_IGN,
+    e.g. SIGHUP under nohup) stays ignored. The previous handlers are restored at exit."""
 
     def __init__(self) -> None:
         self.set = False
-        self._previous: Any = None
+        self.signal: str | None = None
+        self._previous: dict[int, Any] = {}
 
     def __enter__(self) -> "_StopFlag":
         if threading.current_thread() is threading.main_thread():
-            # None: a handler not installed from Python; Python's default is the best stand-in
-            self._previous = signal.signal(signal.SIGINT, self._handle) or signal.default_int_handler
+            for signum in _STOP_SIGNALS:
+                if signal.getsignal(signum) is signal.SIG_IGN:
+                    continue
+                self._previous[signum] = signal.signal(signum, self._handle)
         return self
 
     def _handle(self, signum: int, frame: Any) -> None:
+        if self.signal is not None:
+            raise KeyboardInterrupt(f"{signal.Signals(signum).name} while stopping")
         self.set = True
-        signal.signal(signal.SIGINT, self._previous)
+        self.signal = signal.Signals(signum).name
 
     def __exit__(self, *exc: object) -> None:
-        if self._previous is not None:
-            signal.signal(signal.SIGINT, self._previous)
+        for signum, previous in self._previous.items():
+            # None: a handler not installed from Python; Python's default is the best stand-in
+            default = signal.default_int_handler if signum == signal.SIGINT else signal.SIG_DFL
+            signal.signal(signum, previous if previous is not None else default)
+        self._previous.clear()
 
 
 class _Run:
@@ -769,10 +795,18 @@ class _Run:
 def run(scenario: Scenario, out_dir: str | Path, *, progress: bool = True,
         should_stop: Callable[[float], bool] | None = None, flush_rows: int = 10_000,
         flush_seconds: float = 1.0, stepping: str = "auto",
-        fmi_call_logger: Callable[[str], None] | None = None) -> RunResult:
+        fmi_call_logger: Callable[[str], None] | None = None, if_busy: str = "refuse",
+        folder: RunFolder | None = None) -> RunResult:
     """Co-simulate ``scenario``, writing results to ``out_dir/<scenario name>/``.
 
-    ``should_stop(t)`` is asked after each output row; True ends the run like Ctrl-C.
+    The run owns that folder while it runs (:class:`~milling_twin.orchestrator.results.RunFolder`); when
+    another run owns it, ``if_busy`` says what to do: "refuse" (raise ``RunFolderBusy``, before anything is
+    written), "wait", or "new" (the first free ``<name>-2``, ``<name>-3``, ...; ``RunResult.run_dir`` says which).
+    ``folder``: a folder the caller claimed already (and releases), used instead of ``out_dir/<name>``.
+    ``should_stop(t)`` is asked after each output row; True ends the run like Ctrl-C; so do SIGTERM and SIGHUP
+    (``RunResult.signal`` and ``run.json``'s ``"signal"`` name the signal that stopped the run).
+    An ``OSError`` writing the results (disk full, ...) raises ``ResultsWriteError`` naming the file, after
+    ``run.json`` says ``failed: <message>`` (when it can be written).
     ``stepping``: "auto" (the fast path when available, else Python), "fast" (raises
     :class:`milling_twin.orchestrator.fastpath.FastPathUnavailable`, before writing anything, when it cannot
     run) or "python".
@@ -799,48 +833,78 @@ def run(scenario: Scenario, out_dir: str | Path, *, progress: bool = True,
         "reason": choice.reason}}
     if scenario.stepping is not None:  # the counts are added when the run ends
         info["stepping"]["variable_step"] = _stepping_settings(scenario)
-    writer = _Writer(Path(out_dir) / scenario.name, columns, bools, info,
-                     flush_rows=flush_rows, flush_seconds=flush_seconds, int_columns=ints, units=units)
+    check_name(scenario.name, f"{scenario.path}: [scenario].name")
+    owned = folder is None
+    if folder is None:
+        folder = RunFolder.claim(Path(out_dir) / scenario.name, if_busy)
+    try:
+        writer = _Writer(folder, columns, bools, info,
+                         flush_rows=flush_rows, flush_seconds=flush_seconds, int_columns=ints, units=units)
+    except BaseException:
+        if owned:
+            folder.release()
+        raise
+    try:
+        return _run(scenario, writer, fmu_hashes, fmi_call_logger, choice, info, progress, should_stop)
+    finally:
+        if owned:
+            folder.release()
+
+
+def _run(scenario: Scenario, writer: _Writer, fmu_hashes: dict[Path, str],
+         fmi_call_logger: Callable[[str], None] | None, choice: Any, info: dict[str, Any], progress: bool,
+         should_stop: Callable[[float], bool] | None) -> RunResult:
+    """The run of :func:`run` into the claimed folder of ``writer``."""
     state = _Run(scenario, writer, fmu_hashes, fmi_call_logger)
     t0_wall = time.perf_counter()
     wall = 0.0
-    try:
+    failure: BaseException | None = None
+    with _StopFlag() as stop:  # through finish: a signal while the last rows are written waits for them
         try:
-            state.setup()
-            with _StopFlag() as stop, tqdm(total=state.n_ticks, unit="step", unit_scale=True, delay=1.0,
-                                           disable=not progress, desc=scenario.name) as bar:
-                t0_loop = time.perf_counter()
-                try:
-                    if choice.path == "fast":
-                        state.fast_loop(stop, bar, should_stop, fastpath.load_library(choice.library))
-                    else:
-                        state.loop(stop, bar, should_stop)
-                finally:
-                    state.loop_wall = time.perf_counter() - t0_loop
-        except FMICallException as exc:
-            slave = state.slaves.get(state.current)
-            raise SimulationError.from_call(exc, state.current, state.t,
-                                            list(slave.errors) if slave else []) from exc
-    except BaseException as exc:
-        state.status = "interrupted" if isinstance(exc, KeyboardInterrupt) else f"failed: {exc}"
-        raise
-    finally:
-        fmu_steps = state.fmu_steps()
-        events = tuple(state.triggers.fired) if state.triggers is not None else ()
-        on_change = {} if not scenario.on_change else {"on_change": {
-            "entries": [e.table() for e in scenario.on_change],
-            "events": [{"time": e.time, "output": e.output, "value": e.value, "entry": e.entry} for e in events]}}
-        rate = state.tick / state.loop_wall if state.loop_wall > 0 else 0.0
-        wall = time.perf_counter() - t0_wall
-        variable_step = {} if scenario.stepping is None else {"variable_step": {
-            **_stepping_settings(scenario), "fine_intervals": state.counts[0], "coarse_intervals": state.counts[1]}}
-        try:
-            writer.finish(state.status, steps=state.tick, fmu_steps=fmu_steps,
-                          end_time=state.grid(state.tick), wall_time=wall,
-                          loop_wall_time=state.loop_wall, steps_per_second=rate,
-                          stepping={**info["stepping"], **variable_step}, **on_change)
+            try:
+                state.setup()
+                with tqdm(total=state.n_ticks, unit="step", unit_scale=True, delay=1.0,
+                          disable=not progress, desc=scenario.name) as bar:
+                    t0_loop = time.perf_counter()
+                    try:
+                        if choice.path == "fast":
+                            state.fast_loop(stop, bar, should_stop, fastpath.load_library(choice.library))
+                        else:
+                            state.loop(stop, bar, should_stop)
+                    finally:
+                        state.loop_wall = time.perf_counter() - t0_loop
+            except FMICallException as exc:
+                slave = state.slaves.get(state.current)
+                raise SimulationError.from_call(exc, state.current, state.t,
+                                                list(slave.errors) if slave else []) from exc
+        except BaseException as exc:
+            failure = exc
+            state.status = "interrupted" if isinstance(exc, KeyboardInterrupt) else f"failed: {exc}"
+            raise
         finally:
-            state.close()
+            fmu_steps = state.fmu_steps()
+            events = tuple(state.triggers.fired) if state.triggers is not None else ()
+            on_change = {} if not scenario.on_change else {"on_change": {
+                "entries": [e.table() for e in scenario.on_change],
+                "events": [{"time": e.time, "output": e.output, "value": e.value, "entry": e.entry}
+                           for e in events]}}
+            rate = state.tick / state.loop_wall if state.loop_wall > 0 else 0.0
+            wall = time.perf_counter() - t0_wall
+            variable_step = {} if scenario.stepping is None else {"variable_step": {
+                **_stepping_settings(scenario), "fine_intervals": state.counts[0],
+                "coarse_intervals": state.counts[1]}}
+            stopped_by = {} if stop.signal is None else {"signal": stop.signal}
+            try:
+                writer.finish(state.status, steps=state.tick, fmu_steps=fmu_steps,
+                              end_time=state.grid(state.tick), wall_time=wall,
+                              loop_wall_time=state.loop_wall, steps_per_second=rate,
+                              stepping={**info["stepping"], **variable_step}, **on_change, **stopped_by)
+            except OSError as exc:
+                if failure is None:
+                    raise
+                _log.error("%s", exc)  # the run's own failure is the error raised
+            finally:
+                state.close()
     return RunResult(state.status, writer.run_dir, state.tick, fmu_steps, writer.rows_written,
                      state.grid(state.tick), wall, state.loop_wall, rate, choice.path, choice.reason,
-                     state.counts[0], state.counts[1], events)
+                     state.counts[0], state.counts[1], events, stop.signal)

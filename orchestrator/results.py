@@ -29,17 +29,36 @@ the few seconds before the kernel writes the data back. One fsync is kept: the f
 ``run.json`` (status, rows written, wall times), the record a later reader trusts to know how
 the run ended; after a power loss it then still says how many rows the run wrote.
 
+Ownership: a run owns its folder exclusively (:class:`RunFolder`): an operating-system lock on the file
+``.run.lock`` in the folder (``fcntl.flock`` on POSIX, ``msvcrt.locking`` on Windows), held from before the
+first file is removed or written until the run (and what is written after it, such as its report) is done,
+and released by the operating system when the process dies, so a killed run never leaves the folder busy. A
+second run into a busy folder refuses (:class:`RunFolderBusy`, naming the folder and the process holding
+it), waits for it, or takes the first free ``<folder>-2``, ``<folder>-3``, ... (``if_busy``: "refuse",
+"wait", "new"). On POSIX the lock file is removed when the lock is released (a waiting run then checks that
+the file it locked is still the folder's); on Windows it stays. Each run has an id (``run_id``, 32 hex
+digits) written into ``run.json`` and into every chunk's schema metadata (``b"run_id"``): ``load_results``
+refuses a folder whose chunks come from more than one run (:class:`MixedRunError`, naming the chunk).
+
+Failures: a file that cannot be written (disk full, an I/O error) raises :class:`ResultsWriteError` (an
+``OSError``) naming the file; its temporary file is removed. ``finish`` then still writes ``run.json`` with
+status ``failed: <message>`` when it can (when the atomic rename cannot be made for want of space, by
+rewriting ``run.json`` in place, which frees its old blocks first).
+
 pandas and pyarrow are imported when first needed (writing a chunk, loading results), not
 with this module: a command-line run does not pay for pandas.
 """
 from __future__ import annotations
 
 import datetime as _dt
+import errno
 import hashlib
+import itertools
 import json
 import os
 import platform
 import time
+import uuid
 from collections.abc import Mapping, Sequence
 from pathlib import Path
 from typing import Any
@@ -52,10 +71,14 @@ import numpy as np
 if TYPE_CHECKING:
     import pandas as pd
 
-__all__ = ["RunWriter", "load_results", "read_run_info", "sha256_of", "software_versions"]
+__all__ = ["IF_BUSY", "MixedRunError", "ResultsWriteError", "RunFolder", "RunFolderBusy", "RunWriter", "load_results",
+           "read_run_info", "sha256_of", "software_versions"]
 
 CHUNK_DIR = "chunks"
 RUN_INFO = "run.json"
+LOCK_FILE = ".run.lock"
+IF_BUSY = ("refuse", "wait", "new")  # what a run does when its folder is owned by another run
+RUN_ID_KEY = b"run_id"  # the chunks' schema metadata key of the run's id
 
 
 def sha256_of(path: str | Path) -> str:
@@ -81,15 +104,39 @@ def _now() -> str:
     return _dt.datetime.now(_dt.timezone.utc).isoformat(timespec="milliseconds")
 
 
+class ResultsWriteError(OSError):
+    """A file of a run could not be written (disk full, I/O error, ...): the message names the file."""
+
+
+class RunFolderBusy(RuntimeError):
+    """The run folder is owned by another run (see :class:`RunFolder`)."""
+
+
+class MixedRunError(ValueError):
+    """A run folder holds chunks of more than one run."""
+
+
 def _replace_atomically(path: Path, write: Any, durable: bool = False) -> None:
-    """Write ``path`` through a temporary file and a rename; ``durable``: fsync the file and its folder."""
+    """Write ``path`` through a temporary file and a rename; ``durable``: fsync the file and its folder.
+    An ``OSError`` becomes :class:`ResultsWriteError` naming ``path``; the temporary file is removed."""
     tmp = path.with_name(f".{path.name}.tmp")
-    with open(tmp, "wb") as fh:
-        write(fh)
-        if durable:
-            fh.flush()
-            os.fsync(fh.fileno())
-    os.replace(tmp, path)
+    try:
+        with open(tmp, "wb") as fh:
+            write(fh)
+            if durable:
+                fh.flush()
+                os.fsync(fh.fileno())
+        os.replace(tmp, path)
+    except OSError as exc:
+        try:
+            tmp.unlink()
+        except OSError:
+            pass
+        if isinstance(exc, ResultsWriteError):
+            raise
+        error = ResultsWriteError(f"cannot write {path}: {exc.strerror or exc}")
+        error.errno = exc.errno
+        raise error from exc
     if durable:
         fd = os.open(path.parent, os.O_RDONLY)
         try:
@@ -98,8 +145,154 @@ def _replace_atomically(path: Path, write: Any, durable: bool = False) -> None:
             os.close(fd)
 
 
+def _lock(fd: int, blocking: bool) -> bool:
+    """Lock the open file ``fd`` exclusively; False when another process holds it and not ``blocking``."""
+    if os.name == "nt":  # pragma: no cover - Windows
+        import msvcrt
+
+        while True:
+            try:
+                os.lseek(fd, 0, os.SEEK_SET)
+                msvcrt.locking(fd, msvcrt.LK_NBLCK, 1)
+                return True
+            except OSError:
+                if not blocking:
+                    return False
+                time.sleep(0.1)
+    import fcntl
+
+    try:
+        fcntl.flock(fd, fcntl.LOCK_EX | (0 if blocking else fcntl.LOCK_NB))
+    except BlockingIOError:
+        return False
+    return True
+
+
+def _unlock(fd: int) -> None:
+    if os.name == "nt":  # pragma: no cover - Windows
+        import msvcrt
+
+        os.lseek(fd, 0, os.SEEK_SET)
+        msvcrt.locking(fd, msvcrt.LK_UNLCK, 1)
+    else:
+        import fcntl
+
+        fcntl.flock(fd, fcntl.LOCK_UN)
+
+
+def _try_lock(folder: Path, blocking: bool) -> int | None:
+    """The descriptor of ``folder``'s lock file, locked by this process, or None when another run holds it.
+    A lock file removed by its previous owner between our open and our lock is not the folder's any more:
+    open the new one and try again."""
+    path = folder / LOCK_FILE
+    while True:
+        fd = os.open(path, os.O_RDWR | os.O_CREAT, 0o644)
+        try:
+            if not _lock(fd, blocking):
+                os.close(fd)
+                return None
+            try:
+                same = os.stat(path).st_ino == os.fstat(fd).st_ino
+            except FileNotFoundError:
+                same = False
+        except BaseException:
+            os.close(fd)
+            raise
+        if same:
+            return fd
+        os.close(fd)
+
+
+def _owner(folder: Path) -> str:
+    """Who holds ``folder``'s lock, as its owner wrote it (pid, run id, since), for the busy message."""
+    try:
+        owner = json.loads((folder / LOCK_FILE).read_text())
+        return f"process {owner['pid']} (run {owner['run_id']}, since {owner['since']})"
+    except (OSError, ValueError, KeyError, TypeError):
+        return "another process"
+
+
+class RunFolder:
+    """A run folder owned exclusively by this run until :meth:`release` (see the module text). Made by
+    :meth:`claim`; a context manager releasing it at exit. ``path``: the folder (with ``if_busy="new"``,
+    perhaps a suffixed one); ``run_id``: the run's id."""
+
+    def __init__(self, path: Path, fd: int) -> None:
+        self.path = path
+        self.run_id = uuid.uuid4().hex
+        self._fd: int | None = fd
+        record = json.dumps({"pid": os.getpid(), "run_id": self.run_id, "since": _now()}).encode()
+        try:
+            os.ftruncate(fd, 0)
+            os.lseek(fd, 0, os.SEEK_SET)
+            os.write(fd, record)
+        except OSError:  # only informative (the busy message); a full disk must not stop the run here
+            pass
+
+    @classmethod
+    def claim(cls, path: str | Path, if_busy: str = "refuse") -> "RunFolder":
+        """Own ``path`` (created if missing). When another run owns it: "refuse" raises
+        :class:`RunFolderBusy`, "wait" blocks until it is free, "new" claims the first of ``<path>-2``,
+        ``<path>-3``, ... that does not exist yet."""
+        if if_busy not in IF_BUSY:
+            raise ValueError(f"if_busy={if_busy!r}: expected one of {', '.join(IF_BUSY)}")
+        path = Path(path)
+        path.mkdir(parents=True, exist_ok=True)
+        fd = _try_lock(path, blocking=if_busy == "wait")
+        if fd is not None:
+            return cls(path, fd)
+        if if_busy == "refuse":
+            raise RunFolderBusy(f"{path} is the folder of a run in progress ({_owner(path)}): its results would "
+                                "mix with this run's; wait for it, choose another output folder, or give "
+                                "--if-busy wait (start when it ends) or --if-busy new (a new folder "
+                                f"{path.name}-2, ...)")
+        for n in itertools.count(2):
+            candidate = path.with_name(f"{path.name}-{n}")
+            try:
+                candidate.mkdir()
+            except FileExistsError:
+                continue
+            fd = _try_lock(candidate, blocking=False)
+            if fd is not None:
+                return cls(candidate, fd)
+        raise AssertionError("unreachable")
+
+    @property
+    def held(self) -> bool:
+        return self._fd is not None
+
+    def release(self) -> None:
+        """Give the folder up (idempotent). POSIX: the lock file is removed first, while still locked."""
+        fd, self._fd = self._fd, None
+        if fd is None:
+            return
+        try:
+            if os.name != "nt":
+                try:
+                    os.unlink(self.path / LOCK_FILE)
+                except OSError:
+                    pass
+            _unlock(fd)
+        finally:
+            os.close(fd)
+
+    def __enter__(self) -> "RunFolder":
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        self.release()
+
+    def __del__(self) -> None:
+        try:
+            self.release()
+        except Exception:
+            pass
+
+
 class RunWriter:
-    """Writes the rows of one run into ``run_dir`` (created; earlier results there are removed).
+    """Writes the rows of one run into ``run_dir`` (created; earlier results there are removed): a
+    :class:`RunFolder` the caller claimed (and releases), or a path the writer claims (refusing a busy folder)
+    and releases in :meth:`finish` or :meth:`close`.
 
     ``columns``: "time" first, then "instance.variable"; ``bool_columns``: those stored
     as booleans, ``int_columns``: as int32 (Int32 outputs; rows carry them as float64, which
@@ -110,11 +303,16 @@ class RunWriter:
     :meth:`finish`.
     """
 
-    def __init__(self, run_dir: str | Path, columns: Sequence[str], bool_columns: Sequence[str] = (),
+    def __init__(self, run_dir: str | Path | RunFolder, columns: Sequence[str], bool_columns: Sequence[str] = (),
                  info: dict[str, Any] | None = None, flush_rows: int = 10_000,
                  flush_seconds: float = 1.0, int_columns: Sequence[str] = (),
                  units: Mapping[str, Mapping[str, str]] | None = None) -> None:
-        self.run_dir = Path(run_dir)
+        self._own_folder = not isinstance(run_dir, RunFolder)
+        self.folder = RunFolder.claim(run_dir) if not isinstance(run_dir, RunFolder) else run_dir
+        if not self.folder.held:
+            raise ValueError(f"{self.folder.path}: the run folder was released before the run started")
+        self.run_dir = self.folder.path
+        self.run_id = self.folder.run_id
         self.columns = list(columns)
         self._types = [bool if c in set(bool_columns) else np.int32 if c in set(int_columns) else None
                        for c in self.columns]
@@ -132,7 +330,7 @@ class RunWriter:
                       self.run_dir / "report.json"]:
             if stale.is_file():
                 stale.unlink()
-        self.info = {**(info or {}), "columns": self.columns, "bool_columns": list(bool_columns),
+        self.info = {**(info or {}), "run_id": self.run_id, "columns": self.columns, "bool_columns": list(bool_columns),
                      "int_columns": list(int_columns), "units": self.units,
                      "versions": software_versions(), "start_wall_time": _now(),
                      "end_wall_time": None, "status": "running", "rows_written": 0}
@@ -155,7 +353,8 @@ class RunWriter:
         arrays = [pa.array(block[:, i] if kind is None else block[:, i].astype(kind))
                   for i, kind in enumerate(self._types)]
         if self._schema is None:
-            self._schema = _schema(self.columns, self._types, self.units)
+            self._schema = _schema(self.columns, self._types, self.units).with_metadata(
+                {RUN_ID_KEY: self.run_id.encode()})
         table = pa.Table.from_arrays(arrays, schema=self._schema)
         self.chunks += 1
         path = self.run_dir / CHUNK_DIR / f"chunk_{self.chunks:06d}.parquet"
@@ -167,15 +366,62 @@ class RunWriter:
         self._fill = 0
 
     def finish(self, status: str, **extra: Any) -> None:
-        """Flush the remaining rows and record the final ``status`` and ``extra`` in run.json."""
-        self.flush()
-        self.info.update(extra, status=status, end_wall_time=_now(), versions=software_versions())
-        self._write_info(durable=True)
+        """Flush the remaining rows and record the final ``status`` and ``extra`` in run.json; release the
+        folder if the writer claimed it. When the rows cannot be written, run.json says ``failed: <message>``
+        (unless ``status`` already says the run failed) and the error is raised after run.json is written
+        (when it can be)."""
+        error: OSError | None = None
+        try:
+            try:
+                self.flush()
+            except OSError as exc:
+                error, self._fill = exc, 0
+                if not status.startswith("failed"):
+                    status = f"failed: {exc}"
+                else:
+                    error = None  # the run failed already (perhaps for the same reason): that error is raised
+            self.info.update(extra, status=status, end_wall_time=_now(), versions=software_versions())
+            self._write_info(durable=True)
+        finally:
+            if self._own_folder:
+                self.close()
+        if error is not None:
+            raise error
+
+    def close(self) -> None:
+        """Release the run folder if the writer claimed it (finish does; for a writer never finished)."""
+        if self._own_folder:
+            self.folder.release()
 
     def _write_info(self, durable: bool = False) -> None:
         self.info["rows_written"] = self.rows_written
         text = json.dumps(self.info, indent=2, default=str).encode()
-        _replace_atomically(self.run_dir / RUN_INFO, lambda fh: fh.write(text), durable)
+        path = self.run_dir / RUN_INFO
+        try:
+            _replace_atomically(path, lambda fh: fh.write(text), durable)
+        except ResultsWriteError as exc:
+            if not durable or exc.errno not in (errno.ENOSPC, errno.EDQUOT) or not path.exists():
+                raise
+            # no room for a second copy: rewrite the old run.json in place (its blocks are freed first), so
+            # that it says how the run ended rather than "running"
+            try:
+                with open(path, "r+b") as fh:
+                    before = fh.read()
+                    try:
+                        _rewrite(fh, text)
+                    except OSError:
+                        _rewrite(fh, before)  # it fitted before: run.json stays readable
+                        raise
+            except OSError:
+                raise exc from None
+
+
+def _rewrite(fh: Any, text: bytes) -> None:
+    fh.seek(0)
+    fh.truncate(0)
+    fh.write(text)
+    fh.flush()
+    os.fsync(fh.fileno())
 
 
 def _schema(columns: Sequence[str], types: Sequence[Any], units: Mapping[str, Mapping[str, str]]) -> Any:
@@ -195,7 +441,8 @@ def load_results(run_dir: str | Path) -> pd.DataFrame:
     """All chunks of a run in order: column ``time`` first, then "instance.variable"; SI values.
     ``df.attrs["units"]``: column -> unit ("" where none is declared); ``df.attrs["display_units"]``:
     column -> display unit, for the columns that have one (from the chunks' field metadata; for a run
-    without chunks, from ``run.json``)."""
+    without chunks, from ``run.json``). Raises :class:`MixedRunError`, naming the chunk, when a chunk was
+    written by another run than ``run.json`` (or, without ``run.json``, than the first chunk)."""
     import pandas as pd
     import pyarrow as pa
     import pyarrow.parquet as pq
@@ -209,9 +456,28 @@ def load_results(run_dir: str | Path) -> pd.DataFrame:
         df = pd.DataFrame({c: pd.Series(dtype=float) for c in columns})
         units = {c: info.get("units", {}).get(c, {}) for c in columns}
     else:
-        table = pa.concat_tables([pq.read_table(p) for p in chunks])
+        tables = [pq.read_table(p) for p in chunks]
+        _check_one_run(run_dir, chunks, tables)
+        table = pa.concat_tables(tables)
         df = table.to_pandas()
         units = {f.name: {k.decode(): v.decode() for k, v in (f.metadata or {}).items()} for f in table.schema}
     df.attrs["units"] = {c: u.get("unit", "") for c, u in units.items()}
     df.attrs["display_units"] = {c: u["display_unit"] for c, u in units.items() if u.get("display_unit")}
     return df
+
+
+def _check_one_run(run_dir: Path, chunks: Sequence[Path], tables: Sequence[Any]) -> None:
+    """Every chunk carries the run id of ``run.json`` (or, without it, of the first chunk); else MixedRunError."""
+    ids = [(t.schema.metadata or {}).get(RUN_ID_KEY) for t in tables]
+    ids = [None if i is None else i.decode() for i in ids]
+    info_path = run_dir / RUN_INFO
+    if info_path.exists():
+        expected, source = read_run_info(run_dir).get("run_id"), f"{info_path}"
+    else:
+        expected, source = ids[0], f"{chunks[0]}"
+    for chunk, got in zip(chunks, ids):
+        if got != expected:
+            raise MixedRunError(
+                f"{chunk}: written by {'run ' + got if got else 'a run without an id'}, not by run "
+                f"{expected or '(without an id)'} of {source}: {run_dir} mixes the results of two runs (run them "
+                "into separate folders; a run refuses a folder in use unless told --if-busy wait or new)")

@@ -145,6 +145,7 @@ import tomli_w
 from fmpy import read_model_description
 
 from milling_twin.orchestrator.toml_access import FileKeyError, TomlAccess
+from milling_twin.orchestrator.safe_names import name_problem
 from milling_twin.orchestrator.part.model import Part
 from milling_twin.orchestrator.gcode.recognise import FILE_PARAMETERS, NotThatFileError
 from milling_twin.orchestrator.recorded import ChannelSpec, RecordedData, RecordedDataError, load_recorded
@@ -737,8 +738,7 @@ def load_scenario(path: str | Path, fmu_dir: str | Path, parameter_sets: Sequenc
     sc = ctx.table(doc.get("scenario"), "[scenario]", (
         "name", "description", "start_time", "stop_time", "output_interval", "parameter_sets"))
     name = ctx.string(sc, "[scenario]", "name")
-    if not _NAME_RE.match(name):
-        ctx.fail("[scenario].name", f"{name!r}: use only letters, digits, '_', '-' and '.'")
+    _check_run_name(ctx, "[scenario].name", name)
     start = ctx.number(sc, "[scenario]", "start_time", 0.0)
     output_interval = ctx.number(sc, "[scenario]", "output_interval", positive=True)
 
@@ -1044,6 +1044,16 @@ def _on_change(ctx: _Ctx, doc: dict, instances: Mapping[str, FmuInstance],
     return tuple(entries)
 
 
+def _check_run_name(ctx: _Ctx, key: str, name: str) -> None:
+    """``name`` names the run's folder (``<out>/<name>/``): letters, digits, '_', '-', '.' and one safe path
+    component (:mod:`milling_twin.orchestrator.safe_names`: not ``.`` or ``..``, ...)."""
+    if not _NAME_RE.match(name):
+        ctx.fail(key, f"{name!r}: use only letters, digits, '_', '-' and '.'")
+    problem = name_problem(name)
+    if problem is not None:
+        ctx.fail(key, f"{name!r} {problem}: it names the run's folder <out>/<name>/")
+
+
 def with_values(scenario: Scenario, values: Mapping[str | Ref, Any], *, name: str | None = None) -> Scenario:
     """A copy of ``scenario`` with parameters or constant inputs changed, checked like the file's own
     (causality, type, unit, range). ``values``: ``{"instance.variable": value}`` (or a :class:`Ref` as the
@@ -1075,4 +1085,6 @@ def with_values(scenario: Scenario, values: Mapping[str | Ref, Any], *, name: st
         instances.append(replace(inst, parameters=parameters, inputs=inputs))
     if name is not None and not _NAME_RE.match(name):
         ctx.fail("with_values(name)", f"{name!r}: use letters, digits, '_', '-' and '.' only")
+    if name is not None:
+        _check_run_name(ctx, "with_values(name)", name)
     return replace(scenario, instances=tuple(instances), name=name or scenario.name)

@@ -134,6 +134,7 @@ from pathlib import Path
 from typing import Any, NoReturn
 
 from milling_twin.orchestrator.toml_access import TomlAccess
+from milling_twin.orchestrator.safe_names import name_problem
 from milling_twin.orchestrator.calibrate.errors import CalibrationSpecError
 from milling_twin.orchestrator.scenario import Ref
 
@@ -473,12 +474,16 @@ def load_spec(path: str | Path) -> CalibrationSpec:
     name = ctx.string(head, key, "name")
     if not _NAME_RE.match(name):
         ctx.fail(f"{key}.name", f"{name!r}: use only letters, digits, '_', '-' and '.'")
+    if name_problem(name) is not None:
+        ctx.fail(f"{key}.name", f"{name!r} {name_problem(name)}: it names the folder <out>/calibration/<name>/")
     kind = ctx.string(head, key, "kind", "scenario", KINDS)
     base = path.parent
     scenario = base / ctx.string(head, key, "scenario")
     if not scenario.is_file():
         ctx.fail(f"{key}.scenario", f"scenario file {scenario} not found")
     parameter_set = base / ctx.string(head, key, "parameter_set")
+    if name_problem(parameter_set.name) is not None:  # its file name is written under <out>/calibration/<name>/
+        ctx.fail(f"{key}.parameter_set", f"file name {parameter_set.name!r} {name_problem(parameter_set.name)}")
     if parameter_set.suffix != ".toml":
         ctx.fail(f"{key}.parameter_set", f"{parameter_set.name}: the parameter set is a .toml file")
     calibrated = ctx.string(head, key, "calibrated_scenario", None)

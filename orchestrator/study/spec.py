@@ -24,6 +24,7 @@ from dataclasses import dataclass, field, replace
 from pathlib import Path
 from typing import Any
 
+from milling_twin.orchestrator.safe_names import name_problem
 from milling_twin.orchestrator.scenario import Scenario, ScenarioError, load_scenario, with_values
 from milling_twin.orchestrator.study import cases as cases_mod
 from milling_twin.orchestrator.study.reduce import PROCESS_FIGURES, STATISTICS, get_reduction
@@ -179,6 +180,8 @@ def load_study(path: str | Path, fmu_dir: str | Path) -> Study:
     if not isinstance(name, str) or not name or not all(c.isalnum() or c in "_-." for c in name):
         reader.fail("study.name", f"expected a name of letters, digits, '_', '-', '.' (the output folder), "
                                   f"got {name!r}")
+    if name_problem(name) is not None:
+        reader.fail("study.name", f"{name!r} {name_problem(name)}: it names the output folder <out>/<name>/")
     description = study.get("description", "")
     if not isinstance(description, str):
         reader.fail("study.description", f"expected text, got {description!r}")

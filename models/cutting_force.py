@@ -53,6 +53,11 @@ AXIAL_SLICES = 16
 MAX_FLUTES = 6
 OMEGA_MIN = 1.0  # rad/s (9.5 rpm): below it the spindle counts as stopped
 TWO_PI = 2.0 * math.pi
+# The chip-thickness laws (parameter chip_law, see element_force) and the reference chip thickness of laws 2 and 3.
+CHIP_LAW_LINEAR, CHIP_LAW_EXPONENTIAL, CHIP_LAW_POWER_EDGE = 1, 2, 3
+CHIP_LAWS = {"linear": CHIP_LAW_LINEAR, "exponential": CHIP_LAW_EXPONENTIAL, "power_edge": CHIP_LAW_POWER_EDGE}
+CHIP_REFERENCE = 1e-3  # m: h0, Kienzle's k_c1.1 is the specific force at a 1 mm chip
+CHIP_MIN = 1e-12  # m: the power law's chip thickness is at least this (only elements with h > 0 cut)
 
 # Al7075-T6 with a cemented-carbide end mill, dry: the row "[190]" of Table 5 in
 # "Milling Force Model for Aviation Aluminum Alloy: Academic Insight and Perspective Analysis",
@@ -72,6 +77,23 @@ def _wrap(angle: ca.SX) -> ca.SX:
     return angle - TWO_PI * ca.floor(angle / TWO_PI)
 
 
+def element_force(v: Mapping[str, ca.SX], h: ca.SX, direction: str) -> ca.SX:
+    """Force per unit width of cut on an edge element with chip thickness ``h > 0`` in one direction
+    (``t`` tangential, ``r`` radial, ``a`` axial), by the parameter ``chip_law``:
+
+    1 (linear, Altintas): ``K_c*h + K_e``;
+    2 (exponential, Kienzle): ``K_c*h0*(h/h0)**(1 - m_c)`` with ``K_c`` the specific force at the reference chip
+      thickness ``h0`` (Kienzle's k_c1.1) and no edge term;
+    3 (power with edge): ``K_c*h0*(h/h0)**(1 - m_c) + K_e``, which is law 1 at ``m_c = 0`` and law 2 at ``K_e = 0``.
+
+    The size-effect factor ``(h/h0)**(-m_c)`` is 1 under law 1 (no power is computed there: the C code has its own
+    copies of the equations for law 1, see ``specialize_fixed``)."""
+    law = v["chip_law"]
+    size_effect = (ca.fmax(h, CHIP_MIN) / CHIP_REFERENCE) ** (-v[f"mc_{direction}"])
+    edge = ca.if_else(law == CHIP_LAW_EXPONENTIAL, 0, v[f"K{direction}e"])
+    return v[f"K{direction}c"] * h * ca.if_else(law == CHIP_LAW_LINEAR, 1, size_effect) + edge
+
+
 def equations(v: Mapping[str, ca.SX]) -> dict[str, ca.SX]:
     turning, period = _tooth_period(v)
     vx, vy = v["feed_velocity_x"], v["feed_velocity_y"]
@@ -88,7 +110,8 @@ def equations(v: Mapping[str, ca.SX]) -> dict[str, ca.SX]:
     # 2 + MAX_FLUTES sin/cos pairs instead of 96 (within a few ulps of sin(phi), cos(phi); exact
     # without helix for flute 0). Likewise the runout cosines cos(runout_angle - j*pitch).
     lag = [(k + 0.5) * dz * lag_per_height for k in range(AXIAL_SLICES)]
-    slice_sin, slice_cos = [ca.sin(v["angle"] - lag[0])], [ca.cos(v["angle"] - lag[0])]
+    angle = v["angle"] + v["start_angle"]  # flute 0 at the tool tip
+    slice_sin, slice_cos = [ca.sin(angle - lag[0])], [ca.cos(angle - lag[0])]
     step_sin, step_cos = ca.sin(dz * lag_per_height), ca.cos(dz * lag_per_height)
     for k in range(1, AXIAL_SLICES):  # one slice higher: the edge lags by dz*lag_per_height more
         slice_sin.append(slice_sin[-1] * step_cos - slice_cos[-1] * step_sin)
@@ -102,7 +125,7 @@ def equations(v: Mapping[str, ca.SX]) -> dict[str, ca.SX]:
         flute_radius = radius + v["runout_offset"] * runout_cos[j]
         pitch_sin, pitch_cos = ca.sin(j * pitch), ca.cos(j * pitch)
         for k in range(AXIAL_SLICES):
-            phi = v["angle"] + j * pitch - lag[k]
+            phi = angle + j * pitch - lag[k]
             if j == 0:
                 s, c = slice_sin[k], slice_cos[k]
             else:
@@ -111,9 +134,7 @@ def equations(v: Mapping[str, ca.SX]) -> dict[str, ca.SX]:
             h = period * (vx * s + vy * c) + dx * s + dy * c + runout
             engaged = _wrap(phi + feed_angle - v["entry_angle"]) < width
             cutting = ca.logic_and(ca.logic_and(active, turning), ca.logic_and(engaged, h > 0))
-            ft = ca.if_else(cutting, (v["Ktc"] * h + v["Kte"]) * dz, 0)
-            fr = ca.if_else(cutting, (v["Krc"] * h + v["Kre"]) * dz, 0)
-            fa = ca.if_else(cutting, (v["Kac"] * h + v["Kae"]) * dz, 0)
+            ft, fr, fa = (ca.if_else(cutting, element_force(v, h, direction) * dz, 0) for direction in "tra")
             fx = fx - ft * c - fr * s
             fy = fy + ft * s - fr * c
             fz = fz + fa
@@ -121,7 +142,7 @@ def equations(v: Mapping[str, ca.SX]) -> dict[str, ca.SX]:
     speed = ca.if_else(turning, v["spindle_speed"], 0)
     return {
         "Fx": fx, "Fy": fy, "Fz": fz, "torque": torque, "power": torque * speed,
-        "spindle_angle": v["angle"],
+        "spindle_angle": _wrap(angle),
         "feed_per_tooth": ca.if_else(turning, period * ca.sqrt(vx ** 2 + vy ** 2), 0),
     }
 
@@ -149,6 +170,7 @@ CUTTING_FORCE = ModelDefinition(
                          ("delayed_displacement_y", ("n_flutes", "spindle_speed", "displacement_y"))),
     native_initial_states=(("delayed_displacement_x", "displacement_x"), ("delayed_displacement_y", "displacement_y")),
     specialize_on="n_flutes",  # C code per flute count: absent flutes cost nothing
+    specialize_fixed=(("chip_law", CHIP_LAW_LINEAR),),  # ... for the linear law (no powers); the others run generic
     constants=(("OMEGA_MIN", OMEGA_MIN), ("TWO_PI", TWO_PI)),  # model.c: model_constants.h
     states=(
         State("angle", "Spindle angle: flute 0 at the tool tip, clockwise from +y", unit="rad"),
@@ -156,12 +178,24 @@ CUTTING_FORCE = ModelDefinition(
         State("delayed_displacement_y", "Tool displacement in y one tooth period ago (model.c)", unit="m"),
     ),
     variables=(
-        Variable("Ktc", "Float64", "parameter", "Tangential cutting coefficient", unit="N/m2",
-                 display_unit="N/mm2", start=AL7075_CARBIDE["Ktc"], min=0.0, max=1e10),
-        Variable("Krc", "Float64", "parameter", "Radial cutting coefficient", unit="N/m2",
-                 display_unit="N/mm2", start=AL7075_CARBIDE["Krc"], min=-1e10, max=1e10),
-        Variable("Kac", "Float64", "parameter", "Axial cutting coefficient (force on the tool along +z)",
+        Variable("chip_law", "Int32", "parameter",
+                 "Chip-thickness law: 1 linear K_c*h + K_e (Altintas), 2 exponential K_c*h0*(h/h0)^(1-m_c) "
+                 "(Kienzle, h0 = 1 mm, no edge term), 3 the power law plus the edge term K_e",
+                 start=CHIP_LAW_LINEAR, min=CHIP_LAW_LINEAR, max=CHIP_LAW_POWER_EDGE),
+        Variable("Ktc", "Float64", "parameter",
+                 "Tangential cutting coefficient (laws 2 and 3: the specific force at h0 = 1 mm, k_c1.1)",
+                 unit="N/m2", display_unit="N/mm2", start=AL7075_CARBIDE["Ktc"], min=0.0, max=1e10),
+        Variable("Krc", "Float64", "parameter", "Radial cutting coefficient (laws 2 and 3: at h0 = 1 mm)",
+                 unit="N/m2", display_unit="N/mm2", start=AL7075_CARBIDE["Krc"], min=-1e10, max=1e10),
+        Variable("Kac", "Float64", "parameter",
+                 "Axial cutting coefficient, force on the tool along +z (laws 2 and 3: at h0 = 1 mm)",
                  unit="N/m2", display_unit="N/mm2", start=AL7075_CARBIDE["Kac"], min=-1e10, max=1e10),
+        Variable("mc_t", "Float64", "parameter", "Chip-thickness exponent m_c of the tangential force (laws 2, 3)",
+                 unit="1", start=0.0, min=-1.0, max=0.99),
+        Variable("mc_r", "Float64", "parameter", "Chip-thickness exponent m_c of the radial force (laws 2, 3)",
+                 unit="1", start=0.0, min=-1.0, max=0.99),
+        Variable("mc_a", "Float64", "parameter", "Chip-thickness exponent m_c of the axial force (laws 2, 3)",
+                 unit="1", start=0.0, min=-1.0, max=0.99),
         Variable("Kte", "Float64", "parameter", "Tangential edge coefficient", unit="N/m",
                  display_unit="N/mm", start=AL7075_CARBIDE["Kte"], min=0.0, max=1e6),
         Variable("Kre", "Float64", "parameter", "Radial edge coefficient", unit="N/m",
@@ -179,6 +213,9 @@ CUTTING_FORCE = ModelDefinition(
         Variable("runout_angle", "Float64", "parameter",
                  "Direction of the runout offset: flute j's radius is R + offset*cos(angle - j*2*pi/N)",
                  unit="rad", display_unit="deg", start=0.0, min=-TWO_PI, max=TWO_PI),
+        Variable("start_angle", "Float64", "parameter",
+                 "Angle of flute 0 at the tool tip when the spindle angle state is 0 (the spindle phase at the "
+                 "start, clockwise from +y)", unit="rad", display_unit="deg", start=0.0, min=-TWO_PI, max=TWO_PI),
         Variable("history_size", "Int32", "parameter",
                  "Samples of displacement history kept for the regenerative chip (must span one tooth period)",
                  start=16384, min=16, max=1048576, variability="fixed"),
@@ -218,14 +255,30 @@ CUTTING_FORCE = ModelDefinition(
 
 def mean_forces(Ktc: float, Krc: float, Kac: float, Kte: float, Kre: float, Kae: float, n_flutes: int,
                 axial_depth: float, feed_per_tooth: float, entry_angle: float = 0.0,
-                exit_angle: float = math.pi) -> dict[str, float]:
+                exit_angle: float = math.pi, chip_law: int = CHIP_LAW_LINEAR, mc_t: float = 0.0,
+                mc_r: float = 0.0, mc_a: float = 0.0) -> dict[str, float]:
     """Forces on the tool averaged over a revolution, feed along +x, no runout or vibration, for a
     window inside ``0 .. pi`` (where ``f_t*sin(phi) >= 0``): the integral of the element forces over
     the immersion, times N/(2*pi). Independent of the helix (a full revolution sweeps every slice
-    over the whole window). SI units; also ``torque_per_radius`` (mean torque / tool radius)."""
+    over the whole window). SI units; also ``torque_per_radius`` (mean torque / tool radius).
+    Closed form for the linear law; the power laws (2, 3) are integrated numerically (adaptive quadrature)."""
     if not 0.0 <= entry_angle <= exit_angle <= math.pi:
         raise ValueError(f"window {entry_angle}..{exit_angle} rad is not inside 0..pi")
     N, a, c = n_flutes, axial_depth, feed_per_tooth
+    if chip_law != CHIP_LAW_LINEAR:
+        from scipy.integrate import quad  # only the power laws need it
+
+        law = {"chip_law": chip_law, "Ktc": Ktc, "Krc": Krc, "Kac": Kac, "Kte": Kte, "Kre": Kre, "Kae": Kae,
+               "mc_t": mc_t, "mc_r": mc_r, "mc_a": mc_a}
+
+        def element(phi: float, direction: str) -> float:
+            return float(element_force(law, max(c * math.sin(phi), CHIP_MIN), direction))
+
+        integrands = {"Fx": lambda p: -element(p, "t") * math.cos(p) - element(p, "r") * math.sin(p),
+                      "Fy": lambda p: element(p, "t") * math.sin(p) - element(p, "r") * math.cos(p),
+                      "Fz": lambda p: element(p, "a"), "torque_per_radius": lambda p: element(p, "t")}
+        return {name: N * a / (2 * math.pi) * quad(f, entry_angle, exit_angle, epsabs=0.0, epsrel=1e-11,
+                                                     limit=200)[0] for name, f in integrands.items()}
 
     def at(phi: float) -> np.ndarray:
         fx = (c / 4 * (Ktc * math.cos(2 * phi) - Krc * (2 * phi - math.sin(2 * phi)))
@@ -241,19 +294,62 @@ def mean_forces(Ktc: float, Krc: float, Kac: float, Kte: float, Kre: float, Kae:
 
 
 def mean_slot_forces(Ktc: float, Krc: float, Kac: float, Kte: float, Kre: float, Kae: float, n_flutes: int,
-                     axial_depth: float, feed_per_tooth: float) -> dict[str, float]:
-    """Mean forces on the tool in slotting (window 0 .. pi, feed along +x), Altintas' identification
-    formulae, linear in the feed per tooth c (SI units)::
+                     axial_depth: float, feed_per_tooth: float, chip_law: int = CHIP_LAW_LINEAR, mc_t: float = 0.0,
+                     mc_r: float = 0.0, mc_a: float = 0.0) -> dict[str, float]:
+    """Mean forces on the tool in slotting (window 0 .. pi, feed along +x), closed form for every chip-thickness
+    law (SI units; floats or casadi expressions, so that calibration can fit through it). Linear law (Altintas'
+    identification formulae, linear in the feed per tooth c)::
 
         Fx = -N*a*Krc*c/4 - N*a*Kre/pi
         Fy = +N*a*Ktc*c/4 + N*a*Kte/pi
         Fz = +N*a*Kac*c/pi + N*a*Kae/2
+
+    Laws 2 and 3 (exponents p = 1 - m_c): the cos-weighted terms integrate to zero over the slot and
+    ``integral(sin(phi)**q, 0, pi) = sqrt(pi)*Gamma((q + 1)/2)/Gamma(q/2 + 1)`` (:func:`sine_power_integral`), so::
+
+        Fx = -N*a/(2*pi)*(Krc*h0*(c/h0)**p_r*S(p_r + 1) + 2*Kre)
+        Fy = +N*a/(2*pi)*(Ktc*h0*(c/h0)**p_t*S(p_t + 1) + 2*Kte)
+        Fz = +N*a/(2*pi)*(Kac*h0*(c/h0)**p_a*S(p_a) + pi*Kae)
+
+    (edge terms 0 under law 2), which is the linear law at m_c = 0 (S(2) = pi/2, S(1) = 2).
     """
     N, a, c = n_flutes, axial_depth, feed_per_tooth
-    return {"Fx": -N * a * Krc * c / 4 - N * a * Kre / math.pi,
-            "Fy": N * a * Ktc * c / 4 + N * a * Kte / math.pi,
-            "Fz": N * a * Kac * c / math.pi + N * a * Kae / 2,
-            "torque_per_radius": N * a * Ktc * c / math.pi + N * a * Kte / 2}
+    if chip_law == CHIP_LAW_LINEAR:
+        return {"Fx": -N * a * Krc * c / 4 - N * a * Kre / math.pi,
+                "Fy": N * a * Ktc * c / 4 + N * a * Kte / math.pi,
+                "Fz": N * a * Kac * c / math.pi + N * a * Kae / 2,
+                "torque_per_radius": N * a * Ktc * c / math.pi + N * a * Kte / 2}
+    if chip_law not in (CHIP_LAW_EXPONENTIAL, CHIP_LAW_POWER_EDGE):
+        raise ValueError(f"chip_law {chip_law}: not one of {sorted(CHIP_LAWS.values())}")
+    edge = 0.0 if chip_law == CHIP_LAW_EXPONENTIAL else 1.0
+    h0, S, k = CHIP_REFERENCE, sine_power_integral, N * a / (2 * math.pi)
+    pt, pr, pa = 1 - mc_t, 1 - mc_r, 1 - mc_a
+    cut_t = Ktc * h0 * (c / h0) ** pt
+    return {"Fx": -k * (Krc * h0 * (c / h0) ** pr * S(pr + 1) + 2 * edge * Kre),
+            "Fy": k * (cut_t * S(pt + 1) + 2 * edge * Kte),
+            "Fz": k * (Kac * h0 * (c / h0) ** pa * S(pa) + math.pi * edge * Kae),
+            "torque_per_radius": k * (cut_t * S(pt) + math.pi * edge * Kte)}
+
+
+# Lanczos' approximation of log Gamma (g = 7, 9 terms; relative error below 1e-13 for x > 0.5): only arithmetic,
+# log and exp, so it works on floats and on casadi expressions alike (casadi has no Gamma function).
+_LANCZOS = (0.99999999999980993, 676.5203681218851, -1259.1392167224028, 771.32342877765313, -176.61502916214059,
+            12.507343278686905, -0.13857109526572012, 9.9843695780195716e-6, 1.5056327351493116e-7)
+
+
+def log_gamma(x):  # type: ignore[no-untyped-def]
+    """log(Gamma(x)) for x > 0.5 (floats or casadi expressions), Lanczos' approximation."""
+    z = x - 1
+    series = _LANCZOS[0] + sum(c / (z + i) for i, c in enumerate(_LANCZOS[1:], start=1))
+    t = z + 7.5
+    log = ca.log if isinstance(x, (ca.SX, ca.MX)) else math.log
+    return 0.5 * math.log(2 * math.pi) + (z + 0.5) * log(t) - t + log(series)
+
+
+def sine_power_integral(q):  # type: ignore[no-untyped-def]
+    """integral(sin(phi)**q, phi = 0 .. pi) = sqrt(pi)*Gamma((q + 1)/2)/Gamma(q/2 + 1), q > 0 (floats or casadi)."""
+    exp = ca.exp if isinstance(q, (ca.SX, ca.MX)) else math.exp
+    return math.sqrt(math.pi) * exp(log_gamma((q + 1) / 2) - log_gamma(q / 2 + 1))
 
 
 # ---- reference implementation of the FMU's native part (fmus/force/model.c) ----

@@ -102,6 +102,9 @@ class ModelDefinition:
     # flutes), and runs the copy for the parameter's value (the generic equations otherwise). Only
     # the C code is specialized; it computes the same expressions.
     specialize_on: str | None = None
+    # Further parameters folded in as constants in every specialized copy (name, value), e.g. the chip-thickness law
+    # whose default needs no powers: the copy runs only while they hold these values, the generic equations otherwise.
+    specialize_fixed: tuple[tuple[str, int], ...] = ()
     default_step_size: float = 1e-3
     default_stop_time: float = 10.0
     # Constants the model's C code shares with its Python definition or reference (name, value: an int, a
@@ -129,6 +132,11 @@ class ModelDefinition:
                     or not 0 <= v.max - v.min <= 16):
                 raise ValueError(f"{self.identifier}.{v.name}: specialize_on needs an Int32 parameter with min and "
                                  "max at most 16 apart")
+        for name, _ in self.specialize_fixed:
+            v = self.variable(name)
+            if self.specialize_on is None or v.type != "Int32" or v.causality != "parameter":
+                raise ValueError(f"{self.identifier}.{name}: specialize_fixed needs specialize_on and an Int32 "
+                                 "parameter")
         for v in self.variables:
             if not v.shape:
                 continue
@@ -193,11 +201,14 @@ class ModelDefinition:
 
     def function(self, specialized: int | None = None) -> ca.Function:
         """The equations as one casadi Function (arguments -> outputs), scalar in and out;
-        ``specialized``: with ``specialize_on`` fixed to this value (its argument is then unused)."""
+        ``specialized``: with ``specialize_on`` fixed to this value and the ``specialize_fixed`` parameters to
+        theirs (their arguments are then unused)."""
         key = "function" if specialized is None else f"function_{specialized}"
         if key not in self._cache:
             symbols = self._symbols()
-            given = symbols if specialized is None else {**symbols, self.specialize_on: ca.SX(float(specialized))}
+            given = symbols if specialized is None else {
+                **symbols, self.specialize_on: ca.SX(float(specialized)),
+                **{name: ca.SX(float(value)) for name, value in self.specialize_fixed}}
             outputs = self.equations(given) if self.equations else {}
             expected = {v.name for v in self.computed_outputs}
             if set(outputs) != expected:

@@ -75,7 +75,15 @@ CASES = {
          "Kre": 4e4, "Kae": 5e3}, 0.0, 5e-5, (0.0, math.pi)),
     "half_immersion_down_milling_helix30_feed_at_120deg": (
         {"n_flutes": 4, "helix_angle": math.radians(30)}, 120.0, 8e-5, (math.pi / 2, math.pi)),
+    # the power laws (Kienzle's exponential law, and the power law with edge terms): their mean forces
+    "slot_kienzle_law_helix30": (
+        {"n_flutes": 2, "helix_angle": math.radians(30), "chip_law": 2, "Ktc": 1.2e9, "Krc": 4e8, "Kac": 2e8,
+         "mc_t": 0.25, "mc_r": 0.5, "mc_a": 0.35}, 0.0, 5e-5, (0.0, math.pi)),
+    "up_milling_power_edge_law_feed_at_45deg": (
+        {"n_flutes": 3, "helix_angle": math.radians(20), "chip_law": 3, "mc_t": 0.2, "mc_r": -0.3, "mc_a": 0.6},
+        45.0, 8e-5, (0.3, 2.0)),
 }
+LAW = ("chip_law", "mc_t", "mc_r", "mc_a")
 
 
 def revolution_mean(fmu: Path, parameters: dict, inputs: dict, steps_per_revolution: int) -> np.ndarray:
@@ -106,8 +114,9 @@ def test_mean_forces_equal_the_closed_form(fmu: Path, case: str) -> None:
     mean = dict(zip(OUTPUTS, revolution_mean(fmu, {k: v for k, v in parameters.items() if k != "axial_depth"},
                                              {**inputs, "axial_depth": parameters["axial_depth"]}, 2000)))
     coefficients = {k: parameters.get(k, AL7075_CARBIDE[k]) for k in AL7075_CARBIDE}
+    law = {k: parameters[k] for k in LAW if k in parameters}
     closed = mean_forces(**coefficients, n_flutes=n, axial_depth=0.003, feed_per_tooth=feed_per_tooth,
-                         entry_angle=entry, exit_angle=exit_)
+                         entry_angle=entry, exit_angle=exit_, **law)
     # the closed form has the feed along +x: rotate it into the feed direction
     fx = closed["Fx"] * math.cos(theta) - closed["Fy"] * math.sin(theta)
     fy = closed["Fx"] * math.sin(theta) + closed["Fy"] * math.cos(theta)
@@ -117,8 +126,60 @@ def test_mean_forces_equal_the_closed_form(fmu: Path, case: str) -> None:
         assert mean[name] == pytest.approx(value, rel=1e-3), f"{case}: mean {name}"
     assert mean["feed_per_tooth"] == pytest.approx(feed_per_tooth, rel=1e-12)
     if case.startswith("slot"):  # and Altintas' slotting formulae themselves
-        slot = mean_slot_forces(**coefficients, n_flutes=n, axial_depth=0.003, feed_per_tooth=feed_per_tooth)
+        slot = mean_slot_forces(**coefficients, n_flutes=n, axial_depth=0.003, feed_per_tooth=feed_per_tooth, **law)
         assert [mean["Fx"], mean["Fy"], mean["Fz"]] == pytest.approx([slot["Fx"], slot["Fy"], slot["Fz"]], rel=1e-3)
+
+
+def test_power_laws_reduce_to_the_linear_and_the_exponential_law() -> None:
+    """Law 3 with every m_c = 0 is law 1 bit for bit (the size-effect factor is exactly 1), law 3 without edge
+    coefficients is law 2; law 2 ignores the edge coefficients; the mean forces of law 3 at m_c = 0 are Altintas'."""
+    rng = np.random.default_rng(3)
+    base = {"n_flutes": 3, "spindle_speed": OMEGA, "feed_velocity_x": 0.02, "feed_velocity_y": -0.01,
+            "helix_angle": 0.4, "runout_offset": 1e-5, "angle": rng.uniform(0, TWO_PI, 200)}
+    outputs = ("Fx", "Fy", "Fz", "torque")
+
+    def forces(**values: float) -> np.ndarray:
+        result = CUTTING_FORCE.evaluate(**base, **values)
+        return np.array([result[k] for k in outputs])
+
+    np.testing.assert_array_equal(forces(chip_law=3), forces(chip_law=1))
+    kienzle = {"mc_t": 0.3, "mc_r": 0.5, "mc_a": 0.1}
+    np.testing.assert_array_equal(forces(chip_law=2, **kienzle),
+                                  forces(chip_law=3, Kte=0.0, Kre=0.0, Kae=0.0, **kienzle))
+    np.testing.assert_array_equal(forces(chip_law=2, **kienzle), forces(chip_law=2, Kte=1e4, Kre=-3e3, **kienzle))
+    assert not np.allclose(forces(chip_law=2, **kienzle), forces(chip_law=1))
+    linear = mean_slot_forces(**AL7075_CARBIDE, n_flutes=2, axial_depth=0.003, feed_per_tooth=6e-5)
+    power = mean_slot_forces(**AL7075_CARBIDE, n_flutes=2, axial_depth=0.003, feed_per_tooth=6e-5, chip_law=3)
+    assert power == pytest.approx(linear, rel=1e-12)
+
+
+def test_mean_slot_forces_of_the_power_laws_are_differentiable_casadi_expressions() -> None:
+    """Calibration fits the exponents through the closed form: a casadi expression, equal to the float one."""
+    import casadi as ca
+
+    m = ca.SX.sym("m", 3)
+    k = dict(AL7075_CARBIDE)
+    symbolic = mean_slot_forces(**k, n_flutes=2, axial_depth=0.003, feed_per_tooth=5e-5, chip_law=3,
+                                mc_t=m[0], mc_r=m[1], mc_a=m[2])
+    f = ca.Function("f", [m], [ca.vertcat(symbolic["Fx"], symbolic["Fy"], symbolic["Fz"])])
+    exponents = (0.2, 0.45, 0.3)
+    numeric = mean_slot_forces(**k, n_flutes=2, axial_depth=0.003, feed_per_tooth=5e-5, chip_law=3,
+                               mc_t=exponents[0], mc_r=exponents[1], mc_a=exponents[2])
+    np.testing.assert_allclose(np.array(f(exponents)).ravel(), [numeric["Fx"], numeric["Fy"], numeric["Fz"]],
+                               rtol=1e-14)
+    jacobian = np.array(ca.Function("j", [m], [ca.jacobian(f(m), m)])(exponents))
+    assert np.all(np.isfinite(jacobian)) and abs(jacobian[0, 1]) > 0 and jacobian[0, 0] == 0
+
+
+def test_start_angle_is_the_spindle_phase() -> None:
+    """Flute 0 at start_angle + the angle state: shifting one or the other gives the same forces."""
+    base = {"n_flutes": 2, "spindle_speed": OMEGA, "feed_velocity_x": 0.02, "helix_angle": 0.5,
+            "runout_offset": 1e-5}
+    angles = np.linspace(0, TWO_PI, 50, endpoint=False)
+    shifted = CUTTING_FORCE.evaluate(**base, angle=angles, start_angle=0.7)
+    moved = CUTTING_FORCE.evaluate(**base, angle=(angles + 0.7) % TWO_PI)
+    for name in ("Fx", "Fy", "Fz", "torque", "spindle_angle"):
+        np.testing.assert_allclose(shifted[name], moved[name], rtol=1e-9, atol=1e-9, err_msg=name)
 
 
 # ---- the C code specialized per flute count (ModelDefinition.specialize_on) ----

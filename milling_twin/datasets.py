@@ -17,6 +17,8 @@ from pathlib import Path
 
 import numpy as np
 
+from milling_twin.orchestrator.input_files import read_input
+
 REPO = Path(__file__).resolve().parents[1]
 DATA_ENV = "MILLING_TWIN_SLOT_DATA"
 DEFAULT_DATA = REPO.parent / "shared" / "data" / "slot_milling_forces"
@@ -63,7 +65,7 @@ def read_recording(path: Path) -> Recording:
     match = _NAME.search(path.stem)
     if not match:
         raise ValueError(f"{path}: the file name does not give the conditions as n<rpm>f<feed>ap<mm>ae<mm>")
-    lines = path.read_text(encoding="utf-8", errors="replace").splitlines()
+    lines = read_input(path, "recording").decode("utf-8", errors="replace").splitlines()  # header text is free
     start = next((i for i, line in enumerate(lines) if line.replace(" ", "").startswith("Time,Fx,Fy,Fz")), None)
     if start is None:
         raise ValueError(f"{path}: no 'Time,Fx,Fy,Fz' header line")

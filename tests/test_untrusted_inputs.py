@@ -224,3 +224,43 @@ def test_the_memory_of_a_long_recording_is_bounded_by_the_run(make_case, fmu_dir
     proc = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=300)
     rows, grown_mb = proc.stdout.split()
     assert int(rows) == 3 and float(grown_mb) < 30.0, proc.stdout + proc.stderr
+
+
+# ---- the other readers of user files: point clouds, recordings to reconstruct a program from ----
+
+
+def test_point_clouds_and_recordings_to_reconstruct_or_fit_are_read_from_regular_files_only(tmp_path: Path) -> None:
+    notes = tmp_path / "cloud.csv"
+    notes.write_text(f"SECRET_TOKEN={SECRET}\n1\n2\n")
+    code = textwrap.dedent(f"""
+        from milling_twin.orchestrator.align.errors import AlignmentError
+        from milling_twin.orchestrator.align.spatial import load_cloud_csv
+        from milling_twin.orchestrator.gcode.reconstruct import reconstruct
+        for path in ({str(notes)!r}, {str(fifo(tmp_path, "pipe.csv"))!r}):
+            try:
+                load_cloud_csv(path)
+            except (AlignmentError, ValueError) as exc:
+                print(exc)
+        try:
+            reconstruct({str(tmp_path / "pipe.csv")!r})
+        except ValueError as exc:
+            print(exc)
+        from pathlib import Path
+        from milling_twin.datasets import read_recording
+        try:
+            read_recording(Path({str(fifo(tmp_path, "6-n6000f300ap3ae25.csv"))!r}))
+        except ValueError as exc:
+            print(exc)
+        """)
+    try:
+        proc = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=60)
+    except subprocess.TimeoutExpired:
+        pytest.fail("a FIFO blocked the reader")
+    assert proc.stdout.splitlines() == [
+        f"{notes}: not a CSV file (line 1 is not a header of comma-separated column names; looked for the columns "
+        f"x, y, z)",
+        f"{tmp_path / 'pipe.csv'} is a FIFO (named pipe), not a regular file (the CSV file must be one)",
+        f"{tmp_path / 'pipe.csv'} is a FIFO (named pipe), not a regular file (the recording must be one)",
+        f"{tmp_path / '6-n6000f300ap3ae25.csv'} is a FIFO (named pipe), not a regular file (the recording must be "
+        f"one)"], \
+        proc.stdout + proc.stderr

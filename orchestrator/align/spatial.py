@@ -29,6 +29,7 @@ from pathlib import Path
 import numpy as np
 import pandas as pd
 
+from milling_twin.orchestrator.input_files import InputFileError, open_input
 from milling_twin.orchestrator.align.errors import AlignmentError
 from milling_twin.orchestrator.align.icp import IcpResult, icp
 from milling_twin.orchestrator.align.surface import GridSurface, interpolate_surface, offset_surface
@@ -168,12 +169,18 @@ def work_offset_gcode(shift: np.ndarray, g54: tuple[float, float, float],
 
 
 def _read_csv(path: Path, columns: list[str]) -> pd.DataFrame:
-    if not path.is_file():
+    if not path.exists():
         raise AlignmentError(f"{path}: file not found")
     try:
-        frame = pd.read_csv(path)
+        with open_input(path, "CSV file") as fh:  # a regular file only (orchestrator/input_files.py)
+            frame = pd.read_csv(fh)
+    except InputFileError as exc:
+        raise AlignmentError(exc.detail) from None
     except (pd.errors.ParserError, pd.errors.EmptyDataError, UnicodeDecodeError) as exc:
         raise AlignmentError(f"{path}: not a readable CSV file: {exc}") from None
+    if len(frame.columns) < 2:  # no comma in line 1: not a table of named columns, and not quoted
+        raise AlignmentError(f"{path}: not a CSV file (line 1 is not a header of comma-separated column names; "
+                             f"looked for the columns {', '.join(columns)})")
     missing = [c for c in columns if c not in frame.columns]
     if missing:
         raise AlignmentError(f"{path}: no column {missing[0]!r}; columns: {list(frame.columns)}")

@@ -57,6 +57,7 @@ import pandas as pd
 from scipy.linalg import solve_banded
 from scipy.optimize import minimize_scalar
 
+from milling_twin.orchestrator.input_files import open_input
 from milling_twin.orchestrator.recording_checks import CheckLimits, RecordingCheck, check_recording
 
 SAMPLE_PERIOD = 0.1          # s, the recordings' row spacing
@@ -330,9 +331,15 @@ def _fit_piece(points: np.ndarray, allow_arcs: bool,
     return out
 
 
+def _read_recording(path: str | Path) -> pd.DataFrame:
+    """A recording (CSV) as a frame, read from a regular file only (orchestrator/input_files.py)."""
+    with open_input(path, "recording") as fh:
+        return pd.read_csv(fh)
+
+
 def reconstruct(path: Path) -> Reconstruction:
     """The program of a whole recording as one pass (run 01: scenarios/programs/umich_01.nc)."""
-    return _reconstruct_rows(pd.read_csv(path), Path(path))
+    return _reconstruct_rows(_read_recording(path), Path(path))
 
 
 def _reconstruct_rows(data: pd.DataFrame, path: Path, allow_arcs: bool = True,
@@ -674,7 +681,7 @@ def reconstruct_segments(path: Path, limits: CheckLimits = CHECK_LIMITS) -> Segm
     it refuses is rebuilt with straight moves only). A segment without motion gets a program without a move:
     the tool stands at its position, with the spindle as recorded."""
     path = Path(path)
-    data = pd.read_csv(path)
+    data = _read_recording(path)
     check = recording_check(data, limits)
     used = {(s.start, s.stop) for s in check.segments}
     pieces = sorted([*check.segments, *check.dropped_segments], key=lambda s: s.start)
@@ -732,7 +739,7 @@ def command(args: argparse.Namespace) -> int:
     consistent pass; otherwise one program per consistent segment in the folder OUT (seg_NNN.nc and the
     index segments.csv)."""
     try:
-        data = pd.read_csv(args.recording)
+        data = _read_recording(args.recording)
         data["M1_sequence_number"]  # the first column a UMich recording is recognised by
         check = recording_check(data)
         if check.clean:

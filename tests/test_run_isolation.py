@@ -331,3 +331,38 @@ def test_run_json_is_rewritten_in_place_when_there_is_no_room_for_a_copy(monkeyp
     info = read_run_info(tmp_path / "r")
     assert info["status"] == "completed" and info["rows_written"] == 1
     assert not _hidden(tmp_path / "r")
+
+
+@pytest.fixture
+def tiny_disk(tmp_path: Path):
+    """A 1 MiB tmpfs (root only; skipped where it cannot be mounted), unmounted at teardown."""
+    disk = tmp_path / "disk"
+    disk.mkdir()
+    mounted = subprocess.run(["mount", "-t", "tmpfs", "-o", "size=1M", "tmpfs", str(disk)], capture_output=True)
+    if mounted.returncode != 0:
+        pytest.skip(f"cannot mount a tmpfs here: {mounted.stderr.decode().strip()}")
+    try:
+        yield disk
+    finally:
+        subprocess.run(["umount", str(disk)], check=True)
+
+
+@pytest.mark.parametrize("stepping", ["python", "fast"])
+def test_a_really_full_disk(tiny_disk: Path, tmp_path: Path, fmu_dir: Path, stepping: str) -> None:
+    """A run of 200,000 rows of 4 columns (about 1 MB of Parquet) into 1 MiB: the 20th chunk does not fit."""
+    scenario = tmp_path / "long.toml"
+    scenario.write_text(LONG_TOML.replace("stop_time = 100000.0", "stop_time = 200.0")
+                        .replace("output_interval = 0.01", "output_interval = 0.001")
+                        .replace('"power.spindle_on"]', '"power.spindle_on", "power.P_cutting"]'))
+    done = _cli("run", str(scenario), "--fmu-dir", str(fmu_dir), "--out", str(tiny_disk / "runs"), "--no-progress",
+                "--path", stepping)
+    run_dir = tiny_disk / "runs" / "long"
+    assert done.returncode == 1, done.stdout + done.stderr
+    lines = done.stderr.splitlines()
+    assert len(lines) == 1 and lines[0].startswith(f"error: cannot write the results to {run_dir}: cannot write "
+                                                   f"{run_dir / 'chunks'}/chunk_"), done.stderr
+    assert lines[0].endswith(".parquet: No space left on device")
+    info = read_run_info(run_dir)
+    assert info["status"] == "failed: " + lines[0].split(f"{run_dir}: ", 1)[1]
+    assert 0 < info["rows_written"] == len(load_results(run_dir)) < 200_001
+    assert not _hidden(run_dir)

@@ -130,11 +130,15 @@ def test_a_failed_write_keeps_the_old_file_and_leaves_no_temporary_one(tmp_path,
 
     path = tmp_path / "report.json"
     path.write_text('{"old": true}')
+    def failing(code: int):
+        def fail(*args: object) -> None:
+            raise OSError(code, os.strerror(code))
+        return fail
+
     if failure == "fsync":
-        monkeypatch.setattr(atomic_files.os, "fsync", lambda fd: (_ for _ in ()).throw(OSError(errno.EIO, "I/O")))
+        monkeypatch.setattr(atomic_files.os, "fsync", failing(errno.EIO))
     if failure == "rename":
-        monkeypatch.setattr(atomic_files.os, "replace", lambda a, b: (_ for _ in ()).throw(
-            OSError(errno.EXDEV, "cross-device")))
+        monkeypatch.setattr(atomic_files.os, "replace", failing(errno.EXDEV))
 
     def writer(tmp: Path) -> None:
         tmp.write_text('{"new": ')

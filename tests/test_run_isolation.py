@@ -366,3 +366,33 @@ def test_a_really_full_disk(tiny_disk: Path, tmp_path: Path, fmu_dir: Path, step
     assert info["status"] == "failed: " + lines[0].split(f"{run_dir}: ", 1)[1]
     assert 0 < info["rows_written"] == len(load_results(run_dir)) < 200_001
     assert not _hidden(run_dir)
+
+
+def test_sigterm_stops_a_serial_study_after_the_case_it_interrupts(tmp_path: Path, fmu_dir: Path) -> None:
+    """In a study run in this process (--workers 0), SIGTERM interrupts the case's run (its rows are kept) and
+    stops the study, as it stopped the process before: it does not go on to the next case."""
+    base = tmp_path / "long.toml"
+    base.write_text(LONG_TOML)
+    study = tmp_path / "study.toml"
+    study.write_text(f'[study]\nname = "s"\nbase = "{base.as_posix()}"\n'
+                     '[study.grid]\n"power.P_idle" = [200.0, 300.0]\n'
+                     '[[study.reduce]]\nkind = "max"\nvariable = "power.P_total"\n')
+    proc = subprocess.Popen([sys.executable, "-m", "milling_twin", "sweep", str(study), "--fmu-dir", str(fmu_dir),
+                             "--out", str(tmp_path / "runs"), "--workers", "0", "--no-progress"],
+                            cwd=REPO_ROOT, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    try:
+        deadline = time.monotonic() + 60
+        while not list((tmp_path / "runs" / "s" / "cases").glob("*/chunks/chunk_*.parquet")):
+            assert proc.poll() is None and time.monotonic() < deadline, proc.communicate()
+            time.sleep(0.05)
+        proc.send_signal(signal.SIGTERM)
+        out, err = proc.communicate(timeout=60)
+    finally:
+        if proc.poll() is None:
+            proc.kill()
+    assert proc.returncode == 130, out + err
+    assert err.startswith("interrupted; the finished cases are kept in ") and "--resume runs the others" in err
+    cases = list((tmp_path / "runs" / "s" / "cases").iterdir())
+    assert len(cases) == 1  # the second case never started
+    info = read_run_info(cases[0])
+    assert info["status"] == "interrupted" and info["signal"] == "SIGTERM"

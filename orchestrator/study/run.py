@@ -106,6 +106,8 @@ def run_case(task: CaseTask) -> dict[str, Any]:
         row.update(_si_inputs(scenario, task.inputs))
         results = simulate(scenario, out=task.cases_dir, stepping=task.stepping, progress=False)
         run_status = results.status
+        if results.run.signal is not None:  # SIGINT/SIGTERM/SIGHUP stop the study (this case's rows are kept)
+            raise KeyboardInterrupt(f"{results.run.signal} during case {case.case_id}")
         if results.status == "interrupted":
             raise RuntimeError("the run was interrupted")
         done = CaseRun(case.case_id, dict(case.values), results.scenario, Path(results.run_dir), results.status,

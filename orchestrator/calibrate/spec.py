@@ -122,6 +122,8 @@ Kind "slot_forces" (the cutting-force coefficients from the slot-milling recordi
     validation_feeds = [600, 1200]
     runout = true                     # also fit force.runout_offset and force.runout_angle
     revolutions = 0                   # whole revolutions used per recording (0: all)
+    bootstrap = 200                   # intervals: replicates of the revolution bootstrap (0: i.i.d. intervals)
+    leave_one_out = false             # also the leave-one-feed-out table over all feeds of the data folder
     [parameters."force.Ktc"]          # the six coefficients (and runout ones): bounds, units, ...
 """
 from __future__ import annotations
@@ -224,6 +226,8 @@ class SlotForcesSpec:
     validation_feeds: tuple[float, ...]
     runout: bool = True
     revolutions: int = 0
+    bootstrap: int = 200  # replicates of the revolution bootstrap of the intervals (0: the i.i.d. intervals)
+    leave_one_out: bool = False  # also fit every feed's complement and predict it (the leave-one-feed-out table)
 
 
 @dataclass(frozen=True)
@@ -411,7 +415,8 @@ def _feeds(ctx: _Ctx, table: dict, name: str) -> tuple[float, ...]:
 
 def _slot_forces(ctx: _Ctx, raw: Any) -> SlotForcesSpec:
     key = "[slot_forces]"
-    table = ctx.table(raw, key, ("learning_feeds", "validation_feeds", "runout", "revolutions"))
+    table = ctx.table(raw, key, ("learning_feeds", "validation_feeds", "runout", "revolutions", "bootstrap",
+                                 "leave_one_out"))
     learning, validation = _feeds(ctx, table, "learning_feeds"), _feeds(ctx, table, "validation_feeds")
     if len(learning) < 2:
         ctx.fail(f"{key}.learning_feeds", "give at least two feeds (a line per axis needs two)")
@@ -421,7 +426,11 @@ def _slot_forces(ctx: _Ctx, raw: Any) -> SlotForcesSpec:
     runout = table.get("runout", True)
     if not isinstance(runout, bool):
         ctx.fail(f"{key}.runout", f"expected true or false, got {runout!r}")
-    return SlotForcesSpec(learning, validation, runout, ctx.integer(table, key, "revolutions", 0, 0))
+    leave_one_out = table.get("leave_one_out", False)
+    if not isinstance(leave_one_out, bool):
+        ctx.fail(f"{key}.leave_one_out", f"expected true or false, got {leave_one_out!r}")
+    return SlotForcesSpec(learning, validation, runout, ctx.integer(table, key, "revolutions", 0, 0),
+                          ctx.integer(table, key, "bootstrap", 200, 0), leave_one_out)
 
 
 def _runs(ctx: _Ctx, raw: Any, base: Path, parameters: tuple[ParameterSpec, ...]) -> RunsSpec:

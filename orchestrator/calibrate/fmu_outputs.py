@@ -96,6 +96,8 @@ class Simulation:
                          np.clip(theta, self.lower, self.upper), theta)
         case = with_values(self.scenario, dict(zip(self.refs, (float(v) for v in theta))))
         result = run(case, work_dir, progress=False)
+        if result.signal is not None:  # SIGINT/SIGTERM/SIGHUP stop the calibration, not only this simulation
+            raise KeyboardInterrupt(f"{result.signal} during a simulation of the fit")
         if result.status != "completed":
             raise RuntimeError(f"the simulation ended {result.status}")
         return at_rows(load_results(result.run_dir), list(self.outputs), self.row_time)

@@ -41,6 +41,8 @@ def simulate_both(fmu_dir: Path) -> dict:
     with tempfile.TemporaryDirectory() as tmp:
         for name in ("slot_milling", "slot_milling_forcenet"):
             result = run(load_scenario(REPO / "scenarios" / f"{name}.toml", fmu_dir), Path(tmp), progress=False)
+            if result.signal is not None:  # partial rows: the figure is not drawn
+                raise KeyboardInterrupt(f"{result.signal} during the run of {name}")
             out[name] = load_results(result.run_dir)
     return out
 

@@ -114,6 +114,8 @@ def growth_of(scenario: Scenario, out: Path) -> float:
     """Run ``scenario`` and return the growth of its free (chatter) vibration (``displacement_growth``), the larger
     of x and y."""
     result = run(scenario, out, progress=False)
+    if result.signal is not None:  # a signal stops the whole search, not only this run (whose rows are partial)
+        raise KeyboardInterrupt(f"{result.signal} during the run of {scenario.name}")
     return max(displacement_growth(scenario, load_results(result.run_dir)))
 
 

@@ -171,7 +171,7 @@ def test_recorded_file_values_and_truncation(make_case, fmu_dir: Path, csv: str,
     assert scenario_error(make_case(csv=csv), fmu_dir) == "[recorded].file: <dir>/data.csv" + message
 
 
-def test_recorded_binary_file_names_the_missing_column(make_case, fmu_dir: Path) -> None:
+def test_a_binary_recording_is_not_a_csv_recording(make_case, fmu_dir: Path) -> None:
     got = scenario_error(make_case(csv="\xff\xfe\x00binary"), fmu_dir)  # not CSV text: nothing of it is quoted
     assert got == "[recorded].file: <dir>/data.csv: not a CSV recording (binary content: byte 0x00 at line 1, column 3)"
 

@@ -166,7 +166,7 @@ def test_toml_nested_2000_levels_is_a_clear_error(make_case, fmu_dir: Path) -> N
     ("(a|aa)*b", "an alternation inside a repeat (like (a|ab)*) can take exponential time"),
     ("(a)\\\\1", "a backreference"),
     ("a.*b.*c.*d", "3 unbounded repeats (*, +, {n,}), more than 2"),
-])
+], ids=["nested repeats", "alternation in a repeat", "backreference", "three unbounded repeats"])
 def test_a_catastrophic_match_pattern_is_refused(make_case, fmu_dir: Path, pattern: str, why: str) -> None:
     path = make_case(('match = "^Layer"', f'match = "{pattern}"'), csv=CASE_CSV.replace("Prep", "a" * 24 + "!"))
     message = error_of(path, fmu_dir)

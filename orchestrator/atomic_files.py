@@ -15,19 +15,16 @@ the context manager under both, for code that writes into an open file.
 from __future__ import annotations
 
 import contextlib
+import errno
 import os
 import secrets
 from collections.abc import Callable, Iterator
 from pathlib import Path
 from typing import IO, Any, TypeVar
 
-__all__ = ["AtomicWriteError", "temporary_name", "write_bytes", "write_text", "write_with", "writing"]
+__all__ = ["temporary_name", "write_bytes", "write_text", "write_with", "writing"]
 
 T = TypeVar("T")
-
-
-class AtomicWriteError(OSError):
-    """An ``OSError`` while writing a file atomically; ``filename`` is the final file (not the temporary one)."""
 
 
 def temporary_name(path: Path) -> Path:
@@ -44,13 +41,16 @@ def _fsync(path: Path) -> None:
         os.close(fd)
 
 
-def _failed(path: Path, exc: OSError) -> AtomicWriteError:
-    """``exc`` again, naming the final file ``path``."""
+def _failed(path: Path, tmp: Path, exc: OSError) -> OSError:
+    """``exc`` naming the final file ``path`` instead of the temporary one or none (an error that names
+    another file, e.g. of a nested atomic write, is left as it is)."""
+    if exc.filename is not None and str(exc.filename) != str(tmp):
+        return exc
     if exc.errno is None:
-        error = AtomicWriteError(f"{exc}: {str(path)!r}")
+        error = OSError(f"{exc}: {str(path)!r}")
         error.filename = str(path)
         return error
-    return AtomicWriteError(exc.errno, exc.strerror or str(exc), str(path))
+    return OSError(exc.errno, exc.strerror or str(exc), str(path))  # FileNotFoundError etc. by its errno
 
 
 @contextlib.contextmanager
@@ -64,9 +64,10 @@ def _replacing(path: Path, sync: bool) -> Iterator[Path]:
         os.replace(tmp, path)
     except OSError as exc:
         _remove(tmp)
-        if isinstance(exc, AtomicWriteError):
+        error = _failed(path, tmp, exc)
+        if error is exc:
             raise
-        raise _failed(path, exc) from exc
+        raise error from exc
     except BaseException:
         _remove(tmp)
         raise
@@ -110,5 +111,5 @@ def write_with(path: str | Path, writer: Callable[[Path], T], *, sync: bool = Tr
     with _replacing(path, sync) as tmp:
         result = writer(tmp)
         if not tmp.is_file():
-            raise AtomicWriteError(f"{path}: the writer did not create the file")
+            raise OSError(errno.ENOENT, "the writer did not create the file", str(path))
     return result

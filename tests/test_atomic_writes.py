@@ -63,16 +63,21 @@ class _FullDisk:
 
 
 class DiskFull:
-    """Files whose final name is ``target`` (under ``root``) fail after ``budget`` bytes; records what it broke."""
+    """Files whose final name is ``target`` (under ``root``) fail after ``budget`` bytes, once ``skip`` of them
+    were written whole; records what it broke."""
 
-    def __init__(self, monkeypatch: pytest.MonkeyPatch, root: Path, target: str, budget: int = 64) -> None:
-        self.root, self.target, self.budget, self.broken = str(root), target, budget, []
+    def __init__(self, monkeypatch: pytest.MonkeyPatch, root: Path, target: str, budget: int = 64,
+                 skip: int = 0) -> None:
+        self.root, self.target, self.budget, self.skip, self.broken = str(root), target, budget, skip, []
         real = builtins.open
 
         def opening(file, mode="r", *args, **kwargs):  # noqa: ANN001, ANN202 - open()'s signature
             handle = real(file, mode, *args, **kwargs)
             if (isinstance(file, (str, os.PathLike)) and any(c in mode for c in "wax+")
                     and os.path.abspath(file).startswith(self.root) and _logical(file) == self.target):
+                if self.skip > 0:
+                    self.skip -= 1
+                    return handle
                 self.broken.append(Path(file))
                 return _FullDisk(handle, self.budget)
             return handle
@@ -213,6 +218,25 @@ def test_a_full_disk_at_each_calibration_output(power_case, fmu_dir, tmp_path, m
     assert _leftovers(out) == []
     for path in (p for p in folder.rglob("*") if p.is_file() and "runs" not in p.relative_to(folder).parts):
         assert _complete(path), f"{path} is truncated"
+
+
+def test_a_full_disk_at_the_runs_table_of_a_runs_calibration(fmu_dir, tmp_path, monkeypatch, capsys):
+    from test_calibrate_runs import DATA, write_spec
+
+    for name in ("umich_experiment_01.csv", "umich_experiment_11.csv"):
+        shutil.copy(DATA / name, tmp_path / name)
+    spec = write_spec(tmp_path, ["umich_experiment_01.csv", "umich_experiment_11.csv"])
+    out = tmp_path / "out"
+    full = DiskFull(monkeypatch, out, "runs.csv", budget=0, skip=1)  # the header written, the disk full at a row
+    code = main(["calibrate", str(spec), "--fmu-dir", str(fmu_dir), "--out", str(out), "--no-progress"])
+    err = capsys.readouterr().err.strip()
+    monkeypatch.undo()
+    table = out / "calibration" / "runs_test" / "runs.csv"
+    assert full.broken and code == 1 and len(err.splitlines()) == 1, err
+    assert "No space left on device" in err and str(table) in err and _leftovers(out) == []
+    if table.exists():  # the rows written before the disk filled, each whole
+        lines = table.read_text().splitlines()
+        assert lines and len({line.count(",") for line in lines}) == 1
 
 
 # --- a whole-part run's process report ---------------------------------------------------------------------

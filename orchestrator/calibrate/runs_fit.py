@@ -28,6 +28,7 @@ than the priors. Stages (each timed for the report):
 from __future__ import annotations
 
 import csv
+import io
 import math
 import os
 import time
@@ -43,6 +44,7 @@ from tqdm import tqdm
 
 from milling_twin.models import MODELS
 from milling_twin.models.definition import State
+from milling_twin.orchestrator import atomic_files
 from milling_twin.orchestrator.calibrate.errors import CalibrationError
 from milling_twin.orchestrator.calibrate.fit import FitOutcome, fit
 from milling_twin.orchestrator.calibrate.pairing import at_rows
@@ -252,16 +254,20 @@ def _rms(error: np.ndarray) -> np.ndarray:
 
 
 class _Csv:
-    """A CSV written row by row (flushed): a killed calibration leaves what it had."""
+    """A CSV rewritten whole (atomically) at every row: a killed calibration leaves the rows it had, a full disk
+    an error naming the file and no partial row."""
 
     def __init__(self, path: Path, header: Sequence[str]) -> None:
         self.path = path
-        with path.open("w", newline="", encoding="utf-8") as fh:
-            csv.writer(fh).writerow(header)
+        self.text = io.StringIO(newline="")
+        self._add(header)
 
     def row(self, values: Sequence[Any]) -> None:
-        with self.path.open("a", newline="", encoding="utf-8") as fh:
-            csv.writer(fh).writerow([f"{v:.6g}" if isinstance(v, float) else v for v in values])
+        self._add([f"{v:.6g}" if isinstance(v, float) else v for v in values])
+
+    def _add(self, values: Sequence[Any]) -> None:
+        csv.writer(self.text).writerow(values)
+        atomic_files.write_text(self.path, self.text.getvalue())
 
 
 def calibrate_runs(spec: CalibrationSpec, fmu_dir: Path, out_dir: Path, data: str | Path | None, progress: bool = False,

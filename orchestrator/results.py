@@ -230,10 +230,11 @@ class RunFolder:
             pass
 
     @classmethod
-    def claim(cls, path: str | Path, if_busy: str = "refuse") -> "RunFolder":
+    def claim(cls, path: str | Path, if_busy: str = "refuse", *, what: str = "run") -> "RunFolder":
         """Own ``path`` (created if missing). When another run owns it: "refuse" raises
         :class:`RunFolderBusy`, "wait" blocks until it is free, "new" claims the first of ``<path>-2``,
-        ``<path>-3``, ... that does not exist yet."""
+        ``<path>-3``, ... that does not exist yet. ``what``: "run", or what else owns the folder ("study",
+        "calibration": their folders are claimed the same way, refusing with a message that says so)."""
         if if_busy not in IF_BUSY:
             raise ValueError(f"if_busy={if_busy!r}: expected one of {', '.join(IF_BUSY)}")
         path = Path(path)
@@ -241,6 +242,9 @@ class RunFolder:
         fd = _try_lock(path, blocking=if_busy == "wait")
         if fd is not None:
             return cls(path, fd)
+        if if_busy == "refuse" and what != "run":
+            raise RunFolderBusy(f"{path} is the folder of a {what} in progress ({_owner(path)}): its files would "
+                                f"mix with this {what}'s; wait for it or choose another output folder (--out)")
         if if_busy == "refuse":
             raise RunFolderBusy(f"{path} is the folder of a run in progress ({_owner(path)}): its results would "
                                 "mix with this run's; wait for it, choose another output folder, or give "

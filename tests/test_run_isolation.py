@@ -396,3 +396,28 @@ def test_sigterm_stops_a_serial_study_after_the_case_it_interrupts(tmp_path: Pat
     assert len(cases) == 1  # the second case never started
     info = read_run_info(cases[0])
     assert info["status"] == "interrupted" and info["signal"] == "SIGTERM"
+
+
+def test_a_study_or_calibration_folder_in_use_is_refused(tmp_path: Path, fmu_dir: Path, capsys) -> None:
+    """A sweep or a calibration owns its folder like a run (two at once would mix their summaries, reports and
+    parameter sets); the case and re-simulation folders inside are claimed by their runs."""
+    study = tmp_path / "study.toml"
+    base = tmp_path / "long.toml"
+    base.write_text(SHORT_LONG)
+    study.write_text(f'[study]\nname = "s"\nbase = "{base.as_posix()}"\n[study.grid]\n"power.P_idle" = [200.0]\n'
+                     '[[study.reduce]]\nkind = "max"\nvariable = "power.P_total"\n')
+    spec = write_power_case(tmp_path / "case", fmu_dir=fmu_dir)
+    out = tmp_path / "out"
+    with RunFolder.claim(out / "s", what="study"), RunFolder.claim(out / "calibration" / "power_case"):
+        assert main(["sweep", str(study), "--fmu-dir", str(fmu_dir), "--out", str(out), "--workers", "0",
+                     "--no-progress"]) == 1
+        assert capsys.readouterr().err.startswith(
+            f"error: {out / 's'} is the folder of a study in progress (process {os.getpid()} (run ")
+        assert main(["calibrate", str(spec), "--fmu-dir", str(fmu_dir), "--out", str(out), "--no-progress"]) == 1
+        err = capsys.readouterr().err
+        assert err.startswith(f"error: {out / 'calibration' / 'power_case'} is the folder of a calibration in "
+                              f"progress (process {os.getpid()} (run ") and err.endswith(
+            "its files would mix with this calibration's; wait for it or choose another output folder (--out)\n")
+    assert main(["sweep", str(study), "--fmu-dir", str(fmu_dir), "--out", str(out), "--workers", "0",
+                 "--no-progress"]) == 0
+    assert not _hidden(out)

@@ -8,7 +8,8 @@ from pathlib import Path
 
 from milling_twin.orchestrator.calibrate.report import write_report
 from milling_twin.orchestrator.calibrate.result import CalibrationResult
-from milling_twin.orchestrator.calibrate.spec import load_spec
+from milling_twin.orchestrator.calibrate.spec import CalibrationSpec, load_spec
+from milling_twin.orchestrator.results import RunFolder
 
 __all__ = ["calibrate"]
 
@@ -37,7 +38,12 @@ def calibrate(spec_path: str | Path, fmu_dir: str | Path, out: str | Path = "run
                              "this process) or a scheduler, not both")
         spec = replace(spec, solver=replace(spec.solver, workers=workers or 0, scheduler=scheduler))
     out_dir = Path(out) / "calibration" / spec.name
-    out_dir.mkdir(parents=True, exist_ok=True)
+    with RunFolder.claim(out_dir, what="calibration"):  # one calibration per folder at a time
+        return _calibrate(spec, Path(fmu_dir), out_dir, data, progress, write_set, overrides)
+
+
+def _calibrate(spec: CalibrationSpec, fmu_dir: Path, out_dir: Path, data: str | Path | None, progress: bool,
+               write_set: str | Path | None, overrides: Mapping[str, Override] | None) -> CalibrationResult:
     values = {key: ({"value": value[0], "unit": value[1]} if isinstance(value, tuple) else value)
               for key, value in (overrides or {}).items()}
     publish = Path(write_set) if write_set is not None else None

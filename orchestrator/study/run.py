@@ -23,6 +23,7 @@ from typing import Any
 import pandas as pd
 from tqdm import tqdm
 
+from milling_twin.orchestrator.results import RunFolder
 from milling_twin.orchestrator.scenario import Scenario
 from milling_twin.orchestrator.study.executor import SerialExecutor, open_executor
 from milling_twin.orchestrator.study.reduce import CaseRun, get_reduction
@@ -210,6 +211,12 @@ def sweep(study: Study, out: str | Path, *, workers: int | None = None, schedule
     summary row says "ok" are skipped, the others run again."""
     t0 = time.perf_counter()
     folder = (Path(out) / study.name).resolve()
+    with RunFolder.claim(folder, what="study"):  # one sweep per study folder at a time (its cases claim theirs)
+        return _sweep(study, folder, workers, scheduler, resume, progress, stepping, t0)
+
+
+def _sweep(study: Study, folder: Path, workers: int | None, scheduler: str | None, resume: bool, progress: bool,
+           stepping: str, t0: float) -> StudyResult:
     store = SummaryStore(folder)
     if resume:
         done = store.finished_ok()

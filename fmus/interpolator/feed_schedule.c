@@ -108,7 +108,9 @@ typedef struct {
     size_t first, last;
 } Segment;
 
-static double soft_of(const ScheduleView *v, double move) { return move < 0.0 ? BIG : v->soft[(size_t)move]; }
+static double soft_of(const ScheduleView *v, double move) {
+    return move < 0.0 ? BIG : v->soft[(size_t)move - v->move_base];
+}
 
 static double node_cap(const ScheduleView *v, size_t k) {
     return min2(min2(v->node_vh[k], soft_of(v, v->node_left[k])), soft_of(v, v->node_right[k]));
@@ -152,9 +154,12 @@ static size_t make_segments(const ScheduleView *v, double s_start, size_t first_
     return n;
 }
 
-static void velocities(const ScheduleView *view, Segment *segs, size_t n, double v_start, double *caps, double *b,
-                       double *v) {
+/* Returns 1 when the forward pass had to raise a station's velocity above its hard cap (node_vh; at rest at the
+ * end): the start (v_start at s_start) cannot slow down in time for it within the S-curves between stations. */
+static int velocities(const ScheduleView *view, Segment *segs, size_t n, double v_start, double *caps, double *b,
+                      double *v) {
     size_t k;
+    int raised = 0;
     for (k = 1; k < n; k++) caps[k] = node_cap(view, segs[k].first);
     caps[n] = 0.0;
     b[n] = 0.0;
@@ -170,6 +175,7 @@ static void velocities(const ScheduleView *view, Segment *segs, size_t n, double
          * of at rest) */
         if (vk < v[k - 1] && s_curve_distance(vk, v[k - 1], sg->a, sg->j) > sg->length * (1.0 + VIOLATION_TOLERANCE))
             vk = lowest_feasible(v[k - 1], vk, sg->length, sg->a, sg->j);
+        if (vk > (k < n ? view->node_vh[segs[k].first] : 0.0) * (1.0 + VIOLATION_TOLERANCE)) raised = 1;
         v[k] = vk;
     }
     for (k = 0; k < n; k++) {
@@ -177,6 +183,7 @@ static void velocities(const ScheduleView *view, Segment *segs, size_t n, double
         segs[k].vb = v[k + 1];
         segs[k].vp = segment_peak(v[k], v[k + 1], segs[k].length, segs[k].cap, segs[k].a, segs[k].j);
     }
+    return raised;
 }
 
 /* Marks the nodes that must become stations; returns how many. */
@@ -281,6 +288,7 @@ int schedule_plan(ScheduleView *view, double s_start, double v_start, double t_s
     double *caps, *b, *v, t = t_start;
     size_t n, first, k, np = first_piece;
     *hold = 0;
+    view->raised = 0;
     if (view->n_ints == 0) {
         put_piece(view->pieces + PIECE_DOUBLES * np++, t_start, s_start, 0.0, 0.0, 0.0);
         *n_pieces = np;
@@ -299,14 +307,14 @@ int schedule_plan(ScheduleView *view, double s_start, double v_start, double t_s
     first = interval_at(view, s_start);
     for (;;) {
         n = make_segments(view, s_start, first, segs);
-        velocities(view, segs, n, v_start, caps, b, v);
+        view->raised = velocities(view, segs, n, v_start, caps, b, v);
         if (violations(view, segs, n) == 0) break;
     }
     for (k = 0; k < n; k++) {
         const Segment *sg = &segs[k];
         double s = sg->s0, da, db, cruise;
         if (sg->length <= 0.0) {
-            double dwell = view->dwell[(size_t)view->int_move[sg->first]];
+            double dwell = view->dwell[(size_t)view->int_move[sg->first] - view->move_base];
             if (dwell > 0.0) { /* a piece at rest (the only one with zero v, a and j before the end) */
                 put_piece(view->pieces + PIECE_DOUBLES * np++, t, s, 0.0, 0.0, 0.0);
                 t += dwell;

@@ -1,8 +1,9 @@
-/* Feedrate schedule: look-ahead over the whole program from a given state (s, v, zero acceleration) to
- * the program end at rest. Stations (nodes where the acceleration is zero) split the path into segments,
- * each a jerk-limited S-curve to a cruise velocity and another to the next station's velocity; station
- * velocities come from a backward pass over every cap and a forward pass from the start; nodes where a
- * segment would exceed the velocity limit become stations until none does. Mirrored by
+/* Feedrate schedule: look-ahead over the part of the path the view holds (the whole program, or the look-ahead
+ * window of interpolator.c) from a given state (s, v, zero acceleration) to its end at rest. Stations (nodes where
+ * the acceleration is zero) split the path into segments, each a jerk-limited S-curve to a cruise velocity and
+ * another to the next station's velocity; station velocities come from a backward pass over every cap and a
+ * forward pass from the start; nodes where a segment would exceed the velocity limit become stations until none
+ * does. Mirrored by
  * models/interpolator/schedule.py. */
 #ifndef FEED_SCHEDULE_H
 #define FEED_SCHEDULE_H
@@ -18,11 +19,14 @@ typedef struct {
     const double *node_s, *node_vh, *node_left, *node_right;
     double *station;
     const double *int_move, *int_at, *int_jt, *int_cap;
+    /* n_ints: the intervals planned over (the look-ahead window ends at node n_ints, at rest, at s = total) */
+    size_t move_base;   /* soft and dwell hold the moves from move_base on (those of the window) */
     const double *soft; /* per move: F * override capped by max_feed, or the rapid feed */
     const double *dwell; /* per move: seconds the tool stands in a dwell move, 0 for the others */
     double total;
     double *pieces;
     size_t piece_capacity;
+    int raised; /* set by schedule_plan: a station's velocity was raised above its hard cap (the start too fast) */
 } ScheduleView;
 
 double s_curve_time(double dv, double a, double j);

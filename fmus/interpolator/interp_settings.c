@@ -44,6 +44,7 @@ void interp_settings_of(const ModelVariables *v, InterpSettings *s) {
     s->update.rbf.weights[2] = v->rbf_weight_3, s->update.rbf.weights[3] = v->rbf_weight_4;
     s->update.rbf.weights[4] = v->rbf_weight_5;
     s->update.rbf.bias = v->rbf_bias;
+    s->lookahead = v->lookahead_blocks > 0 ? (size_t)v->lookahead_blocks : 0;
     s->gcode.start[0] = v->start_x, s->gcode.start[1] = v->start_y, s->gcode.start[2] = v->start_z;
     s->gcode.dialect = interp_dialect(v->dialect);
     s->gcode.home[0] = v->home_x, s->gcode.home[1] = v->home_y, s->gcode.home[2] = v->home_z;

@@ -11,6 +11,32 @@
 #define LANDING_SHARE 0.1 /* models/interpolator/param_update.py (until model_constants.h generates it) */
 #endif
 
+/* The look-ahead covers the whole program (no window) when it holds no more than `lookahead` moves. */
+static int whole_program(size_t lookahead, size_t n_moves) { return lookahead == 0 || n_moves <= lookahead; }
+
+/* The most intervals a window of `lookahead` consecutive moves holds (what the schedule's pieces need room for). */
+static int window_intervals(InterpPrepared *p, const char *file, char *error, size_t error_size) {
+    const PathBuild *path = &p->path;
+    size_t n = path->n_moves, W = p->lookahead, k, i, most = 0, *first;
+    p->window_intervals = path->n_ints;
+    if (whole_program(W, n)) return 0;
+    first = malloc((n + 1) * sizeof *first); /* first[m]: the first interval of move m */
+    if (!first) {
+        snprintf(error, error_size, "%s: out of memory for the look-ahead window", file);
+        return -1;
+    }
+    for (k = 0, i = 0; k < n; k++) {
+        while (i < path->n_ints && (size_t)path->int_move[i] < k) i++;
+        first[k] = i;
+    }
+    first[n] = path->n_ints;
+    for (k = 0; k + W <= n; k++)
+        if (first[k + W] - first[k] > most) most = first[k + W] - first[k];
+    free(first);
+    p->window_intervals = most;
+    return 0;
+}
+
 int interp_prepare(const char *text, size_t length, const char *file, const InterpSettings *settings,
                    InterpPrepared *prepared, char *error, size_t error_size) {
     memset(prepared, 0, sizeof *prepared);
@@ -18,6 +44,11 @@ int interp_prepare(const char *text, size_t length, const char *file, const Inte
     if (path_build(&prepared->program, &settings->limits, text, length, file, &prepared->path, error, error_size) !=
         0) {
         gc_free(&prepared->program);
+        return -1;
+    }
+    prepared->lookahead = settings->lookahead;
+    if (window_intervals(prepared, file, error, error_size) != 0) {
+        interp_release(prepared);
         return -1;
     }
     if (settings->gcode.n_tools) {
@@ -53,7 +84,13 @@ static void layout_of(const InterpPrepared *p, InterpLayout *L) {
     L->n_nodes = p->path.n_nodes;
     L->n_ints = p->path.n_ints;
     L->n_tools = p->n_tools;
-    L->piece_capacity = PIECES_PER_INTERVAL * L->n_ints + 8;
+    L->lookahead = whole_program(p->lookahead, L->n_moves) ? 0 : p->lookahead;
+    /* a window's plan: at most PIECES_PER_INTERVAL per interval and the final piece, after the pieces kept up to the
+     * next zero-acceleration moment (an S-curve's rest and a dwell: fewer than 8) */
+    if (L->lookahead)
+        L->piece_capacity = PIECES_PER_INTERVAL * p->window_intervals + 16;
+    else
+        L->piece_capacity = PIECES_PER_INTERVAL * L->n_ints + 8;
     at = 1; /* heap[0]: magic */
     L->moves = at, at += MOVE_DOUBLES * L->n_moves;
     L->curves = at, at += CURVE_DOUBLES * L->n_curves;
@@ -190,16 +227,60 @@ static void arc_of(const double *r, ArcParams *a) {
     a->theta0 = r[MR_THETA0], a->sweep = r[MR_SWEEP], a->r0 = r[MR_R0], a->r1 = r[MR_R1], a->height = r[MR_HEIGHT];
 }
 
+/* The node where the path enters move `next` (the first node whose right move is `next` or later). */
+static size_t node_of_move(const double *heap, const InterpLayout *L, size_t next) {
+    size_t lo = 0, hi = L->n_nodes - 1;
+    while (lo < hi) {
+        size_t mid = (lo + hi) / 2;
+        double right = heap[L->node_right + mid];
+        if (right >= 0.0 && right < (double)next)
+            lo = mid + 1;
+        else
+            hi = mid;
+    }
+    return lo;
+}
+
+/* The interval holding s (the last one whose start node is at or before s). */
+static size_t interval_of(const double *heap, const InterpLayout *L, double s) {
+    size_t lo = 0, hi = L->n_nodes - 2;
+    while (lo < hi) {
+        size_t mid = (lo + hi + 1) / 2;
+        if (heap[L->node_s + mid] <= s)
+            lo = mid;
+        else
+            hi = mid - 1;
+    }
+    return lo;
+}
+
+/* Plans the window from s_start; *raised: the start was too fast for a hard cap of the window (schedule_plan). */
 static int plan(double *heap, const InterpLayout *L, InterpState *st, const InterpSettings *settings, double s_start,
-                double v_start, double t_start, size_t first_piece) {
+                double v_start, double t_start, size_t first_piece, int *raised) {
     ScheduleView view;
-    double *soft = malloc(2 * (L->n_moves ? L->n_moves : 1) * sizeof *soft), *dwell;
-    size_t k;
+    double *soft, *dwell;
+    size_t k, first_move = 0, base = 0, end_move = L->n_moves, n_window;
     int status;
+    st->window_end = L->n_nodes ? L->n_nodes - 1 : 0;
+    st->at_end = 1;
+    st->replan_s = INFINITY;
+    if (L->lookahead && L->n_ints) {
+        first_move = (size_t)heap[L->int_move + interval_of(heap, L, s_start)];
+        if (first_move + L->lookahead < L->n_moves) {
+            end_move = first_move + L->lookahead; /* the first move after the window */
+            st->window_end = node_of_move(heap, L, end_move);
+            st->at_end = 0;
+            st->replan_s = move_record(heap, L, first_move + (L->lookahead + 1) / 2)[MR_S];
+        }
+        base = first_move ? first_move - 1 : 0; /* the node before the window's first names the move before it */
+        if (end_move < L->n_moves) end_move++;  /* and the window's last node the move after it */
+    }
+    n_window = end_move - base;
+    soft = malloc(2 * (n_window ? n_window : 1) * sizeof *soft);
     if (!soft) return -1;
-    dwell = soft + (L->n_moves ? L->n_moves : 1);
-    for (k = 0; k < L->n_moves; k++) {
-        const double *r = move_record(heap, L, k);
+    dwell = soft + (n_window ? n_window : 1);
+    for (k = 0; k < n_window; k++) {
+        const double *r = move_record(heap, L, base + k);
         dwell[k] = (int)r[MR_KIND] == MOVE_DWELL ? r[MR_DWELL] : 0.0;
         if ((int)r[MR_KIND] == MOVE_RAPID) {
             soft[k] = settings->rapid_feed;
@@ -208,13 +289,15 @@ static int plan(double *heap, const InterpLayout *L, InterpState *st, const Inte
             soft[k] = settings->max_feed < f ? settings->max_feed : f;
         }
     }
-    view.n_nodes = L->n_nodes, view.n_ints = L->n_ints, view.n_moves = L->n_moves;
+    view.n_nodes = L->n_nodes, view.n_ints = st->at_end ? L->n_ints : st->window_end, view.n_moves = L->n_moves;
     view.node_s = heap + L->node_s, view.node_vh = heap + L->node_vh, view.node_left = heap + L->node_left;
     view.node_right = heap + L->node_right, view.station = heap + L->station;
     view.int_move = heap + L->int_move, view.int_at = heap + L->int_at, view.int_jt = heap + L->int_jt;
-    view.int_cap = heap + L->int_cap, view.soft = soft, view.dwell = dwell, view.total = L->total;
+    view.int_cap = heap + L->int_cap, view.move_base = base, view.soft = soft, view.dwell = dwell;
+    view.total = st->at_end ? L->total : heap[L->node_s + st->window_end];
     view.pieces = heap + L->pieces, view.piece_capacity = L->piece_capacity;
     status = schedule_plan(&view, s_start, v_start, t_start, first_piece, &st->n_pieces, &st->hold, &st->end_time);
+    *raised = view.raised;
     free(soft);
     return status;
 }
@@ -225,40 +308,75 @@ static int dwell_piece(const double *pieces, size_t n_pieces, size_t k) {
     return pc[PC_V] == 0.0 && pc[PC_A] == 0.0 && pc[PC_J] == 0.0 && k + 1 < n_pieces;
 }
 
+static int replan(double *heap, const InterpLayout *L, InterpState *st, const InterpSettings *settings, double *s_r,
+                  double *v_r, int *raised);
+
 int interp_set_override(double *heap, const InterpLayout *L, InterpState *st, const InterpSettings *settings,
                         double override) {
-    const double *pieces = heap + L->pieces;
-    const double *pc;
-    double t_now, t_r, s_r, v_r;
-    size_t k;
+    double s_r, v_r;
+    int raised;
     if (st->planned && override == st->override) return 0;
     if (!st->planned) {
         st->planned = 1;
         st->override = override;
         st->piece = 0;
-        return plan(heap, L, st, settings, 0.0, 0.0, 0.0, 0);
+        return plan(heap, L, st, settings, 0.0, 0.0, 0.0, 0, &raised);
     }
     st->override = override;
     if (st->finished) return 0;
+    return replan(heap, L, st, settings, &s_r, &v_r, &raised);
+}
+
+/* Plans anew from the next zero-acceleration moment at or after the last tick, keeping the pieces up to it. */
+static int replan(double *heap, const InterpLayout *L, InterpState *st, const InterpSettings *settings, double *s_r,
+                  double *v_r, int *raised) {
+    const double *pieces = heap + L->pieces;
+    const double *pc;
+    double t_now, t_r;
+    size_t k;
     t_now = (double)st->tick * settings->limits.period;
     k = st->piece;
     pc = pieces + PIECE_DOUBLES * k;
     if (pc[PC_A] == 0.0 && pc[PC_J] == 0.0 && !dwell_piece(pieces, st->n_pieces, k)) {
         double tau = t_now - pc[PC_T];
-        t_r = t_now, s_r = pc[PC_S] + pc[PC_V] * tau, v_r = pc[PC_V];
+        t_r = t_now, *s_r = pc[PC_S] + pc[PC_V] * tau, *v_r = pc[PC_V];
     } else {
         k++;
         while (k < st->n_pieces &&
                !(pieces[PIECE_DOUBLES * k + PC_A] == 0.0 && !dwell_piece(pieces, st->n_pieces, k)))
             k++;
         pc = pieces + PIECE_DOUBLES * k;
-        t_r = pc[PC_T], s_r = pc[PC_S], v_r = pc[PC_V];
+        t_r = pc[PC_T], *s_r = pc[PC_S], *v_r = pc[PC_V];
     }
     memmove(heap + L->pieces, heap + L->pieces + PIECE_DOUBLES * st->piece,
             PIECE_DOUBLES * (k - st->piece) * sizeof *heap);
     k -= st->piece;
     st->piece = 0;
-    return plan(heap, L, st, settings, s_r, v_r, t_r, k);
+    return plan(heap, L, st, settings, *s_r, *v_r, t_r, k, raised);
+}
+
+/* The next look-ahead window, planned from the next zero-acceleration moment. Where the start there is too fast for
+ * a hard cap of the new window (the old plan stops at its window's end, which the S-curves between stations of the
+ * new one may not match for a cap just above rest there), the old plan is kept and the next zero-acceleration
+ * moment after that one is tried, at the latest the old window's end, at rest. */
+static int next_window(double *heap, const InterpLayout *L, InterpState *st, const InterpSettings *settings) {
+    size_t count = st->n_pieces - st->piece;
+    double *saved = malloc(PIECE_DOUBLES * count * sizeof *saved), s_r, v_r;
+    InterpState before;
+    int raised = 0, status;
+    if (!saved) return -1;
+    memcpy(saved, heap + L->pieces + PIECE_DOUBLES * st->piece, PIECE_DOUBLES * count * sizeof *saved);
+    memcpy(&before, st, sizeof before);
+    status = replan(heap, L, st, settings, &s_r, &v_r, &raised);
+    if (status == 0 && raised && v_r > 0.0) {
+        memcpy(st, &before, sizeof *st);
+        memcpy(heap + L->pieces, saved, PIECE_DOUBLES * count * sizeof *saved);
+        st->piece = 0;
+        st->n_pieces = count;
+        st->replan_s = nextafter(s_r, INFINITY);
+    }
+    free(saved);
+    return status;
 }
 
 static void set_final(const double *heap, const InterpLayout *L, InterpState *st) {
@@ -396,10 +514,13 @@ static void update_outputs(const double *heap, const InterpLayout *L, InterpStat
     out->coolant = (int)r[MR_COOLANT];
 }
 
-void interp_tick(double *heap, const InterpLayout *L, InterpState *st, const InterpSettings *settings) {
+int interp_tick(double *heap, const InterpLayout *L, InterpState *st, const InterpSettings *settings) {
     const double *pieces = heap + L->pieces, *pc;
     double t, tau, s, v, a;
     int done;
+    if (st->planned && !st->at_end && !st->finished && st->s >= st->replan_s &&
+        next_window(heap, L, st, settings) != 0)
+        return -1;
     st->tick++;
     t = (double)st->tick * settings->limits.period;
     while (st->piece + 1 < st->n_pieces && pieces[PIECE_DOUBLES * (st->piece + 1) + PC_T] <= t) st->piece++;
@@ -408,7 +529,7 @@ void interp_tick(double *heap, const InterpLayout *L, InterpState *st, const Int
     s = pc[PC_S] + tau * (pc[PC_V] + tau * (0.5 * pc[PC_A] + tau * pc[PC_J] / 6.0));
     v = pc[PC_V] + tau * (pc[PC_A] + 0.5 * tau * pc[PC_J]);
     a = pc[PC_A] + tau * pc[PC_J];
-    done = !st->hold && t >= st->end_time;
+    done = !st->hold && st->at_end && t >= st->end_time;
     if (done || s >= L->total) s = L->total;
     if (done) v = a = 0.0;
     if (s < st->s) s = st->s;
@@ -416,6 +537,7 @@ void interp_tick(double *heap, const InterpLayout *L, InterpState *st, const Int
     st->s = s, st->v = v, st->a = a;
     st->finished = done;
     update_outputs(heap, L, st, settings);
+    return 0;
 }
 
 int interp_holds_still(const double *heap, const InterpLayout *L, const InterpState *before,
@@ -438,5 +560,6 @@ int interp_check(const double *heap, size_t heap_size, const InterpLayout *L, co
     if (L->tools + TOOL_DOUBLES * L->n_tools != L->pieces) return -1;
     if (st->n_pieces > L->piece_capacity || st->piece >= (st->n_pieces ? st->n_pieces : 1)) return -1;
     if (L->n_moves && st->move >= L->n_moves) return -1;
+    if (L->n_nodes ? st->window_end >= L->n_nodes : st->window_end != 0) return -1;
     return 0;
 }

@@ -73,11 +73,13 @@ typedef struct {
     double max_feed, rapid_feed;
     UpdateSettings update;
     GcSettings gcode; /* start position, work offsets */
+    size_t lookahead; /* blocks (moves) the feed schedule looks ahead over; 0: the whole program */
 } InterpSettings;
 
 /* Offsets (in doubles) into the heap and counts: flat, part of the FMU state. */
 typedef struct {
     size_t heap_size;
+    size_t lookahead; /* blocks of the look-ahead window (0 or >= n_moves: the whole program at once) */
     size_t n_moves, n_curves, n_nodes, n_ints, piece_capacity, n_tools;
     size_t moves, curves, points, tools, node_s, node_vh, node_left, node_right, station, int_move, int_at, int_jt, int_cap,
         pieces;
@@ -103,6 +105,11 @@ typedef struct {
     double s, v, a;
     int finished, hold, planned;
     double end_time, override;
+    /* the look-ahead window of the plan: its last node (the plan ends at rest there), whether that is the program's
+     * end, and the path length from which on the next window is planned */
+    size_t window_end;
+    int at_end;
+    double replan_s;
     NurbsState nurbs;
     InterpOutputs out;
 } InterpState;
@@ -112,6 +119,8 @@ typedef struct {
     PathBuild path;
     GcTool *tools; /* a copy of the tool table */
     size_t n_tools;
+    size_t lookahead;       /* settings->lookahead */
+    size_t window_intervals; /* the most intervals any window of `lookahead` moves holds */
 } InterpPrepared;
 
 /* Parse and build the path; on error -1 with the message in `error`. Release with interp_release. */
@@ -126,11 +135,14 @@ void interp_release(InterpPrepared *prepared);
 void interp_initial_outputs(const InterpSettings *settings, InterpOutputs *out);
 void interp_start(InterpState *state, const InterpSettings *settings);
 /* Plans (first call) or re-plans from the next zero-acceleration moment after the last tick when the
- * override differs from the planned one. -1 when out of memory. */
+ * override differs from the planned one. Each plan covers the look-ahead window: the moves from the one at its
+ * start on, settings->lookahead of them (the whole program when it has no more), at rest at the window's end
+ * unless the program ends there. -1 when out of memory. */
 int interp_set_override(double *heap, const InterpLayout *layout, InterpState *state, const InterpSettings *settings,
                         double override);
-/* One interpolation period. */
-void interp_tick(double *heap, const InterpLayout *layout, InterpState *state, const InterpSettings *settings);
+/* One interpolation period; first, once the path passed the middle of the look-ahead window, the next window is
+ * planned (from the next zero-acceleration moment, as for an override). -1 when out of memory. */
+int interp_tick(double *heap, const InterpLayout *layout, InterpState *state, const InterpSettings *settings);
 /* Consistency of a layout and state with a heap (an FMU state from outside): 0 if usable. */
 int interp_check(const double *heap, size_t heap_size, const InterpLayout *layout, const InterpState *state);
 /* 1 when the feed is held, the tool stands still on the last piece of the plan and the tick from `before` to

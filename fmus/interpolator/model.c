@@ -187,7 +187,11 @@ FmuStatus model_do_step(FmuInstance *instance, double time, double step_size) {
         const bool still = w->state.hold && w->state.v == 0.0 && w->state.a == 0.0;
         InterpState before;
         if (still) memcpy(&before, &w->state, sizeof before);
-        interp_tick(instance->heap, &w->layout, &w->state, &w->settings);
+        if (interp_tick(instance->heap, &w->layout, &w->state, &w->settings) != 0) {
+            fmu_log(instance, FMU_ERROR, "logStatusError", "doStep: out of memory while planning the look-ahead "
+                                                           "window (parameter 'lookahead_blocks')");
+            return FMU_ERROR;
+        }
         /* After the program's end every further tick changes only the tick count and the piece index, which
          * the last tick sets as every tick would; in a feed hold at standstill nothing but the tick count
          * changes. Skip to the last tick (a long step would otherwise spin through one tick per period: 112 s

@@ -154,7 +154,7 @@ typedef struct {
 
 static int samples_push(Samples *x, double s, double v, double at, double jt) {
     if (x->n == x->cap) {
-        size_t cap = x->cap ? 2 * x->cap : 256;
+        size_t cap = x->cap ? 2 * x->cap : 2; /* a line or an arc: two samples (NURBS blocks grow) */
         double *a = realloc(x->s, cap * sizeof *a), *b, *c, *d;
         if (!a) return -1;
         x->s = a;

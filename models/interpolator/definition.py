@@ -25,6 +25,8 @@ RBF_DEFAULTS: dict[str, float] = {
 # END RBF DEFAULTS
 
 JERK_UNIT = "m/s3"
+# the default look-ahead window (blocks): more than any committed program holds, so those are planned whole
+LOOKAHEAD_BLOCKS = 2000
 
 
 def _variables() -> tuple[Variable, ...]:
@@ -151,6 +153,12 @@ def _variables() -> tuple[Variable, ...]:
                  unit="rad", display_unit="deg"),
         Variable("tool_flutes", "Int32", "output", "Number of flutes of the active tool (tool table; 0 without)"),
         Variable("coolant", "Int32", "output", "Coolant: 0 off (M9), 1 mist (M7), 2 flood (M8), 3 both"),
+        # last, so that the value references of the variables before it stay as they were
+        Variable("lookahead_blocks", "Int32", "parameter",
+                 "Blocks (moves) the feed schedule looks ahead over: planned at initialisation over the first "
+                 "window, at rest at its end unless the program ends there, and re-planned as the middle of the "
+                 "window is passed; a program of no more moves is planned whole (docs/interpolator.md)",
+                 start=LOOKAHEAD_BLOCKS, min=2, max=parser.MAX_MOVES, variability=fixed),
     ]
     return tuple(v)
 

@@ -20,6 +20,18 @@ TOOL_OUTPUTS = ("tool_number", "tool_diameter", "tool_corner_radius", "tool_leng
                 "tool_helix_angle", "tool_flutes")
 
 
+def next_node_of_move(node_right: Sequence[int], move: int) -> int:
+    """The node where the path enters `move` (the first node whose right move is `move` or later)."""
+    lo, hi = 0, len(node_right) - 1
+    while lo < hi:
+        mid = (lo + hi) // 2
+        if 0 <= node_right[mid] < move:
+            lo = mid + 1
+        else:
+            hi = mid
+    return lo
+
+
 class Interpolator:
     """The FMU's behaviour, tick by tick (one tick = one interpolation period)."""
 
@@ -45,6 +57,11 @@ class Interpolator:
         self.a = 0.0
         self.nurbs = NurbsState()
         self.override = None
+        # the look-ahead window (interpolator.c): 0 when the program is planned whole
+        lookahead = int(p.get("lookahead_blocks", 0))
+        self.lookahead = 0 if lookahead <= 0 or len(self.program.moves) <= lookahead else lookahead
+        self.at_end = True
+        self.replan_s = math.inf
         start = self.program.start
         self.out = self.initial_outputs(p)
         self.position = list(start)
@@ -60,6 +77,44 @@ class Interpolator:
                 "coolant": 0.0, **{name: 0.0 for name in TOOL_OUTPUTS}}
 
     # -- schedule --
+    def plan(self, s_start: float, v_start: float, t_start: float, override: float) -> None:
+        """Plans the look-ahead window from s_start: the moves from the one holding s_start on, `lookahead` of
+        them (to the program's end when it has no more), at rest at the window's end unless the program ends
+        there; the next window is planned once the path passes the start of the window's middle move."""
+        path = self.path
+        window_end = None
+        self.at_end, self.replan_s = True, math.inf
+        if self.lookahead and path.int_move:
+            first_move = path.int_move[self.schedule.interval_at(s_start)]
+            if first_move + self.lookahead < len(self.program.moves):
+                end_move = first_move + self.lookahead
+                window_end = next_node_of_move(path.node_right, end_move)
+                self.at_end = False
+                self.replan_s = path.move_s[first_move + (self.lookahead + 1) // 2]
+        self.schedule.plan(s_start, v_start, t_start, override, window_end)
+
+    def replan(self, t_now: float) -> tuple[float, float]:
+        """Plans anew from the next zero-acceleration moment at or after t_now, keeping the pieces up to it; that
+        moment's s and v."""
+        t_r, s_r, v_r, k = self.replan_point(t_now)
+        kept = self.schedule.pieces[self.piece:k]
+        self.plan(s_r, v_r, t_r, self.override)
+        self.schedule.pieces = kept + self.schedule.pieces
+        self.piece = 0
+        return s_r, v_r
+
+    def next_window(self) -> None:
+        """The next look-ahead window, from the next zero-acceleration moment; where the start there is too fast
+        for a hard cap of the new window, the old plan is kept and the next such moment after it tried
+        (interpolator.c next_window)."""
+        sch = self.schedule
+        saved = (sch.pieces[self.piece:], sch.hold, sch.end_time, sch.n_int, sch.end, self.at_end)
+        s_r, v_r = self.replan(self.tick_count * self.period)
+        if sch.raised and v_r > 0.0:
+            sch.pieces, sch.hold, sch.end_time, sch.n_int, sch.end, self.at_end = saved
+            self.piece = 0
+            self.replan_s = math.nextafter(s_r, math.inf)
+
     def replan_point(self, t_now: float) -> tuple[float, float, float, int]:
         """(t, s, v, piece index) of the first moment at or after t_now with zero acceleration."""
         pieces = self.schedule.pieces
@@ -85,20 +140,18 @@ class Interpolator:
             return
         if self.override is None:
             self.override = override
-            self.schedule.plan(0.0, 0.0, 0.0, override)
+            self.plan(0.0, 0.0, 0.0, override)
             self.piece = 0
             return
         self.override = override
         if self.finished:
             return
-        t_r, s_r, v_r, k = self.replan_point(t_now)
-        kept = self.schedule.pieces[self.piece:k]
-        self.schedule.plan(s_r, v_r, t_r, override)
-        self.schedule.pieces = kept + self.schedule.pieces
-        self.piece = 0
+        self.replan(t_now)
 
     # -- one tick --
     def tick(self) -> None:
+        if self.override is not None and not self.at_end and not self.finished and self.s >= self.replan_s:
+            self.next_window()
         self.tick_count += 1
         t = self.tick_count * self.period
         sch = self.schedule
@@ -111,7 +164,7 @@ class Interpolator:
         v = pc.v + tau * (pc.a + 0.5 * tau * pc.j)
         a = pc.a + tau * pc.j
         total = self.path.total
-        done = (not sch.hold) and t >= sch.end_time
+        done = (not sch.hold) and self.at_end and t >= sch.end_time
         if done or s >= total:
             s = total
         if done:

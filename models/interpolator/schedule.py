@@ -142,6 +142,11 @@ class Schedule:
         self.pieces: list[Piece] = []
         self.end_time = 0.0
         self.hold = False
+        # the part of the path planned over: intervals 0..n_int - 1, ending at rest at s = end (the look-ahead
+        # window of engine.py; the whole path unless plan() is given a window)
+        self.n_int = len(path.int_move)
+        self.end = path.total
+        self.raised = False  # the last plan raised a station's velocity above its hard cap (the start too fast)
 
     def soft(self, move: int) -> float:
         if move < 0:
@@ -175,7 +180,7 @@ class Schedule:
     def segments(self, s_start: float, first_interval: int) -> list[Segment]:
         path = self.path
         out: list[Segment] = []
-        n_int = len(path.int_move)
+        n_int = self.n_int
         i = first_interval
         s0 = s_start
         while i < n_int:
@@ -200,7 +205,7 @@ class Schedule:
 
     def velocities(self, segs: list[Segment], v_start: float) -> None:
         """Station velocities: backward envelope over every cap, then forward from v_start, raised
-        where the start is above new (soft) caps and cannot slow down in time."""
+        where the start is above new (soft) caps and cannot slow down in time (``raised``: above a hard cap)."""
         path = self.path
         n = len(segs)
         caps = [0.0] * (n + 1)
@@ -213,6 +218,7 @@ class Schedule:
         b[0] = BIG
         v = [0.0] * (n + 1)
         v[0] = v_start
+        raised = False
         for k in range(1, n + 1):
             sg = segs[k - 1]
             vk = min(b[k], reach_up(v[k - 1], sg.length, sg.a, sg.j))
@@ -222,12 +228,14 @@ class Schedule:
             # mm/s instead of at rest)
             if vk < v[k - 1] and s_curve_distance(vk, v[k - 1], sg.a, sg.j) > sg.length * (1.0 + VIOLATION_TOLERANCE):
                 vk = lowest_feasible(v[k - 1], vk, sg.length, sg.a, sg.j)
+            if vk > (path.node_vh[segs[k].first] if k < n else 0.0) * (1.0 + VIOLATION_TOLERANCE):
+                raised = True
             v[k] = vk
         for k in range(n):
             segs[k].va = v[k]
             segs[k].vb = v[k + 1]
             segs[k].vp = segment_peak(v[k], v[k + 1], segs[k].length, segs[k].cap, segs[k].a, segs[k].j)
-        del path
+        self.raised = raised
 
     def violations(self, segs: list[Segment]) -> list[int]:
         """Nodes to make stations: per segment the violated node with the lowest cap, or the two ends of the
@@ -278,11 +286,16 @@ class Schedule:
                                 add.append(node)
         return add
 
-    def plan(self, s_start: float, v_start: float, t_start: float, override: float) -> None:
-        """Schedule from (s_start, v_start, zero acceleration) at t_start to the end of the program."""
+    def plan(self, s_start: float, v_start: float, t_start: float, override: float,
+             window_end: int | None = None) -> None:
+        """Schedule from (s_start, v_start, zero acceleration) at t_start to the end of the program, or to node
+        window_end, at rest there."""
         path = self.path
+        self.n_int = len(path.int_move) if window_end is None else window_end
+        self.end = path.total if window_end is None else path.node_s[window_end]
         self.override = override
         self.hold = False
+        self.raised = False
         if not path.int_move:
             self.pieces = [Piece(t_start, s_start, 0.0, 0.0, 0.0)]
             self.end_time = t_start
@@ -322,7 +335,7 @@ class Schedule:
                 t += cruise / sg.vp
                 s += cruise
             t, s = _s_curve_pieces(pieces, t, s, sg.vp, sg.vb, sg.a, sg.j)
-        pieces.append(Piece(t, self.path.total, 0.0, 0.0, 0.0))
+        pieces.append(Piece(t, self.end, 0.0, 0.0, 0.0))
         self.end_time = t
         return pieces
 

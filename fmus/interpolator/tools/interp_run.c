@@ -1,16 +1,18 @@
 /* Standalone driver of the interpolator engine (the FMU's C code without the FMI wrapper):
  *
  *   interp_run [--param name=value ...] [--dialect fanuc|linuxcnc|sinumerik] [--tool-table tool.tbl]
- *              [--csv out.csv] [--repeat N] [--override x] program.nc
+ *              [--csv out.csv] [--repeat N] [--override x] [--timing] [--until t] program.nc
  *
- * Parameters take the FMU's variable names and SI values (period, method, corrector_predictor,
- * corrector_tolerance, max_feed, rapid_feed, acceleration, jerk, centripetal_acceleration, chord_error,
- * axis_acceleration_x.., axis_jerk_x.., start_x.., g54_x..g59_z, rbf_*). Runs the program to its end, one
- * tick per interpolation period; --csv writes every point (tick, t, x, y, z, feed, path_acceleration, u,
- * line, move, s, x_program, y_program, z_program, vx, vy, vz); --repeat N times the tick loop N times
- * (parsing and scheduling excluded) and prints the median cost per interpolation point. Parameters not given
- * keep the model definition's start values (model_set_start_values); --param goes through the FMU's generated
- * variable table. Built by CMake from the same sources as the FMU (fmus/interpolator/interpolator.cmake). */
+ * Parameters take the FMU's variable names and SI values (period, method, corrector_predictor, corrector_tolerance,
+ * max_feed, rapid_feed, acceleration, jerk, centripetal_acceleration, chord_error, axis_acceleration_x..,
+ * axis_jerk_x.., start_x.., g54_x..g59_z, rbf_*, lookahead_blocks). Runs the program to its end, one tick per
+ * interpolation period; --csv writes every point (tick, t, x, y, z, feed, path_acceleration, u, line, move, s,
+ * x_program, y_program, z_program, vx, vy, vz); --repeat N times the tick loop N times (parsing and scheduling
+ * excluded) and prints the median cost per interpolation point; --timing prints the seconds of the initialisation
+ * (parsing and path, the heap, the first plan), of the run, and of the longest tick (the re-plans of the look-ahead
+ * window happen in ticks); --until t stops the run after t seconds of machine time. Parameters not given keep the
+ * model definition's start values (model_set_start_values); --param goes through the FMU's generated variable
+ * table. Built by CMake from the same sources as the FMU (fmus/interpolator/interpolator.cmake). */
 #define _POSIX_C_SOURCE 199309L
 #include <stdio.h>
 #include <stdlib.h>
@@ -90,8 +92,9 @@ int main(int argc, char **argv) {
     GcTool *tools = NULL;
     size_t n_tools = 0;
     ModelVariables variables;
-    int repeat = 0, k;
-    double override = 1.0, *heap, *costs = NULL;
+    int repeat = 0, k, timing = 0;
+    double t_begin = now_ns(), t_prepared = 0.0, t_installed = 0.0, t_planned = 0.0, longest = 0.0;
+    double override = 1.0, until = 0.0, *heap, *costs = NULL;
     size_t length = 0;
     char *text, error[1024];
     FILE *out = NULL;
@@ -112,11 +115,16 @@ int main(int argc, char **argv) {
             repeat = atoi(argv[++k]);
         } else if (strcmp(argv[k], "--override") == 0 && k + 1 < argc) {
             override = atof(argv[++k]);
+        } else if (strcmp(argv[k], "--until") == 0 && k + 1 < argc) {
+            until = atof(argv[++k]);
+        } else if (strcmp(argv[k], "--timing") == 0) {
+            timing = 1;
         } else if (argv[k][0] != '-' && !program) {
             program = argv[k];
         } else {
             fprintf(stderr, "usage: interp_run [--param name=value ...] [--dialect fanuc|linuxcnc|sinumerik] "
-                            "[--tool-table tool.tbl] [--csv out.csv] [--repeat N] [--override x] program.nc\n");
+                            "[--tool-table tool.tbl] [--csv out.csv] [--repeat N] [--override x] [--timing] "
+                            "[--until t] program.nc\n");
             return 2;
         }
     }
@@ -159,12 +167,14 @@ int main(int argc, char **argv) {
     }
     free(text);
     free(tools);
+    t_prepared = now_ns();
     settings.gcode.tools = NULL;
     settings.gcode.n_tools = 0;
     heap = calloc(interp_heap_size(&prepared), sizeof *heap);
     if (!heap) return 3;
     interp_install(&prepared, heap, &layout);
     interp_release(&prepared);
+    t_installed = now_ns();
     if (csv) {
         out = fopen(csv, "w");
         if (!out) {
@@ -182,8 +192,11 @@ int main(int argc, char **argv) {
         interp_start(&state, &settings);
         if (interp_set_override(heap, &layout, &state, &settings, override) != 0) return 3;
         start = now_ns();
-        while (!state.out.finished) {
-            interp_tick(heap, &layout, &state, &settings);
+        if (k == 0) t_planned = start;
+        while (!state.out.finished && !(until > 0.0 && (double)state.tick * settings.limits.period >= until)) {
+            double before = timing ? now_ns() : 0.0;
+            if (interp_tick(heap, &layout, &state, &settings) != 0) return 3;
+            if (timing && now_ns() - before > longest) longest = now_ns() - before;
             if (out && k == 0)
                 fprintf(out, "%lld,%.17g,%.17g,%.17g,%.17g,%.17g,%.17g,%.17g,%d,%zu,%.17g,%.17g,%.17g,%.17g,%.17g,%.17g,%.17g\n",
                         (long long)state.tick, (double)state.tick * settings.limits.period, state.out.x[0],
@@ -197,6 +210,10 @@ int main(int argc, char **argv) {
         if (k == 0)
             printf("moves %zu nodes %zu length %.9g m time %.6f s points %lld\n", layout.n_moves, layout.n_nodes,
                    layout.total, (double)ticks * settings.limits.period, (long long)ticks);
+        if (k == 0 && timing)
+            printf("timing parse_and_path %.3f s heap %.3f s first_plan %.3f s run %.3f s longest_tick %.4f s\n",
+                   (t_prepared - t_begin) * 1e-9, (t_installed - t_prepared) * 1e-9, (t_planned - t_installed) * 1e-9,
+                   (now_ns() - t_planned) * 1e-9, longest * 1e-9);
     }
     if (out) fclose(out);
     if (costs) {

@@ -1,0 +1,151 @@
+"""Benchmark of the interpolator on part programs of 10^4..10^6 lines: the time to initialise (parse, build the
+path, plan the first look-ahead window), the time to stream the program (every interpolation period, with the
+window's re-plans), the longest single engine call and the peak memory. A script, not a timed test:
+
+    .venv/bin/python tests/benchmarks/interpolator_large_programs.py [--lines 1000000] [--until 600]
+        [--lookahead 2000] [--kinds finishing zigzag]
+
+Programs (generated, deterministic):
+- finishing: a 3D finishing raster over a free-form surface z(x, y) (two crossed sines): rows along X 0.2 mm
+  apart, boustrophedon, G1 moves of 0.05-0.5 mm (lengths from a fixed pseudo-random sequence) at F3000;
+- zigzag: sharp corners only: X alternating 0 and 1 mm, Y advancing 0.05 mm per move, at F1200 (every corner a
+  near reversal: the path slows to the junction speed at each).
+
+Runs the standalone driver build/tools/interp_run (the FMU's C engine) with --timing; --until stops the stream
+after that many seconds of machine time (the real-time factor is machine time over the stream's wall time).
+Peak memory: the driver's maximum resident set (wait4's rusage of that child).
+"""
+from __future__ import annotations
+
+import argparse
+import math
+import os
+import subprocess
+import sys
+import tempfile
+import time
+from dataclasses import dataclass
+from pathlib import Path
+
+REPO = Path(__file__).resolve().parents[2]
+DRIVER = REPO / "build" / "tools" / "interp_run"
+HEADER = "G21 G90 G17 G54\nS6000 M3\nG0 X0 Y0 Z5\n"
+
+
+def surface(x: float, y: float) -> float:
+    """The free-form surface of the finishing program, mm."""
+    return 2.0 * math.sin(x / 7.0) * math.cos(y / 11.0) + 0.5 * math.sin(x / 2.3 + y / 3.1)
+
+
+def finishing_program(lines: int, width: float = 100.0, stepover: float = 0.2) -> str:
+    """A raster finishing program of `lines` lines (header and end included) over `surface`."""
+    out = [HEADER, f"G1 Z{surface(0.0, 0.0):.4f} F3000\n"]
+    count = 4
+    x, y, forward, seed = 0.0, 0.0, True, 0.0
+    while count < lines - 2:
+        seed = (seed * 9301.0 + 49297.0) % 233280.0
+        step = 0.05 + 0.45 * seed / 233280.0
+        end = width if forward else 0.0
+        if (end - x) * (1.0 if forward else -1.0) <= step:
+            x = end
+            out.append(f"X{x:.4f} Z{surface(x, y):.4f}\n")
+            y += stepover
+            out.append(f"Y{y:.4f} Z{surface(x, y):.4f}\n")
+            count += 2
+            forward = not forward
+            continue
+        x += step if forward else -step
+        out.append(f"X{x:.4f} Z{surface(x, y):.4f}\n")
+        count += 1
+    out.append("G0 Z5\nM30\n")
+    return "".join(out)
+
+
+def zigzag_program(lines: int) -> str:
+    """A program of `lines` lines whose moves all end in a sharp corner (a near reversal)."""
+    out = [HEADER, "G1 Z0 F1200\n"]
+    out += [f"X{(k % 2):d} Y{0.05 * (k + 1):.4f}\n" for k in range(lines - 6)]
+    out.append("G0 Z5\nM30\n")
+    return "".join(out)
+
+
+PROGRAMS = {"finishing": finishing_program, "zigzag": zigzag_program}
+
+
+@dataclass
+class Measured:
+    kind: str
+    lines: int
+    moves: int
+    parse_and_path: float
+    heap: float
+    first_plan: float
+    machine_time: float
+    stream: float
+    longest_tick: float
+    peak_mb: float
+
+    @property
+    def initialisation(self) -> float:
+        return self.parse_and_path + self.heap + self.first_plan
+
+
+def run_driver(program: Path, lookahead: int, until: float) -> tuple[str, float]:
+    """interp_run --timing on `program`: its output and the child's peak resident set (MB)."""
+    command = [str(DRIVER), "--timing", "--param", f"lookahead_blocks={lookahead}"]
+    if until > 0:
+        command += ["--until", str(until)]
+    with tempfile.TemporaryFile("w+") as out, tempfile.TemporaryFile("w+") as err:
+        child = subprocess.Popen(command + [str(program)], stdout=out, stderr=err)
+        _, status, usage = os.wait4(child.pid, 0)
+        child.returncode = os.waitstatus_to_exitcode(status)
+        out.seek(0)
+        err.seek(0)
+        if child.returncode != 0:
+            raise SystemExit(f"{program}: interp_run failed ({child.returncode}): {err.read().strip()}")
+        return out.read(), usage.ru_maxrss / 1024.0
+
+
+def parse_output(kind: str, lines: int, stdout: str, peak_mb: float) -> Measured:
+    first, second = stdout.splitlines()[:2]
+    f, s = first.split(), second.split()
+    return Measured(kind, lines, int(f[1]), float(s[2]), float(s[5]), float(s[8]), float(f[8]), float(s[11]),
+                    float(s[14]), peak_mb)
+
+
+def measure(kind: str, lines: int, lookahead: int, until: float, folder: Path) -> Measured:
+    program = folder / f"{kind}_{lines}.nc"
+    program.write_text(PROGRAMS[kind](lines))
+    stdout, peak = run_driver(program, lookahead, until)
+    program.unlink()
+    return parse_output(kind, lines, stdout, peak)
+
+
+def main() -> int:
+    parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    parser.add_argument("--lines", type=int, nargs="+", default=[1_000_000])
+    parser.add_argument("--kinds", nargs="+", choices=sorted(PROGRAMS), default=sorted(PROGRAMS))
+    parser.add_argument("--lookahead", type=int, default=2000)
+    parser.add_argument("--until", type=float, default=600.0,
+                        help="machine seconds to stream (0: the whole program)")
+    args = parser.parse_args()
+    if not DRIVER.exists():
+        raise SystemExit(f"{DRIVER}: not built (cmake --build build)")
+    print(f"{'program':>10} {'lines':>9} {'init s':>7} {'(parse+path':>11} {'heap':>6} {'plan)':>6} "
+          f"{'machine s':>10} {'stream s':>9} {'x real':>7} {'longest call s':>14} {'peak MB':>8}")
+    with tempfile.TemporaryDirectory() as tmp:
+        for lines in args.lines:
+            for kind in args.kinds:
+                start = time.perf_counter()
+                m = measure(kind, lines, args.lookahead, args.until, Path(tmp))
+                longest = max(m.longest_tick, m.first_plan)
+                print(f"{kind:>10} {lines:>9} {m.initialisation:>7.2f} {m.parse_and_path:>11.2f} {m.heap:>6.2f} "
+                      f"{m.first_plan:>6.2f} {m.machine_time:>10.1f} {m.stream:>9.2f} "
+                      f"{m.machine_time / max(m.stream, 1e-9):>7.0f} {longest:>14.3f} {m.peak_mb:>8.0f}"
+                      f"   ({time.perf_counter() - start:.0f} s with generation)", flush=True)
+    return 0
+
+
+if __name__ == "__main__":
+    os.environ.setdefault("PYTHONHASHSEED", "0")
+    sys.exit(main())

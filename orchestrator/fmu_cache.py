@@ -142,14 +142,20 @@ def extract(filename: str | os.PathLike[str], unzipdir: str | os.PathLike[str] |
                 target.parent.mkdir(parents=True, exist_ok=True)
                 digest = hashlib.sha256()
                 size = 0
-                with zf.open(info) as src, open(target, "xb") as dst:
-                    written.append(target)
-                    while chunk := src.read(_CHUNK):
-                        size += len(chunk)
-                        total += len(chunk)
-                        _check_limits(filename, info.filename, total, archive_size, limit)
-                        digest.update(chunk)
-                        dst.write(chunk)
+                try:
+                    with zf.open(info) as src, open(target, "xb") as dst:
+                        written.append(target)
+                        while chunk := src.read(_CHUNK):
+                            size += len(chunk)
+                            total += len(chunk)
+                            _check_limits(filename, info.filename, total, archive_size, limit)
+                            digest.update(chunk)
+                            dst.write(chunk)
+                except OSError as exc:  # a full disk: the message names the file (a write error names none)
+                    if exc.filename is not None:
+                        raise
+                    raise OSError(exc.errno, f"FMU {filename}: cannot unzip {info.filename!r}: "
+                                             f"{exc.strerror or exc}", str(target)) from exc
                 files["/".join(parts)] = [size, digest.hexdigest()]
         manifest = folder / MANIFEST
         manifest.write_text(json.dumps({"files": files}, indent=0, sort_keys=True), encoding="utf-8")
@@ -229,8 +235,8 @@ def unpack(fmu: Path, sha256: str) -> Unpacked:
         return Unpacked(extract(str(fmu)), True)
     try:
         extract(str(fmu), unzipdir=tmp)
-        if folder.is_dir():  # damaged: moved aside in one step (a run using it keeps its open files)
-            _discard(folder, sha256)
+        if folder.is_dir() and damage(folder) is not None:  # moved aside in one step (a run using it keeps
+            _discard(folder, sha256)  # its open files); one another run has just put there is used instead
         os.rename(tmp, folder)  # atomic; fails when another run has put it there first
     except BaseException as exc:
         shutil.rmtree(tmp, ignore_errors=True)

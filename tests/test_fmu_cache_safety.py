@@ -3,8 +3,10 @@ a damaged cache entry is unzipped again, unsafe entry names and zip bombs are re
 FMU and the entry (no folder left), and a binary that cannot be loaded is the FMU's problem, whatever --out is."""
 from __future__ import annotations
 
+import errno
 import os
 import re
+import shutil
 import tempfile
 import zipfile
 from pathlib import Path
@@ -165,3 +167,53 @@ def test_a_binary_that_cannot_be_loaded_is_the_fmus_problem(fmu_dir, tmp_path, c
     binary, reason = Path(match.group(1)), match.group(2)
     assert binary.is_file() and binary.read_bytes() == b"not a shared library" and binary.name == "SpindlePower.so"
     assert "too short" in reason and "Failed to load" not in reason and str(binary) not in reason
+
+
+def test_a_damaged_entry_another_run_has_just_repaired_is_used(fmu_dir, cache, monkeypatch):
+    fmu = fmu_dir / "SpindlePower.fmu"
+    binary = _binary_name(fmu)
+    folder = Path(fmu_cache.unpack(fmu, sha256_of(fmu)).folder)
+    original = (folder / binary).read_bytes()
+    _damage_garbage(folder, binary)
+    real = fmu_cache.extract
+
+    def extract_while_another_run_repairs(filename, unzipdir=None):
+        done = real(filename, unzipdir=unzipdir)
+        (folder / binary).write_bytes(original)  # the other run's folder, renamed into place meanwhile
+        return done
+
+    monkeypatch.setattr(fmu_cache, "extract", extract_while_another_run_repairs)
+    discarded: list[Path] = []
+    monkeypatch.setattr(fmu_cache, "_discard", lambda path, digest: discarded.append(path))
+    assert fmu_cache.unpack(fmu, sha256_of(fmu)).folder == str(folder)
+    assert discarded == [] and [p.name for p in cache.iterdir()] == [sha256_of(fmu)]
+
+
+@pytest.fixture
+def full_tmpfs(tmp_path):
+    """A 2 MB tmpfs with 100 kB free (root only)."""
+    import subprocess
+
+    mount = tmp_path / "tmpfs"
+    mount.mkdir()
+    if os.geteuid() != 0 or shutil.which("mount") is None:
+        pytest.skip("mounting a tmpfs needs root")
+    done = subprocess.run(["mount", "-t", "tmpfs", "-o", "size=2M", "tmpfs", str(mount)], capture_output=True)
+    if done.returncode != 0:
+        pytest.skip(f"cannot mount a tmpfs here: {done.stderr.decode(errors='replace').strip()}")
+    try:
+        with open(mount / "filler", "wb") as fh:
+            fh.write(bytes(shutil.disk_usage(mount).free - 100_000))
+        yield mount
+    finally:
+        subprocess.run(["umount", str(mount)], check=False)
+
+
+def test_unzipping_onto_a_full_disk_names_the_fmu_and_leaves_no_folder(fmu_dir, monkeypatch, full_tmpfs):
+    monkeypatch.setenv(fmu_cache.CACHE_ENV, str(full_tmpfs / "cache"))
+    fmu = fmu_dir / "CuttingForce.fmu"  # 1.7 MB unzipped
+    with pytest.raises(OSError) as info:
+        fmu_cache.unpack(fmu, sha256_of(fmu))
+    assert info.value.errno == errno.ENOSPC and f"FMU {fmu}: cannot unzip " in str(info.value)
+    assert str(full_tmpfs / "cache") in str(info.value.filename)
+    assert list((full_tmpfs / "cache").iterdir()) == []

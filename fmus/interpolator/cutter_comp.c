@@ -330,6 +330,25 @@ static void keep_xy(GcMove *out, const GcMove *m, const double cur[2]) {
     out->end[0] = cur[0], out->end[1] = cur[1];
 }
 
+/* 1 when compensating would change nothing: no move is compensated and every move without XY motion already stands
+ * where the XY moves before it ended (what keep_xy sets), so the copy below would equal the program. */
+static int unchanged(const GcProgram *program) {
+    double cur[2], r;
+    size_t i;
+    cur[0] = program->start[0], cur[1] = program->start[1];
+    for (i = 0; i < program->n_moves; i++) {
+        const GcMove *m = &program->moves[i];
+        if (comp_side(m, &r) != 0) return 0;
+        if (!xy_motion(m)) {
+            if (m->start[0] != cur[0] || m->start[1] != cur[1] || m->end[0] != cur[0] || m->end[1] != cur[1])
+                return 0;
+        } else {
+            cur[0] = m->end[0], cur[1] = m->end[1];
+        }
+    }
+    return 1;
+}
+
 int cutter_compensate(GcProgram *program, const char *text, size_t length, const char *file, char *error,
                       size_t error_size) {
     Context ctx;
@@ -339,7 +358,7 @@ int cutter_compensate(GcProgram *program, const char *text, size_t length, const
     double cur[2];
     int closing = 0;
     ctx.text = text, ctx.length = length, ctx.file = file, ctx.error = error, ctx.error_size = error_size;
-    if (n == 0) return 0;
+    if (n == 0 || unchanged(program)) return 0; /* (a program without G41/G42: no copy of its moves) */
     if (n > SIZE_MAX / 2 / sizeof *out) {
         snprintf(error, error_size, "%s: out of memory for the compensated moves", file);
         return -1;

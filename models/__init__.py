@@ -1,7 +1,7 @@
 """Model definitions: the single source of truth for every FMU's equations (see models.definition).
 
 The definitions are imported on first use (PEP 562 ``__getattr__``): ``import models.units`` (the
-orchestrator's unit handling) does not pay for casadi and the seven model graphs.
+orchestrator's unit handling) does not pay for casadi and the eight model graphs.
 """
 from __future__ import annotations
 
@@ -13,6 +13,7 @@ if TYPE_CHECKING:
     from milling_twin.models.definition import ModelDefinition, Variable
     from milling_twin.models.force_net import FORCE_NET
     from milling_twin.models.interpolator import INTERPOLATOR
+    from milling_twin.models.measuring_chain import MEASURING_CHAIN
     from milling_twin.models.mrr_estimator import MRR_ESTIMATOR
     from milling_twin.models.power import POWER
     from milling_twin.models.vibration import VIBRATION
@@ -23,7 +24,8 @@ if TYPE_CHECKING:
 # definition -> its module, in the order of MODELS
 _DEFINITIONS = {"POWER": "milling_twin.models.power", "MRR_ESTIMATOR": "milling_twin.models.mrr_estimator", "VIBRATION": "milling_twin.models.vibration",
                 "CUTTING_FORCE": "milling_twin.models.cutting_force", "WORKPIECE": "milling_twin.models.workpiece",
-                "INTERPOLATOR": "milling_twin.models.interpolator", "FORCE_NET": "milling_twin.models.force_net"}
+                "INTERPOLATOR": "milling_twin.models.interpolator", "FORCE_NET": "milling_twin.models.force_net",
+                "MEASURING_CHAIN": "milling_twin.models.measuring_chain"}
 
 __all__ = ["MODELS", "ModelDefinition", "Variable", *_DEFINITIONS]
 

@@ -46,10 +46,8 @@ def _failed(path: Path, tmp: Path, exc: OSError) -> OSError:
     another file, e.g. of a nested atomic write, is left as it is)."""
     if exc.filename is not None and str(exc.filename) != str(tmp):
         return exc
-    if exc.errno is None:
-        error = OSError(f"{exc}: {str(path)!r}")
-        error.filename = str(path)
-        return error
+    if exc.errno is None:  # numpy's tofile on a full disk: "20000 requested and 2947 written", no errno
+        return OSError(errno.EIO, f"{exc} (a short write)", str(path))
     return OSError(exc.errno, exc.strerror or str(exc), str(path))  # FileNotFoundError etc. by its errno
 
 

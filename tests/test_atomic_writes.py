@@ -101,6 +101,8 @@ def _complete(path: Path) -> bool:
         return True
     if path.suffix == ".md":
         return b"## Figures" in data and data.endswith(b"\n")
+    if path.suffix == ".stl":  # binary STL: an 80-byte header, the triangle count, 50 bytes a triangle
+        return len(data) >= 84 and len(data) == 84 + 50 * int.from_bytes(data[80:84], "little")
     if path.suffix == ".csv":
         return data.endswith(b"\n") and data.count(b"\n") > 1
     return True
@@ -129,7 +131,7 @@ def test_a_file_is_written_whole_with_the_usual_permissions(tmp_path):
     assert atomic_files.write_with(tmp_path / "x.csv", writer) == 7 and (tmp_path / "x.csv").read_text() == "a\n1\n"
 
 
-@pytest.mark.parametrize("failure", ["write", "fsync", "rename", "interrupt"])
+@pytest.mark.parametrize("failure", ["write", "short write", "fsync", "rename", "interrupt"])
 def test_a_failed_write_keeps_the_old_file_and_leaves_no_temporary_one(tmp_path, monkeypatch, failure):
     from milling_twin.orchestrator import atomic_files
 
@@ -149,6 +151,8 @@ def test_a_failed_write_keeps_the_old_file_and_leaves_no_temporary_one(tmp_path,
         tmp.write_text('{"new": ')
         if failure == "write":
             raise OSError(errno.ENOSPC, os.strerror(errno.ENOSPC))
+        if failure == "short write":  # numpy's tofile (numpy-stl's binary STL) on a full disk
+            raise OSError("20000 requested and 2947 written")
         if failure == "interrupt":
             raise KeyboardInterrupt
 
@@ -157,7 +161,9 @@ def test_a_failed_write_keeps_the_old_file_and_leaves_no_temporary_one(tmp_path,
         atomic_files.write_with(path, writer)
     if expected is OSError:
         assert info.value.filename == str(path) and str(path) in str(info.value)
-        assert info.value.errno == {"write": errno.ENOSPC, "fsync": errno.EIO, "rename": errno.EXDEV}[failure]
+        assert info.value.errno == {"write": errno.ENOSPC, "short write": errno.EIO, "fsync": errno.EIO,
+                                    "rename": errno.EXDEV}[failure]
+        assert "None" not in str(info.value)
     assert path.read_text() == '{"old": true}'
     assert os.listdir(tmp_path) == ["report.json"]
 
@@ -297,13 +303,12 @@ def test_a_full_disk_while_the_study_summary_is_written(tmp_path, monkeypatch, t
 # --- a real full disk: a 2 MB tmpfs (root only) ---------------------------------------------------------------
 
 
-@pytest.fixture
-def small_tmpfs(tmp_path):
+def _tmpfs(tmp_path: Path, size: str):
     mount = tmp_path / "tmpfs"
     mount.mkdir()
     if os.geteuid() != 0 or shutil.which("mount") is None:
         pytest.skip("mounting a tmpfs needs root")
-    done = subprocess.run(["mount", "-t", "tmpfs", "-o", "size=2M", "tmpfs", str(mount)], capture_output=True)
+    done = subprocess.run(["mount", "-t", "tmpfs", "-o", f"size={size}", "tmpfs", str(mount)], capture_output=True)
     if done.returncode != 0:
         pytest.skip(f"cannot mount a tmpfs here: {done.stderr.decode(errors='replace').strip()}")
     try:
@@ -312,11 +317,24 @@ def small_tmpfs(tmp_path):
         subprocess.run(["umount", str(mount)], check=False)
 
 
+@pytest.fixture
+def small_tmpfs(tmp_path):
+    yield from _tmpfs(tmp_path, "2M")
+
+
+@pytest.fixture
+def tmpfs_16m(tmp_path):
+    yield from _tmpfs(tmp_path, "16M")
+
+
+def _fill(mount: Path, leave: int) -> None:
+    with open(mount / "filler", "wb") as fh:
+        fh.write(bytes(shutil.disk_usage(mount).free - leave))
+
+
 def test_a_calibration_onto_a_full_tmpfs_fails_cleanly(power_case, fmu_dir, small_tmpfs):
     """The calibration's outputs take about 1.5 MB; the tmpfs is filled up to leave 300 kB."""
-    free = shutil.disk_usage(small_tmpfs).free
-    with open(small_tmpfs / "filler", "wb") as fh:
-        fh.write(bytes(free - 300_000))
+    _fill(small_tmpfs, 300_000)
     done = subprocess.run([sys.executable, "-m", "milling_twin", "calibrate", str(power_case), "--fmu-dir",
                            str(fmu_dir), "--out", str(small_tmpfs / "out"), "--no-progress"],
                           capture_output=True, text=True, timeout=600)
@@ -327,4 +345,29 @@ def test_a_calibration_onto_a_full_tmpfs_fails_cleanly(power_case, fmu_dir, smal
     assert _leftovers(small_tmpfs) == []
     folder = small_tmpfs / "out" / "calibration" / "power_case"
     for path in (p for p in folder.rglob("*") if p.is_file() and "runs" not in p.relative_to(folder).parts):
+        assert _complete(path), f"{path} is truncated"
+
+
+def test_a_whole_part_run_onto_a_full_tmpfs_fails_cleanly(fmu_dir, tmp_path, tmpfs_16m):
+    """The run's results fit, its process report (HTML 0.5 MB, STL 0.6 MB) does not."""
+    from test_part_report import PART_EDITS, PROGRAM, TOOLS, write_part
+
+    scenario = write_part(tmp_path / "part", *PART_EDITS, program=PROGRAM, tools=TOOLS)
+
+    def run_into(out: Path) -> subprocess.CompletedProcess:
+        return subprocess.run([sys.executable, "-m", "milling_twin", "run", str(scenario), "--fmu-dir", str(fmu_dir),
+                               "--out", str(out), "--no-progress"], capture_output=True, text=True, timeout=600)
+
+    assert run_into(tmp_path / "complete").returncode == 0
+    folder = next((tmp_path / "complete").iterdir())
+    sizes = {p.name: p.stat().st_size for p in folder.rglob("*") if p.is_file()}
+    _fill(tmpfs_16m, sum(sizes.values()) - sizes["part.stl"] // 2 - sizes["process_report.html"])
+    done = run_into(tmpfs_16m / "out")
+    err = done.stderr.strip()
+    assert done.returncode == 1 and "Traceback" not in err, err
+    last = err.splitlines()[-1]
+    assert last.startswith("error: ") and str(tmpfs_16m / "out" / folder.name) in last, err
+    assert re.search(r"\[Errno \d+\] [^:]+: '[^']+/(part\.stl|process_report\.html|final_zmap\.asc)'", last), last
+    assert _leftovers(tmpfs_16m) == []
+    for path in (p for p in (tmpfs_16m / "out").rglob("*") if p.is_file()):
         assert _complete(path), f"{path} is truncated"

@@ -130,6 +130,8 @@ class TomlAccess:
 def nesting_problem(text: str, limit: int = MAX_TOML_DEPTH) -> str | None:
     """Where TOML ``text`` nests arrays and inline tables deeper than ``limit`` ("line L, column C: ..."), or
     None; strings and comments are skipped, the rest of the syntax is left to the parser."""
+    if text.count("[") + text.count("{") <= limit:  # cannot nest deeper: the scan is skipped
+        return None
     depth, line, start, i, n = 0, 1, 0, 0, len(text)
     while i < n:
         c = text[i]

@@ -387,4 +387,4 @@ def test_an_unwritable_results_folder_is_one_clean_error(make_case, fmu_dir: Pat
     out = tmp_path / "afile" / "runs"
     code = main(["run", str(make_case()), "--fmu-dir", str(fmu_dir), "--out", str(out), "--no-progress"])
     assert code == 1 and capsys.readouterr().err == (
-        f"error: cannot write the results to {out / 'case'}: [Errno 20] Not a directory: '{out / 'case' / 'chunks'}'\n")
+        f"error: cannot write the results to {out / 'case'}: [Errno 20] Not a directory: '{out / 'case'}'\n")

@@ -52,6 +52,7 @@ MAX_ENTRIES = 100_000
 KEEP = 32  # FMUs kept in the cache
 STALE_SECONDS = 3600.0  # a hidden temporary folder this old was left by a killed process
 MANIFEST = ".milling_twin_files.json"  # in each cached folder: {"files": {name: [size, sha256]}}
+NO_RECORD = f"no record of its files ({MANIFEST})"
 _CHUNK = 1 << 20
 _DRIVE = re.compile(r"^[A-Za-z]:")
 _log = logging.getLogger(__name__)
@@ -181,6 +182,8 @@ def _check_limits(fmu: str | os.PathLike[str], entry: str, total: int, archive_s
 def damage(folder: Path) -> str | None:
     """Why the cached ``folder`` differs from its record (None: every recorded file as unzipped, no other)."""
     base = str(folder)
+    if not os.path.isfile(os.path.join(base, MANIFEST)):
+        return NO_RECORD
     try:
         with open(os.path.join(base, MANIFEST), encoding="utf-8") as fh:
             files = json.load(fh)["files"]
@@ -226,7 +229,10 @@ def unpack(fmu: Path, sha256: str) -> Unpacked:
             except OSError:
                 pass
             return Unpacked(str(folder), False)
-        _log.warning("FMU cache: %s (of %s) is damaged (%s): unzipping it again", folder, fmu, problem)
+        if problem == NO_RECORD:  # unzipped by a version that kept no list: expected once after an upgrade
+            _log.info("FMU cache: %s (of %s) has %s: unzipping it again", folder, fmu, problem)
+        else:
+            _log.warning("FMU cache: %s (of %s) is damaged (%s): unzipping it again", folder, fmu, problem)
     try:
         root.mkdir(parents=True, exist_ok=True)
         tmp = tempfile.mkdtemp(prefix=f".{sha256}.", dir=root)

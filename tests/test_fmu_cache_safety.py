@@ -217,3 +217,12 @@ def test_unzipping_onto_a_full_disk_names_the_fmu_and_leaves_no_folder(fmu_dir, 
     assert info.value.errno == errno.ENOSPC and f"FMU {fmu}: cannot unzip " in str(info.value)
     assert str(full_tmpfs / "cache") in str(info.value.filename)
     assert list((full_tmpfs / "cache").iterdir()) == []
+
+
+def test_a_folder_of_an_older_cache_without_a_file_list_is_unzipped_again_quietly(fmu_dir, cache, caplog):
+    fmu = fmu_dir / "SpindlePower.fmu"
+    folder = Path(fmu_cache.unpack(fmu, sha256_of(fmu)).folder)
+    (folder / fmu_cache.MANIFEST).unlink()
+    caplog.set_level("INFO", logger=fmu_cache.__name__)
+    assert fmu_cache.unpack(fmu, sha256_of(fmu)).folder == str(folder) and (folder / fmu_cache.MANIFEST).is_file()
+    assert fmu_cache.NO_RECORD in caplog.text and not [r for r in caplog.records if r.levelname == "WARNING"]

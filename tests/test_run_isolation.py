@@ -421,3 +421,26 @@ def test_a_study_or_calibration_folder_in_use_is_refused(tmp_path: Path, fmu_dir
     assert main(["sweep", str(study), "--fmu-dir", str(fmu_dir), "--out", str(out), "--workers", "0",
                  "--no-progress"]) == 0
     assert not _hidden(out)
+
+
+def test_an_ssp_archive_named_dotdot_is_refused(make_case, fmu_dir: Path, tmp_path: Path, capsys) -> None:
+    """An SSP archive's SystemStructureDescription name becomes the run's folder too."""
+    import zipfile
+
+    archive = tmp_path / "case.ssp"
+    assert main(["export-ssp", str(make_case()), "-o", str(archive), "--fmu-dir", str(fmu_dir)]) == 0
+    capsys.readouterr()
+    bad = tmp_path / "bad.ssp"
+    with zipfile.ZipFile(archive) as src, zipfile.ZipFile(bad, "w") as dst:
+        for item in src.infolist():
+            data = src.read(item)
+            if item.filename == "SystemStructure.ssd":
+                data = data.replace(b'name="case"', b'name=".."', 1)
+                assert b'name=".."' in data
+            dst.writestr(item, data)
+    code = main(["run", str(bad), "--out", str(tmp_path / "out"), "--no-progress"])
+    assert code == 2
+    assert capsys.readouterr().err == (
+        f"error: {bad}: SystemStructure.ssd: <ssd:SystemStructureDescription name='..'>: '..' is made of dots only "
+        "('.' and '..' name a folder outside the output folder): it names the run's folder <out>/<name>/\n")
+    assert not (tmp_path / "run.json").exists() and not (tmp_path / "chunks").exists()

@@ -26,6 +26,7 @@ import tomli_w
 from fmpy import read_model_description
 from lxml import etree
 
+from milling_twin.orchestrator.safe_names import name_problem
 from milling_twin.orchestrator.scenario import Scenario, ScenarioError, _Ctx, with_values
 from milling_twin.orchestrator.scenario import load_scenario as load
 from milling_twin.orchestrator.ssp.common import (MT_TYPE, OSP_TYPE, SSD_NAME, SspError, describe, find_annotation, q,
@@ -170,6 +171,9 @@ def scenario_document(reader: _Reader, folder: Path) -> dict[str, Any]:
     base = float(fixed.get("baseStepSize")) if fixed is not None and fixed.get("baseStepSize") else None
     own = find_annotation(system, "ssd", MT_TYPE, q("mt", "Scenario"))
     name = re.sub(r"[^A-Za-z0-9_.-]", "_", root.get("name")) or "ssp"
+    if name_problem(name) is not None:  # the name of the run's folder <out>/<name>/
+        reader.fail(SSD_NAME, f"<ssd:SystemStructureDescription name={root.get('name')!r}>: {name!r} "
+                              f"{name_problem(name)}: it names the run's folder <out>/<name>/")
     header: dict[str, Any] = {"name": name, "start_time": float(experiment.get("startTime", "0")),
                               "stop_time": float(experiment.get("stopTime"))}
     if system.get("description"):

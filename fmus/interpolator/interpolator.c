@@ -41,6 +41,11 @@ int interp_prepare(const char *text, size_t length, const char *file, const Inte
                    InterpPrepared *prepared, char *error, size_t error_size) {
     memset(prepared, 0, sizeof *prepared);
     if (gc_parse(text, length, file, &settings->gcode, &prepared->program, error, error_size) != 0) return -1;
+    if (prepared->program.cap_moves > prepared->program.n_moves && prepared->program.n_moves) {
+        /* the moves' array grew by doubling: give back what the program did not fill (up to half of it) */
+        GcMove *fitted = realloc(prepared->program.moves, prepared->program.n_moves * sizeof *fitted);
+        if (fitted) prepared->program.moves = fitted, prepared->program.cap_moves = prepared->program.n_moves;
+    }
     if (path_build(&prepared->program, &settings->limits, text, length, file, &prepared->path, error, error_size) !=
         0) {
         gc_free(&prepared->program);
@@ -296,6 +301,13 @@ static int plan(double *heap, const InterpLayout *L, InterpState *st, const Inte
     view.int_cap = heap + L->int_cap, view.move_base = base, view.soft = soft, view.dwell = dwell;
     view.total = st->at_end ? L->total : heap[L->node_s + st->window_end];
     view.pieces = heap + L->pieces, view.piece_capacity = L->piece_capacity;
+    if (L->n_ints) { /* room for what the plan may write (a state from outside may not fit its layout) */
+        size_t first = interval_of(heap, L, s_start);
+        if (first >= view.n_ints || first_piece + PIECES_PER_INTERVAL * (view.n_ints - first) + 1 > L->piece_capacity) {
+            free(soft);
+            return -1;
+        }
+    }
     status = schedule_plan(&view, s_start, v_start, t_start, first_piece, &st->n_pieces, &st->hold, &st->end_time);
     *raised = view.raised;
     free(soft);

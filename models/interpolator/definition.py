@@ -26,7 +26,7 @@ RBF_DEFAULTS: dict[str, float] = {
 
 JERK_UNIT = "m/s3"
 # the default look-ahead window (blocks): more than any committed program holds, so those are planned whole
-LOOKAHEAD_BLOCKS = 2000
+LOOKAHEAD_BLOCKS = 1000
 
 
 def _variables() -> tuple[Variable, ...]:

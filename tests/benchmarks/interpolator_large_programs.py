@@ -3,7 +3,7 @@ path, plan the first look-ahead window), the time to stream the program (every i
 window's re-plans), the longest single engine call and the peak memory. A script, not a timed test:
 
     .venv/bin/python tests/benchmarks/interpolator_large_programs.py [--lines 1000000] [--until 600]
-        [--lookahead 2000] [--kinds finishing zigzag]
+        [--lookahead 1000] [--kinds finishing zigzag]
 
 Programs (generated, deterministic):
 - finishing: a 3D finishing raster over a free-form surface z(x, y) (two crossed sines): rows along X 0.2 mm
@@ -13,7 +13,8 @@ Programs (generated, deterministic):
 
 Runs the standalone driver build/tools/interp_run (the FMU's C engine) with --timing; --until stops the stream
 after that many seconds of machine time (the real-time factor is machine time over the stream's wall time).
-Peak memory: the driver's maximum resident set (wait4's rusage of that child).
+Peak memory: the driver's own peak resident set (VmHWM, Linux; getrusage would count the image of the process that
+started it, before exec).
 """
 from __future__ import annotations
 
@@ -26,6 +27,8 @@ import tempfile
 import time
 from dataclasses import dataclass
 from pathlib import Path
+
+from milling_twin.models.interpolator.definition import LOOKAHEAD_BLOCKS
 
 REPO = Path(__file__).resolve().parents[2]
 DRIVER = REPO / "build" / "tools" / "interp_run"
@@ -90,42 +93,37 @@ class Measured:
         return self.parse_and_path + self.heap + self.first_plan
 
 
-def run_driver(program: Path, lookahead: int, until: float) -> tuple[str, float]:
-    """interp_run --timing on `program`: its output and the child's peak resident set (MB)."""
+def run_driver(program: Path, lookahead: int, until: float) -> str:
+    """interp_run --timing on `program`: its output."""
     command = [str(DRIVER), "--timing", "--param", f"lookahead_blocks={lookahead}"]
     if until > 0:
         command += ["--until", str(until)]
-    with tempfile.TemporaryFile("w+") as out, tempfile.TemporaryFile("w+") as err:
-        child = subprocess.Popen(command + [str(program)], stdout=out, stderr=err)
-        _, status, usage = os.wait4(child.pid, 0)
-        child.returncode = os.waitstatus_to_exitcode(status)
-        out.seek(0)
-        err.seek(0)
-        if child.returncode != 0:
-            raise SystemExit(f"{program}: interp_run failed ({child.returncode}): {err.read().strip()}")
-        return out.read(), usage.ru_maxrss / 1024.0
+    done = subprocess.run(command + [str(program)], capture_output=True, text=True, check=False)
+    if done.returncode != 0:
+        raise SystemExit(f"{program}: interp_run failed ({done.returncode}): {done.stderr.strip()}")
+    return done.stdout
 
 
-def parse_output(kind: str, lines: int, stdout: str, peak_mb: float) -> Measured:
+def parse_output(kind: str, lines: int, stdout: str) -> Measured:
     first, second = stdout.splitlines()[:2]
     f, s = first.split(), second.split()
     return Measured(kind, lines, int(f[1]), float(s[2]), float(s[5]), float(s[8]), float(f[8]), float(s[11]),
-                    float(s[14]), peak_mb)
+                    float(s[14]), float(s[17]))
 
 
 def measure(kind: str, lines: int, lookahead: int, until: float, folder: Path) -> Measured:
     program = folder / f"{kind}_{lines}.nc"
     program.write_text(PROGRAMS[kind](lines))
-    stdout, peak = run_driver(program, lookahead, until)
+    stdout = run_driver(program, lookahead, until)
     program.unlink()
-    return parse_output(kind, lines, stdout, peak)
+    return parse_output(kind, lines, stdout)
 
 
 def main() -> int:
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     parser.add_argument("--lines", type=int, nargs="+", default=[1_000_000])
     parser.add_argument("--kinds", nargs="+", choices=sorted(PROGRAMS), default=sorted(PROGRAMS))
-    parser.add_argument("--lookahead", type=int, default=2000)
+    parser.add_argument("--lookahead", type=int, default=LOOKAHEAD_BLOCKS)
     parser.add_argument("--until", type=float, default=600.0,
                         help="machine seconds to stream (0: the whole program)")
     args = parser.parse_args()

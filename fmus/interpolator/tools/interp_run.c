@@ -10,9 +10,10 @@
  * x_program, y_program, z_program, vx, vy, vz); --repeat N times the tick loop N times (parsing and scheduling
  * excluded) and prints the median cost per interpolation point; --timing prints the seconds of the initialisation
  * (parsing and path, the heap, the first plan), of the run, and of the longest tick (the re-plans of the look-ahead
- * window happen in ticks); --until t stops the run after t seconds of machine time. Parameters not given keep the
- * model definition's start values (model_set_start_values); --param goes through the FMU's generated variable
- * table. Built by CMake from the same sources as the FMU (fmus/interpolator/interpolator.cmake). */
+ * window happen in ticks), and the peak resident memory (Linux; -1 elsewhere); --until t stops the run after t
+ * seconds of machine time. Parameters not given keep the model definition's start values (model_set_start_values);
+ * --param goes through the FMU's generated variable table. Built by CMake from the same sources as the FMU
+ * (fmus/interpolator/interpolator.cmake). */
 #define _POSIX_C_SOURCE 199309L
 #include <stdio.h>
 #include <stdlib.h>
@@ -70,6 +71,19 @@ static char *read_all(const char *path, size_t *length) {
     fclose(f);
     if (text) text[n] = '\0', *length = (size_t)n;
     return text;
+}
+
+/* The process's peak resident memory in MB (VmHWM of /proc/self/status: this program's own, not the pre-exec
+ * image's that getrusage would include); -1 where there is no such file. */
+static double peak_mb(void) {
+    char line[256];
+    double kb = -1.0;
+    FILE *f = fopen("/proc/self/status", "r");
+    if (!f) return -1.0;
+    while (fgets(line, sizeof line, f))
+        if (strncmp(line, "VmHWM:", 6) == 0) kb = atof(line + 6);
+    fclose(f);
+    return kb < 0.0 ? -1.0 : kb / 1024.0;
 }
 
 static double now_ns(void) {
@@ -211,9 +225,10 @@ int main(int argc, char **argv) {
             printf("moves %zu nodes %zu length %.9g m time %.6f s points %lld\n", layout.n_moves, layout.n_nodes,
                    layout.total, (double)ticks * settings.limits.period, (long long)ticks);
         if (k == 0 && timing)
-            printf("timing parse_and_path %.3f s heap %.3f s first_plan %.3f s run %.3f s longest_tick %.4f s\n",
+            printf("timing parse_and_path %.3f s heap %.3f s first_plan %.3f s run %.3f s longest_tick %.4f s "
+                   "peak %.1f MB\n",
                    (t_prepared - t_begin) * 1e-9, (t_installed - t_prepared) * 1e-9, (t_planned - t_installed) * 1e-9,
-                   (now_ns() - t_planned) * 1e-9, longest * 1e-9);
+                   (now_ns() - t_planned) * 1e-9, longest * 1e-9, peak_mb());
     }
     if (out) fclose(out);
     if (costs) {

@@ -25,8 +25,8 @@ sequence F_k, each held over [t_k, t_k + h], reaches the modes as its fundamenta
 e^{-j w h/2} sinc(w h/2) (``zero_order_hold``), while the feedthrough reads the force currently set (no delay
 when the next force is set before the outputs are read, the orchestrator's order; a whole step h when they are
 read first). So the sampled response is (H(j w) - D) e^{-j w h/2} sinc(w h/2) + D (or D e^{-j w h}) up to the
-aliases of the modes: measured 7.5e-7 absolute (3e-7 of |H|) at 2 kHz with h = 10 us and two modes of
-900 and 1700 Hz, 1e4 times less at h = 1 us; tests/test_measuring_chain.py. To first order in w h it is
+aliases of the modes: at most 1.4e-6 of |H| over the harmonics of 100 Hz to 2 kHz with h = 10 us and the
+three modes (900, 1700, 3100 Hz) of tests/test_measuring_chain.py, 1e4 times less at h = 1 us. To first order in w h it is
 H(j w) e^{-j w h/2} when the gains sum to the identity (no feedthrough); otherwise the feedthrough's
 half-step offset, |D| w h/2, is the first-order difference.
 """

@@ -273,6 +273,7 @@ RUNS = {
                   "axial_depth": (0.002, 0.0), "entry_angle": (0.3, 0.0), "exit_angle": (2.8, 0.0),
                   "displacement_x": (0.0, 1e-3), "displacement_y": (0.0, -2e-3)}, 1e-4, 600),
     "Interpolator": ({"feed_override": (0.8, 0.4)}, 1e-3, 1500),
+    "MeasuringChain": ({"force_x": (100.0, 2e4), "force_y": (-50.0, 1e4), "force_z": (20.0, -5e3)}, 1e-5, 2000),
     "MrrEstimator": ({"feed_velocity_x": (0.01, 0.01), "feed_velocity_y": (0.0, 0.004)}, 1e-3, 300),
     "SpindlePower": ({"spindle_speed": (100.0, 2000.0), "spindle_speed_command": (628.3, 0.0), "mrr": (1e-7, 1e-6),
                       "cutting_power": (50.0, 800.0)}, 1e-3, 500),

@@ -112,7 +112,7 @@ def test_static_gain_is_the_identity(fmu: Path) -> None:
     force = np.array([[420.0, -180.0, 95.0]])
     actual = run(fmu, CHAIN, np.repeat(force, 2000, axis=0), 1e-4)
     assert np.max(np.abs(actual[0] - force[0])) > 10.0  # the first step is not yet settled
-    assert np.max(np.abs(actual[-1] - force[0])) < 1e-9 * np.max(np.abs(force))
+    assert np.max(np.abs(actual[-1] - force[0])) < 1e-12 * np.max(np.abs(force))
     assert np.array_equal(frequency_response(CHAIN, [0.0])[0], np.eye(3))
 
 
@@ -121,7 +121,9 @@ def test_periodic_force_reaches_the_frequency_response_with_the_hold(fmu: Path) 
     """Harmonics of 100 Hz up to 2 kHz on every axis, run 0.12 s at 10 us until the transient has decayed below
     1e-10, the last period (10 ms) analysed: each harmonic of the measured force equals the frequency
     response's prediction (the modal part through the hold e^{-jwh/2} sinc(wh/2), the feedthrough a step late
-    as this loop reads it) to 1e-5 of the largest harmonic, and the exact sampled response to 1e-8."""
+    as this loop reads it) to 1e-6 of the largest harmonic (measured 1.8e-7), and the exact sampled response to
+    1e-11 (measured 2.4e-14). Without the hold the continuous H is off by 3.2 %, H e^{-jwh/2} alone by 0.21 %
+    (the feedthrough's half step)."""
     h, period, periods = 1e-5, 1000, 12
     rng = np.random.default_rng(3)
     t = h * np.arange(period * periods + 1)
@@ -139,12 +141,12 @@ def test_periodic_force_reaches_the_frequency_response_with_the_hold(fmu: Path) 
     y_predicted = np.einsum("kij,kj->ki", predicted, u[bins])
     y_exact = np.einsum("kij,kj->ki", exact, u[bins])
     scale = np.max(np.abs(y[bins]))
-    assert np.max(np.abs(y[bins] - y_predicted)) < 1e-5 * scale
-    assert np.max(np.abs(y[bins] - y_exact)) < 1e-8 * scale
-    assert np.max(np.abs(y[0] - u[0])) < 1e-8 * np.max(np.abs(u[0]))  # the mean force passes unchanged
+    assert np.max(np.abs(y[bins] - y_predicted)) < 1e-6 * scale
+    assert np.max(np.abs(y[bins] - y_exact)) < 1e-11 * scale
+    assert np.max(np.abs(y[0] - u[0])) < 1e-12 * np.max(np.abs(u[0]))  # the mean force passes unchanged
     # without the hold's delay the prediction is off by far more: what the hold does is visible
     y_continuous = np.einsum("kij,kj->ki", frequency_response(CHAIN, frequencies), u[bins])
-    assert np.max(np.abs(y[bins] - y_continuous)) > 1e-3 * scale
+    assert np.max(np.abs(y[bins] - y_continuous)) > 1e-2 * scale
 
 
 def test_sampled_response_read_after_the_new_force_is_set() -> None:

@@ -222,10 +222,11 @@ class RunFolder:
         self.run_id = uuid.uuid4().hex
         self._fd: int | None = fd
         record = json.dumps({"pid": os.getpid(), "run_id": self.run_id, "since": _now()}).encode()
-        try:
-            os.ftruncate(fd, 0)
+        try:  # written, then cut to its length if longer (truncating to 0 first makes ext4 flush it on close)
             os.lseek(fd, 0, os.SEEK_SET)
             os.write(fd, record)
+            if os.fstat(fd).st_size > len(record):
+                os.ftruncate(fd, len(record))
         except OSError:  # only informative (the busy message); a full disk must not stop the run here
             pass
 

@@ -31,7 +31,7 @@ from pathlib import Path
 from milling_twin.models.interpolator.definition import LOOKAHEAD_BLOCKS
 
 REPO = Path(__file__).resolve().parents[2]
-DRIVER = REPO / "build" / "tools" / "interp_run"
+DRIVER = Path(os.environ.get("MILLING_TWIN_INTERP_RUN", REPO / "build" / "tools" / "interp_run"))
 HEADER = "G21 G90 G17 G54\nS6000 M3\nG0 X0 Y0 Z5\n"
 
 

@@ -56,15 +56,16 @@ def test_binned_objective_equals_the_time_series_one(setup, data: Path) -> None:
     rng = np.random.default_rng(0)
     noisy = [replace(r, forces=r.forces + rng.normal(0, 20.0, r.forces.shape)) for r in learn.recordings]
     binned = sf.SlotData(noisy, 0, 2)
-    params = sf._parameters(spec, scenario, {}) + sf._phase_parameters(binned)
-    model = sf.waveform_model(scenario, binned, params)
+    params = sf._parameters(spec, scenario, sf.fitted_names(scenario, spec), {}) + sf._phase_parameters(binned)
+    slot = sf.slot_model(scenario, spec, binned.recordings, [len(w) for w in binned.waves])
+    model = sf.waveform_model(slot, binned, params)
     theta = np.array([800e6, 200e6, 100e6, 20e3, 15e3, 10e3, 5e-6, 0.3, 1.1, 2.0])
     weights = np.array([0.01, 0.02, 0.03])
     r, _ = model.residual_jacobian(theta, model.data_vector(np.concatenate(binned.waves), weights))
     binned_ssr = float(r @ r) + model.extra_ssr(weights)
     naive = 0.0
     for i, rec in enumerate(noisy):
-        tool = dict(zip(sf.COEFFICIENTS + ("runout_offset",), theta[:7]))
+        tool = dict(zip(slot.coefficients, theta[:7]))
         sim = forces(rec.feed, rec.time, tool, theta[7 + i])
         naive += float(np.sum(((sim - rec.forces) * weights) ** 2))
     assert binned_ssr == pytest.approx(naive, rel=1e-9)
@@ -73,10 +74,11 @@ def test_binned_objective_equals_the_time_series_one(setup, data: Path) -> None:
 
 def test_noise_free_waveform_fit_recovers_the_tool(setup) -> None:
     spec, scenario, learn = setup
-    params = sf._parameters(spec, scenario, {}) + sf._phase_parameters(learn)
-    model = sf.waveform_model(scenario, learn, params)
+    params = sf._parameters(spec, scenario, sf.fitted_names(scenario, spec), {}) + sf._phase_parameters(learn)
+    slot = sf.slot_model(scenario, spec, learn.recordings, [len(w) for w in learn.waves])
+    model = sf.waveform_model(slot, learn, params)
     fitted = [q.name.split(".")[1] for q in params if not q.nuisance]
-    strategy = sf.alternating(sf.PhaseSearch(scenario, learn, fitted), len(fitted), model.scale())
+    strategy = sf.alternating(sf.PhaseSearch(slot, learn), len(fitted), model.scale())
     start = np.array([q.initial for q in params])
     outcome = fit(model, np.concatenate(learn.waves), weights=[1.0] * 3, sigma=[None] * 3,
                   solver=replace(spec.solver, starts=1, max_iterations=100), statistics=spec.statistics,

@@ -83,12 +83,16 @@ class LeastSquaresSolver:
     """IPOPT built once for a problem; :meth:`solve` runs one start."""
 
     def __init__(self, problem: LeastSquaresProblem, *, max_iterations: int = 200, tolerance: float = 1e-10,
-                 hessian: str = "gauss-newton") -> None:
+                 hessian: str = "gauss-newton", expand: bool = False) -> None:
+        """``expand``: IPOPT evaluates the problem as one SX graph (faster for a graph of many small scalar
+        operations, such as a force model mapped over hundreds of angles; slower to build)."""
         self.problem = problem
         x, p, r = problem.x, problem.p, problem.residual
         jac = ca.jacobian(r, x)
         self.check = ca.Function("lsq_check", [x, p], [r, jac])
         self.residual = ca.Function("lsq_residual", [x, p], [r])
+        if expand:
+            self.check, self.residual = self.check.expand(), self.residual.expand()
         self.max_iterations, self.tolerance, self.hessian = max_iterations, tolerance, hessian
         if problem.algorithm not in ("ipopt", "levenberg-marquardt"):
             raise ValueError(f"unknown least-squares algorithm {problem.algorithm!r}")
@@ -98,6 +102,8 @@ class LeastSquaresSolver:
         options: dict = {"print_time": False, "error_on_fail": False,
                          "ipopt": {"print_level": 0, "sb": "yes", "max_iter": max_iterations, "tol": tolerance,
                                    "acceptable_tol": max(tolerance * 1e3, 1e-8), "acceptable_iter": 10}}
+        if expand:
+            options["expand"] = True
         if problem.strict_bounds:
             options["ipopt"]["bound_relax_factor"] = 0.0
             options["ipopt"]["honor_original_bounds"] = "yes"
@@ -107,6 +113,8 @@ class LeastSquaresSolver:
             hess = lam_f * ca.mtimes(jac.T, jac)
             options["hess_lag"] = ca.Function("nlp_hess_l", [x, p, lam_f, lam_g], [ca.triu(hess)],
                                               ["x", "p", "lam_f", "lam_g"], ["triu_hess_gamma_x_x"])
+            if expand:
+                options["hess_lag"] = options["hess_lag"].expand()
         self.nlp = ca.nlpsol("calibration", "ipopt", nlp, options)
         n_g = problem.constraints.numel()
         self.lbg = self.ubg = np.zeros(n_g)

@@ -37,7 +37,7 @@ import math
 import os
 import time
 from collections.abc import Mapping
-from dataclasses import replace
+from dataclasses import dataclass, replace
 from pathlib import Path
 from typing import Any
 
@@ -46,7 +46,8 @@ import numpy as np
 from matplotlib.figure import Figure as MplFigure
 
 from milling_twin import datasets
-from milling_twin.models.cutting_force import CUTTING_FORCE, equations, mean_slot_forces
+from milling_twin.models.cutting_force import CHIP_LAW_POWER_EDGE, CUTTING_FORCE, mean_slot_forces
+from milling_twin.models.measuring_chain import MEASURING_CHAIN
 from milling_twin.orchestrator.calibrate.errors import CalibrationError
 from milling_twin.orchestrator.calibrate.fit import FitOutcome, fit
 from milling_twin.orchestrator.calibrate.graph import NO_DATA_DERIVATIVE
@@ -56,6 +57,9 @@ from milling_twin.orchestrator.calibrate.paramset import write_parameter_set, wr
 from milling_twin.orchestrator.calibrate.plots import figure_png
 from milling_twin.orchestrator.calibrate.residuals import ResidualModel, from_outputs
 from milling_twin.orchestrator.calibrate.result import CalibrationResult, Figure, Series, Table, error_row
+from milling_twin.orchestrator.calibrate.slot_model import (CHAIN_INSTANCE, LAW_COEFFICIENTS, SlotModel,
+                                                           chain_harmonics, chain_parameter_names, identify_chain)
+from milling_twin.orchestrator.calibrate.statistics import with_intervals
 from milling_twin.orchestrator.calibrate.scenario_fit import (check_tokens, describe_overrides, identities,
                                                             record_and_publish, with_overrides)
 from milling_twin.orchestrator.calibrate.spec import CalibrationSpec, ParameterSpec
@@ -83,7 +87,7 @@ class SlotData:
 
     def __init__(self, recordings: list[datasets.Recording], revolutions: int, n_flutes: int) -> None:
         self.recordings = recordings
-        self.waves, self.within, self.revs, self.rev_means = [], [], [], []
+        self.waves, self.within, self.revs, self.rev_means, self.folded = [], [], [], [], []
         for r in recordings:
             points = round(r.sample_rate * 60.0 / r.rpm)
             use = r if revolutions <= 0 else replace(r, forces=r.forces[: revolutions * points],
@@ -94,7 +98,8 @@ class SlotData:
             self.waves.append(wave)
             self.within.append(revs * np.sum(std ** 2, axis=0))
             self.revs.append(revs)
-            self.rev_means.append(use.forces[: revs * points].reshape(revs, points, 3).mean(axis=1))
+            self.folded.append(use.forces[: revs * points].reshape(revs, points, 3))  # revolutions x points x 3
+            self.rev_means.append(self.folded[-1].mean(axis=1))
         self.feed_per_tooth = [r.feed / (r.rpm * n_flutes) / 1000 for r in recordings]  # m
 
     @property
@@ -127,39 +132,23 @@ def _constants(scenario: Scenario, recording: datasets.Recording) -> dict[str, f
     return values
 
 
-def _force_function(scenario: Scenario, recording: datasets.Recording, fitted: list[str]) -> ca.Function:
-    """(fitted parameters, angle) -> forces in the files' axes, the rest folded in as constants."""
-    theta = ca.SX.sym("theta", len(fitted))
-    angle = ca.SX.sym("angle")
-    constants = _constants(scenario, recording)
-    values = {}
-    for arg in CUTTING_FORCE.arguments:
-        if arg.name in fitted:
-            values[arg.name] = theta[fitted.index(arg.name)]
-        elif arg.name == "angle":
-            values[arg.name] = angle
-        else:
-            values[arg.name] = ca.SX(constants[arg.name])
-    out = equations(values)
-    return ca.Function("forces", [theta, angle], [ca.vertcat(*[out[a] for a in MODEL_AXES])])
+def slot_model(scenario: Scenario, spec: CalibrationSpec, recordings: list[datasets.Recording],
+               points: list[int]) -> SlotModel:
+    """The model of ``recordings``: the force instance's chip-thickness law and, when the scenario has a
+    MeasuringChain instance named "chain", its n_modes modes (what :func:`fitted_names` lists is fitted)."""
+    names = fitted_names(scenario, spec)
+    return SlotModel([_constants(scenario, r) for r in recordings], names[sm.INSTANCE],
+                     len(names.get(CHAIN_INSTANCE, [])) // len(chain_parameter_names(1)),
+                     [r.rpm / 60 for r in recordings], points)
 
 
-def waveform_model(scenario: Scenario, data: SlotData, parameters: list[Parameter]) -> ResidualModel:
+def waveform_model(model: SlotModel, data: SlotData, parameters: list[Parameter]) -> ResidualModel:
     """Residuals of the mean waveforms (weighted by revolutions) for the model parameters followed by one
     phase per recording (``parameters`` lists both, phases last)."""
-    fitted = [q.ref.variable for q in parameters if not q.nuisance]
-    n_model = len(fitted)
-    blocks = []
-    for i, r in enumerate(data.recordings):
-        f = _force_function(scenario, r, fitted)
-        points = len(data.waves[i])
-        blocks.append((f.map(points), ca.DM(2 * math.pi * np.arange(points) / points).T, points))
+    n_model = model.n_model
 
     def y_of(theta: ca.MX) -> ca.MX:
-        parts = []
-        for i, (mapped, base, points) in enumerate(blocks):
-            parts.append(mapped(ca.repmat(theta[:n_model], 1, points), theta[n_model + i] + base))
-        return ca.horzcat(*parts)
+        return ca.horzcat(*[model.waveform(theta, i, theta[n_model + i]).T for i in range(len(data.waves))])
 
     counts = np.concatenate([np.full(len(w), rv, dtype=float) for w, rv in zip(data.waves, data.revs)])
     within = np.sum(data.within, axis=0)
@@ -174,12 +163,16 @@ def waveform_model(scenario: Scenario, data: SlotData, parameters: list[Paramete
                         describe_variable=lambda j: parameters[j].name)
 
 
-def regression_model(data: SlotData, parameters: list[Parameter], n_flutes: int) -> ResidualModel:
-    """Per-revolution mean forces against the feed per tooth through mean_slot_forces (closed form)."""
-    k = ca.SX.sym("K", 6)
+def regression_model(data: SlotData, parameters: list[Parameter], n_flutes: int, law: int) -> ResidualModel:
+    """Per-revolution mean forces against the feed per tooth through mean_slot_forces (closed form for every
+    chip-thickness law; ``parameters``: the law's coefficients, in :data:`LAW_COEFFICIENTS` order)."""
+    names = LAW_COEFFICIENTS[law]
+    k = ca.SX.sym("K", len(names))
     c = ca.SX.sym("c")
     a = data.recordings[0].axial_depth / 1000
-    means = mean_slot_forces(*[k[i] for i in range(6)], n_flutes=n_flutes, axial_depth=a, feed_per_tooth=c)
+    given = {name: 0.0 for name in LAW_COEFFICIENTS[CHIP_LAW_POWER_EDGE]}
+    given.update({name: k[j] for j, name in enumerate(names)})
+    means = mean_slot_forces(**given, n_flutes=n_flutes, axial_depth=a, feed_per_tooth=c, chip_law=law)
     f = ca.Function("mean", [k, c], [ca.vertcat(*[means[m] for m in MODEL_AXES])], NO_DATA_DERIVATIVE)
     c_all = np.concatenate([np.full(len(m), ft) for m, ft in zip(data.rev_means, data.feed_per_tooth)])
     mapped = f.map(len(c_all))
@@ -193,21 +186,22 @@ class PhaseSearch:
     the samples are 3.6 deg apart): the objective is discontinuous in the phase (edge forces switch
     where the chip crosses zero), which gradient steps cannot follow, but it is exact on the grid."""
 
-    def __init__(self, scenario: Scenario, data: SlotData, fitted: list[str]) -> None:
+    def __init__(self, model: SlotModel, data: SlotData) -> None:
+        self.model = model
         self.data = data
         self.grid = 2 * math.pi * np.arange(sm.FINE) / sm.FINE
-        self.functions = [_force_function(scenario, r, fitted).map(sm.FINE) for r in data.recordings]
 
     def __call__(self, theta_model: np.ndarray, weights: np.ndarray) -> np.ndarray:
-        phases = []
-        for i, f in enumerate(self.functions):
-            fine = np.asarray(f(np.repeat(theta_model[:, None], sm.FINE, axis=1), self.grid[None, :]), dtype=float).T
-            wave = self.data.waves[i]
-            points = len(wave)
-            index = (np.arange(sm.FINE)[:, None] + np.arange(points)[None, :] * (sm.FINE // points)) % sm.FINE
-            error = fine[index] - wave[None, :, :]  # phases x points x axes
-            phases.append(self.grid[int(np.argmin(np.einsum("spa,a->s", error ** 2, weights ** 2)))])
-        return np.array(phases)
+        return np.array([self.phase(theta_model, weights, i) for i in range(len(self.data.waves))])
+
+    def phase(self, theta_model: np.ndarray, weights: np.ndarray, i: int, wave: np.ndarray | None = None) -> float:
+        """The best phase of recording ``i`` (or of ``wave``, a waveform at its conditions)."""
+        fine = self.model.fine_waveform(theta_model, i, sm.FINE)
+        wave = self.data.waves[i] if wave is None else wave
+        points = len(wave)
+        index = (np.arange(sm.FINE)[:, None] + np.arange(points)[None, :] * (sm.FINE // points)) % sm.FINE
+        error = fine[index] - wave[None, :, :]  # phases x points x axes
+        return float(self.grid[int(np.argmin(np.einsum("spa,a->s", error ** 2, weights ** 2)))])
 
 
 def alternating(search: PhaseSearch, n_model: int, scale: np.ndarray, rounds: int = 12, stationary: float = 1e-6):
@@ -248,31 +242,70 @@ def alternating(search: PhaseSearch, n_model: int, scale: np.ndarray, rounds: in
     return solve
 
 
-def _parameters(spec: CalibrationSpec, scenario: Scenario, initial: dict[str, float],
+LAW_NAMES = {1: "linear", 2: "exponential (Kienzle)", 3: "power with edge"}
+CHAIN_DEFAULTS = {  # start ranges of the measuring chain's parameters when the spec does not give them
+    "frequency": dict(min=200.0, max=5000.0, unit="Hz", start_range=(500.0, 2500.0)),
+    "damping": dict(min=0.005, max=0.5, start_range=(0.02, 0.2)),
+    "gain": dict(min=-5.0, max=5.0, start_range=(-0.5, 0.5)),
+}
+EXPONENT_DEFAULTS = dict(min=-0.5, max=0.95, start_range=(0.0, 0.6))
+
+
+def fitted_names(scenario: Scenario, spec: CalibrationSpec) -> dict[str, list[str]]:
+    """instance -> the parameters kind slot_forces fits: the force law's coefficients, the runout (offset; with
+    more than 2 flutes also its angle) and, with a measuring chain, its active modes."""
+    law = int(scenario.instance(sm.INSTANCE).parameters.get("chip_law", CUTTING_FORCE.variable("chip_law").start))
+    if law not in LAW_COEFFICIENTS:
+        raise CalibrationError(f"{scenario.path}: {sm.INSTANCE}.chip_law = {law} is not one of "
+                               f"{sorted(LAW_COEFFICIENTS)}")
+    runout = [n for n in RUNOUT if n != "runout_angle" or sm._n_flutes(scenario) > 2]
+    names = {sm.INSTANCE: list(LAW_COEFFICIENTS[law]) + (runout if spec.slot_forces.runout else [])}
+    if CHAIN_INSTANCE in scenario.execution_order:
+        modes = int(scenario.instance(CHAIN_INSTANCE).parameters.get("n_modes", 0))
+        names[CHAIN_INSTANCE] = chain_parameter_names(modes)
+    return names
+
+
+def _default_spec(instance: str, name: str) -> ParameterSpec:
+    key = f'[parameters."{instance}.{name}"]'
+    if name in RUNOUT_DEFAULTS:
+        return RUNOUT_DEFAULTS[name]
+    if name.startswith("mc_"):
+        return ParameterSpec(Ref(instance, name), key, **EXPONENT_DEFAULTS)
+    kind = name.split("_")[0]
+    if instance == CHAIN_INSTANCE and kind in CHAIN_DEFAULTS:
+        return ParameterSpec(Ref(instance, name), key, **CHAIN_DEFAULTS[kind])
+    return ParameterSpec(Ref(instance, name), key)
+
+
+def _parameters(spec: CalibrationSpec, scenario: Scenario, names: Mapping[str, list[str]], initial: dict[str, float],
                 source: str = "the scenario") -> list[Parameter]:
-    inst = scenario.instance(sm.INSTANCE)
-    allowed = set(COEFFICIENTS) | set(RUNOUT)
-    specs = {p.variable: p for p in spec.parameters}
+    """The fitted parameters in ``names`` order (instance by instance), each from the spec's section, else the
+    defaults above; ``initial``: start values by "instance.name" from an earlier stage (``source``). A section for
+    a coefficient the scenario's chip_law does not use is ignored (one spec serves every law); any other section
+    naming something not fitted is an error."""
+    specs = {p.name: p for p in spec.parameters}
+    allowed = {f"{i}.{n}" for i, group in fitted_names(scenario, spec).items() for n in group}
+    other_laws = {f"{sm.INSTANCE}.{n}" for n in LAW_COEFFICIENTS[CHIP_LAW_POWER_EDGE]}  # a section for another law
     for p in spec.parameters:
-        if p.instance != sm.INSTANCE or p.variable not in allowed:
-            spec.fail(p.key, f"kind slot_forces fits {sm.INSTANCE}.{{{', '.join(COEFFICIENTS + RUNOUT)}}}; not {p.name}")
-        if p.variable in RUNOUT and not spec.slot_forces.runout:
-            spec.fail(p.key, "[slot_forces].runout = false: the runout is not fitted")
+        if p.name not in allowed and p.name not in other_laws:
+            spec.fail(p.key, f"kind slot_forces fits {', '.join(sorted(allowed))} with this scenario (the force's "
+                             f"chip_law, the runout setting and the chain's n_modes decide); not {p.name}")
         if p.variable == "runout_angle" and sm._n_flutes(scenario) == 2:
             spec.fail(p.key, "with 2 flutes the forces depend on the runout only through offset*cos(angle) (the "
                              "difference of the two flute radii), so offset and angle cannot both be fitted; the "
                              "angle stays 0 and the spindle phase (free) covers both signs")
-    runout = [n for n in RUNOUT if n != "runout_angle" or sm._n_flutes(scenario) > 2]
-    names = list(COEFFICIENTS) + (runout if spec.slot_forces.runout else [])
     out = []
-    for name in names:
-        ps = specs.get(name) or RUNOUT_DEFAULTS.get(name) or ParameterSpec(Ref(sm.INSTANCE, name),
-                                                                           f'[parameters."{sm.INSTANCE}.{name}"]')
-        var = inst.variables[name]
-        default = initial.get(name, float(inst.parameters.get(name, CUTTING_FORCE.variable(name).start)))
-        out.append(resolve_parameter(ps, var.unit, default, var.min, var.max,
-                                     CUTTING_FORCE.variable(name).display_unit, spec.fail,
-                                     source if name in initial else "the scenario"))
+    for instance, group in names.items():
+        inst = scenario.instance(instance)
+        definition = CUTTING_FORCE if instance == sm.INSTANCE else MEASURING_CHAIN
+        for name in group:
+            full = f"{instance}.{name}"
+            ps = specs.get(full) or _default_spec(instance, name)
+            var = inst.variables[name]
+            default = initial.get(full, float(inst.parameters.get(name, definition.variable(name).start)))
+            out.append(resolve_parameter(ps, var.unit, default, var.min, var.max, definition.variable(name).display_unit,
+                                         spec.fail, source if full in initial else "the scenario"))
     return out
 
 
@@ -281,22 +314,25 @@ def _phase_parameters(data: SlotData) -> list[Parameter]:
                       (0.0, 2 * math.pi), False, nuisance=True) for label in data.labels]
 
 
-def _means_png(learn: SlotData, held: SlotData, regression: FitOutcome, waveform: FitOutcome, n_flutes: int) -> bytes:
+def _means_png(learn: SlotData, held: SlotData, regression: FitOutcome, waveform: FitOutcome, n_flutes: int,
+               law: int) -> bytes:
     fig = MplFigure(figsize=(12, 3.8))
     fig.subplots_adjust(left=0.06, right=0.98, top=0.9, bottom=0.14, wspace=0.28)
     axes = fig.subplots(1, 3)
     a = learn.recordings[0].axial_depth / 1000
     ft = np.linspace(0, max(learn.feed_per_tooth + held.feed_per_tooth) * 1.1, 50)
-    reg = dict(zip(COEFFICIENTS, regression.theta[:6]))
-    wav = dict(zip(COEFFICIENTS, waveform.theta[:6]))
+    names = [q.ref.variable for q in regression.parameters]
+    zero = {name: 0.0 for name in LAW_COEFFICIENTS[CHIP_LAW_POWER_EDGE]}
+    reg = {**zero, **dict(zip(names, regression.theta))}
+    wav = {**zero, **dict(zip(names, waveform.theta[:len(names)]))}
     for k, axis in enumerate(RECORDED_AXES):
         ax = axes[k]
         for data, style, label in ((learn, "ko", "learning feeds"), (held, "rs", "held-out feeds")):
             ax.plot(np.array(data.feed_per_tooth) * 1000, [m[:, k].mean() for m in data.rev_means], style,
                     mfc="none" if data is held else None, label=f"recorded mean, {label}")
         for coefficients, color, label in ((reg, "tab:blue", "regression"), (wav, "tab:green", "waveform fit")):
-            line = [mean_slot_forces(**coefficients, n_flutes=n_flutes, axial_depth=a, feed_per_tooth=c)[MODEL_AXES[k]]
-                    for c in ft]
+            line = [mean_slot_forces(**coefficients, n_flutes=n_flutes, axial_depth=a, feed_per_tooth=c,
+                                     chip_law=law)[MODEL_AXES[k]] for c in ft]
             ax.plot(ft * 1000, line, color=color, label=f"closed-form mean, {label} coefficients")
         ax.set_title(f"mean {axis} (file) = model {MODEL_AXES[k]}")
         ax.set_xlabel("feed per tooth [mm]")
@@ -304,6 +340,110 @@ def _means_png(learn: SlotData, held: SlotData, regression: FitOutcome, waveform
         ax.grid(True, alpha=0.3)
     axes[0].legend(fontsize=7)
     return figure_png(fig)
+
+
+@dataclass
+class SlotFit:
+    """The two stages of a fit on some recordings: the regression of the means (starting values) and the
+    waveform fit, with the model and the residuals the waveform fit used."""
+
+    model: SlotModel
+    regression: FitOutcome
+    waveform: FitOutcome
+    residuals: ResidualModel
+    timings: dict[str, float]
+
+    @property
+    def model_parameters(self) -> list[Parameter]:
+        return [q for q in self.waveform.parameters if not q.nuisance]
+
+
+def fit_slot(spec: CalibrationSpec, scenario: Scenario, learn: SlotData, n_flutes: int,
+             progress: bool = False) -> SlotFit:
+    """The regression of the per-revolution means for the scenario's chip-thickness law, then the waveform fit
+    (law, runout, measuring chain and phases; :func:`alternating`), with revolution-bootstrap intervals when
+    ``[slot_forces].bootstrap`` asks for them."""
+    timings = {}
+    t0 = time.perf_counter()
+    names = fitted_names(scenario, spec)
+    law = int(_constants(scenario, learn.recordings[0])["chip_law"])
+    law_names = list(LAW_COEFFICIENTS[law])
+    coefficient_params = _parameters(spec, scenario, {sm.INSTANCE: law_names}, {})
+    regression = fit(regression_model(learn, coefficient_params, n_flutes, law), np.concatenate(learn.rev_means),
+                     weights=[1.0] * 3, sigma=[None] * 3, solver=replace(spec.solver, starts=1),
+                     statistics=spec.statistics)
+    timings["fit: regression of per-revolution means"] = time.perf_counter() - t0
+    t0 = time.perf_counter()
+    initial = {f"{sm.INSTANCE}.{n}": v for n, v in zip(law_names, regression.theta)}
+    model_params = _parameters(spec, scenario, names, initial, "the regression of the means")
+    model = slot_model(scenario, spec, learn.recordings, [len(w) for w in learn.waves])
+    force_params = [q for q in model_params if q.ref.instance == sm.INSTANCE]
+    force_model = replace(model, chain_modes=0) if model.chain_modes else model
+    waveform, residuals = _waveform_fit(force_model, learn, force_params, spec, progress)
+    timings["fit: waveform (law, runout, phases)"] = time.perf_counter() - t0
+    if model.chain_modes:
+        # the chain from the tooth-passing harmonics with that force, then everything together from there
+        t0 = time.perf_counter()
+        n_force = len(force_params)
+        phases = waveform.theta[n_force:]
+        weights = np.sqrt(waveform.weights) / waveform.sigma
+        chain_params = [q for q in model_params if q.ref.instance == CHAIN_INSTANCE]
+        bounds = {q.ref.variable: (q.lower, q.upper) for q in chain_params}
+        chain = identify_chain(chain_harmonics(force_model, waveform.theta, phases, learn.waves, learn.revs),
+                               model.chain_modes, weights, bounds["frequency_1"], bounds["damping_1"])
+        timings["fit: measuring chain from the harmonics"] = time.perf_counter() - t0
+        t0 = time.perf_counter()
+        start = np.concatenate([waveform.theta[:n_force], [np.clip(chain[q.ref.variable], q.lower, q.upper)
+                                                           for q in chain_params], phases])
+        waveform, residuals = _waveform_fit(model, learn, model_params, spec, progress, start)
+        timings["fit: waveform with the chain (law, runout, chain, phases)"] = time.perf_counter() - t0
+    if spec.slot_forces.bootstrap:
+        t0 = time.perf_counter()
+        replicates = revolution_bootstrap(residuals, waveform, learn, spec.slot_forces.bootstrap, spec.solver.seed)
+        waveform = replace(waveform, statistics=with_intervals(waveform.statistics, replicates))
+        timings["intervals: revolution bootstrap"] = time.perf_counter() - t0
+    return SlotFit(model, regression, waveform, residuals, timings)
+
+
+def _waveform_fit(model: SlotModel, learn: SlotData, model_params: list[Parameter], spec: CalibrationSpec,
+                  progress: bool, start: np.ndarray | None = None) -> tuple[FitOutcome, ResidualModel]:
+    """The waveform fit of ``model`` (its parameters then one phase per recording): the spec's starts, or the one
+    ``start`` given (SI, phases included)."""
+    params = model_params + _phase_parameters(learn)
+    residuals = waveform_model(model, learn, params)
+    strategy = alternating(PhaseSearch(model, learn), model.n_model, residuals.scale())
+    solver = spec.solver if start is None else replace(spec.solver, starts=1)
+    lsq = LeastSquaresSolver(residuals.problem, max_iterations=solver.max_iterations, tolerance=solver.tolerance,
+                             hessian=solver.hessian, expand=True)
+    outcome = fit(residuals, np.concatenate(learn.waves), weights=[1.0] * 3, sigma=[None] * 3, solver=solver,
+                  statistics=spec.statistics, progress=progress, strategy=strategy, lsq=lsq,
+                  starts=None if start is None else np.asarray(start, dtype=float)[None, :])
+    return outcome, residuals
+
+
+def revolution_bootstrap(residuals: ResidualModel, outcome: FitOutcome, data: SlotData, replicates: int,
+                         seed: int = 0) -> np.ndarray:
+    """Replicates (replicates x parameters, SI) of the waveform fit's estimates: each recording's revolutions
+    drawn with replacement (blocks of one whole revolution: the autocorrelation inside a revolution, the
+    dynamometer's ringing among it, is kept; every recording keeps its number of revolutions), the mean waveforms
+    recomputed, and one Gauss-Newton step from the estimate (as ``statistics.block_bootstrap``; the phases move
+    with the rest). The spread is what the revolution-to-revolution variation of the recordings allows; a model
+    error that repeats every revolution does not enter it (the leave-one-feed-out report shows that part)."""
+    theta = outcome.theta
+    weights = np.sqrt(outcome.weights) / outcome.sigma
+    recorded = np.concatenate(data.waves)
+    r, jac = residuals.residual_jacobian(theta, residuals.data_vector(recorded, weights))
+    norms = np.linalg.norm(jac, axis=0)
+    norms = np.where(norms > 0, norms, 1.0)  # columns of unit length: SI parameters span 15 decades
+    step = np.linalg.pinv(jac / norms) / norms[:, None]
+    scale = np.repeat(np.sqrt(residuals.counts), 3) * np.tile(weights, len(residuals.counts))
+    rng = np.random.default_rng(seed)
+    out = np.empty((replicates, theta.size))
+    for b in range(replicates):
+        waves = [f[rng.integers(0, len(f), len(f))].mean(axis=0) for f in data.folded]
+        r_b = np.asarray(r).ravel() - scale * (np.concatenate(waves) - recorded).ravel()
+        out[b] = theta - step @ r_b
+    return out
 
 
 def calibrate_slot_forces(spec: CalibrationSpec, fmu_dir: Path, out_dir: Path, data_option: str | Path | None,
@@ -326,29 +466,17 @@ def calibrate_slot_forces(spec: CalibrationSpec, fmu_dir: Path, out_dir: Path, d
     tokens = check_tokens(scenario, [sm.INSTANCE])
     timings["read and fold the recordings"] = time.perf_counter() - t0
 
-    # 1. the classic linear regression of per-revolution means
+    # 1. the regression of per-revolution means, 2. the waveform fit starting from it
     t0 = time.perf_counter()
+    result_fit = fit_slot(spec, scenario, learn, n_flutes, progress)
+    regression, waveform, model_params = result_fit.regression, result_fit.waveform, result_fit.model_parameters
+    coefficient_params = list(regression.parameters)
+    law_names = [q.ref.variable for q in coefficient_params]
     prior = {name: float(scenario.instance(sm.INSTANCE).parameters.get(name, CUTTING_FORCE.variable(name).start))
-             for name in COEFFICIENTS}
-    coefficient_params = _parameters(replace(spec, parameters=tuple(p for p in spec.parameters if p.variable in
-                                                                   COEFFICIENTS), slot_forces=replace(cfg, runout=False)),
-                                     scenario, {})
-    reg_model = regression_model(learn, coefficient_params, n_flutes)
-    regression = fit(reg_model, np.concatenate(learn.rev_means), weights=[1.0] * 3, sigma=[None] * 3,
-                     solver=replace(spec.solver, starts=1), statistics=spec.statistics)
-    timings["fit: linear regression of per-revolution means"] = time.perf_counter() - t0
-
-    # 2. the waveform fit, starting from the regression
-    t0 = time.perf_counter()
-    model_params = _parameters(spec, scenario, dict(zip(COEFFICIENTS, regression.theta)), "the linear regression")
-    params = model_params + _phase_parameters(learn)
-    fitted = [q.ref.variable for q in model_params]
-    model = waveform_model(scenario, learn, params)
-    strategy = alternating(PhaseSearch(scenario, learn, fitted), len(model_params), model.scale())
-    recorded = np.concatenate(learn.waves)
-    waveform = fit(model, recorded, weights=[1.0] * 3, sigma=[None] * 3, solver=spec.solver,
-                   statistics=spec.statistics, progress=progress, strategy=strategy)
-    timings["fit: waveform (time series, phases, runout)"] = time.perf_counter() - t0
+             for name in law_names}
+    timings.update(result_fit.timings)
+    timings["fit (total)"] = time.perf_counter() - t0
+    params = list(waveform.parameters)
 
     # 3. parameter set and re-simulation through the FMUs
     t0 = time.perf_counter()
@@ -367,7 +495,7 @@ def calibrate_slot_forces(spec: CalibrationSpec, fmu_dir: Path, out_dir: Path, d
                                 [q.ref for q in model_params])
     runs = out_dir / "runs"
     cases: dict[str, list[tuple[str, datasets.Recording, dict]]] = {"prior": [], "regression": [], "calibrated": []}
-    reg_coefficients = dict(zip(COEFFICIENTS, regression.theta))
+    reg_coefficients = dict(zip(law_names, regression.theta))
     try:
         for dataset, group in (("learning", learn), ("validation", held)):
             for r in group.recordings:
@@ -407,7 +535,8 @@ def calibrate_slot_forces(spec: CalibrationSpec, fmu_dir: Path, out_dir: Path, d
               tuple((name, f"{100 * held_errors[name].mean():.2f}", f"{held_r2[name].mean():.3f}",
                      " / ".join(f"{100 * v:.2f}" for v in held_errors[name].mean(axis=0)),
                      " / ".join(f"{v:.3f}" for v in held_r2[name].mean(axis=0))) for name in cases)),
-        Table("Coefficients: linear regression of per-revolution means vs waveform fit (95 % CI)",
+        Table(f"Coefficients ({LAW_NAMES[result_fit.model.law]} law): regression of per-revolution means vs "
+              "waveform fit (95 % CI)",
               ("coefficient", "unit", "prior (scenario)", "regression", "regression 95 % CI", "waveform fit",
                "waveform 95 % CI"),
               tuple((q.name, q.display_unit, f"{q.display(prior[q.ref.variable]):.4g}",
@@ -416,11 +545,23 @@ def calibrate_slot_forces(spec: CalibrationSpec, fmu_dir: Path, out_dir: Path, d
                     for q, rs, ws in zip(coefficient_params, regression.statistics.parameters,
                                          waveform.statistics.parameters)),
               f"Regression: {regression.statistics.n_residuals} per-revolution means x axes; waveform: "
-              f"{waveform.statistics.n_residuals} samples x axes ({sum(learn.revs)} revolutions). The waveform "
-              "intervals assume independent residuals; the residuals are correlated (resonance), so they are "
-              "too narrow."),
+              f"{waveform.statistics.n_residuals} samples x axes ({sum(learn.revs)} revolutions). "
+              + (f"Waveform intervals: revolution bootstrap ({cfg.bootstrap} replicates: whole revolutions of each "
+                 "recording drawn with replacement, so the autocorrelation within a revolution is kept)."
+                 if cfg.bootstrap else "Waveform intervals assume independent residuals; the residuals are "
+                 "correlated (resonance), so they are too narrow (set [slot_forces].bootstrap).")),
     ]
-    figures = [Figure("Mean forces against the feed per tooth", _means_png(learn, held, regression, waveform, n_flutes),
+    if cfg.leave_one_out:
+        from milling_twin.orchestrator.calibrate.slot_lofo import leave_one_feed_out, lofo_tables, summary
+
+        t0 = time.perf_counter()
+        folds = leave_one_feed_out(spec, scenario, folder, n_flutes)
+        timings["leave one feed out (a fit per feed)"] = time.perf_counter() - t0
+        label = LAW_NAMES[result_fit.model.law] + (f" law, chain of {result_fit.model.chain_modes} modes"
+                                                   if result_fit.model.chain_modes else " law, no chain")
+        tables += lofo_tables(folds, label)
+    figures = [Figure("Mean forces against the feed per tooth",
+                      _means_png(learn, held, regression, waveform, n_flutes, result_fit.model.law),
                       "Recorded per-revolution means (learning filled, held-out open) and the closed-form means of "
                       "both coefficient sets.")]
     ident = identities(spec, scenario, tokens)
@@ -439,4 +580,6 @@ def calibrate_slot_forces(spec: CalibrationSpec, fmu_dir: Path, out_dir: Path, d
     result.extra.update(regression=regression, cases=cases,
                         held_out={"mean_abs_error": {k: v.tolist() for k, v in held_errors.items()},
                                   "r2": {k: v.tolist() for k, v in held_r2.items()}})
+    if cfg.leave_one_out:
+        result.extra["leave_one_out"] = {"folds": folds, "summary": summary(folds)}
     return result

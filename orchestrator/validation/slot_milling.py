@@ -132,17 +132,32 @@ def recorded_waveform(recording: Recording) -> tuple[np.ndarray, np.ndarray, int
     return folded.mean(axis=0), folded.std(axis=0), revs
 
 
+CHAIN_INSTANCE = "chain"  # a MeasuringChain between the force and what the dynamometer records (optional)
+
+
+def recorded_columns(results: pd.DataFrame) -> list[str]:
+    """The result columns compared with the recorded Fx, Fy, Fz: the measuring chain's measured forces when the
+    scenario has one (instance "chain", fed the force in the recorded axes), else the force model's outputs."""
+    chain = [f"{CHAIN_INSTANCE}.measured_{a}" for a in ("x", "y", "z")]
+    if all(c in results.columns for c in chain):
+        return chain
+    return [f"{INSTANCE}.{AXES[a]}" for a in ("Fx", "Fy", "Fz")]
+
+
 def simulated_waveform(results: pd.DataFrame, rpm: float) -> tuple[np.ndarray, np.ndarray]:
     """The simulated forces in the recorded axes over the last whole revolutions, as a function of
-    the spindle angle on FINE points per revolution, and their mean over those revolutions."""
+    the spindle angle on FINE points per revolution, and their mean over those revolutions. Through a measuring
+    chain the first revolution is left out (the chain's transient from rest)."""
     t = results["time"].to_numpy()
     period = 60.0 / rpm
-    revs = math.floor((t[-1] - t[0]) / period + 1e-9)
+    columns = recorded_columns(results)
+    settle = 1 if columns[0].startswith(CHAIN_INSTANCE + ".") else 0
+    revs = math.floor((t[-1] - t[0]) / period + 1e-9) - settle
     if revs < 1:
-        raise ValueError(f"the simulation covers {t[-1] - t[0]} s, less than one revolution ({period} s)")
+        raise ValueError(f"the simulation covers {t[-1] - t[0]} s, less than {1 + settle} revolution(s) ({period} s)")
     last = t >= t[-1] - revs * period + 1e-12
     angle = results[f"{INSTANCE}.spindle_angle"].to_numpy()[last]
-    forces = np.column_stack([results[f"{INSTANCE}.{AXES[a]}"].to_numpy()[last] for a in ("Fx", "Fy", "Fz")])
+    forces = np.column_stack([results[c].to_numpy()[last] for c in columns])
     order = np.argsort(angle, kind="stable")
     grid = np.arange(FINE) * 2 * math.pi / FINE
     wave = np.column_stack([np.interp(grid, angle[order], forces[order, k], period=2 * math.pi) for k in range(3)])

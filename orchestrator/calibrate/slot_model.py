@@ -1,0 +1,277 @@
+"""The slot-milling force model that calibration fits: the CuttingForce equations (any chip-thickness law) at a
+recording's conditions, seen through the MeasuringChain (the dynamometer and fixture dynamics), as the
+per-revolution waveform in the recordings' axes.
+
+Both pieces come from models/: the force from ``milling_twin.models.cutting_force.equations`` (a casadi
+Function of the fitted parameters and the spindle angle), the chain from
+``milling_twin.models.measuring_chain.frequency_response``'s per-mode terms. The waveform of a recording is
+periodic (one revolution; the spindle runs at its nominal speed), so the chain acts on it harmonic by harmonic:
+the force is evaluated on ``OVERSAMPLE`` points per recorded sample over one revolution, transformed (a constant
+real DFT matrix), every harmonic k multiplied by the chain's response at k times the spindle frequency, and
+transformed back at the recorded samples' angles. That is the chain's periodic steady state, which the
+MeasuringChain FMU reaches after its transient (the FMU holds the force over a step: its response is this one
+delayed by half a step, see models/measuring_chain.py).
+
+``layout`` (:class:`SlotModel`) names the fitted parameters in order: the coefficients of the law (force
+instance), the runout offset (optional), the chain's modes (chain instance), then one spindle phase per recording
+(nuisance, last).
+"""
+from __future__ import annotations
+
+import functools
+import math
+from collections.abc import Mapping, Sequence
+from dataclasses import dataclass
+
+import casadi as ca
+import numpy as np
+
+from milling_twin.models.cutting_force import (CHIP_LAW_EXPONENTIAL, CHIP_LAW_LINEAR, CHIP_LAW_POWER_EDGE,
+                                               CUTTING_FORCE, equations)
+from milling_twin.models.measuring_chain import AXES as CHAIN_AXES
+from milling_twin.models.measuring_chain import (MEASURING_CHAIN, damping_name, frequency_name,
+                                                 frequency_response, frequency_response_parts, gain_name)
+
+__all__ = ["CHAIN_INSTANCE", "LAW_COEFFICIENTS", "OVERSAMPLE", "SlotModel", "chain_parameter_names"]
+
+FORCE_INSTANCE = "force"
+CHAIN_INSTANCE = "chain"
+OVERSAMPLE = 2  # force points per recorded sample: what the DFT of the force aliases is 0.2 % of its range
+LAW_COEFFICIENTS = {
+    CHIP_LAW_LINEAR: ("Ktc", "Krc", "Kac", "Kte", "Kre", "Kae"),
+    CHIP_LAW_EXPONENTIAL: ("Ktc", "Krc", "Kac", "mc_t", "mc_r", "mc_a"),
+    CHIP_LAW_POWER_EDGE: ("Ktc", "Krc", "Kac", "Kte", "Kre", "Kae", "mc_t", "mc_r", "mc_a"),
+}
+# recorded column -> the model output it is compared with (see orchestrator/validation/slot_milling.py)
+RECORDED_AXES = ("Fx", "Fy", "Fz")
+MODEL_AXES = ("Fy", "Fx", "Fz")
+
+
+def chain_parameter_names(modes: int) -> list[str]:
+    """The MeasuringChain parameters of its first ``modes`` modes: frequency, damping, then the gain matrix."""
+    names: list[str] = []
+    for i in range(modes):
+        names += [frequency_name(i), damping_name(i)] + [gain_name(i, o, j) for o in CHAIN_AXES for j in CHAIN_AXES]
+    return names
+
+
+def _dft(points: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """(cos, sin) rows of the real DFT over ``points`` samples (harmonics 0 .. points/2) and the weights of the
+    inverse (1 for the mean and the Nyquist line, 2 otherwise), divided by ``points``."""
+    k = np.arange(points // 2 + 1)[:, None]
+    angle = 2 * math.pi * k * np.arange(points)[None, :] / points
+    weight = np.full(k.size, 2.0)
+    weight[0] = 1.0
+    if points % 2 == 0:
+        weight[-1] = 1.0
+    return np.cos(angle), np.sin(angle), weight / points
+
+
+@dataclass
+class SlotModel:
+    """The fitted quantities and the model waveform of each recording (module text).
+
+    ``constants``: the force instance's parameters and inputs per recording (SI, its ``chip_law`` among them);
+    ``coefficients``: the force parameters fitted (the law's coefficients, the runout); ``chain_modes``: modes of
+    the chain (0: no chain); ``spindle_hz``: the spindle frequency of each recording; ``points``: its samples per
+    revolution."""
+
+    constants: list[dict[str, float]]
+    coefficients: list[str]
+    chain_modes: int
+    spindle_hz: list[float]
+    points: list[int]
+
+    def __post_init__(self) -> None:
+        self.chain = chain_parameter_names(self.chain_modes)
+        self.n_model = len(self.coefficients) + len(self.chain)
+        self._functions = [self._force_function(c) for c in self.constants]
+
+    @property
+    def law(self) -> int:
+        return int(self.constants[0]["chip_law"])
+
+    # ---- the force ----
+    def _force_function(self, constants: Mapping[str, float]) -> ca.Function:
+        """(force parameters, angle) -> forces in the recordings' axes, the rest folded in as constants."""
+        theta = ca.SX.sym("theta", len(self.coefficients))
+        angle = ca.SX.sym("angle")
+        values = {}
+        for arg in CUTTING_FORCE.arguments:
+            if arg.name in self.coefficients:
+                values[arg.name] = theta[self.coefficients.index(arg.name)]
+            elif arg.name == "angle":
+                values[arg.name] = angle
+            else:
+                values[arg.name] = ca.SX(float(constants[arg.name]))
+        out = equations(values)
+        return ca.Function("forces", [theta, angle], [ca.vertcat(*[out[a] for a in MODEL_AXES])])
+
+    def force_function(self, i: int) -> ca.Function:
+        return self._functions[i]
+
+    # ---- the chain ----
+    def chain_values(self, theta):  # type: ignore[no-untyped-def]
+        """The MeasuringChain's parameters in the model part of ``theta`` (floats or casadi), with n_modes."""
+        start = len(self.coefficients)
+        return {"n_modes": self.chain_modes, **{name: theta[start + j] for j, name in enumerate(self.chain)}}
+
+    def harmonics_hz(self, i: int) -> np.ndarray:
+        """The frequencies the recording's samples resolve: the spindle frequency times 0 .. points/2."""
+        return np.arange(self.points[i] // 2 + 1) * self.spindle_hz[i]
+
+    def waveform(self, theta: ca.MX, i: int, phase: ca.MX) -> ca.MX:
+        """The model's per-revolution waveform of recording ``i`` at its recorded samples (points x 3), MX."""
+        points = self.points[i]
+        grid = points * (OVERSAMPLE if self.chain_modes else 1)
+        base = ca.DM(2 * math.pi * np.arange(grid) / grid).T
+        force = self._functions[i].map(grid)(ca.repmat(theta[:len(self.coefficients)], 1, grid), phase + base).T
+        if not self.chain_modes:
+            return force
+        # the harmonics the samples resolve (the recorder's anti-aliasing filter removes the others)
+        harmonics = points // 2 + 1
+        cos, sin, _ = _dft(grid)
+        real = ca.DM(cos[:harmonics]) @ force  # harmonics x 3
+        imag = -ca.DM(sin[:harmonics]) @ force
+        h_re, h_im = frequency_response_parts(self.chain_values(theta), self.harmonics_hz(i))
+        rows_re, rows_im = [], []
+        for k in range(harmonics):
+            x_re, x_im = real[k, :].T, imag[k, :].T
+            rows_re.append((h_re[k] @ x_re - h_im[k] @ x_im).T)
+            rows_im.append((h_re[k] @ x_im + h_im[k] @ x_re).T)
+        back_cos, back_sin, _ = _dft(points)
+        # the harmonics of the force (on the finer grid) at the sample angles: 2 Re(c_k e^(i k angle)), c_0 once
+        weight = np.full(harmonics, 2.0 / grid)
+        weight[0] = 1.0 / grid
+        inverse_cos = ca.DM((back_cos * weight[:, None]).T)
+        inverse_sin = ca.DM((back_sin * weight[:, None]).T)
+        return inverse_cos @ ca.vertcat(*rows_re) - inverse_sin @ ca.vertcat(*rows_im)
+
+    def fine_waveform(self, theta_model: np.ndarray, i: int, fine: int) -> np.ndarray:
+        """The waveform over ``fine`` equal angles from 0 (fine x 3, numpy): for the phase search. With a chain,
+        the harmonics the recording resolves only, as :meth:`waveform` has them."""
+        grid = 2 * math.pi * np.arange(fine) / fine
+        n = len(self.coefficients)
+        force = np.asarray(self._functions[i].map(fine)(np.repeat(theta_model[:n, None], fine, axis=1),
+                                                         grid[None, :]), dtype=float).T
+        if not self.chain_modes:
+            return force
+        harmonics = self.points[i] // 2 + 1
+        spectrum = np.fft.rfft(force, axis=0)
+        response = frequency_response({k: float(v) for k, v in self.chain_values(theta_model).items()},
+                                      self.harmonics_hz(i))
+        measured = np.zeros_like(spectrum)
+        measured[:harmonics] = np.einsum("kij,kj->ki", response, spectrum[:harmonics])
+        return np.fft.irfft(measured, n=fine, axis=0)
+
+
+def chain_bounds(name: str) -> tuple[float, float]:
+    """The MeasuringChain's own range of a parameter (SI)."""
+    v = MEASURING_CHAIN.variable(name)
+    return (-math.inf if v.min is None else float(v.min)), (math.inf if v.max is None else float(v.max))
+
+
+
+
+@functools.lru_cache(maxsize=16)
+def _mode_function(hz: tuple[float, ...]) -> ca.Function:
+    """(frequency, damping) -> (Re, Im) of G - 1 at ``hz`` for one mode: the chain's own frequency response (a
+    single mode with the identity as its gain matrix), compiled once per set of frequencies."""
+    frequency, damping = ca.SX.sym("frequency"), ca.SX.sym("damping")
+    values = {"n_modes": 1, "frequency_1": frequency, "damping_1": damping,
+              **{gain_name(0, o, j): float(o == j) for o in CHAIN_AXES for j in CHAIN_AXES}}
+    real, imag = frequency_response_parts(values, np.array(hz))
+    return ca.Function("mode", [frequency, damping], [ca.vertcat(*[r[0, 0] - 1 for r in real]),
+                                                       ca.vertcat(*[m[0, 0] for m in imag])])
+
+
+def mode_minus_one(frequency: float, damping: float, hz: np.ndarray) -> np.ndarray:
+    """G(j 2 pi hz) - 1 of one chain mode (complex, per frequency)."""
+    real, imag = _mode_function(tuple(float(f) for f in np.asarray(hz).ravel()))(frequency, damping)
+    return np.asarray(real).ravel() + 1j * np.asarray(imag).ravel()
+
+
+@dataclass
+class ChainHarmonics:
+    """What the chain's identification needs of each recording: the model force's harmonics X (at the fitted
+    phase; 1 .. below the samples' Nyquist line, complex, harmonics x 3), the recorded waveform's W, their
+    frequencies and the weight of each harmonic in the time-domain sum of squares (Parseval: 2 times the number
+    of revolutions and of points)."""
+
+    force: list[np.ndarray]
+    recorded: list[np.ndarray]
+    hz: list[np.ndarray]
+    weight: list[np.ndarray]
+
+    def gains(self, modes: Sequence[tuple[float, float]], axis_weights: np.ndarray
+              ) -> tuple[np.ndarray, float]:
+        """For given (frequency, damping) of each mode: the gain matrices (modes x 3 x 3) that minimise the sum of
+        squares, a linear least-squares problem per measured axis, and that sum (weighted per axis)."""
+        columns = []  # per recording: harmonics x (modes * 3) complex regressors
+        for x, hz in zip(self.force, self.hz):
+            columns.append(np.concatenate([mode_minus_one(f, z, hz)[:, None] * x for f, z in modes], axis=1))
+        a = np.concatenate(columns) * np.sqrt(np.concatenate(self.weight))[:, None]
+        gains = np.zeros((len(modes), 3, 3))
+        ssr = 0.0
+        for o in range(3):
+            b = np.concatenate([w[:, o] - x[:, o] for w, x in zip(self.recorded, self.force)])
+            b = b * np.sqrt(np.concatenate(self.weight))
+            stacked, rhs = np.concatenate([a.real, a.imag]), np.concatenate([b.real, b.imag])
+            solution, *_ = np.linalg.lstsq(stacked, rhs, rcond=None)
+            gains[:, o, :] = solution.reshape(len(modes), 3)
+            ssr += axis_weights[o] ** 2 * float(np.sum((stacked @ solution - rhs) ** 2))
+        return gains, ssr
+
+
+def chain_harmonics(model: SlotModel, theta_model: np.ndarray, phases: Sequence[float],
+                    waves: Sequence[np.ndarray], revolutions: Sequence[int]) -> ChainHarmonics:
+    """The harmonics of the model force (without the chain) and of the recorded waveforms (module text)."""
+    force, recorded, hz, weight = [], [], [], []
+    n = len(model.coefficients)
+    for i, (phase, wave, revs) in enumerate(zip(phases, waves, revolutions)):
+        points = len(wave)
+        grid = points * OVERSAMPLE
+        angles = phase + 2 * math.pi * np.arange(grid) / grid
+        f = np.asarray(model.force_function(i).map(grid)(np.repeat(theta_model[:n, None], grid, axis=1),
+                                                          angles[None, :]), dtype=float).T
+        harmonics = np.arange(1, (points + 1) // 2)  # the Nyquist line (half of it unseen) is left out
+        force.append(np.fft.rfft(f, axis=0)[harmonics] / grid)
+        recorded.append(np.fft.rfft(wave, axis=0)[harmonics] / points)
+        hz.append(harmonics * model.spindle_hz[i])
+        weight.append(np.full(harmonics.size, 2.0 * revs * points))
+    return ChainHarmonics(force, recorded, hz, weight)
+
+
+def identify_chain(harmonics: ChainHarmonics, modes: int, axis_weights: np.ndarray,
+                   frequency_range: tuple[float, float], damping_range: tuple[float, float]) -> dict[str, float]:
+    """The chain's modes from the recordings' harmonics with the force fixed (variable projection: the gains are
+    linear given the modes' frequencies and dampings, solved exactly; the frequencies by a grid search, one mode
+    after the other, then all together by Nelder-Mead on their logarithms). The chain's parameters by name."""
+    from scipy.optimize import minimize
+
+    lo, hi = frequency_range
+    grid_f = np.geomspace(lo, hi, 60)
+    grid_z = np.geomspace(max(damping_range[0], 0.01), min(damping_range[1], 0.3), 6)
+    chosen: list[tuple[float, float]] = []
+    for _ in range(modes):
+        best = min(((harmonics.gains(chosen + [(f, z)], axis_weights)[1], f, z) for f in grid_f for z in grid_z))
+        chosen.append((best[1], best[2]))
+    bounds_f, bounds_z = np.log(frequency_range), np.log(damping_range)
+
+    def objective(x: np.ndarray) -> float:
+        x = np.clip(x.reshape(-1, 2), [bounds_f[0], bounds_z[0]], [bounds_f[1], bounds_z[1]])
+        return harmonics.gains([tuple(np.exp(row)) for row in x], axis_weights)[1]
+
+    start = np.log(np.array(chosen)).ravel()
+    result = minimize(objective, start, method="Nelder-Mead", options={"maxiter": 400 * modes, "xatol": 1e-4,
+                                                                       "fatol": 1e-10})
+    x = np.clip(result.x.reshape(-1, 2), [bounds_f[0], bounds_z[0]], [bounds_f[1], bounds_z[1]])
+    found = [tuple(np.exp(row)) for row in x]
+    gains, _ = harmonics.gains(found, axis_weights)
+    values: dict[str, float] = {}
+    for i, (f, z) in enumerate(found):
+        values[frequency_name(i)] = float(f)
+        values[damping_name(i)] = float(z)
+        values.update({gain_name(i, o, j): float(gains[i, a, b]) for a, o in enumerate(CHAIN_AXES)
+                       for b, j in enumerate(CHAIN_AXES)})
+    return values

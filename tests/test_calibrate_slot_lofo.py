@@ -121,3 +121,21 @@ def test_leave_one_feed_out_with_the_right_law_and_chain(setup, data: Path) -> N
     cov = coverage(folds)
     assert set(cov) >= {"force.Ktc", "force.mc_t", "chain.frequency_1"}
     assert np.mean(list(cov.values())) >= 0.6, cov
+
+
+def test_a_parameter_the_scenario_does_not_fit_is_refused_naming_its_key(setup) -> None:
+    """A section for a chain mode beyond n_modes (or any variable the kind does not fit) fails before any fit; a
+    section for a coefficient of another chip-thickness law is ignored (one spec serves every law)."""
+    from milling_twin.orchestrator.calibrate.errors import CalibrationSpecError
+    from milling_twin.orchestrator.calibrate.spec import ParameterSpec
+    from milling_twin.orchestrator.scenario import Ref
+
+    spec, scenario = setup
+    names = sf.fitted_names(scenario, spec)
+    assert names["force"] == ["Ktc", "Krc", "Kac", "mc_t", "mc_r", "mc_a", "runout_offset"]
+    assert names["chain"][:2] == ["frequency_1", "damping_1"] and len(names["chain"]) == 11
+    assert "force.Kte" in {p.name for p in spec.parameters}  # the linear law's section, ignored under law 2
+    assert [q.name for q in sf._parameters(spec, scenario, names, {})][:3] == ["force.Ktc", "force.Krc", "force.Kac"]
+    extra = ParameterSpec(Ref("chain", "frequency_2"), '[parameters."chain.frequency_2"]', min=100.0, max=900.0)
+    with pytest.raises(CalibrationSpecError, match=r'\[parameters\."chain\.frequency_2"\].*not chain\.frequency_2'):
+        sf._parameters(replace(spec, parameters=spec.parameters + (extra,)), scenario, names, {})

@@ -3,13 +3,15 @@ path, plan the first look-ahead window), the time to stream the program (every i
 window's re-plans), the longest single engine call and the peak memory. A script, not a timed test:
 
     .venv/bin/python tests/benchmarks/interpolator_large_programs.py [--lines 1000000] [--until 600]
-        [--lookahead 1000] [--kinds finishing zigzag]
+        [--lookahead 1000] [--kinds finishing zigzag staircase]
 
 Programs (generated, deterministic):
 - finishing: a 3D finishing raster over a free-form surface z(x, y) (two crossed sines): rows along X 0.2 mm
   apart, boustrophedon, G1 moves of 0.05-0.5 mm (lengths from a fixed pseudo-random sequence) at F3000;
 - zigzag: sharp corners only: X alternating 0 and 1 mm, Y advancing 0.05 mm per move, at F1200 (every corner a
-  near reversal: the path slows to the junction speed at each).
+  near reversal: the path slows to the junction speed at each);
+- staircase: right-angle corners only, 1 mm steps in X and Y in turn, at F1200 (the hardest of these for the
+  whole-program plan: 4.6 s at 8,000 lines).
 
 Runs the standalone driver build/tools/interp_run (the FMU's C engine) with --timing; --until stops the stream
 after that many seconds of machine time (the real-time factor is machine time over the stream's wall time).
@@ -72,7 +74,15 @@ def zigzag_program(lines: int) -> str:
     return "".join(out)
 
 
-PROGRAMS = {"finishing": finishing_program, "zigzag": zigzag_program}
+def staircase_program(lines: int) -> str:
+    """A program of `lines` lines whose moves all end in a right-angle corner (1 mm steps in X and Y in turn)."""
+    out = [HEADER, "G1 Z0 F1200\n"]
+    out += [f"X{(k + 1) // 2} Y{k // 2}\n" for k in range(1, lines - 5)]
+    out.append("G0 Z5\nM30\n")
+    return "".join(out)
+
+
+PROGRAMS = {"finishing": finishing_program, "zigzag": zigzag_program, "staircase": staircase_program}
 
 
 @dataclass

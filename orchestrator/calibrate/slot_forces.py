@@ -4,10 +4,13 @@ The recordings are read, folded and compared exactly as ``milling_twin.orchestra
 does (its functions are reused: ``read_recordings``, ``recorded_waveform``, ``simulate``,
 ``compare``). Two fits on the learning feeds, both casadi + IPOPT on the models/ expressions:
 
-1. **Linear regression** (Altintas): the per-revolution mean forces against the feed per tooth,
-   through ``milling_twin.models.cutting_force.mean_slot_forces`` (linear in the six coefficients, so one
-   Gauss-Newton step; the statistics are those of ordinary least squares per axis, each axis
-   weighted by its residual level).
+What is fitted follows the scenario (:func:`fitted_names`): the coefficients of the force instance's
+``chip_law`` (linear, Kienzle's exponential, power with edge terms), the runout, and, when the scenario has a
+MeasuringChain instance named "chain", its modes (the model of a recording: :mod:`.slot_model`).
+
+1. **Regression of the means**: the per-revolution mean forces against the feed per tooth,
+   through ``milling_twin.models.cutting_force.mean_slot_forces`` (closed form for every law; linear in the six
+   coefficients of the linear law, Altintas' identification), giving the waveform fit its start.
 2. **Waveform fit**: nonlinear least squares of the force time series on the CuttingForce
    equations (``milling_twin.models.cutting_force.equations``: 16 slices, helix, runout) with the coefficients,
    optionally the runout (offset and angle of the tool axis), and one spindle phase per recording
@@ -24,7 +27,9 @@ does (its functions are reused: ``read_recordings``, ``recorded_waveform``, ``si
    phase change moves a sample across an edge force switching on (the chip crossing zero), so the
    phases are found by exhaustive search on a 0.1 deg grid (:class:`PhaseSearch`, global over the
    turn) and the coefficients and runout by IPOPT with the phases fixed, alternating until the
-   objective stops decreasing. Starts: the regression's coefficients, then drawn ones.
+   objective stops decreasing. Starts: the regression's coefficients, then drawn ones. With a chain: first
+   without it, then the chain's modes from the harmonics with that force (:func:`.slot_model.identify_chain`),
+   then everything from there (:func:`fit_slot`). Intervals: :func:`revolution_bootstrap`.
 
 Held-out check (closing the loop): the parameter set is written, the slot-milling scenario is
 re-run with it through the FMUs at every recording's conditions, and ``slot_milling.compare``
@@ -57,8 +62,9 @@ from milling_twin.orchestrator.calibrate.paramset import write_parameter_set, wr
 from milling_twin.orchestrator.calibrate.plots import figure_png
 from milling_twin.orchestrator.calibrate.residuals import ResidualModel, from_outputs
 from milling_twin.orchestrator.calibrate.result import CalibrationResult, Figure, Series, Table, error_row
-from milling_twin.orchestrator.calibrate.slot_model import (CHAIN_INSTANCE, LAW_COEFFICIENTS, SlotModel,
-                                                           chain_harmonics, chain_parameter_names, identify_chain)
+from milling_twin.orchestrator.calibrate.slot_model import (CHAIN_INSTANCE, LAW_COEFFICIENTS, MODEL_AXES,
+                                                           RECORDED_AXES, SlotModel, chain_harmonics,
+                                                           chain_parameter_names, identify_chain)
 from milling_twin.orchestrator.calibrate.statistics import with_intervals
 from milling_twin.orchestrator.calibrate.scenario_fit import (check_tokens, describe_overrides, identities,
                                                             record_and_publish, with_overrides)
@@ -70,10 +76,7 @@ from milling_twin.orchestrator.validation import slot_milling as sm
 
 __all__ = ["SlotData", "calibrate_slot_forces", "load_slot_data", "regression_model", "waveform_model"]
 
-COEFFICIENTS = sm.COEFFICIENTS
 RUNOUT = ("runout_offset", "runout_angle")
-RECORDED_AXES = tuple(sm.AXES)  # the files' Fx, Fy, Fz
-MODEL_AXES = tuple(sm.AXES[a] for a in RECORDED_AXES)  # the model's outputs compared with them
 RUNOUT_DEFAULTS = {"runout_offset": ParameterSpec(Ref("force", "runout_offset"), '[parameters."force.runout_offset"]',
                                                   initial=5.0, min=0.0, max=100.0, unit="um",
                                                   start_range=(0.0, 30.0)),

@@ -31,6 +31,7 @@ from milling_twin.models.cutting_force import (CHIP_LAW_EXPONENTIAL, CHIP_LAW_LI
 from milling_twin.models.measuring_chain import AXES as CHAIN_AXES
 from milling_twin.models.measuring_chain import (MEASURING_CHAIN, damping_name, frequency_name,
                                                  frequency_response, frequency_response_parts, gain_name)
+from milling_twin.orchestrator.validation.slot_milling import AXES  # recorded column -> model output
 
 __all__ = ["CHAIN_INSTANCE", "LAW_COEFFICIENTS", "OVERSAMPLE", "SlotModel", "chain_parameter_names"]
 
@@ -42,9 +43,8 @@ LAW_COEFFICIENTS = {
     CHIP_LAW_EXPONENTIAL: ("Ktc", "Krc", "Kac", "mc_t", "mc_r", "mc_a"),
     CHIP_LAW_POWER_EDGE: ("Ktc", "Krc", "Kac", "Kte", "Kre", "Kae", "mc_t", "mc_r", "mc_a"),
 }
-# recorded column -> the model output it is compared with (see orchestrator/validation/slot_milling.py)
-RECORDED_AXES = ("Fx", "Fy", "Fz")
-MODEL_AXES = ("Fy", "Fx", "Fz")
+RECORDED_AXES = tuple(AXES)  # the files' Fx, Fy, Fz
+MODEL_AXES = tuple(AXES[a] for a in RECORDED_AXES)  # the model's outputs compared with them
 
 
 def chain_parameter_names(modes: int) -> list[str]:

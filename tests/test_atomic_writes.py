@@ -17,6 +17,8 @@ from xml.etree import ElementTree
 
 import pytest
 
+from tmpfs import mounted_tmpfs
+
 from cases.calibration_synthetic import write_power_case
 from milling_twin.cli import main
 from milling_twin.orchestrator.master import run
@@ -304,17 +306,7 @@ def test_a_full_disk_while_the_study_summary_is_written(tmp_path, monkeypatch, t
 
 
 def _tmpfs(tmp_path: Path, size: str):
-    mount = tmp_path / "tmpfs"
-    mount.mkdir()
-    if os.geteuid() != 0 or shutil.which("mount") is None:
-        pytest.skip("mounting a tmpfs needs root")
-    done = subprocess.run(["mount", "-t", "tmpfs", "-o", f"size={size}", "tmpfs", str(mount)], capture_output=True)
-    if done.returncode != 0:
-        pytest.skip(f"cannot mount a tmpfs here: {done.stderr.decode(errors='replace').strip()}")
-    try:
-        yield mount
-    finally:
-        subprocess.run(["umount", str(mount)], check=False)
+    yield from mounted_tmpfs(tmp_path / "tmpfs", size)
 
 
 @pytest.fixture

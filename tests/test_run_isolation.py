@@ -17,6 +17,8 @@ from pathlib import Path
 import pyarrow.parquet as pq
 import pytest
 
+from tmpfs import mounted_tmpfs
+
 from cases.calibration_synthetic import write_power_case
 from conftest import LONG_TOML, REPO_ROOT
 from milling_twin import api
@@ -336,15 +338,7 @@ def test_run_json_is_rewritten_in_place_when_there_is_no_room_for_a_copy(monkeyp
 @pytest.fixture
 def tiny_disk(tmp_path: Path):
     """A 1 MiB tmpfs (root only; skipped where it cannot be mounted), unmounted at teardown."""
-    disk = tmp_path / "disk"
-    disk.mkdir()
-    mounted = subprocess.run(["mount", "-t", "tmpfs", "-o", "size=1M", "tmpfs", str(disk)], capture_output=True)
-    if mounted.returncode != 0:
-        pytest.skip(f"cannot mount a tmpfs here: {mounted.stderr.decode().strip()}")
-    try:
-        yield disk
-    finally:
-        subprocess.run(["umount", str(disk)], check=True)
+    yield from mounted_tmpfs(tmp_path / "disk", "1M")
 
 
 @pytest.mark.parametrize("stepping", ["python", "fast"])

@@ -466,7 +466,8 @@ def calibrate_slot_forces(spec: CalibrationSpec, fmu_dir: Path, out_dir: Path, d
                           n_flutes)
     if held.recordings[0].axial_depth != learn.recordings[0].axial_depth:
         spec.fail("[slot_forces].validation_feeds", "held-out recordings differ in axial depth from the learning ones")
-    tokens = check_tokens(scenario, [sm.INSTANCE])
+    # what is fitted is what the FMUs run: the force's and the chain's FMUs against models/
+    tokens = check_tokens(scenario, [sm.INSTANCE] + [CHAIN_INSTANCE] * (CHAIN_INSTANCE in scenario.execution_order))
     timings["read and fold the recordings"] = time.perf_counter() - t0
 
     # 1. the regression of per-revolution means, 2. the waveform fit starting from it

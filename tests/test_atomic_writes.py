@@ -207,6 +207,7 @@ def power_case(tmp_path_factory, fmu_dir: Path) -> Path:
     return write_power_case(tmp_path_factory.mktemp("power") / "case", fmu_dir=fmu_dir, noise=5.0, seed=1)
 
 
+@pytest.mark.ipopt
 @pytest.mark.parametrize("target", ["power_case.params.ssv", "03.png", "report.md", "report.html",
                                     "calibration.json"])
 def test_a_full_disk_at_each_calibration_output(power_case, fmu_dir, tmp_path, monkeypatch, capsys, target):
@@ -324,6 +325,7 @@ def _fill(mount: Path, leave: int) -> None:
         fh.write(bytes(shutil.disk_usage(mount).free - leave))
 
 
+@pytest.mark.ipopt
 def test_a_calibration_onto_a_full_tmpfs_fails_cleanly(power_case, fmu_dir, small_tmpfs):
     """The calibration's outputs take about 1.5 MB; the tmpfs is filled up to leave 300 kB."""
     _fill(small_tmpfs, 300_000)

@@ -105,6 +105,7 @@ def test_the_model_waveform_through_the_chain_is_the_chains_time_domain_response
     assert np.all(np.abs(response - waveform).max(axis=0) < 0.03 * spread)
 
 
+@pytest.mark.ipopt
 def test_leave_one_feed_out_with_the_right_law_and_chain(setup, data: Path) -> None:
     spec, scenario = setup
     folds = leave_one_feed_out(spec, scenario, data, 2)

@@ -201,6 +201,7 @@ def test_a_study_named_dotdot_is_refused(tmp_path: Path, fmu_dir: Path) -> None:
         load_study(path, fmu_dir)
 
 
+@pytest.mark.ipopt
 def test_a_spec_parameter_set_elsewhere_is_written_only_under_out(tmp_path: Path, fmu_dir: Path) -> None:
     """The spec's parameter_set names the committed file; a calibration writes its file name under --out and
     publishes to a path only when --write-set gives it."""
@@ -219,6 +220,7 @@ def test_a_spec_parameter_set_elsewhere_is_written_only_under_out(tmp_path: Path
 # ---- item 4: a multi-line description ----
 
 
+@pytest.mark.ipopt
 def test_a_multi_line_description_round_trips_through_the_calibration(tmp_path: Path, fmu_dir: Path) -> None:
     spec = write_power_case(tmp_path / "case", fmu_dir=fmu_dir)
     description = 'Line one,\nline "two" with a \\ backslash\n\tand a tab = [x]'

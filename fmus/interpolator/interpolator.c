@@ -120,13 +120,38 @@ size_t interp_heap_size(const InterpPrepared *prepared) {
     return L.heap_size;
 }
 
-void interp_install(const InterpPrepared *p, double *heap, InterpLayout *L) {
-    const GcProgram *g = &p->program;
-    const PathBuild *path = &p->path;
-    size_t k, at;
+/* The parsed moves are given back from the end in steps of this many while the heap's records of them are written,
+ * so the two copies of the program never coexist whole (with glibc a shrinking realloc of a large block returns
+ * its tail to the system at once; another allocator may copy instead, which costs time, not correctness). */
+#define INSTALL_STEP 65536
+
+#define FREE_ARRAY(array) (free(array), (array) = NULL)
+
+void interp_install(InterpPrepared *p, double *heap, InterpLayout *L) {
+    GcProgram *g = &p->program;
+    PathBuild *path = &p->path;
+    size_t k, at, n_moves = g->n_moves;
     layout_of(p, L);
+    L->total = path->total;
+    L->final_line = g->final_line;
+    L->final_block = g->final_block;
+    L->final_spindle = g->final_spindle;
+    L->final_spindle_on = g->final_spindle_on;
+    memcpy(L->start, g->start, sizeof L->start);
+    memcpy(L->start_offset, g->start_offset, sizeof L->start_offset);
     heap[0] = INTERP_MAGIC;
-    for (k = 0; k < g->n_moves; k++) {
+    at = L->points;
+    for (k = 0; k < g->n_curves; k++) {
+        const GcCurve *c = &g->curves[k];
+        double *r = heap + L->curves + CURVE_DOUBLES * k;
+        size_t n = (size_t)c->n_points, n_knots = n + (size_t)c->degree + 1;
+        r[CR_DEGREE] = c->degree, r[CR_LAST_POINT] = c->n_points - 1, r[CR_PW] = (double)at,
+        r[CR_KNOTS] = (double)(at + 4 * n);
+        memcpy(heap + at, path->pw[k], 4 * n * sizeof *heap);
+        memcpy(heap + at + 4 * n, c->knots, n_knots * sizeof *heap);
+        at += 4 * n + n_knots;
+    }
+    for (k = n_moves; k-- > 0;) {
         const GcMove *m = &g->moves[k];
         double *r = heap + L->moves + MOVE_DOUBLES * k;
         int i;
@@ -141,44 +166,39 @@ void interp_install(const InterpPrepared *p, double *heap, InterpLayout *L) {
         r[MR_CURVE] = m->curve, r[MR_U0] = m->u0, r[MR_U1] = m->u1;
         r[MR_SPAN_LO] = path->span_lo[k], r[MR_SPAN_HI] = path->span_hi[k];
         r[MR_TOOL] = m->tool, r[MR_COOLANT] = m->coolant, r[MR_DWELL] = m->dwell, r[MR_EXACT_STOP] = m->exact_stop;
+        if (k > 0 && k % INSTALL_STEP == 0) {
+            GcMove *kept = realloc(g->moves, k * sizeof *kept);
+            if (kept) g->moves = kept, g->cap_moves = k; /* else the block stays whole until released */
+        }
     }
-    at = L->points;
-    for (k = 0; k < g->n_curves; k++) {
-        const GcCurve *c = &g->curves[k];
-        double *r = heap + L->curves + CURVE_DOUBLES * k;
-        size_t n = (size_t)c->n_points, n_knots = n + (size_t)c->degree + 1;
-        r[CR_DEGREE] = c->degree, r[CR_LAST_POINT] = c->n_points - 1, r[CR_PW] = (double)at,
-        r[CR_KNOTS] = (double)(at + 4 * n);
-        memcpy(heap + at, path->pw[k], 4 * n * sizeof *heap);
-        memcpy(heap + at + 4 * n, c->knots, n_knots * sizeof *heap);
-        at += 4 * n + n_knots;
-    }
-    for (k = 0; k < path->n_nodes; k++) {
-        heap[L->node_s + k] = path->node_s[k];
-        heap[L->node_vh + k] = path->node_vh[k];
-        heap[L->node_left + k] = path->node_left[k];
-        heap[L->node_right + k] = path->node_right[k];
-        heap[L->station + k] = path->station[k];
-    }
-    for (k = 0; k < path->n_ints; k++) {
-        heap[L->int_move + k] = path->int_move[k];
-        heap[L->int_at + k] = path->int_at[k];
-        heap[L->int_jt + k] = path->int_jt[k];
-        heap[L->int_cap + k] = path->int_cap[k];
-    }
+    FREE_ARRAY(g->moves);
+    g->n_moves = g->cap_moves = 0;
+    FREE_ARRAY(path->move_s), FREE_ARRAY(path->move_length), FREE_ARRAY(path->move_cap);
+    FREE_ARRAY(path->span_lo), FREE_ARRAY(path->span_hi);
+    for (k = 0; k < path->n_nodes; k++) heap[L->node_s + k] = path->node_s[k];
+    FREE_ARRAY(path->node_s);
+    for (k = 0; k < path->n_nodes; k++) heap[L->node_vh + k] = path->node_vh[k];
+    FREE_ARRAY(path->node_vh);
+    for (k = 0; k < path->n_nodes; k++) heap[L->node_left + k] = path->node_left[k];
+    FREE_ARRAY(path->node_left);
+    for (k = 0; k < path->n_nodes; k++) heap[L->node_right + k] = path->node_right[k];
+    FREE_ARRAY(path->node_right);
+    for (k = 0; k < path->n_nodes; k++) heap[L->station + k] = path->station[k];
+    FREE_ARRAY(path->station);
+    for (k = 0; k < path->n_ints; k++) heap[L->int_move + k] = path->int_move[k];
+    FREE_ARRAY(path->int_move);
+    for (k = 0; k < path->n_ints; k++) heap[L->int_at + k] = path->int_at[k];
+    FREE_ARRAY(path->int_at);
+    for (k = 0; k < path->n_ints; k++) heap[L->int_jt + k] = path->int_jt[k];
+    FREE_ARRAY(path->int_jt);
+    for (k = 0; k < path->n_ints; k++) heap[L->int_cap + k] = path->int_cap[k];
+    FREE_ARRAY(path->int_cap);
     for (k = 0; k < p->n_tools; k++) {
         const GcTool *t = &p->tools[k];
         double *r = heap + L->tools + TOOL_DOUBLES * k;
         r[TR_NUMBER] = t->number, r[TR_DIAMETER] = t->diameter, r[TR_CORNER_RADIUS] = t->corner_radius;
         r[TR_LENGTH] = t->length, r[TR_STICK_OUT] = t->stick_out, r[TR_HELIX] = t->helix, r[TR_FLUTES] = t->flutes;
     }
-    L->total = path->total;
-    L->final_line = g->final_line;
-    L->final_block = g->final_block;
-    L->final_spindle = g->final_spindle;
-    L->final_spindle_on = g->final_spindle_on;
-    memcpy(L->start, g->start, sizeof L->start);
-    memcpy(L->start_offset, g->start_offset, sizeof L->start_offset);
 }
 
 /* The tool `number` and its geometry from the heap's tool table, looked up only when the tool changes. */

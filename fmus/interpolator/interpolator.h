@@ -127,8 +127,9 @@ typedef struct {
 int interp_prepare(const char *text, size_t length, const char *file, const InterpSettings *settings,
                    InterpPrepared *prepared, char *error, size_t error_size);
 size_t interp_heap_size(const InterpPrepared *prepared);
-/* Fill a zeroed heap of interp_heap_size doubles and the layout. */
-void interp_install(const InterpPrepared *prepared, double *heap, InterpLayout *layout);
+/* Fill a zeroed heap of interp_heap_size doubles and the layout, giving back the prepared moves and path as they
+ * are copied (the program is never held twice whole); interp_release frees what is left. */
+void interp_install(InterpPrepared *prepared, double *heap, InterpLayout *layout);
 void interp_release(InterpPrepared *prepared);
 
 /* Outputs before the program starts: the tool at its start position. */

@@ -350,11 +350,55 @@ void path_free(PathBuild *path) {
 
 static void *array(size_t n, size_t size) { return calloc(n ? n : 1, size); }
 
+/* The node and interval arrays, grown as the moves are sampled (a line, an arc or a dwell adds one node and one
+ * interval; a NURBS block as many as its samples), trimmed to their length at the end. In a function returning int:
+ * -1 when out of memory (the array left as it was). */
+#define RESIZE(array, count)                                                                                       \
+    do {                                                                                                           \
+        void *resized_ = realloc((array), ((count) ? (count) : 1) * sizeof *(array));                              \
+        if (!resized_) return -1;                                                                                  \
+        (array) = resized_;                                                                                        \
+    } while (0)
+
+static int reserve_nodes(PathBuild *out, size_t nodes) {
+    RESIZE(out->node_s, nodes);
+    RESIZE(out->node_vh, nodes);
+    RESIZE(out->node_left, nodes);
+    RESIZE(out->node_right, nodes);
+    RESIZE(out->station, nodes);
+    return 0;
+}
+
+static int reserve_intervals(PathBuild *out, size_t ints) {
+    RESIZE(out->int_move, ints);
+    RESIZE(out->int_at, ints);
+    RESIZE(out->int_jt, ints);
+    RESIZE(out->int_cap, ints);
+    return 0;
+}
+
+static int reserve_capped(double **capped, size_t n) {
+    RESIZE(*capped, n);
+    return 0;
+}
+
+static void add_node(PathBuild *out, double s, double vh, int left, int right, int station) {
+    size_t k = out->n_nodes++;
+    out->node_s[k] = s, out->node_vh[k] = vh, out->node_left[k] = left, out->node_right[k] = right;
+    out->station[k] = (unsigned char)station;
+}
+
+/* One pass over the moves: each move's samples (scratch arrays reused from move to move), then at once its nodes and
+ * intervals; the junction at a move's start needs only the move before's end tangent, curvature and last speed cap.
+ * So no move keeps its samples: the path's memory is its nodes and intervals (about 90 bytes a line), not a sample
+ * list per move. The same values in the same order as models/interpolator/path.py. */
 int path_build(const GcProgram *program, const Limits *lim, const char *text, size_t text_length, const char *file,
                PathBuild *out, char *error, size_t error_size) {
-    size_t n_moves = program->n_moves, index, c, total_samples = 0, node = 0, interval = 0;
-    Samples *samples = NULL;
-    double (*end_t)[2][3] = NULL, (*end_k)[2][3] = NULL;
+    size_t n_moves = program->n_moves, index, c, node_cap, int_cap, capped_cap = 0;
+    Samples x = {0};
+    double *capped = NULL;          /* a NURBS block's speed caps over its neighbours */
+    double end_t[2][3], end_k[2][3]; /* the move's tangent and curvature vector at its start and end */
+    double prev_end_t[3] = {0, 0, 0}, prev_end_k[3] = {0, 0, 0}, prev_last_v = 0.0;
     double s = 0.0;
     int status = -1;
     memset(out, 0, sizeof *out);
@@ -366,11 +410,9 @@ int path_build(const GcProgram *program, const Limits *lim, const char *text, si
     out->span_lo = array(n_moves, sizeof(int));
     out->span_hi = array(n_moves, sizeof(int));
     out->pw = array(program->n_curves, sizeof(double *));
-    samples = array(n_moves, sizeof *samples);
-    end_t = array(n_moves, sizeof *end_t);
-    end_k = array(n_moves, sizeof *end_k);
+    node_cap = n_moves + 1, int_cap = n_moves; /* exact for a program of lines, arcs and dwells */
     if (!out->move_s || !out->move_length || !out->move_cap || !out->span_lo || !out->span_hi || !out->pw ||
-        !samples || !end_t || !end_k)
+        reserve_nodes(out, node_cap) || reserve_intervals(out, int_cap))
         goto oom;
     for (c = 0; c < program->n_curves; c++) {
         const GcCurve *cv = &program->curves[c];
@@ -388,11 +430,13 @@ int path_build(const GcProgram *program, const Limits *lim, const char *text, si
     }
     for (index = 0; index < n_moves; index++) {
         const GcMove *m = &program->moves[index];
-        Samples *x = &samples[index];
-        double length;
+        double length, base = s;
+        size_t j, count;
         /* the program's contour tolerance (G64 P, CYCLE832) is the chord error allowed on its moves */
         Limits move_lim = *lim;
         if (m->tolerance > 0.0) move_lim.chord = m->tolerance;
+        memset(end_k, 0, sizeof end_k);
+        x.n = 0;
         out->move_s[index] = s;
         if (m->kind == MOVE_RAPID || m->kind == MOVE_LINE) {
             double t[3], at, jt;
@@ -401,16 +445,17 @@ int path_build(const GcProgram *program, const Limits *lim, const char *text, si
             length = sqrt(vec_dot(t, t));
             for (i = 0; i < 3; i++) t[i] = t[i] / length;
             tangential_limits(lim, t, 0, &at, &jt);
-            memcpy(end_t[index][0], t, sizeof t);
-            memcpy(end_t[index][1], t, sizeof t);
+            memcpy(end_t[0], t, sizeof t);
+            memcpy(end_t[1], t, sizeof t);
             out->move_cap[index] = BIG;
-            if (samples_push(x, 0.0, BIG, at, jt) != 0 || samples_push(x, length, BIG, at, jt) != 0) goto oom;
+            if (samples_push(&x, 0.0, BIG, at, jt) != 0 || samples_push(&x, length, BIG, at, jt) != 0) goto oom;
         } else if (m->kind == MOVE_DWELL) {
             /* no length: the path comes to rest on both of its nodes (stations), the schedule stands `dwell` there */
             length = 0.0;
+            memset(end_t, 0, sizeof end_t);
             out->move_cap[index] = 0.0;
-            if (samples_push(x, 0.0, 0.0, lim->acceleration, lim->jerk) != 0 ||
-                samples_push(x, 0.0, 0.0, lim->acceleration, lim->jerk) != 0)
+            if (samples_push(&x, 0.0, 0.0, lim->acceleration, lim->jerk) != 0 ||
+                samples_push(&x, 0.0, 0.0, lim->acceleration, lim->jerk) != 0)
                 goto oom;
         } else if (m->kind == MOVE_ARC) {
             ArcParams a;
@@ -429,17 +474,16 @@ int path_build(const GcProgram *program, const Limits *lim, const char *text, si
             tangential_limits(lim, t, 1, &at, &jt);
             kappa = rm * omega * omega;
             v = curvature_limit(&move_lim, kappa, k, kp, at);
-            arc_end_geometry(&a, 0.0, end_t[index][0], end_k[index][0]);
-            arc_end_geometry(&a, 1.0, end_t[index][1], end_k[index][1]);
+            arc_end_geometry(&a, 0.0, end_t[0], end_k[0]);
+            arc_end_geometry(&a, 1.0, end_t[1], end_k[1]);
             out->move_cap[index] = v;
-            if (samples_push(x, 0.0, v, at, jt) != 0 || samples_push(x, length, v, at, jt) != 0) goto oom;
+            if (samples_push(&x, 0.0, v, at, jt) != 0 || samples_push(&x, length, v, at, jt) != 0) goto oom;
         } else {
             const GcCurve *cv = &program->curves[m->curve];
             NurbsView view;
             Sampler z;
             int lo, hi;
             size_t n, i;
-            double *vc;
             view.degree = cv->degree;
             view.n = cv->n_points - 1;
             view.knots = cv->knots;
@@ -449,95 +493,80 @@ int path_build(const GcProgram *program, const Limits *lim, const char *text, si
             out->span_hi[index] = hi;
             z.curve = &view, z.lim = &move_lim, z.lo = lo, z.hi = hi, z.line = m->line, z.file = file;
             z.text = text, z.length = text_length;
-            z.error = error, z.error_size = error_size, z.out = x;
-            if (nurbs_samples(&z, m->u0, m->u1, end_t[index], end_k[index]) != 0) goto fail;
-            n = x->n;
-            length = x->s[n - 1];
-            vc = malloc(n * sizeof *vc);
-            if (!vc) goto oom;
+            z.error = error, z.error_size = error_size, z.out = &x;
+            if (nurbs_samples(&z, m->u0, m->u1, end_t, end_k) != 0) goto fail;
+            n = x.n;
+            length = x.s[n - 1];
+            if (n > capped_cap) {
+                if (reserve_capped(&capped, n)) goto oom;
+                capped_cap = n;
+            }
             for (i = 0; i < n; i++) {
                 /* the lowest of the neighbours and of every sample within one step (see models/interpolator/path.py) */
-                double v = min2(min2(x->v[i > 0 ? i - 1 : 0], x->v[i]), x->v[i + 1 < n ? i + 1 : n - 1]);
-                double window = min2(x->v[i], lim->max_feed) * lim->period;
-                size_t j;
-                /* a step spans sample j only at a speed above its distance / period */
-                for (j = i; j >= 2 && x->s[i] - x->s[j - 2] <= window; j--)
-                    v = min2(v, max2(x->v[j - 2], (x->s[i] - x->s[j - 2]) / lim->period));
-                for (j = i + 2; j < n && x->s[j] - x->s[i] <= window; j++)
-                    v = min2(v, max2(x->v[j], (x->s[j] - x->s[i]) / lim->period));
-                vc[i] = v;
+                double v = min2(min2(x.v[i > 0 ? i - 1 : 0], x.v[i]), x.v[i + 1 < n ? i + 1 : n - 1]);
+                double window = min2(x.v[i], lim->max_feed) * lim->period;
+                size_t jj;
+                /* a step spans sample jj only at a speed above its distance / period */
+                for (jj = i; jj >= 2 && x.s[i] - x.s[jj - 2] <= window; jj--)
+                    v = min2(v, max2(x.v[jj - 2], (x.s[i] - x.s[jj - 2]) / lim->period));
+                for (jj = i + 2; jj < n && x.s[jj] - x.s[i] <= window; jj++)
+                    v = min2(v, max2(x.v[jj], (x.s[jj] - x.s[i]) / lim->period));
+                capped[i] = v;
             }
-            free(x->v);
-            x->v = vc;
+            memcpy(x.v, capped, n * sizeof *capped);
             out->move_cap[index] = BIG;
         }
         out->move_length[index] = length;
         s += length;
-        total_samples += samples[index].n;
-    }
-    out->total = s;
-    out->n_nodes = n_moves ? total_samples - (n_moves - 1) : 0;
-    out->n_ints = n_moves ? out->n_nodes - 1 : 0;
-    out->node_s = array(out->n_nodes, sizeof(double));
-    out->node_vh = array(out->n_nodes, sizeof(double));
-    out->node_left = array(out->n_nodes, sizeof(int));
-    out->node_right = array(out->n_nodes, sizeof(int));
-    out->station = array(out->n_nodes, 1);
-    out->int_move = array(out->n_ints, sizeof(int));
-    out->int_at = array(out->n_ints, sizeof(double));
-    out->int_jt = array(out->n_ints, sizeof(double));
-    out->int_cap = array(out->n_ints, sizeof(double));
-    if (!out->node_s || !out->node_vh || !out->node_left || !out->node_right || !out->station || !out->int_move ||
-        !out->int_at || !out->int_jt || !out->int_cap)
-        goto oom;
-    for (index = 0; index < n_moves; index++) {
-        const Samples *x = &samples[index];
-        double base = out->move_s[index];
-        size_t j, count = x->n;
+        /* this move's nodes and intervals: a node where it starts (the junction with the move before), one per inner
+         * sample, and the program's end; an interval between each two of its samples */
+        count = x.n;
+        if (out->n_nodes + count > node_cap) {
+            node_cap = 2 * node_cap > out->n_nodes + count ? 2 * node_cap : out->n_nodes + count;
+            if (reserve_nodes(out, node_cap)) goto oom;
+        }
+        if (out->n_ints + count > int_cap) {
+            int_cap = 2 * int_cap > out->n_ints + count ? 2 * int_cap : out->n_ints + count;
+            if (reserve_intervals(out, int_cap)) goto oom;
+        }
         for (j = 0; j < count; j++) {
             if (j == 0) {
                 if (index == 0) {
-                    out->node_s[node] = base, out->node_vh[node] = 0.0;
-                    out->node_left[node] = -1, out->node_right[node] = (int)index, out->station[node] = 1;
+                    add_node(out, base, 0.0, -1, (int)index, 1);
                 } else {
                     const double zero[3] = {0, 0, 0};
-                    const GcMove *prev = &program->moves[index - 1], *cur = &program->moves[index];
-                    int stop = prev->exact_stop || prev->kind == MOVE_DWELL || cur->kind == MOVE_DWELL;
+                    const GcMove *prev = &program->moves[index - 1];
+                    int stop = prev->exact_stop || prev->kind == MOVE_DWELL || m->kind == MOVE_DWELL;
                     double v = 0.0; /* exact stop (G61, G9, before and after a dwell): at rest, a station */
                     if (!stop) {
-                        const double *ka = (prev->kind == MOVE_RAPID || prev->kind == MOVE_LINE) ? zero
-                                                                                                 : end_k[index - 1][1];
-                        const double *kb = (cur->kind == MOVE_RAPID || cur->kind == MOVE_LINE) ? zero : end_k[index][0];
-                        const Samples *px = &samples[index - 1];
-                        v = junction_limit(lim, end_t[index - 1][1], ka, end_t[index][0], kb);
-                        v = min2(min2(v, px->v[px->n - 1]), x->v[0]);
+                        const double *ka = (prev->kind == MOVE_RAPID || prev->kind == MOVE_LINE) ? zero : prev_end_k;
+                        const double *kb = (m->kind == MOVE_RAPID || m->kind == MOVE_LINE) ? zero : end_k[0];
+                        v = junction_limit(lim, prev_end_t, ka, end_t[0], kb);
+                        v = min2(min2(v, prev_last_v), x.v[0]);
                     }
-                    out->node_s[node] = base, out->node_vh[node] = v;
-                    out->node_left[node] = (int)index - 1, out->node_right[node] = (int)index;
-                    out->station[node] = stop ? 1 : 0;
+                    add_node(out, base, v, (int)index - 1, (int)index, stop);
                 }
-                node++;
             } else if (j == count - 1) {
-                if (index == n_moves - 1) {
-                    out->node_s[node] = base + x->s[j], out->node_vh[node] = 0.0;
-                    out->node_left[node] = (int)index, out->node_right[node] = -1, out->station[node] = 1;
-                    node++;
-                }
+                if (index == n_moves - 1) add_node(out, base + x.s[j], 0.0, (int)index, -1, 1);
             } else {
-                out->node_s[node] = base + x->s[j], out->node_vh[node] = x->v[j];
-                out->node_left[node] = (int)index, out->node_right[node] = (int)index, out->station[node] = 0;
-                node++;
+                add_node(out, base + x.s[j], x.v[j], (int)index, (int)index, 0);
             }
             if (j < count - 1) {
-                out->int_move[interval] = (int)index;
-                out->int_at[interval] = min2(x->at[j], x->at[j + 1]);
-                out->int_jt[interval] = min2(x->jt[j], x->jt[j + 1]);
-                out->int_cap[interval] = program->moves[index].kind == MOVE_NURBS ? max2(x->v[j], x->v[j + 1])
-                                                                                  : out->move_cap[index];
-                interval++;
+                size_t i = out->n_ints++;
+                out->int_move[i] = (int)index;
+                out->int_at[i] = min2(x.at[j], x.at[j + 1]);
+                out->int_jt[i] = min2(x.jt[j], x.jt[j + 1]);
+                out->int_cap[i] = m->kind == MOVE_NURBS ? max2(x.v[j], x.v[j + 1]) : out->move_cap[index];
             }
         }
+        memcpy(prev_end_t, end_t[1], sizeof prev_end_t);
+        memcpy(prev_end_k, end_k[1], sizeof prev_end_k);
+        prev_last_v = x.v[count - 1];
     }
+    out->total = s;
+    /* give back what a NURBS block's doubling reserved beyond the nodes and intervals */
+    if (node_cap > out->n_nodes) reserve_nodes(out, out->n_nodes);
+    if (int_cap > out->n_ints) reserve_intervals(out, out->n_ints);
     if (n_moves && out->node_s[out->n_nodes - 1] != out->total) out->node_s[out->n_nodes - 1] = out->total;
     status = 0;
     goto done;
@@ -546,10 +575,7 @@ oom:
 fail:
     path_free(out);
 done:
-    if (samples)
-        for (index = 0; index < n_moves; index++) samples_free(&samples[index]);
-    free(samples);
-    free(end_t);
-    free(end_k);
+    samples_free(&x);
+    free(capped);
     return status;
 }

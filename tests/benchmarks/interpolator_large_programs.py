@@ -16,7 +16,10 @@ Programs (generated, deterministic):
 Runs the standalone driver build/tools/interp_run (the FMU's C engine) with --timing; --until stops the stream
 after that many seconds of machine time (the real-time factor is machine time over the stream's wall time).
 Peak memory: the driver's own peak resident set (VmHWM, Linux; getrusage would count the image of the process that
-started it, before exec).
+started it, before exec). Then the same program through the FMI 3 FMU in fmpy, in a Python process of its own
+(--fmu, default build/fmus/Interpolator.fmu; --fmu '' skips it): exitInitializationMode's time, doStep of 1 s of
+machine time to --until, and the process's peak, Python and fmpy included (their own peak before the FMU is
+instantiated is printed beside it).
 """
 from __future__ import annotations
 
@@ -121,12 +124,50 @@ def parse_output(kind: str, lines: int, stdout: str) -> Measured:
                     float(s[14]), float(s[17]))
 
 
-def measure(kind: str, lines: int, lookahead: int, until: float, folder: Path) -> Measured:
-    program = folder / f"{kind}_{lines}.nc"
-    program.write_text(PROGRAMS[kind](lines))
-    stdout = run_driver(program, lookahead, until)
-    program.unlink()
-    return parse_output(kind, lines, stdout)
+@dataclass
+class MeasuredFmu:
+    python_mb: float
+    peak_mb: float
+    initialisation: float
+    real_time: float
+
+
+def fmu_child(fmu: str, program: str, until: float) -> None:
+    """In a process of its own: the FMU through fmpy on `program`, printing what MeasuredFmu holds."""
+    from fmpy import extract, read_model_description
+    from fmpy.fmi3 import FMU3Slave
+
+    def peak() -> float:
+        with open("/proc/self/status") as status:
+            return next(float(line.split()[1]) / 1024.0 for line in status if line.startswith("VmHWM:"))
+
+    description = read_model_description(fmu)
+    refs = {v.name: v.valueReference for v in description.modelVariables}
+    before = peak()
+    slave = FMU3Slave(guid=description.guid, unzipDirectory=extract(fmu), instanceName="large_program",
+                      modelIdentifier=description.coSimulation.modelIdentifier)
+    slave.instantiate()
+    slave.enterInitializationMode()
+    slave.setString([refs["program"]], [program])
+    start = time.perf_counter()
+    slave.exitInitializationMode()
+    initialised = time.perf_counter()
+    t = 0.0
+    while t < until:
+        slave.doStep(t, 1.0)
+        t += 1.0
+    streamed = time.perf_counter()
+    print(before, peak(), initialised - start, until / max(streamed - initialised, 1e-9))
+    slave.terminate()
+    slave.freeInstance()
+
+
+def measure_fmu(fmu: Path, program: Path, until: float) -> MeasuredFmu:
+    done = subprocess.run([sys.executable, __file__, "--fmu-child", str(fmu), str(program), str(until)],
+                          capture_output=True, text=True, check=False)
+    if done.returncode != 0:
+        raise SystemExit(f"{program}: the FMU run failed ({done.returncode}): {done.stderr.strip()[-2000:]}")
+    return MeasuredFmu(*(float(x) for x in done.stdout.split()))
 
 
 def main() -> int:
@@ -136,21 +177,35 @@ def main() -> int:
     parser.add_argument("--lookahead", type=int, default=LOOKAHEAD_BLOCKS)
     parser.add_argument("--until", type=float, default=600.0,
                         help="machine seconds to stream (0: the whole program)")
+    parser.add_argument("--fmu", default=str(REPO / "build" / "fmus" / "Interpolator.fmu"),
+                        help="the FMI 3 Interpolator run through fmpy on each program too ('': not)")
+    parser.add_argument("--fmu-child", nargs=3, help=argparse.SUPPRESS)
     args = parser.parse_args()
+    if args.fmu_child:
+        fmu_child(args.fmu_child[0], args.fmu_child[1], float(args.fmu_child[2]))
+        return 0
     if not DRIVER.exists():
         raise SystemExit(f"{DRIVER}: not built (cmake --build build)")
     print(f"{'program':>10} {'lines':>9} {'init s':>7} {'(parse+path':>11} {'heap':>6} {'plan)':>6} "
-          f"{'machine s':>10} {'stream s':>9} {'x real':>7} {'longest call s':>14} {'peak MB':>8}")
+          f"{'machine s':>10} {'stream s':>9} {'x real':>7} {'longest call s':>14} {'peak MB':>8}"
+          + ("  | FMU in fmpy: init s, x real, peak MB (Python's own)" if args.fmu else ""))
     with tempfile.TemporaryDirectory() as tmp:
         for lines in args.lines:
             for kind in args.kinds:
                 start = time.perf_counter()
-                m = measure(kind, lines, args.lookahead, args.until, Path(tmp))
+                program = Path(tmp) / f"{kind}_{lines}.nc"
+                program.write_text(PROGRAMS[kind](lines))
+                m = parse_output(kind, lines, run_driver(program, args.lookahead, args.until))
                 longest = max(m.longest_tick, m.first_plan)
-                print(f"{kind:>10} {lines:>9} {m.initialisation:>7.2f} {m.parse_and_path:>11.2f} {m.heap:>6.2f} "
-                      f"{m.first_plan:>6.2f} {m.machine_time:>10.1f} {m.stream:>9.2f} "
-                      f"{m.machine_time / max(m.stream, 1e-9):>7.0f} {longest:>14.3f} {m.peak_mb:>8.0f}"
-                      f"   ({time.perf_counter() - start:.0f} s with generation)", flush=True)
+                line = (f"{kind:>10} {lines:>9} {m.initialisation:>7.2f} {m.parse_and_path:>11.2f} {m.heap:>6.2f} "
+                        f"{m.first_plan:>6.2f} {m.machine_time:>10.1f} {m.stream:>9.2f} "
+                        f"{m.machine_time / max(m.stream, 1e-9):>7.0f} {longest:>14.3f} {m.peak_mb:>8.0f}")
+                if args.fmu:
+                    # the FMU takes the lookahead_blocks default; the driver's --lookahead is for the engine alone
+                    f = measure_fmu(Path(args.fmu), program, args.until or m.machine_time)
+                    line += f"  | {f.initialisation:.2f} {f.real_time:.0f} {f.peak_mb:.0f} ({f.python_mb:.0f})"
+                program.unlink()
+                print(line + f"   ({time.perf_counter() - start:.0f} s with generation)", flush=True)
     return 0
 
 

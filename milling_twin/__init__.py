@@ -14,9 +14,10 @@ from typing import TYPE_CHECKING, Any
 __version__ = "0.1.0"
 
 if TYPE_CHECKING:
-    from milling_twin.api import Results, calibrate, load_results, load_scenario, simulate, sweep
+    from milling_twin.api import Results, calibrate, load_results, load_scenario, optimize, simulate, sweep
 
-__all__ = ["Results", "__version__", "calibrate", "load_results", "load_scenario", "simulate", "sweep"]
+__all__ = ["Results", "__version__", "calibrate", "load_results", "load_scenario", "optimize", "simulate",
+           "sweep"]
 
 
 def __getattr__(name: str) -> Any:

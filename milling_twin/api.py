@@ -27,7 +27,8 @@ if TYPE_CHECKING:  # the heavy modules load when a function is called, not on `i
     from milling_twin.orchestrator.scenario import Scenario
     from milling_twin.orchestrator.study.run import StudyResult
 
-__all__ = ["Results", "calibrate", "default_fmu_dir", "load_results", "load_scenario", "simulate", "sweep"]
+__all__ = ["Results", "calibrate", "default_fmu_dir", "load_results", "load_scenario", "optimize", "simulate",
+           "sweep"]
 
 FMU_DIR_ENV = "MILLING_TWIN_FMU_DIR"
 
@@ -173,6 +174,19 @@ def calibrate(spec: str | Path, *, fmu_dir: str | Path | None = None, out: str |
     return run_calibration(spec, fmu_dir if fmu_dir is not None else default_fmu_dir(), out, data=data,
                            progress=progress, write_set=write_set, overrides=overrides, workers=workers,
                            scheduler=scheduler)
+
+
+def optimize(part: str | Path, *, fmu_dir: str | Path | None = None, out: str | Path = "runs",
+             objective: str | None = None, max_iterations: int | None = None, progress: bool = False,
+             echo: Callable[[str], None] | None = None):
+    """Optimize the feeds of a whole-part scenario's program block by block within its ``[optimize]`` limits,
+    each step verified by re-simulating the part (docs/optimize.md): into ``out/optimize/<part name>/``.
+    ``objective``: "time" or "force" (default: the file's, else "time"); ``echo`` receives a line per iteration.
+    Returns an ``OptimizeResult`` (the iterations, the best one, the optimized program and the report)."""
+    from milling_twin.orchestrator.optimize.run import optimize as run
+
+    return run(part, fmu_dir=fmu_dir if fmu_dir is not None else default_fmu_dir(), out=out, objective=objective,
+               max_iterations=max_iterations, progress=progress, echo=echo)
 
 
 def sweep(study: str | Path, *, fmu_dir: str | Path | None = None, out: str | Path = "runs",

@@ -296,6 +296,19 @@ def _sweep(p: argparse.ArgumentParser) -> None:
     p.add_argument("--no-progress", action="store_true", help="no progress bar")
 
 
+def _optimize(p: argparse.ArgumentParser) -> None:
+    p.add_argument("part", type=Path, help="whole-part scenario (TOML with [part]; its [optimize] holds the limits)")
+    _add_fmu_dir(p)
+    p.add_argument("--out", type=Path, default=Path("runs"),
+                   help="the optimization goes to OUT/optimize/<part name>/ (default: runs)")
+    p.add_argument("--objective", choices=("time", "force"), default=None,
+                   help="time: the shortest cycle within the limits; force: the original cycle time with the lowest "
+                        "peak force (default: [optimize].objective, else time)")
+    p.add_argument("--max-iterations", type=int, default=None,
+                   help="re-simulations after the original run (default: [optimize].max_iterations, else 6)")
+    p.add_argument("--no-progress", action="store_true", help="no progress bar")
+
+
 def _info(p: argparse.ArgumentParser) -> None:
     p.add_argument("fmu", type=Path, help="an .fmu file (or a model name found in --fmu-dir, e.g. SpindlePower)")
     _add_fmu_dir(p)
@@ -358,6 +371,9 @@ COMMANDS: tuple[Subcommand | Group, ...] = (
                "milling_twin.commands:calibrate"),
     Subcommand("sweep", "run a study: many cases of a scenario (grid, list, sample, Monte Carlo) on dask workers, "
                "one summary row per case", _sweep, "milling_twin.orchestrator.study.cli:command"),
+    Subcommand("optimize", "schedule a whole part's feeds block by block within force, torque, power and "
+               "deflection limits, verified by re-simulation; writes the program (only F words changed) and a "
+               "report", _optimize, "milling_twin.orchestrator.optimize.cli:command"),
     Group("align", "align recorded data with simulation in time or space", (
         Subcommand("temporal", "map every recorded sample to its simulated moment; writes the time map (CSV)",
                    _align_temporal, "milling_twin.orchestrator.align.cli:temporal"),

@@ -131,6 +131,7 @@ with variability ``tunable`` (a ``fixed`` one is refused), its value checked and
 """
 from __future__ import annotations
 
+import copy
 import math
 import re
 import zipfile
@@ -720,14 +721,16 @@ def _report_loop(ctx: _Ctx, remaining: list[str], edges: list[tuple[str, Connect
 
 
 def load_scenario(path: str | Path, fmu_dir: str | Path, parameter_sets: Sequence[str | Path] = (), *,
-                  recording: str | Path | None = None) -> Scenario:
+                  recording: str | Path | None = None, document: Mapping[str, Any] | None = None) -> Scenario:
     """Parse and validate a scenario file; FMU names are resolved in ``fmu_dir``. ``parameter_sets``:
     parameter-set files applied after the scenario's own ``[scenario].parameter_sets``. ``recording``: a
     recording read instead of ``[recorded].file`` (another run of the same machine and logger: the same
-    columns, channels and checks)."""
+    columns, channels and checks). ``document``: the file's TOML as read and then edited (the feed optimizer's
+    part file with another program), used instead of reading ``path``; paths in it are still relative to
+    ``path``'s folder and messages still name ``path``."""
     path, fmu_dir = Path(path), Path(fmu_dir)
     ctx = _Ctx(path)
-    _, doc = ctx.document("scenario")
+    doc = copy.deepcopy(dict(document)) if document is not None else ctx.document("scenario")[1]
     part = None
     if "part" in doc:  # a whole-part scenario: [part] expanded into the explicit instances (docs/part.md)
         from milling_twin.orchestrator.part.expand import expand_document

@@ -295,8 +295,10 @@ def _is_skipped(raw: str) -> bool:
     return raw.lstrip(" \t").startswith("/")
 
 
-def _tokenize(raw: str, file: str, line: int) -> list[tuple[str, float, str]]:
-    """Words of one line as (letter, value, number text); comments removed; ':' first in a line is 'O'."""
+def _tokenize(raw: str, file: str, line: int, spans: list[tuple[int, int]] | None = None
+              ) -> list[tuple[str, float, str]]:
+    """Words of one line as (letter, value, number text); comments removed; ':' first in a line is 'O'.
+    ``spans``, when given, receives each word's (start, end) in ``raw`` (letter to the number's last character)."""
     words: list[tuple[str, float, str]] = []
     i, n = 0, len(raw)
     while i < n:
@@ -319,8 +321,11 @@ def _tokenize(raw: str, file: str, line: int) -> list[tuple[str, float, str]]:
             if letter not in _LETTERS:
                 extra = " (only the axes X, Y, Z are modelled)" if letter in "ABCUVW" else ""
                 raise ProgramError(file, line, raw, f"a word {_LETTER_LIST}, got '{c}'{extra}")
+            start = i
             value, i, text = _parse_number(raw, i + 1, file, line, raw, letter)
             words.append((letter, value, text))
+            if spans is not None:
+                spans.append((start, i))
         else:
             shown = f"'{c}'" if c.isprintable() and c.isascii() else f"byte 0x{ord(c):02x}" if ord(c) < 128 \
                 else "a non-ASCII character"
@@ -328,6 +333,15 @@ def _tokenize(raw: str, file: str, line: int) -> list[tuple[str, float, str]]:
             raise ProgramError(file, line, raw, f"a word (letter and number), a comment or the end of the line, "
                                                 f"got {shown}{extra}")
     return words
+
+
+def word_spans(raw: str, file: str = "program.nc", line: int = 0) -> list[tuple[str, float, str, int, int]]:
+    """The words of one line of the core syntax (Fanuc, LinuxCNC) as the parser reads them: (letter, value, number
+    as written, start, end) with ``raw[start:end]`` the word; a ProgramError for a line the parser refuses. For
+    tools that rewrite a program word by word (the feed optimizer's F words)."""
+    spans: list[tuple[int, int]] = []
+    words = _tokenize(raw, file, line, spans)
+    return [(letter, value, text, a, b) for (letter, value, text), (a, b) in zip(words, spans)]
 
 
 def _g_code(value: float, text: str, file: str, line: int, raw: str) -> int:

@@ -28,8 +28,9 @@ from milling_twin.orchestrator.scenario import (ScenarioError, Variable, _Ctx, _
 from milling_twin.orchestrator.toml_access import TomlAccess
 
 INSTANCES = (INTERPOLATOR, WORKPIECE, FORCE, VIBRATION, POWER)
-# Tables that may stand beside [part] (kept as they are; [fmus.<instance>] overrides single parameters)
-BESIDE_PART = ("scenario", "part", "fmus", "recorded", "inputs", "outputs", "compare", "alignment")
+# Tables that may stand beside [part] (kept as they are; [fmus.<instance>] overrides single parameters; [optimize]
+# is read by `milling-twin optimize` only, orchestrator/optimize/spec.py)
+BESIDE_PART = ("scenario", "part", "fmus", "recorded", "inputs", "outputs", "compare", "alignment", "optimize")
 DEFAULT_OUTPUT_INTERVAL = 1e-4      # s
 STOP_MARGIN = 0.05                  # s after the program's machining time
 CLEARANCE_MARGIN = 1.5              # the Workpiece looks for material this many lookaheads around the tool

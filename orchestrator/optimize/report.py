@@ -1,0 +1,186 @@
+"""The optimizer's report: ``optimize_report.html`` (self-contained) and ``blocks_before_after.csv``.
+
+The page: the headline (cycle time and peak force before and after, the limits, why the iteration stopped), the
+iterations, a figure of each line's feed and largest force before and after against its limit, the table of
+every program line with feed moves before and after (feed, time, force, torque, spindle power, deflection,
+chatter), and the changed lines of the program as a diff. The CSV holds the same table in display units.
+"""
+from __future__ import annotations
+
+import difflib
+import html
+import io
+import math
+from collections.abc import Mapping, Sequence
+from pathlib import Path
+
+import numpy as np
+import pandas as pd
+from matplotlib.figure import Figure
+
+from milling_twin.orchestrator import atomic_files
+from milling_twin.orchestrator.optimize.schedule import ToolLimits, line_runs
+from milling_twin.orchestrator.optimize.spec import OptimizeSpec
+from milling_twin.orchestrator.part.report import STYLE, _html_table, _img
+
+__all__ = ["write_optimize_report", "before_after"]
+
+MAX_DIFF_LINES = 2000   # lines of the diff shown on the page (the programs themselves are files beside it)
+DIFF_STYLE = """pre.diff{font-size:0.8em;background:#fafafa;border:1px solid #ddd;padding:0.5em;overflow-x:auto}
+pre.diff .add{background:#e3f6e3} pre.diff .del{background:#fde2e2} pre.diff .hunk{color:#557}"""
+
+
+def before_after(before: pd.DataFrame, after: pd.DataFrame, original_feeds: Mapping[int, float]) -> pd.DataFrame:
+    """One row per program line with feed moves: the original run's and the optimized run's values (SI)."""
+    lines = sorted(original_feeds)
+    a, b = line_runs(before, original_feeds, lines), line_runs(after, original_feeds, lines)
+    rows = []
+    for line in lines:
+        if line not in a or line not in b:
+            continue
+        x, y = a[line], b[line]
+        rows.append({"line": line, "tool": x.tool, "cuts": x.cuts, "feed_before": x.feed, "feed_after": y.feed,
+                     "factor": y.factor, "time_before": x.duration, "time_after": y.duration,
+                     **{f"{name}_before": x.metrics[name] for name in x.metrics},
+                     **{f"{name}_after": y.metrics[name] for name in y.metrics},
+                     "chatter_before": x.chatter, "chatter_after": y.chatter})
+    return pd.DataFrame(rows)
+
+
+# column -> (header, factor from SI to the display unit, digits)
+_DISPLAY = {
+    "line": ("line", 1, 0), "tool": ("tool", 1, 0), "cuts": ("cuts", 1, 0),
+    "feed_before": ("F before [mm/min]", 60000.0, 1), "feed_after": ("F after [mm/min]", 60000.0, 1),
+    "factor": ("factor", 1.0, 3),
+    "time_before": ("time before [s]", 1.0, 3), "time_after": ("time after [s]", 1.0, 3),
+    "force_before": ("force max before [N]", 1.0, 1), "force_after": ("force max after [N]", 1.0, 1),
+    "torque_before": ("torque max before [N.m]", 1.0, 3), "torque_after": ("torque max after [N.m]", 1.0, 3),
+    "power_before": ("spindle power max before [kW]", 1e-3, 3), "power_after": ("spindle power max after [kW]", 1e-3, 3),
+    "deflection_before": ("deflection max before [um]", 1e6, 2),
+    "deflection_after": ("deflection max after [um]", 1e6, 2),
+    "chatter_before": ("chatter before", 1, 0), "chatter_after": ("chatter after", 1, 0),
+}
+
+
+def _display(table: pd.DataFrame) -> pd.DataFrame:
+    out = {}
+    for column, (header, factor, _) in _DISPLAY.items():
+        values = table[column]
+        out[header] = values * factor if factor != 1 or values.dtype.kind == "f" else values
+    return pd.DataFrame(out)
+
+
+def _cell(value, digits: int) -> str:
+    if isinstance(value, (bool, np.bool_)):
+        return "yes" if value else ""
+    if isinstance(value, (int, np.integer)):
+        return str(int(value))
+    return "" if not math.isfinite(float(value)) else f"{float(value):.{digits}f}"
+
+
+def _figure(table: pd.DataFrame, limits: Mapping[int, ToolLimits], force_scale: float) -> bytes:
+    fig = Figure(figsize=(11, 6.5))
+    top, bottom = fig.subplots(2, 1, sharex=True)
+    x = np.arange(len(table))
+    top.step(x, table["feed_before"] * 60000, where="mid", label="before", color="#888")
+    top.step(x, table["feed_after"] * 60000, where="mid", label="after", color="#1f5fbf")
+    top.set_ylabel("programmed feed [mm/min]")
+    top.legend(loc="upper right")
+    top.grid(alpha=0.3)
+    bottom.bar(x - 0.2, table["force_before"], width=0.4, label="before", color="#aaa")
+    bottom.bar(x + 0.2, table["force_after"], width=0.4, label="after", color="#1f5fbf")
+    for tool, lim in limits.items():
+        force = lim.process.get("force")
+        if force is not None:
+            bottom.axhline(force * force_scale, color="#c33", lw=1, ls="--", label=f"T{tool} force limit")
+    bottom.set_ylabel("largest force [N]")
+    bottom.set_xlabel("program lines with feed moves, in program order")
+    step = max(1, len(x) // 25)
+    bottom.set_xticks(x[::step], [str(v) for v in table["line"].iloc[::step]], rotation=90, fontsize=7)
+    bottom.legend(loc="upper right", fontsize=8)
+    bottom.grid(alpha=0.3)
+    fig.tight_layout()
+    buffer = io.BytesIO()
+    fig.savefig(buffer, format="png", dpi=90)
+    return buffer.getvalue()
+
+
+def _diff_html(before: str, after: str, name: str) -> tuple[str, int]:
+    diff = list(difflib.unified_diff(before.splitlines(), after.splitlines(), f"{name} (original)",
+                                     f"{name} (optimized)", lineterm="", n=1))
+    shown = diff[:MAX_DIFF_LINES]
+    out = []
+    for text in shown:
+        cls = "add" if text.startswith("+") and not text.startswith("+++") else \
+            "del" if text.startswith("-") and not text.startswith("---") else "hunk" if text.startswith("@@") else ""
+        out.append(f"<span class='{cls}'>{html.escape(text)}</span>" if cls else html.escape(text))
+    more = "" if len(diff) <= MAX_DIFF_LINES else f"\n... {len(diff) - MAX_DIFF_LINES} more lines of the diff"
+    return "<pre class='diff'>" + "\n".join(out) + html.escape(more) + "</pre>", len(diff)
+
+
+def write_optimize_report(folder: Path, part, spec: OptimizeSpec, limits: Mapping[int, ToolLimits],
+                          iterations: Sequence, best, original_text: str, optimized_text: str,
+                          stopped: str) -> Path:
+    """Write the page and the CSV into ``folder``; the page's path."""
+    from milling_twin.orchestrator.optimize.program_edit import feed_lines
+    from milling_twin.orchestrator.optimize.run import _parser
+
+    parse = _parser(part)
+    moving = feed_lines(parse(original_text))
+    original_feeds = {line: max(m.feed for m in moves) for line, moves in moving.items()}
+    original = iterations[0]
+    before = pd.read_parquet(original.run_dir / "blocks.parquet")
+    after = pd.read_parquet(best.run_dir / "blocks.parquet")
+    table = before_after(before, after, original_feeds)
+    atomic_files.write_with(folder / "blocks_before_after.csv", lambda p: _display(table).to_csv(p, index=False,
+                                                                                        float_format="%.6g"))
+
+    t0, t1 = original.cycle_time, best.cycle_time
+    p0, p1 = max(original.peak_force.values(), default=0.0), max(best.peak_force.values(), default=0.0)
+    title = f"Feed optimization: {part.program.name}"
+    head = [["objective", "the shortest cycle within the limits" if spec.objective == "time"
+             else "the original cycle time with the lowest peak force"],
+            ["cycle time", f"{t0:.2f} s -> {t1:.2f} s ({(t1 / t0 - 1) * 100:+.1f} %)"],
+            ["largest force", f"{p0:.1f} N -> {p1:.1f} N ({(p1 / p0 - 1) * 100:+.1f} %)" if p0 > 0 else "none"],
+            ["best run", f"iteration {best.number} of {len(iterations) - 1} ({stopped})"],
+            ["lines with feed moves", f"{len(table)}, {int((table['factor'] != 1.0).sum()) if len(table) else 0} "
+                                      f"with a new feed"]]
+    summary = "<table class='summary'>" + "".join(
+        f"<tr><td><b>{html.escape(a)}</b></td><td>{html.escape(b)}</td></tr>" for a, b in head) + "</table>"
+    limit_rows = []
+    for tool, lim in limits.items():
+        process = {k: v * (best.force_scale if k == "force" else 1.0) for k, v in lim.process.items()}
+        limit_rows.append([f"T{tool}", f"{process['force']:.1f}" if "force" in process else "",
+                           f"{process['torque']:.3f}" if "torque" in process else "",
+                           f"{process['power'] / 1e3:.2f}" if "power" in process else "",
+                           f"{process['deflection'] * 1e6:.1f}" if "deflection" in process else "",
+                           f"{lim.feed_per_tooth_min * 1e3:.4f}", f"{lim.feed_per_tooth_max * 1e3:.4f}"
+                           if math.isfinite(lim.feed_per_tooth_max) else "", f"{lim.feed * 60000:.0f}",
+                           str(lim.flutes)])
+    limits_html = _html_table(["tool", "force [N]", "torque [N.m]", "spindle power [kW]", "deflection [um]",
+                               "fz min [mm]", "fz max [mm]", "feed max [mm/min]", "flutes"], limit_rows)
+    iteration_rows = [[str(it.number), f"{it.cycle_time:.3f}", f"{max(it.peak_force.values(), default=0):.1f}",
+                       "yes" if it.feasible else f"no: {'; '.join(it.violations[:3])}"
+                       + (f" (+{len(it.violations) - 3})" if len(it.violations) > 3 else ""),
+                       f"{it.force_scale:.4g}", f"{it.wall_time:.1f}"] for it in iterations]
+    iterations_html = _html_table(["iteration", "cycle time [s]", "largest force [N]", "every limit holds",
+                                   "force scale", "run [s]"], iteration_rows)
+    figure = _img(_figure(table, limits, best.force_scale), "Feed and largest force per program line",
+                  "Top: the programmed feed of each line with feed moves, before (grey) and after (blue). Bottom: "
+                  "the line's largest resultant force in the twin, before and after, and the force limit.") \
+        if len(table) else ""
+    digits = {header: d for _, (header, _, d) in _DISPLAY.items()}
+    shown = _display(table)
+    rows = [[_cell(v, digits[c]) for c, v in zip(shown.columns, row)] for row in shown.itertuples(index=False)]
+    diff, n_diff = _diff_html(original_text, optimized_text, part.program.name)
+    page = (f"<!DOCTYPE html><html><head><meta charset='utf-8'><title>{html.escape(title)}</title>"
+            f"<style>{STYLE}\n{DIFF_STYLE}</style></head><body><h1>{html.escape(title)}</h1>{summary}"
+            f"<h2>Limits</h2>{limits_html}<p class='note'>Each tool's limits in the re-simulation, within "
+            f"{spec.tolerance * 100:g} %; a force limit not given is the original run's largest force of the tool"
+            f"{' (times the scale of the best run: objective force)' if spec.objective == 'force' else ''}.</p>"
+            f"<h2>Iterations</h2>{iterations_html}{figure}"
+            f"<h2>Program lines before and after</h2>{_html_table(list(shown.columns), rows)}"
+            f"<h2>What changed in the program</h2><p class='note'>{n_diff} diff lines; only F words change, every "
+            f"line stays where it was. The optimized program and each iteration's are files beside this page.</p>"
+            f"{diff}</body></html>")
+    return atomic_files.write_text(folder / "optimize_report.html", page)

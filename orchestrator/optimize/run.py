@@ -1,0 +1,290 @@
+"""The feed optimizer: a whole-part scenario run, its feeds scheduled, the new program re-simulated, corrected.
+
+:func:`optimize` runs the part as written (iteration 0), then repeats: each program line's feed factor from the
+runs so far (``schedule.next_factors``), the program rewritten with those feeds (``program_edit.rewrite_feeds``:
+only F words change), the part run again with it through the whole-part twin. It stops when the factors no
+longer change, when a run meets every limit and the objective no longer improves, or after ``max_iterations``;
+the result is the best run that meets every limit (objective "time": the shortest; "force": the lowest peak
+force whose cycle is no longer than the original's).
+
+Layout of ``<out>/optimize/<part name>/``:
+
+- ``iterations/<part name>_<k>/``: each run's folder (Parquet, run.json, the process report and its block table);
+  ``iterations/<k>.<suffix>``: the program run in iteration k (0: a copy of the original);
+- ``optimize.json``: every iteration so far (cycle time, peak force per tool, limits broken, the factors), written
+  after each run, so a killed optimization leaves what it had;
+- at the end the optimized program ``<program stem>_optimized<suffix>`` (same dialect, same lines; only F words),
+  ``optimize_report.html`` (before and after per block, cycle time, the changed lines as a diff) and
+  ``blocks_before_after.csv``.
+"""
+from __future__ import annotations
+
+import json
+import logging
+import math
+import re
+import shutil
+import time
+from collections.abc import Callable, Iterator, Mapping
+from contextlib import contextmanager
+from dataclasses import dataclass, field, replace
+from pathlib import Path
+from typing import Any
+
+import pandas as pd
+
+from milling_twin.models.interpolator.definition import default_parameters
+from milling_twin.models.interpolator.parser import DIALECTS, Program, parse_program
+from milling_twin.orchestrator import atomic_files
+from milling_twin.orchestrator.optimize import program_edit, schedule
+from milling_twin.orchestrator.optimize.spec import OptimizeSpec, read_optimize
+from milling_twin.orchestrator.scenario import ScenarioError, _Ctx
+
+__all__ = ["Iteration", "OptimizeResult", "optimize"]
+
+_log = logging.getLogger("milling_twin.optimize")
+ITERATIONS = "iterations"
+RECORDING_TABLES = ("recorded", "inputs", "compare", "alignment")
+
+
+@dataclass(frozen=True)
+class Iteration:
+    number: int
+    program: Path
+    run_dir: Path
+    cycle_time: float                     # s: the process report's machining time
+    peak_force: dict[int, float]          # N: largest resultant force per tool
+    violations: tuple[str, ...]           # limits broken by more than the tolerance
+    factors: dict[int, float]             # feed factor per program line (1: as originally programmed)
+    force_scale: float                    # objective "force": the force limits' scale of this iteration
+    wall_time: float                      # s: the run and its report
+
+    @property
+    def feasible(self) -> bool:
+        return not self.violations
+
+
+@dataclass(frozen=True)
+class OptimizeResult:
+    name: str
+    folder: Path
+    objective: str
+    iterations: tuple[Iteration, ...]
+    best: Iteration
+    program: Path                          # the optimized program
+    report: Path                           # optimize_report.html
+    limits: dict[int, schedule.ToolLimits]
+    wall_time: float
+    stopped: str                           # why the iteration ended
+    notes: tuple[str, ...] = field(default_factory=tuple)
+
+    @property
+    def original(self) -> Iteration:
+        return self.iterations[0]
+
+
+class _OnceFilter(logging.Filter):
+    """Messages that every iteration repeats (the program's notes: "M6: the tool change takes no time") pass once;
+    the iteration's program file is the only difference between them."""
+
+    def __init__(self, folder: Path) -> None:
+        super().__init__()
+        self.pattern = re.compile(re.escape(str(folder / ITERATIONS)) + r"/\d+")
+        self.seen: set[str] = set()
+
+    def filter(self, record: logging.LogRecord) -> bool:
+        key = self.pattern.sub("<iteration>", record.getMessage())
+        if key in self.seen:
+            return False
+        self.seen.add(key)
+        return True
+
+
+@contextmanager
+def _each_message_once(folder: Path) -> Iterator[None]:
+    once = _OnceFilter(folder)
+    handlers = list(logging.getLogger().handlers)
+    for handler in handlers:
+        handler.addFilter(once)
+    try:
+        yield
+    finally:
+        for handler in handlers:
+            handler.removeFilter(once)
+
+
+def _part_document(path: Path) -> tuple[_Ctx, dict[str, Any]]:
+    ctx = _Ctx(path)
+    _, doc = ctx.document("scenario")
+    if "part" not in doc:
+        ctx.fail("[part]", "missing: the optimizer takes a whole-part scenario (a [part] table, docs/part.md)")
+    return ctx, doc
+
+
+def _parser(part) -> Callable[[str], Program]:
+    parameters = {**default_parameters(), **part.machine}
+
+    def parse(text: str) -> Program:
+        return parse_program(text, parameters, str(part.program), dialect=DIALECTS[part.dialect], tools=part.tools)
+    return parse
+
+
+def _peak_forces(runs: Mapping[int, schedule.LineRun]) -> dict[int, float]:
+    peaks: dict[int, float] = {}
+    for run in runs.values():
+        if run.cuts:
+            peaks[run.tool] = max(peaks.get(run.tool, 0.0), run.metrics["force"])
+    return peaks
+
+
+def _resolved_limits(spec: OptimizeSpec, part, original: Mapping[int, schedule.LineRun],
+                     feeds: Mapping[int, float]) -> dict[int, schedule.ToolLimits]:
+    """Each cutting tool's limits as numbers: the force default the original's largest, fz max twice the
+    program's largest, the feed the Interpolator's max_feed."""
+    machine_feed = float(part.machine.get("max_feed", default_parameters()["max_feed"]))
+    peaks = _peak_forces(original)
+    out: dict[int, schedule.ToolLimits] = {}
+    for cut in part.cutting_tools:
+        number, flutes = cut.tool.number, cut.tool.flutes
+        per_tooth = [feeds[line] / (flutes * run.spindle / (2 * math.pi)) for line, run in original.items()
+                     if run.tool == number and run.cuts and run.spindle > 0]
+        out[number] = schedule.tool_limits(spec.for_tool(number), flutes, peaks.get(number, 0.0),
+                                           max(per_tooth, default=0.0), machine_feed)
+    return out
+
+
+def optimize(part_file: str | Path, *, fmu_dir: str | Path, out: str | Path = "runs", objective: str | None = None,
+             max_iterations: int | None = None, progress: bool = False,
+             echo: Callable[[str], None] | None = None) -> OptimizeResult:
+    """Optimize the feeds of a whole-part scenario's program (see the module docstring)."""
+    from milling_twin.api import simulate
+    from milling_twin.orchestrator.optimize.report import write_optimize_report
+    from milling_twin.orchestrator.results import RunFolder
+    from milling_twin.orchestrator.safe_names import check_name
+    from milling_twin.orchestrator.scenario import load_scenario
+
+    t_start = time.perf_counter()
+    say = echo or (lambda text: _log.info(text))
+    part_file = Path(part_file)
+    ctx, doc = _part_document(part_file)
+    spec = read_optimize(ctx, doc.get("optimize"))
+    if objective is not None:
+        spec = replace(spec, objective=objective)
+    if max_iterations is not None:
+        spec = replace(spec, max_iterations=max_iterations)
+    scenario0 = load_scenario(part_file, fmu_dir, document=doc)
+    part = scenario0.part
+    name = scenario0.name
+    check_name(name, f"{part_file}: [scenario].name")
+    folder = (Path(out) / "optimize" / name).resolve()
+    parse = _parser(part)
+    original_text = program_edit.read_program(part.program)
+    program = parse(original_text)
+    moving = program_edit.feed_lines(program)
+    original_feeds = {line: max(m.feed for m in moves) for line, moves in moving.items()}
+    plunges = {line for line, slope in program_edit.descent_slopes(program).items() if slope > spec.plunge_slope}
+    iterations: list[Iteration] = []
+    history: list[dict[int, schedule.LineRun]] = []
+    limits: dict[int, schedule.ToolLimits] = {}
+
+    with RunFolder.claim(folder, what="optimization"), _each_message_once(folder):
+        runs_dir = folder / ITERATIONS
+        runs_dir.mkdir(parents=True, exist_ok=True)
+
+        def record() -> None:
+            atomic_files.write_text(folder / "optimize.json", json.dumps(_document(
+                part_file, spec, limits, iterations, time.perf_counter() - t_start), indent=1))
+
+        def run(k: int, text: str, factors: dict[int, float], scale: float) -> Iteration:
+            program_path = runs_dir / f"{k}{part.program.suffix}"
+            atomic_files.write_text(program_path, text, encoding="latin-1")
+            # the part alone: a recording (and what reads it) belongs to the original program's run on the machine;
+            # the stop time is each program's own machining time (the expansion's default)
+            edited = {key: value for key, value in doc.items() if key not in RECORDING_TABLES}
+            edited["scenario"] = {key: value for key, value in doc.get("scenario", {}).items() if key != "stop_time"}
+            edited["scenario"]["name"] = f"{name}_{k}"
+            edited["part"] = {**doc["part"], "program": str(program_path)}
+            scenario = load_scenario(part_file, fmu_dir, document=edited)
+            t0 = time.perf_counter()
+            results = simulate(scenario, out=runs_dir, progress=progress)
+            if results.process_report is None:
+                raise RuntimeError(f"iteration {k}: the run gave no process report ({results.status})")
+            blocks = pd.read_parquet(results.process_report.blocks_parquet)
+            runs = schedule.line_runs(blocks, original_feeds, list(moving))
+            history.append(runs)
+            if not limits:
+                limits.update(_resolved_limits(spec, part, runs, original_feeds))
+            broken = schedule.violations(runs, limits.get, spec.tolerance, history[0], scale)
+            if spec.objective == "force" and k > 0 and \
+                    results.process_report.machining_time > iterations[0].cycle_time * (1 + spec.tolerance):
+                broken.append(f"cycle time {results.process_report.machining_time:.4g} s longer than the "
+                              f"original's {iterations[0].cycle_time:.4g} s")
+            it = Iteration(k, program_path, Path(results.run_dir), results.process_report.machining_time,
+                           _peak_forces(runs), tuple(broken), dict(factors), scale, time.perf_counter() - t0)
+            iterations.append(it)
+            record()
+            peak = max(it.peak_force.values(), default=0.0)
+            say(f"iteration {k}: cycle {it.cycle_time:.2f} s, peak force {peak:.4g} N, "
+                f"{'every limit holds' if it.feasible else f'{len(broken)} limits broken'} ({it.wall_time:.1f} s)")
+            return it
+
+        run(0, original_text, {line: 1.0 for line in moving}, 1.0)
+        stopped = f"{spec.max_iterations} iterations"
+        scale = 1.0
+        for k in range(1, spec.max_iterations + 1):
+            if spec.objective == "force":
+                scale = schedule.scale_for_time(history, original_feeds, limits.get, spec.air_moves,
+                                                iterations[-1].cycle_time, iterations[0].cycle_time, plunges)
+            factors = schedule.next_factors(history, original_feeds, limits.get, spec.air_moves, scale, plunges)
+            last = iterations[-1]
+            if all(abs(factors[line] - last.factors.get(line, 1.0)) <= 1e-3 * last.factors.get(line, 1.0)
+                   for line in factors) and last.feasible:
+                stopped = "converged: the feeds no longer change"
+                break
+            edited = program_edit.rewrite_feeds(original_text, factors, parse, str(part.program), part.dialect)
+            it = run(k, edited.text, edited.factors, scale)
+            if it.feasible and last.feasible and _objective(it, spec) > _objective(last, spec) * (1 - 2e-3):
+                stopped = "converged: the objective no longer improves"
+                break
+        best = _best(iterations, spec)
+        optimized = folder / f"{part.program.stem}_optimized{part.program.suffix}"
+        shutil.copyfile(best.program, optimized)
+        report = write_optimize_report(folder, part, spec, limits, iterations, best, original_text,
+                                       program_edit.read_program(best.program), stopped)
+        record()
+    notes = [f"the runs leave out the part file's {', '.join(f'[{t}]' for t in RECORDING_TABLES if t in doc)}: "
+             f"a recording belongs to the original program's run"] if any(t in doc for t in RECORDING_TABLES) else []
+    if best.number == 0:
+        notes.append("no iteration met every limit and improved on the original: the optimized program is the "
+                     "original")
+    return OptimizeResult(name, folder, spec.objective, tuple(iterations), best, optimized, report, limits,
+                          time.perf_counter() - t_start, stopped, tuple(notes))
+
+
+def _objective(it: Iteration, spec: OptimizeSpec) -> float:
+    """Smaller is better: the cycle time, or the largest peak force (objective "force")."""
+    return it.cycle_time if spec.objective == "time" else max(it.peak_force.values(), default=0.0)
+
+
+def _best(iterations: list[Iteration], spec: OptimizeSpec) -> Iteration:
+    feasible = [it for it in iterations if it.feasible]
+    return min(feasible, key=lambda it: (_objective(it, spec), it.number)) if feasible else iterations[0]
+
+
+def _document(part_file: Path, spec: OptimizeSpec, limits: Mapping[int, schedule.ToolLimits],
+              iterations: list[Iteration], wall_time: float) -> dict[str, Any]:
+    def finite(x: float) -> float | None:
+        return x if math.isfinite(x) else None
+    return {
+        "part": str(part_file.resolve()), "objective": spec.objective, "tolerance": spec.tolerance,
+        "air_moves": spec.air_moves, "wall_time": wall_time,
+        "limits": {str(tool): {**lim.process, "feed_per_tooth_min": lim.feed_per_tooth_min,
+                               "feed_per_tooth_max": finite(lim.feed_per_tooth_max), "feed": lim.feed,
+                               "flutes": lim.flutes} for tool, lim in limits.items()},
+        "units": {"cycle_time": "s", "peak_force": "N", "force": "N", "torque": "N.m", "power": "W",
+                  "deflection": "m", "feed_per_tooth_min": "m", "feed_per_tooth_max": "m", "feed": "m/s"},
+        "iterations": [{"iteration": it.number, "program": str(it.program), "run_dir": str(it.run_dir),
+                        "cycle_time": it.cycle_time, "peak_force": {str(k): v for k, v in it.peak_force.items()},
+                        "feasible": it.feasible, "violations": list(it.violations), "force_scale": it.force_scale,
+                        "wall_time": it.wall_time, "factors": {str(k): v for k, v in it.factors.items()}}
+                       for it in iterations]}

@@ -1,0 +1,54 @@
+"""Benchmark of the feed optimizer (``milling-twin optimize``) on the committed whole parts: for each part and each
+objective, the cycle time and largest force of the original and of the optimized program, both from the twin's
+runs; the iterations, the program's blocks, what the best re-simulation breaks (limits by more than the tolerance,
+chatter the original did not have: 0 for a result) and the wall time of the whole optimization. A script, not a
+timed test:
+
+    .venv/bin/python tests/benchmarks/optimize_parts.py [--parts al_bracket al_plate] [--objectives time force]
+
+The parts' ``[optimize]`` sections hold their limits (scenarios/al_bracket.toml, scenarios/al_plate.toml).
+"""
+from __future__ import annotations
+
+import argparse
+import sys
+import tempfile
+import time
+from pathlib import Path
+
+import pandas as pd
+
+import milling_twin
+
+REPO = Path(__file__).resolve().parents[2]
+
+
+def main() -> int:
+    parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    parser.add_argument("--parts", nargs="+", default=["al_bracket", "al_plate"])
+    parser.add_argument("--objectives", nargs="+", choices=("time", "force"), default=["time", "force"])
+    parser.add_argument("--fmu-dir", type=Path, default=REPO / "build" / "fmus")
+    args = parser.parse_args()
+    print(f"{'part':>11} {'objective':>9} {'blocks':>6} {'cycle s: before':>15} {'after':>7} {'change':>7} "
+          f"{'peak N: before':>14} {'after':>7} {'change':>7} {'best/iterations':>15} {'broken':>6} {'wall s':>6}")
+    with tempfile.TemporaryDirectory() as out:
+        for name in args.parts:
+            for objective in args.objectives:
+                start = time.perf_counter()
+                result = milling_twin.optimize(REPO / "scenarios" / f"{name}.toml", fmu_dir=args.fmu_dir, out=out,
+                                               objective=objective)
+                wall = time.perf_counter() - start
+                original, best = result.original, result.best
+                blocks = len(pd.read_parquet(best.run_dir / "blocks.parquet"))
+                p0, p1 = max(original.peak_force.values()), max(best.peak_force.values())
+                print(f"{name:>11} {objective:>9} {blocks:>6} {original.cycle_time:>15.2f} {best.cycle_time:>7.2f} "
+                      f"{(best.cycle_time / original.cycle_time - 1) * 100:>+6.1f}% {p0:>14.1f} {p1:>7.1f} "
+                      f"{(p1 / p0 - 1) * 100:>+6.1f}% {best.number:>7}/{len(result.iterations) - 1:<7} "
+                      f"{len(best.violations):>6} {wall:>6.0f}", flush=True)
+                for note in result.notes:
+                    print(f"{'':>11} note: {note}")
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

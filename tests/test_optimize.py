@@ -1,0 +1,140 @@
+"""The feed optimizer (``milling-twin optimize``, orchestrator/optimize/): the schedule's rules on made-up runs, the
+``[optimize]`` section's checks, and a whole optimization of the tiny part (a slot) through the twin."""
+from __future__ import annotations
+
+import json
+import re
+from pathlib import Path
+
+import pandas as pd
+import pytest
+
+import milling_twin
+from cases.part_case import write_part
+from milling_twin.cli import main
+from milling_twin.orchestrator.optimize import schedule
+from milling_twin.orchestrator.optimize.schedule import LineRun, ToolLimits, next_factors
+from milling_twin.orchestrator.scenario import ScenarioError
+
+MM_MIN = 1.0 / 60000.0
+
+
+def run(line: int, factor: float, force: float, *, cuts: bool = True, chatter: bool = False, tool: int = 1,
+        duration: float = 1.0, spindle: float = 628.3185307179587) -> LineRun:
+    """A line of a run: 600 mm/min at factor 1, 6000 rpm."""
+    return LineRun(line, tool, factor, 600 * MM_MIN * factor, spindle, duration / factor, cuts,
+                   {"force": force, "torque": 0.0, "power": 0.0, "deflection": 0.0}, chatter)
+
+
+LIMITS = ToolLimits({"force": 150.0}, 0.0, 1e-3, 10000 * MM_MIN, 3)  # fz up to 1 mm: the force limit decides
+FEEDS = {10: 600 * MM_MIN, 11: 600 * MM_MIN}
+
+
+def linear_force(factor: float) -> float:
+    return 40.0 + 80.0 * factor   # the mechanistic force at a fixed engagement: edge + shear term
+
+
+def test_a_line_that_cuts_reaches_its_force_limit_in_two_steps_of_a_linear_force() -> None:
+    history = [{10: run(10, 1.0, linear_force(1.0))}]
+    first = next_factors(history, FEEDS, lambda tool: LIMITS, "keep")[10]
+    assert first == pytest.approx(150.0 / 120.0)  # proportional from one run: short of the limit
+    assert linear_force(first) < 150.0
+    history.append({10: run(10, first, linear_force(first))})
+    second = next_factors(history, FEEDS, lambda tool: LIMITS, "keep")[10]
+    assert linear_force(second) == pytest.approx(150.0)
+
+
+def test_the_feed_per_tooth_range_and_the_machine_feed_bound_the_factor() -> None:
+    history = [{10: run(10, 1.0, 10.0)}]  # far below the force limit
+    per_tooth = ToolLimits({"force": 150.0}, 0.0, 0.05e-3, 10000 * MM_MIN, 3)  # 0.05 mm: 900 mm/min at 6000 rpm
+    assert next_factors(history, FEEDS, lambda tool: per_tooth, "keep")[10] == pytest.approx(1.5)
+    machine = ToolLimits({"force": 150.0}, 0.0, 1e-3, 700 * MM_MIN, 3)
+    assert next_factors(history, FEEDS, lambda tool: machine, "keep")[10] == pytest.approx(700 / 600)
+    thin = ToolLimits({"force": 150.0}, 0.04e-3, 1e-3, 10000 * MM_MIN, 3)  # at least 0.04 mm: 720 mm/min
+    low = [{10: run(10, 1.0, 100.0)}]  # objective force at half the limit: 0.75, raised to the thinnest chip
+    assert next_factors(low, FEEDS, lambda tool: thin, "keep", force_scale=0.5)[10] == pytest.approx(1.2)
+    over = [{10: run(10, 1.0, 300.0)}]  # the force limit itself wins over the thinnest chip
+    assert next_factors(over, FEEDS, lambda tool: thin, "keep", force_scale=0.5)[10] == pytest.approx(0.5)
+
+
+def test_air_moves_plunges_and_chatter() -> None:
+    history = [{10: run(10, 1.0, 0.0, cuts=False), 11: run(11, 1.0, 100.0)}]
+    per_tooth = ToolLimits({"force": 150.0}, 0.0, 0.05e-3, 10000 * MM_MIN, 3)
+    assert next_factors(history, FEEDS, lambda tool: per_tooth, "keep")[10] == 1.0
+    assert next_factors(history, FEEDS, lambda tool: per_tooth, "fastest")[10] == pytest.approx(1.5)
+    assert next_factors(history, FEEDS, lambda tool: LIMITS, "keep", plunges={11})[11] == 1.0
+    history.append({10: run(10, 1.5, 0.0, cuts=False), 11: run(11, 1.5, 140.0, chatter=True)})
+    assert next_factors(history, FEEDS, lambda tool: LIMITS, "keep")[11] == 1.0  # the fastest without chatter
+
+
+def test_a_tool_the_part_does_not_cut_with_or_a_stopped_spindle_keeps_its_feed() -> None:
+    history = [{10: run(10, 1.0, 50.0, tool=7), 11: run(11, 1.0, 50.0, spindle=0.0)}]
+    factors = next_factors(history, FEEDS, lambda tool: LIMITS if tool == 1 else None, "fastest")
+    assert factors == {10: 1.0, 11: 1.0}
+
+
+def test_the_force_objective_scale_gives_the_target_time() -> None:
+    """Two lines of 1 s each; the first at its limit, the second far below: the second pays for the first."""
+    history = [{10: run(10, 1.0, 150.0), 11: run(11, 1.0, 50.0)}]
+    per_tooth = ToolLimits({"force": 150.0}, 0.0, 0.2e-3, 10000 * MM_MIN, 3)
+    scale = schedule.scale_for_time(history, FEEDS, lambda tool: per_tooth, "keep", 2.0, 2.0)
+    factors = next_factors(history, FEEDS, lambda tool: per_tooth, "keep", scale)
+    assert scale < 1.0 and factors[10] == pytest.approx(scale, rel=1e-3)
+    assert 2.0 + schedule.predicted_time(history, factors) == pytest.approx(2.0, abs=2e-3)
+
+
+# ---- [optimize] ----
+
+@pytest.mark.parametrize("section,key,message", [
+    ("[optimize]\nobjectiv = \"time\"\n", "[optimize].objectiv", "unknown key 'objectiv'"),
+    ("[optimize]\nobjective = \"cost\"\n", "[optimize].objective", "'cost' is not one of time, force"),
+    ("[optimize.limits]\nfeed_per_tooth = { value = [0.1, 0.05], unit = \"mm\" }\n",
+     "[optimize.limits].feed_per_tooth", "expected 0 <= min < max"),
+    ("[optimize.limits]\nforce = { value = 100, unit = \"N.m\" }\n", "[optimize.limits].force", "unit 'N.m'"),
+    ("[optimize.limits.T2]\nspeed = 3\n", "[optimize.limits.T2].speed", "unknown key 'speed'"),
+])
+def test_a_bad_optimize_section_names_the_file_and_key(tmp_path: Path, fmu_dir: Path, section: str, key: str,
+                                                       message: str) -> None:
+    part = write_part(tmp_path / "part", ("[part.spindle]", section + "[part.spindle]"))
+    with pytest.raises(ScenarioError) as caught:
+        milling_twin.optimize(part, fmu_dir=fmu_dir, out=tmp_path / "runs")
+    assert str(caught.value).startswith(f"{part}: {key}: ") and message in str(caught.value), caught.value
+    assert not (tmp_path / "runs").exists()
+
+
+def test_a_scenario_without_part_is_refused(tmp_path: Path, fmu_dir: Path, capsys) -> None:
+    scenario = Path(__file__).resolve().parents[1] / "scenarios" / "chatter.toml"
+    assert main(["optimize", str(scenario), "--fmu-dir", str(fmu_dir), "--out", str(tmp_path)]) == 2
+    assert f"{scenario}: [part]: missing: the optimizer takes a whole-part scenario" in capsys.readouterr().err
+
+
+# ---- a whole optimization ----
+
+def test_the_tiny_part_is_cut_faster_at_its_force_limit(tmp_path: Path, fmu_dir: Path) -> None:
+    """The slot at 600 mm/min has its largest force near 131 N; with a limit of 150 N the optimizer raises the
+    feed until the re-simulated slot stays within 1 % of it, changing only F words."""
+    part = write_part(tmp_path / "part", ("[part.spindle]", '[optimize]\nmax_iterations = 5\n[optimize.limits]\n'
+                                          'force = { value = 150, unit = "N" }\n'
+                                          'feed_per_tooth = { value = [0.01, 0.3], unit = "mm" }\n[part.spindle]'))
+    lines: list[str] = []
+    result = milling_twin.optimize(part, fmu_dir=fmu_dir, out=tmp_path / "runs", echo=lines.append)
+    folder = tmp_path / "runs" / "optimize" / "tiny_part"
+    original, best = result.original, result.best
+    assert best.number > 0 and best.feasible
+    assert max(best.peak_force.values()) <= 150.0 * 1.01
+    assert best.cycle_time < 0.8 * original.cycle_time, (original.cycle_time, best.cycle_time)
+    assert len(lines) == len(result.iterations) and lines[0].startswith("iteration 0: cycle ")
+    old = (tmp_path / "part" / "prog.nc").read_text().splitlines()
+    new = result.program.read_text().splitlines()
+    assert result.program == folder / "prog_optimized.nc" and len(old) == len(new)
+    changed = [(a, b) for a, b in zip(old, new) if a != b]
+    assert changed and all(re.sub(r"F[\d.]+", "", a) == re.sub(r"F[\d.]+", "", b) for a, b in changed)
+    doc = json.loads((folder / "optimize.json").read_text())
+    assert [it["iteration"] for it in doc["iterations"]] == [it.number for it in result.iterations]
+    assert doc["limits"]["1"]["force"] == 150.0 and doc["units"]["force"] == "N"
+    page = result.report.read_text()
+    assert page.rstrip().endswith("</html>") and "data:image/png;base64," in page and "<pre class='diff'>" in page
+    table = pd.read_csv(folder / "blocks_before_after.csv")
+    slot = table[table["line"] == 6].iloc[0]
+    assert slot["F before [mm/min]"] == pytest.approx(600.0) and slot["F after [mm/min]"] > 700.0
+    assert slot["force max after [N]"] <= 151.5

@@ -103,14 +103,15 @@ class _OnceFilter(logging.Filter):
 @contextmanager
 def _each_message_once(folder: Path) -> Iterator[None]:
     once = _OnceFilter(folder)
-    handlers = list(logging.getLogger().handlers)
-    for handler in handlers:
-        handler.addFilter(once)
+    # the handlers (the command's) and the master's logger (the FMUs' messages: also without a handler set up)
+    targets = [*logging.getLogger().handlers, logging.getLogger("milling_twin.orchestrator.master")]
+    for target in targets:
+        target.addFilter(once)
     try:
         yield
     finally:
-        for handler in handlers:
-            handler.removeFilter(once)
+        for target in targets:
+            target.removeFilter(once)
 
 
 def _part_document(path: Path) -> tuple[_Ctx, dict[str, Any]]:
@@ -214,7 +215,9 @@ def optimize(part_file: str | Path, *, fmu_dir: str | Path, out: str | Path = "r
             history.append(runs)
             if not limits:
                 limits.update(_resolved_limits(spec, part, runs, original_feeds))
-            broken = schedule.violations(runs, limits.get, spec.tolerance, history[0], scale)
+            # the limits themselves (objective force: the scaled force limit only steers the schedule; the run is
+            # judged by its largest force and its cycle time)
+            broken = schedule.violations(runs, limits.get, spec.tolerance, history[0])
             if spec.objective == "force" and k > 0 and \
                     results.process_report.machining_time > iterations[0].cycle_time * (1 + spec.tolerance):
                 broken.append(f"cycle time {results.process_report.machining_time:.4g} s longer than the "

@@ -57,7 +57,7 @@ def test_every_handler_exists() -> None:
     proc = subprocess.run([sys.executable, "-c", code, *handlers], capture_output=True, text=True, cwd=REPO_ROOT,
                           timeout=300)
     assert proc.returncode == 0 and proc.stdout.strip().endswith("ok"), proc.stderr[-2000:]
-    assert len(handlers) == 17
+    assert len(handlers) == 18
 
 
 def test_the_exit_code_table_names_real_exceptions() -> None:

@@ -92,7 +92,7 @@ def test_the_force_objective_scale_gives_the_target_time() -> None:
      "[optimize.limits].feed_per_tooth", "expected 0 <= min < max"),
     ("[optimize.limits]\nforce = { value = 100, unit = \"N.m\" }\n", "[optimize.limits].force", "unit 'N.m'"),
     ("[optimize.limits.T2]\nspeed = 3\n", "[optimize.limits.T2].speed", "unknown key 'speed'"),
-])
+], ids=["unknown-key", "objective", "feed-per-tooth-range", "force-unit", "tool-unknown-key"])
 def test_a_bad_optimize_section_names_the_file_and_key(tmp_path: Path, fmu_dir: Path, section: str, key: str,
                                                        message: str) -> None:
     part = write_part(tmp_path / "part", ("[part.spindle]", section + "[part.spindle]"))

@@ -3,7 +3,8 @@
 :func:`optimize` runs the part as written (iteration 0), then repeats: each program line's feed factor from the
 runs so far (``schedule.next_factors``), the program rewritten with those feeds (``program_edit.rewrite_feeds``:
 only F words change), the part run again with it through the whole-part twin. It stops when the factors no
-longer change, when a run meets every limit and the objective no longer improves, or after ``max_iterations``;
+longer change, when two runs in a row meet every limit with the same objective (within 0.2 %), or after
+``max_iterations``;
 the result is the best run that meets every limit (objective "time": the shortest; "force": the lowest peak
 force whose cycle is no longer than the original's).
 
@@ -45,6 +46,7 @@ __all__ = ["Iteration", "OptimizeResult", "optimize"]
 _log = logging.getLogger("milling_twin.optimize")
 ITERATIONS = "iterations"
 RECORDING_TABLES = ("recorded", "inputs", "compare", "alignment")
+CONVERGED = 2e-3      # two runs that meet the limits and whose objective differs by less than this share: done
 
 
 @dataclass(frozen=True)
@@ -246,8 +248,8 @@ def optimize(part_file: str | Path, *, fmu_dir: str | Path, out: str | Path = "r
                 break
             edited = program_edit.rewrite_feeds(original_text, factors, parse, str(part.program), part.dialect)
             it = run(k, edited.text, edited.factors, scale)
-            if it.feasible and last.feasible and _objective(it, spec) > _objective(last, spec) * (1 - 2e-3):
-                stopped = "converged: the objective no longer improves"
+            if it.feasible and last.feasible and abs(_objective(it, spec) / _objective(last, spec) - 1) < CONVERGED:
+                stopped = "converged: two runs in a row meet the limits with the same objective"
                 break
         best = _best(iterations, spec)
         optimized = folder / f"{part.program.stem}_optimized{part.program.suffix}"

@@ -126,6 +126,13 @@ size_t interp_heap_size(const InterpPrepared *prepared) {
 #define INSTALL_STEP 65536
 
 #define FREE_ARRAY(array) (free(array), (array) = NULL)
+/* A path array copied into the heap from `offset` on (as doubles), then given back. */
+#define INSTALL_ARRAY(offset, array, count)                                                                        \
+    do {                                                                                                           \
+        size_t i_;                                                                                                 \
+        for (i_ = 0; i_ < (count); i_++) heap[(offset) + i_] = (double)(array)[i_];                                \
+        FREE_ARRAY(array);                                                                                         \
+    } while (0)
 
 void interp_install(InterpPrepared *p, double *heap, InterpLayout *L) {
     GcProgram *g = &p->program;
@@ -175,24 +182,15 @@ void interp_install(InterpPrepared *p, double *heap, InterpLayout *L) {
     g->n_moves = g->cap_moves = 0;
     FREE_ARRAY(path->move_s), FREE_ARRAY(path->move_length), FREE_ARRAY(path->move_cap);
     FREE_ARRAY(path->span_lo), FREE_ARRAY(path->span_hi);
-    for (k = 0; k < path->n_nodes; k++) heap[L->node_s + k] = path->node_s[k];
-    FREE_ARRAY(path->node_s);
-    for (k = 0; k < path->n_nodes; k++) heap[L->node_vh + k] = path->node_vh[k];
-    FREE_ARRAY(path->node_vh);
-    for (k = 0; k < path->n_nodes; k++) heap[L->node_left + k] = path->node_left[k];
-    FREE_ARRAY(path->node_left);
-    for (k = 0; k < path->n_nodes; k++) heap[L->node_right + k] = path->node_right[k];
-    FREE_ARRAY(path->node_right);
-    for (k = 0; k < path->n_nodes; k++) heap[L->station + k] = path->station[k];
-    FREE_ARRAY(path->station);
-    for (k = 0; k < path->n_ints; k++) heap[L->int_move + k] = path->int_move[k];
-    FREE_ARRAY(path->int_move);
-    for (k = 0; k < path->n_ints; k++) heap[L->int_at + k] = path->int_at[k];
-    FREE_ARRAY(path->int_at);
-    for (k = 0; k < path->n_ints; k++) heap[L->int_jt + k] = path->int_jt[k];
-    FREE_ARRAY(path->int_jt);
-    for (k = 0; k < path->n_ints; k++) heap[L->int_cap + k] = path->int_cap[k];
-    FREE_ARRAY(path->int_cap);
+    INSTALL_ARRAY(L->node_s, path->node_s, path->n_nodes);
+    INSTALL_ARRAY(L->node_vh, path->node_vh, path->n_nodes);
+    INSTALL_ARRAY(L->node_left, path->node_left, path->n_nodes);
+    INSTALL_ARRAY(L->node_right, path->node_right, path->n_nodes);
+    INSTALL_ARRAY(L->station, path->station, path->n_nodes);
+    INSTALL_ARRAY(L->int_move, path->int_move, path->n_ints);
+    INSTALL_ARRAY(L->int_at, path->int_at, path->n_ints);
+    INSTALL_ARRAY(L->int_jt, path->int_jt, path->n_ints);
+    INSTALL_ARRAY(L->int_cap, path->int_cap, path->n_ints);
     for (k = 0; k < p->n_tools; k++) {
         const GcTool *t = &p->tools[k];
         double *r = heap + L->tools + TOOL_DOUBLES * k;

@@ -57,6 +57,8 @@ EXIT_CODES: tuple[ExitCode, ...] = (
     ExitCode("builtins", "FileNotFoundError", 2, "an input file does not exist"),
     ExitCode("milling_twin.orchestrator.master", "SimulationError", 1, "an FMU call failed; results so far are kept"),
     ExitCode("milling_twin.orchestrator.calibrate.errors", "CalibrationError", 1, "the calibration failed"),
+    ExitCode("milling_twin.orchestrator.optimize.run", "OptimizeError", 1,
+             "the optimization could not go on; the iterations so far are kept"),
     ExitCode("milling_twin.orchestrator.results", "RunFolderBusy", 1,
              "the run folder is in use by another run (see run --if-busy)"),
     ExitCode("milling_twin.orchestrator.results", "MixedRunError", 1, "a run folder holds chunks of two runs"),

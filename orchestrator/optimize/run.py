@@ -41,12 +41,16 @@ from milling_twin.orchestrator.optimize import program_edit, schedule
 from milling_twin.orchestrator.optimize.spec import OptimizeSpec, read_optimize
 from milling_twin.orchestrator.scenario import ScenarioError, _Ctx
 
-__all__ = ["Iteration", "OptimizeResult", "optimize"]
+__all__ = ["Iteration", "OptimizeError", "OptimizeResult", "optimize"]
 
 _log = logging.getLogger("milling_twin.optimize")
 ITERATIONS = "iterations"
 RECORDING_TABLES = ("recorded", "inputs", "compare", "alignment")
 CONVERGED = 2e-3      # two runs that meet the limits and whose objective differs by less than this share: done
+
+
+class OptimizeError(RuntimeError):
+    """The optimization cannot go on: a run gave nothing to schedule from."""
 
 
 @dataclass(frozen=True)
@@ -210,8 +214,9 @@ def optimize(part_file: str | Path, *, fmu_dir: str | Path, out: str | Path = "r
             scenario = load_scenario(part_file, fmu_dir, document=edited)
             t0 = time.perf_counter()
             results = simulate(scenario, out=runs_dir, progress=progress)
-            if results.process_report is None:
-                raise RuntimeError(f"iteration {k}: the run gave no process report ({results.status})")
+            if results.process_report is None:  # no rows: nothing to schedule from
+                raise OptimizeError(f"iteration {k} ({program_path}): the run gave no rows ({results.status}); "
+                                    f"the iterations before are in {folder / 'optimize.json'}")
             blocks = pd.read_parquet(results.process_report.blocks_parquet)
             runs = schedule.line_runs(blocks, original_feeds, list(moving))
             history.append(runs)
@@ -220,6 +225,8 @@ def optimize(part_file: str | Path, *, fmu_dir: str | Path, out: str | Path = "r
             # the limits themselves (objective force: the scaled force limit only steers the schedule; the run is
             # judged by its largest force and its cycle time)
             broken = schedule.violations(runs, limits.get, spec.tolerance, history[0])
+            if results.status != "completed":  # an FMU ended the run (a tool displacement out of range, say)
+                broken.append(f"the run did not complete: {results.status}")
             if spec.objective == "force" and k > 0 and \
                     results.process_report.machining_time > iterations[0].cycle_time * (1 + spec.tolerance):
                 broken.append(f"cycle time {results.process_report.machining_time:.4g} s longer than the "

@@ -55,6 +55,12 @@ def test_a_changed_line_gets_its_feed_and_the_next_line_gets_back_the_old_one() 
     assert moves[5] == pytest.approx(0.03) and moves[6] == pytest.approx(0.01) and moves[7] == pytest.approx(0.02)
 
 
+def test_a_skipped_line_with_an_f_word_stays_as_it_is() -> None:
+    text = SIMPLE.replace("Y10\n", "/G1 Y5 F99\nY10\n")
+    edited = rewrite_feeds(text, {7: 2.0}, parser())
+    assert edited.text.splitlines()[5] == "/G1 Y5 F99" and edited.text.splitlines()[6] == "Y10 F2400.0"
+
+
 def test_factor_one_everywhere_leaves_the_text_as_it_is() -> None:
     edited = rewrite_feeds(SIMPLE, {line: 1.0 for line in feed_lines(parser()(SIMPLE))}, parser())
     assert edited.text == SIMPLE and edited.changed_lines == ()

@@ -160,7 +160,8 @@ def rewrite_feeds(text: str, factors: Mapping[int, float], parse, file: str = "p
     used: dict[int, float] = {}
     for index, raw in enumerate(lines):
         number = index + 1
-        words = _f_words(raw, file, number, sinumerik) if "f" in raw.lower() else []
+        skipped = raw.lstrip(" \t").startswith("/")  # block skip: the parser leaves the line out
+        words = _f_words(raw, file, number, sinumerik) if "f" in raw.lower() and not skipped else []
         if len(words) > 1:
             raise ProgramEditError(f'{file} line {number}: "{_too_long(raw)}": more than one F word')
         own = words[0] if words else None

@@ -174,12 +174,12 @@ def rewrite_feeds(text: str, factors: Mapping[int, float], parse, file: str = "p
                                        f"before it")
             factor = float(factors.get(number, 1.0))
             # the value this line must run at, as written: the old word itself when the factor is 1
-            text = old_modal.text if factor == 1.0 else format_feed(old_modal.value * factor)
-            want = float(text)
+            value = old_modal.text if factor == 1.0 else format_feed(old_modal.value * factor)
+            want = float(value)
             if own is not None and want != own.value:
-                new_line = raw[:own.start] + _f_text(raw[own.start:own.end], text, sinumerik) + raw[own.end:]
+                new_line = raw[:own.start] + _f_text(raw[own.start:own.end], value, sinumerik) + raw[own.end:]
             elif own is None and want != new_modal:
-                new_line = _insert_f(raw, text, sinumerik)
+                new_line = _insert_f(raw, value, sinumerik)
             new_modal = want
             used[number] = want / old_modal.value
         elif own is not None:

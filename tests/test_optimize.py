@@ -138,3 +138,36 @@ def test_the_tiny_part_is_cut_faster_at_its_force_limit(tmp_path: Path, fmu_dir:
     slot = table[table["line"] == 6].iloc[0]
     assert slot["F before [mm/min]"] == pytest.approx(600.0) and slot["F after [mm/min]"] > 700.0
     assert slot["force max after [N]"] <= 151.5
+
+
+def test_a_killed_optimization_leaves_its_iterations_readable(tmp_path: Path, fmu_dir: Path) -> None:
+    """SIGKILL once the first iterations are written: optimize.json (written atomically after each run) still
+    loads and lists them, each with its program and run folder."""
+    import os
+    import signal
+    import subprocess
+    import sys
+    import time
+
+    part = write_part(tmp_path / "part", ("[part.spindle]", '[optimize]\nmax_iterations = 6\n[optimize.limits]\n'
+                                          'force = { value = 150, unit = "N" }\n[part.spindle]'))
+    record = tmp_path / "runs" / "optimize" / "tiny_part" / "optimize.json"
+    proc = subprocess.Popen([sys.executable, "-m", "milling_twin", "optimize", str(part), "--fmu-dir", str(fmu_dir),
+                             "--out", str(tmp_path / "runs"), "--no-progress"], stdout=subprocess.DEVNULL,
+                            stderr=subprocess.DEVNULL)
+    try:
+        deadline = time.monotonic() + 120
+        while time.monotonic() < deadline and proc.poll() is None:
+            if record.is_file() and len(json.loads(record.read_text())["iterations"]) >= 2:
+                break
+            time.sleep(0.05)
+        assert proc.poll() is None, "the optimization ended before it could be killed"
+        os.kill(proc.pid, signal.SIGKILL)
+        proc.wait(timeout=30)
+    finally:
+        if proc.poll() is None:
+            proc.kill()
+    doc = json.loads(record.read_text())
+    assert len(doc["iterations"]) >= 2 and doc["iterations"][0]["iteration"] == 0
+    for it in doc["iterations"]:
+        assert Path(it["program"]).is_file() and (Path(it["run_dir"]) / "blocks.parquet").is_file()

@@ -171,3 +171,28 @@ def test_a_killed_optimization_leaves_its_iterations_readable(tmp_path: Path, fm
     assert len(doc["iterations"]) >= 2 and doc["iterations"][0]["iteration"] == 0
     for it in doc["iterations"]:
         assert Path(it["program"]).is_file() and (Path(it["run_dir"]) / "blocks.parquet").is_file()
+
+
+def test_a_chattering_tool_gets_the_speed_of_a_stable_pocket(tmp_path: Path, fmu_dir: Path) -> None:
+    """The tiny part 0.2 mm deep on the flexible tool of scenarios/chatter.toml (922 Hz, 1.1 %, 1.34e6 N/m): at
+    6000 rpm with 3 flutes the slot is beyond the zero-order limit (0.15 mm) and chatters; the optimizer moves S to
+    the nearest speed whose limit is 1.25 x the depth (the lobe above 6000 rpm), and the slot no longer chatters."""
+    from cases.part_case import MODES, PROGRAM
+
+    mode = "[ { frequency = 922.0, damping = 0.011, stiffness = 1.34e6 } ]"
+    part = write_part(tmp_path / "part", (MODES, f"[part.tool_modes]\nx = {mode}\ny = {mode}\n"),
+                      ("[part.spindle]", "[optimize]\nmax_iterations = 2\n[part.spindle]"),
+                      program=PROGRAM.replace("G1 Z-2 F300", "G1 Z-0.2 F300"))
+    result = milling_twin.optimize(part, fmu_dir=fmu_dir, out=tmp_path / "runs")
+    choice = result.speeds[1]
+    assert choice.programmed == pytest.approx(6000.0) and choice.limit_programmed < 0.2e-3
+    assert 6000.0 < choice.chosen < 7800.0 and choice.limit_chosen >= 1.25 * 0.2e-3 and choice.note == ""
+    new = result.program.read_text()
+    assert f"S{choice.chosen:.0f} M3" in new and "S6000" not in new
+    folder = tmp_path / "runs" / "optimize" / "tiny_part"
+    table = pd.read_csv(folder / "blocks_before_after.csv")
+    slot = table[table["line"] == 6].iloc[0]
+    assert bool(slot["chatter before"]) and not bool(slot["chatter after"])
+    assert result.best.feasible and result.best.number >= 1
+    assert json.loads((folder / "optimize.json").read_text())["spindle_speeds"]["1"]["chosen"] == choice.chosen
+    assert "<h2>Spindle speeds</h2>" in result.report.read_text()

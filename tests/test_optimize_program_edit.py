@@ -3,6 +3,7 @@ restored after a changed line, the result is checked against the original by the
 cannot be rewritten exactly is refused naming the line."""
 from __future__ import annotations
 
+import math
 import random
 import re
 from pathlib import Path
@@ -10,12 +11,13 @@ from pathlib import Path
 import pytest
 
 from milling_twin.models.interpolator.definition import default_parameters
-from milling_twin.models.interpolator.parser import DIALECTS, parse_program
+from milling_twin.models.interpolator.parser import DIALECTS, Tool, parse_program
 from milling_twin.models.interpolator.tool_table import read_tool_table
 from milling_twin.orchestrator.optimize.program_edit import (ProgramEditError, feed_lines, format_feed,
                                                              rewrite_feeds)
 
 REPO = Path(__file__).resolve().parents[1]
+TOOLS = (Tool(1, 0.01, flutes=3), Tool(2, 0.006, flutes=2))
 CORPUS = REPO / "scenarios" / "programs" / "corpus"
 BRACKET = REPO / "scenarios" / "parts" / "al_pocket.nc"
 
@@ -59,6 +61,16 @@ def test_a_skipped_line_with_an_f_word_stays_as_it_is() -> None:
     text = SIMPLE.replace("Y10\n", "/G1 Y5 F99\nY10\n")
     edited = rewrite_feeds(text, {7: 2.0}, parser())
     assert edited.text.splitlines()[5] == "/G1 Y5 F99" and edited.text.splitlines()[6] == "Y10 F2400.0"
+
+
+def test_a_tool_s_spindle_speed_changes_in_its_s_words_and_its_moves() -> None:
+    text = "G21 G90\nT1 M6\nS6000 M3\nG0 X0 Y0 Z1\nG1 Z-1 F300\nT2 M6\nS8000 M3 (T2)\nG1 X5\nM30\n"
+    edited = rewrite_feeds(text, {5: 2.0}, parser("fanuc", TOOLS), speeds={1: 1.0225})
+    lines = edited.text.splitlines()
+    assert lines[2] == "S6135 M3" and lines[6] == "S8000 M3 (T2)" and lines[4] == "G1 Z-1 F600.0"
+    assert edited.speeds == {1: pytest.approx(6135 / 6000)}
+    spindles = {m.line: m.spindle * 30 / math.pi for m in parser("fanuc", TOOLS)(edited.text).moves}
+    assert spindles[5] == pytest.approx(6135.0) and spindles[8] == pytest.approx(8000.0)
 
 
 def test_factor_one_everywhere_leaves_the_text_as_it_is() -> None:

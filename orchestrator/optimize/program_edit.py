@@ -19,7 +19,7 @@ from __future__ import annotations
 import math
 import re
 from collections.abc import Mapping
-from dataclasses import dataclass, fields
+from dataclasses import dataclass, field, fields
 from pathlib import Path
 
 from milling_twin.models.interpolator.parser import (DIALECT_SINUMERIK, DIALECTS, MOVE_ARC, MOVE_DWELL, MOVE_LINE,
@@ -33,6 +33,8 @@ FEED_DIGITS = 4            # significant digits at least of a written F value
 # Sinumerik: an F address (not part of a longer name: FGROUP, FFWON, AFIS), and its numeric forms F1000, F=1000.5
 _SINUMERIK_F_AT = re.compile(r"(?<![A-Za-z0-9_$])F(?=\s*=|\s*[\d.+-])", re.IGNORECASE)
 _SINUMERIK_F_NUMBER = re.compile(r"F(\s*=\s*|)([+-]?(?:\d+\.?\d*|\.\d+))(?![\w.\[(*/+-])", re.IGNORECASE)
+_SINUMERIK_S_AT = re.compile(r"(?<![A-Za-z0-9_$])S(?=\s*=|\s*[\d.+-])", re.IGNORECASE)
+_SINUMERIK_S_NUMBER = re.compile(r"S(\s*=\s*|)([+-]?(?:\d+\.?\d*|\.\d+))(?![\w.\[(*/+-])", re.IGNORECASE)
 # geometry and machine state a rewritten program must keep, move by move (everything but the feed)
 _KEPT = tuple(f.name for f in fields(Move) if f.name != "feed")
 
@@ -46,6 +48,7 @@ class EditedProgram:
     text: str
     changed_lines: tuple[int, ...]      # lines whose text changed (an F word replaced or added)
     factors: dict[int, float]           # the factor each feed-move line runs at (1 where unchanged)
+    speeds: dict[int, float] = field(default_factory=dict)  # the spindle speed ratio of each tool whose S changed
 
 
 def format_feed(value: float) -> str:
@@ -80,23 +83,26 @@ def _too_long(raw: str) -> str:
     return raw.strip()[:80]
 
 
-def _f_words(raw: str, file: str, line: int, sinumerik: bool) -> list[_FWord]:
-    """The F words of one program line with their spans."""
+def _words(raw: str, file: str, line: int, sinumerik: bool, letter: str = "F") -> list[_FWord]:
+    """The F (or S) words of one program line with their spans."""
     if sinumerik:
+        at_re, number_re = (_SINUMERIK_F_AT, _SINUMERIK_F_NUMBER) if letter == "F" else \
+            (_SINUMERIK_S_AT, _SINUMERIK_S_NUMBER)
         code = raw[:_split_code_comment(raw, True)]
         found = []
-        for at in _SINUMERIK_F_AT.finditer(code):
-            number = _SINUMERIK_F_NUMBER.match(code, at.start())
+        for at in at_re.finditer(code):
+            number = number_re.match(code, at.start())
             if number is None:
-                raise ProgramEditError(f'{file} line {line}: "{_too_long(raw)}": the feed is an expression; the '
-                                       f"optimizer writes numeric F words only (give the feed as a number)")
+                what = "feed" if letter == "F" else "spindle speed"
+                raise ProgramEditError(f'{file} line {line}: "{_too_long(raw)}": the {what} is an expression; the '
+                                       f"optimizer writes numeric {letter} words only (give the {what} as a number)")
             found.append(_FWord(number.start(), number.end(), float(number.group(2)), number.group(2)))
         return found
     try:
         words = word_spans(raw, file, line)
     except ProgramError as exc:
         raise ProgramEditError(str(exc)) from None
-    return [_FWord(a, b, value, text) for letter, value, text, a, b in words if letter == "F"]
+    return [_FWord(a, b, value, text) for word, value, text, a, b in words if word == letter]
 
 
 def feed_lines(program: Program) -> dict[int, list[Move]]:
@@ -136,18 +142,33 @@ def _check_in_order(program: Program, file: str, lines: list[str]) -> None:
         last = move.line
 
 
+def _next_tools(program: Program, n_lines: int) -> list[int]:
+    """For each line (index), the tool of the first move at or after it (what an S word there is for)."""
+    first: dict[int, int] = {}
+    for move in program.moves:
+        first.setdefault(move.line, move.tool)
+    tools, current = [0] * n_lines, -1
+    for index in range(n_lines - 1, -1, -1):
+        current = first.get(index + 1, current)
+        tools[index] = current
+    return tools
+
+
 def rewrite_feeds(text: str, factors: Mapping[int, float], parse, file: str = "program.nc",
-                  dialect: str = "fanuc") -> EditedProgram:
-    """``text`` with each feed move of line L at ``factors[L]`` x its feed (lines not in ``factors``: 1).
+                  dialect: str = "fanuc", speeds: Mapping[int, float] | None = None) -> EditedProgram:
+    """``text`` with each feed move of line L at ``factors[L]`` x its feed (lines not in ``factors``: 1), and each
+    S word for tool T (the tool of the next move) at ``speeds[T]`` x its value, rounded to whole rpm.
 
     ``parse(text) -> Program`` is the Interpolator's parser with the part's settings (tools, machine): the
     original is parsed to find the feed moves, the result to check it."""
     sinumerik = DIALECTS[dialect] == DIALECT_SINUMERIK
+    speeds = {tool: ratio for tool, ratio in (speeds or {}).items() if ratio != 1.0}
     original = parse(text)
     keep_ends = text.splitlines(keepends=True)
     lines = [ln.rstrip("\r\n") for ln in keep_ends]
     _check_in_order(original, file, lines)
     moving = feed_lines(original)
+    next_tool = _next_tools(original, len(lines)) if speeds else []
     for line, factor in factors.items():
         if line not in moving:
             raise ProgramEditError(f"{file} line {line}: no feed move on this line to change the feed of")
@@ -158,16 +179,17 @@ def rewrite_feeds(text: str, factors: Mapping[int, float], parse, file: str = "p
     out: list[str] = []
     changed: list[int] = []
     used: dict[int, float] = {}
+    speed_used: dict[int, float] = {}
     for index, raw in enumerate(lines):
         number = index + 1
         skipped = raw.lstrip(" \t").startswith("/")  # block skip: the parser leaves the line out
-        words = _f_words(raw, file, number, sinumerik) if "f" in raw.lower() and not skipped else []
+        words = _words(raw, file, number, sinumerik) if "f" in raw.lower() and not skipped else []
         if len(words) > 1:
             raise ProgramEditError(f'{file} line {number}: "{_too_long(raw)}": more than one F word')
         own = words[0] if words else None
         if own is not None:
             old_modal = own
-        new_line = raw
+        edits: list[tuple[int, int, str]] = []   # (start, end, replacement) in raw
         if number in moving:
             if old_modal is None:
                 raise ProgramEditError(f'{file} line {number}: "{_too_long(raw)}": a feed move with no F word '
@@ -177,19 +199,29 @@ def rewrite_feeds(text: str, factors: Mapping[int, float], parse, file: str = "p
             value = old_modal.text if factor == 1.0 else format_feed(old_modal.value * factor)
             want = float(value)
             if own is not None and want != own.value:
-                new_line = raw[:own.start] + _f_text(raw[own.start:own.end], value, sinumerik) + raw[own.end:]
+                edits.append((own.start, own.end, _f_text(raw[own.start:own.end], value, sinumerik)))
             elif own is None and want != new_modal:
-                new_line = _insert_f(raw, value, sinumerik)
+                edits.append(_f_insertion(raw, value, sinumerik))
             new_modal = want
             used[number] = want / old_modal.value
         elif own is not None:
             new_modal = own.value
+        if speeds and not skipped and "s" in raw.lower() and next_tool[index] in speeds:
+            tool = next_tool[index]
+            for word in _words(raw, file, number, sinumerik, "S"):
+                new_speed = float(round(word.value * speeds[tool]))
+                edits.append((word.start, word.end, _f_text(raw[word.start:word.end], f"{new_speed:.0f}",
+                                                            sinumerik)))
+                speed_used[tool] = new_speed / word.value if word.value else 1.0
+        new_line = raw
+        for start, end, replacement in sorted(edits, reverse=True):
+            new_line = new_line[:start] + replacement + new_line[end:]
         if new_line != raw:
             changed.append(number)
         out.append(new_line + keep_ends[index][len(raw):])
     edited = "".join(out)
-    _check_same_program(original, parse(edited), used, file, lines)
-    return EditedProgram(edited, tuple(changed), used)
+    _check_same_program(original, parse(edited), used, speed_used, file, lines)
+    return EditedProgram(edited, tuple(changed), used, speed_used)
 
 
 def _f_text(old: str, value: str, sinumerik: bool) -> str:
@@ -200,25 +232,33 @@ def _f_text(old: str, value: str, sinumerik: bool) -> str:
     return f"{letter}{value}"
 
 
-def _insert_f(raw: str, value: str, sinumerik: bool) -> str:
-    """``raw`` with an F word added after its last word (before a trailing comment)."""
+def _f_insertion(raw: str, value: str, sinumerik: bool) -> tuple[int, int, str]:
+    """An F word added after the line's last word (before a trailing comment), as an edit of ``raw``."""
     at = _split_code_comment(raw, sinumerik)
     code, rest = raw[:at], raw[at:]
     stripped = code.rstrip()
-    space = code[len(stripped):] or (" " if rest else "")
     lower = any(c.isalpha() and c.islower() for c in stripped) and not any(
         c.isalpha() and c.isupper() for c in stripped)
-    return f"{stripped} {'f' if lower else 'F'}{value}{space}{rest}"
+    space = "" if code[len(stripped):] or not rest else " "
+    return len(stripped), len(stripped), f" {'f' if lower else 'F'}{value}{space}"
 
 
-def _check_same_program(old: Program, new: Program, factors: Mapping[int, float], file: str,
-                        lines: list[str]) -> None:
-    """The rewritten program makes the same moves, each feed move at its line's factor x the old feed."""
+def _check_same_program(old: Program, new: Program, factors: Mapping[int, float], speeds: Mapping[int, float],
+                        file: str, lines: list[str]) -> None:
+    """The rewritten program makes the same moves, each feed move at its line's factor x the old feed, each move of
+    a tool in ``speeds`` at its ratio x the old spindle speed."""
     if len(old.moves) != len(new.moves):
         raise ProgramEditError(f"{file}: the rewritten program makes {len(new.moves)} moves, the original "
                                f"{len(old.moves)} (a bug of the rewriting: please report it)")
     for a, b in zip(old.moves, new.moves):
+        if a.tool in speeds and not math.isclose(b.spindle, a.spindle * speeds[a.tool], rel_tol=1e-9):
+            raise ProgramEditError(f'{file} line {a.line}: "{lines[a.line - 1].strip()[:80]}": the rewritten '
+                                   f"program turns the spindle at {b.spindle * 30 / math.pi:.6g} rpm, not "
+                                   f"{a.spindle * speeds[a.tool] * 30 / math.pi:.6g} (an S word for T{a.tool} that "
+                                   f"the optimizer did not find before this line)")
         for name in _KEPT:
+            if name == "spindle" and a.tool in speeds:
+                continue
             if getattr(a, name) != getattr(b, name):
                 raise ProgramEditError(f'{file} line {a.line}: "{lines[a.line - 1].strip()[:80]}": the rewritten '
                                        f"line's {name} differs from the original's (a bug of the rewriting)")

@@ -120,7 +120,7 @@ def _diff_html(before: str, after: str, name: str) -> tuple[str, int]:
 
 def write_optimize_report(folder: Path, part, spec: OptimizeSpec, limits: Mapping[int, ToolLimits],
                           iterations: Sequence, best, original_text: str, optimized_text: str,
-                          stopped: str) -> Path:
+                          stopped: str, speeds: Mapping = ()) -> Path:
     """Write the page and the CSV into ``folder``; the page's path."""
     from milling_twin.orchestrator.optimize.program_edit import feed_lines
     from milling_twin.orchestrator.optimize.run import _parser
@@ -159,6 +159,15 @@ def write_optimize_report(folder: Path, part, spec: OptimizeSpec, limits: Mappin
                            str(lim.flutes)])
     limits_html = _html_table(["tool", "force [N]", "torque [N.m]", "spindle power [kW]", "deflection [um]",
                                "fz min [mm]", "fz max [mm]", "feed max [mm/min]", "flutes"], limit_rows)
+    speed_rows = [[f"T{c.tool}", f"{c.programmed:.0f}", f"{c.chosen:.0f}", f"{c.depth * 1e3:.3f}",
+                   f"{c.limit_programmed * 1e3:.3f}", f"{c.limit_chosen * 1e3:.3f}", c.note]
+                  for c in dict(speeds).values()]
+    speeds_html = ("<h2>Spindle speeds</h2>" + _html_table(
+        ["tool", "programmed [rpm]", "chosen [rpm]", "deepest chattering cut [mm]", "limit at programmed [mm]",
+         "limit at chosen [mm]", "note"], speed_rows) + "<p class='note'>A tool whose blocks chatter in the original "
+        "run: the speed closest to the programmed one (within " f"{spec.speed_range[0]:g}..{spec.speed_range[1]:g} x) "
+        f"whose zero-order slotting limit is at least {1 + spec.stability_margin:g} x its deepest chattering cut; "
+        "its feeds follow to keep the chip.</p>") if speed_rows else ""
     iteration_rows = [[str(it.number), f"{it.cycle_time:.3f}", f"{max(it.peak_force.values(), default=0):.1f}",
                        "yes" if it.feasible else f"no: {'; '.join(it.violations[:3])}"
                        + (f" (+{len(it.violations) - 3})" if len(it.violations) > 3 else ""),
@@ -178,7 +187,7 @@ def write_optimize_report(folder: Path, part, spec: OptimizeSpec, limits: Mappin
             f"<h2>Limits</h2>{limits_html}<p class='note'>Each tool's limits in the re-simulation, within "
             f"{spec.tolerance * 100:g} %; a force limit not given is the original run's largest force of the tool"
             f"{' (times the scale of the best run: objective force)' if spec.objective == 'force' else ''}.</p>"
-            f"<h2>Iterations</h2>{iterations_html}{figure}"
+            f"{speeds_html}<h2>Iterations</h2>{iterations_html}{figure}"
             f"<h2>Program lines before and after</h2>{_html_table(list(shown.columns), rows)}"
             f"<h2>What changed in the program</h2><p class='note'>{n_diff} diff lines; only F words change, every "
             f"line stays where it was. The optimized program and each iteration's are files beside this page.</p>"

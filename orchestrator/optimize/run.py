@@ -37,7 +37,7 @@ import pandas as pd
 from milling_twin.models.interpolator.definition import default_parameters
 from milling_twin.models.interpolator.parser import DIALECTS, Program, parse_program
 from milling_twin.orchestrator import atomic_files
-from milling_twin.orchestrator.optimize import program_edit, schedule
+from milling_twin.orchestrator.optimize import program_edit, schedule, spindle
 from milling_twin.orchestrator.optimize.spec import OptimizeSpec, read_optimize
 from milling_twin.orchestrator.scenario import ScenarioError, _Ctx
 
@@ -83,6 +83,7 @@ class OptimizeResult:
     wall_time: float
     stopped: str                           # why the iteration ended
     notes: tuple[str, ...] = field(default_factory=tuple)
+    speeds: dict[int, spindle.SpeedChoice] = field(default_factory=dict)  # tools whose blocks chattered
 
     @property
     def original(self) -> Iteration:
@@ -193,14 +194,17 @@ def optimize(part_file: str | Path, *, fmu_dir: str | Path, out: str | Path = "r
     iterations: list[Iteration] = []
     history: list[dict[int, schedule.LineRun]] = []
     limits: dict[int, schedule.ToolLimits] = {}
+    original_runs: dict[int, schedule.LineRun] = {}
 
     with RunFolder.claim(folder, what="optimization"), _each_message_once(folder):
         runs_dir = folder / ITERATIONS
         runs_dir.mkdir(parents=True, exist_ok=True)
 
+        chosen: dict[int, spindle.SpeedChoice] = {}
+
         def record() -> None:
             atomic_files.write_text(folder / "optimize.json", json.dumps(_document(
-                part_file, spec, limits, iterations, time.perf_counter() - t_start), indent=1))
+                part_file, spec, limits, iterations, time.perf_counter() - t_start, chosen), indent=1))
 
         def run(k: int, text: str, factors: dict[int, float], scale: float) -> Iteration:
             program_path = runs_dir / f"{k}{part.program.suffix}"
@@ -220,11 +224,13 @@ def optimize(part_file: str | Path, *, fmu_dir: str | Path, out: str | Path = "r
             blocks = pd.read_parquet(results.process_report.blocks_parquet)
             runs = schedule.line_runs(blocks, original_feeds, list(moving))
             history.append(runs)
+            if not original_runs:
+                original_runs.update(runs)
             if not limits:
                 limits.update(_resolved_limits(spec, part, runs, original_feeds))
             # the limits themselves (objective force: the scaled force limit only steers the schedule; the run is
             # judged by its largest force and its cycle time)
-            broken = schedule.violations(runs, limits.get, spec.tolerance, history[0])
+            broken = schedule.violations(runs, limits.get, spec.tolerance, original_runs or runs)
             if results.status != "completed":  # an FMU ended the run (a tool displacement out of range, say)
                 broken.append(f"the run did not complete: {results.status}")
             if spec.objective == "force" and k > 0 and \
@@ -243,7 +249,22 @@ def optimize(part_file: str | Path, *, fmu_dir: str | Path, out: str | Path = "r
         run(0, original_text, {line: 1.0 for line in moving}, 1.0)
         stopped = f"{spec.max_iterations} iterations"
         scale = 1.0
-        for k in range(1, spec.max_iterations + 1):
+        speeds = spindle.choose_speeds(part, pd.read_parquet(iterations[0].run_dir / "blocks.parquet"),
+                                       spec.speed_range, spec.stability_margin)
+        chosen.update(speeds)
+        ratios = {tool: choice.ratio for tool, choice in speeds.items() if choice.ratio != 1.0}
+        first = 1
+        if ratios:
+            # a chattering tool at the speed of its stable pocket, its feeds in proportion (the same chip); the feed
+            # schedule starts again from this run: the forces of the old speed are no model for the new one
+            keep_chip = {line: ratios.get(run0.tool, 1.0) for line, run0 in history[0].items()}
+            edited = program_edit.rewrite_feeds(original_text, keep_chip, parse, str(part.program), part.dialect,
+                                                ratios)
+            ratios = edited.speeds
+            run(1, edited.text, edited.factors, scale)
+            history[:] = history[1:]
+            first = 2
+        for k in range(first, spec.max_iterations + 1):
             if spec.objective == "force":
                 scale = schedule.scale_for_time(history, original_feeds, limits.get, spec.air_moves,
                                                 iterations[-1].cycle_time, iterations[0].cycle_time, plunges)
@@ -253,7 +274,8 @@ def optimize(part_file: str | Path, *, fmu_dir: str | Path, out: str | Path = "r
                    for line in factors) and last.feasible:
                 stopped = "converged: the feeds no longer change"
                 break
-            edited = program_edit.rewrite_feeds(original_text, factors, parse, str(part.program), part.dialect)
+            edited = program_edit.rewrite_feeds(original_text, factors, parse, str(part.program), part.dialect,
+                                                ratios)
             it = run(k, edited.text, edited.factors, scale)
             if it.feasible and last.feasible and abs(_objective(it, spec) / _objective(last, spec) - 1) < CONVERGED:
                 stopped = "converged: two runs in a row meet the limits with the same objective"
@@ -262,15 +284,17 @@ def optimize(part_file: str | Path, *, fmu_dir: str | Path, out: str | Path = "r
         optimized = folder / f"{part.program.stem}_optimized{part.program.suffix}"
         shutil.copyfile(best.program, optimized)
         report = write_optimize_report(folder, part, spec, limits, iterations, best, original_text,
-                                       program_edit.read_program(best.program), stopped)
+                                       program_edit.read_program(best.program), stopped,
+                                       speeds if best.number > 0 else {})
         record()
     notes = [f"the runs leave out the part file's {', '.join(f'[{t}]' for t in RECORDING_TABLES if t in doc)}: "
              f"a recording belongs to the original program's run"] if any(t in doc for t in RECORDING_TABLES) else []
     if best.number == 0:
         notes.append("no iteration met every limit and improved on the original: the optimized program is the "
                      "original")
+    notes += [f"T{tool}: {choice.note}" for tool, choice in speeds.items() if choice.note]
     return OptimizeResult(name, folder, spec.objective, tuple(iterations), best, optimized, report, limits,
-                          time.perf_counter() - t_start, stopped, tuple(notes))
+                          time.perf_counter() - t_start, stopped, tuple(notes), speeds)
 
 
 def _objective(it: Iteration, spec: OptimizeSpec) -> float:
@@ -284,7 +308,8 @@ def _best(iterations: list[Iteration], spec: OptimizeSpec) -> Iteration:
 
 
 def _document(part_file: Path, spec: OptimizeSpec, limits: Mapping[int, schedule.ToolLimits],
-              iterations: list[Iteration], wall_time: float) -> dict[str, Any]:
+              iterations: list[Iteration], wall_time: float,
+              speeds: Mapping[int, spindle.SpeedChoice]) -> dict[str, Any]:
     def finite(x: float) -> float | None:
         return x if math.isfinite(x) else None
     return {
@@ -293,8 +318,13 @@ def _document(part_file: Path, spec: OptimizeSpec, limits: Mapping[int, schedule
         "limits": {str(tool): {**lim.process, "feed_per_tooth_min": lim.feed_per_tooth_min,
                                "feed_per_tooth_max": finite(lim.feed_per_tooth_max), "feed": lim.feed,
                                "flutes": lim.flutes} for tool, lim in limits.items()},
+        "spindle_speeds": {str(tool): {"programmed": c.programmed, "chosen": c.chosen, "deepest_chattering_cut": c.depth,
+                                       "limit_programmed": c.limit_programmed, "limit_chosen": c.limit_chosen,
+                                       "note": c.note} for tool, c in speeds.items()},
         "units": {"cycle_time": "s", "peak_force": "N", "force": "N", "torque": "N.m", "power": "W",
-                  "deflection": "m", "feed_per_tooth_min": "m", "feed_per_tooth_max": "m", "feed": "m/s"},
+                  "deflection": "m", "feed_per_tooth_min": "m", "feed_per_tooth_max": "m", "feed": "m/s",
+                  "programmed": "rpm", "chosen": "rpm", "deepest_chattering_cut": "m", "limit_programmed": "m",
+                  "limit_chosen": "m"},
         "iterations": [{"iteration": it.number, "program": str(it.program), "run_dir": str(it.run_dir),
                         "cycle_time": it.cycle_time, "peak_force": {str(k): v for k, v in it.peak_force.items()},
                         "feasible": it.feasible, "violations": list(it.violations), "force_scale": it.force_scale,

@@ -12,6 +12,8 @@ max_iterations = 6        # re-simulations after the original run (default 6)
 tolerance = 0.01          # a limit holds when the re-simulation stays within it by this share (default 1 %)
 air_moves = "fastest"     # feed moves in air: "fastest" (the largest feed the tool's limits allow) or "keep"
 plunge_slope = 0.25       # a line that cuts while descending more steeply (depth per path length) keeps its feed
+speed_range = [0.7, 1.3]  # a tool whose blocks chatter: speeds allowed, times the programmed one ([1, 1]: keep S)
+stability_margin = 0.25   # ... and the stability limit of the speed chosen, at least 1.25 x its deepest cut
 [optimize.limits]         # every tool's; [optimize.limits.T2] for tool 2's own (it takes these as defaults)
 force = { value = 250, unit = "N" }           # largest resultant force; default: the original run's, per tool
 torque = { value = 1.2, unit = "N.m" }        # default: none
@@ -36,7 +38,8 @@ __all__ = ["Limits", "OptimizeSpec", "read_optimize", "OBJECTIVES", "AIR_MOVES",
 
 OBJECTIVES = ("time", "force")
 AIR_MOVES = ("fastest", "keep")
-KEYS = ("objective", "max_iterations", "tolerance", "air_moves", "plunge_slope", "limits")
+KEYS = ("objective", "max_iterations", "tolerance", "air_moves", "plunge_slope", "speed_range", "stability_margin",
+        "limits")
 LIMIT_KEYS = ("force", "torque", "power", "deflection", "feed_per_tooth", "feed")
 # the limits on the process, by the block-table column they bound (SI)
 METRICS = {"force": "force_max", "torque": "torque_max", "power": "spindle_power_max",
@@ -67,6 +70,8 @@ class OptimizeSpec:
     tolerance: float = 0.01
     air_moves: str = "fastest"
     plunge_slope: float = 0.25      # descent per path length (0.25: 14 deg) from which a cutting line keeps its feed
+    speed_range: tuple[float, float] = (0.7, 1.3)   # a chattering tool's speeds allowed, x the programmed speed
+    stability_margin: float = 0.25  # the chosen speed's stability limit: at least (1 + this) x the deepest cut
     limits: Limits = field(default_factory=Limits)            # every tool's
     tool_limits: dict[int, Limits] = field(default_factory=dict)  # a tool's own (the others taken from `limits`)
 
@@ -105,6 +110,13 @@ def read_optimize(ctx: TomlAccess, raw: Any) -> OptimizeSpec:
         ctx.fail("[optimize].tolerance", f"expected a share below 0.5 (0.01 is 1 %), got {tolerance!r}")
     air = ctx.string(table, "[optimize]", "air_moves", "fastest", AIR_MOVES)
     plunge = ctx.number(table, "[optimize]", "plunge_slope", 0.25, positive=True)
+    speed_range = table.get("speed_range", [0.7, 1.3])
+    if not (isinstance(speed_range, list) and len(speed_range) == 2 and all(
+            isinstance(x, (int, float)) and not isinstance(x, bool) and math.isfinite(x) for x in speed_range)
+            and 0.0 < speed_range[0] <= 1.0 <= speed_range[1]):
+        ctx.fail("[optimize].speed_range", f"expected [low, high] shares of the programmed speed with "
+                                           f"0 < low <= 1 <= high, got {speed_range!r}")
+    margin = ctx.number(table, "[optimize]", "stability_margin", 0.25, minimum=0.0)
     limits_table = table.get("limits", {})
     if not isinstance(limits_table, dict):
         ctx.fail("[optimize.limits]", f"expected a table, got {limits_table!r}")
@@ -119,4 +131,5 @@ def read_optimize(ctx: TomlAccess, raw: Any) -> OptimizeSpec:
         key = f"[optimize.limits.{name}]"
         ctx.table(sub, key, LIMIT_KEYS)
         own[int(name[1:])] = _limits(ctx, sub, key, common)
-    return OptimizeSpec(objective, iterations, tolerance, air, plunge, common, own)
+    return OptimizeSpec(objective, iterations, tolerance, air, plunge, (float(speed_range[0]), float(speed_range[1])),
+                        margin, common, own)

@@ -130,11 +130,14 @@ def next_factors(history: Sequence[Mapping[int, LineRun]], original_feeds: Mappi
         if not cuts:
             factors[line] = 1.0 if air_moves == "keep" else max(1.0, highest)
             continue
-        target = limit_factor = math.inf  # the factor at the scaled force limit (the objective) and at the limits
-        for name, limit in limits.process.items():
-            points = [(h[line].factor, h[line].metrics[name]) for h in history if line in h]
-            limit_factor = min(limit_factor, _limited_factor(points, limit))
-            target = min(target, _limited_factor(points, limit * force_scale) if name == "force" else limit_factor)
+        def points(name: str) -> list[tuple[float, float]]:
+            return [(h[line].factor, h[line].metrics[name]) for h in history if line in h]
+        # the factor at the limits themselves, and at the scaled force limit too (the objective "force")
+        limit_factor = min((_limited_factor(points(name), limit) for name, limit in limits.process.items()),
+                           default=math.inf)
+        target = limit_factor
+        if "force" in limits.process and force_scale != 1.0:
+            target = min(target, _limited_factor(points("force"), limits.process["force"] * force_scale))
         factor = min(target, highest, GROWTH * run.factor)
         if factor < lowest:  # up to the thinnest chip, unless a limit on the process holds the line lower
             factor = min(lowest, limit_factor, highest)

@@ -196,3 +196,22 @@ def test_a_chattering_tool_gets_the_speed_of_a_stable_pocket(tmp_path: Path, fmu
     assert result.best.feasible and result.best.number >= 1
     assert json.loads((folder / "optimize.json").read_text())["spindle_speeds"]["1"]["chosen"] == choice.chosen
     assert "<h2>Spindle speeds</h2>" in result.report.read_text()
+
+
+def test_a_part_cut_by_one_tool_takes_its_limits_also_where_the_program_selects_none() -> None:
+    """UMich run 01's program selects no tool (T0, as the process report's tool column shows): its one cutting tool
+    is the tool of every line, so the tool's limits apply (before, no line had limits and nothing changed)."""
+    from types import SimpleNamespace
+
+    from milling_twin.orchestrator.optimize.run import tool_numbers
+
+    one = SimpleNamespace(cutting_tools=(SimpleNamespace(tool=SimpleNamespace(number=1)),))
+    two = SimpleNamespace(cutting_tools=(SimpleNamespace(tool=SimpleNamespace(number=1)),
+                                         SimpleNamespace(tool=SimpleNamespace(number=2))))
+    assert tool_numbers(one)(0) == 1 and tool_numbers(one)(1) == 1
+    assert tool_numbers(two)(0) == 0 and tool_numbers(two)(2) == 2
+    blocks = pd.DataFrame({"line": [6], "tool": [0], "feed_programmed": [0.01], "spindle_speed": [628.3],
+                           "duration": [1.0], "in_cut_fraction": [1.0], "chatter": [False], "force_max": [100.0],
+                           "torque_max": [0.5], "spindle_power_max": [900.0], "deflection_max": [1e-5]})
+    runs = schedule.line_runs(blocks, {6: 0.01}, [6], tool_numbers(one))
+    assert runs[6].tool == 1 and runs[6].metrics["force"] == 100.0

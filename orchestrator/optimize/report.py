@@ -30,10 +30,11 @@ DIFF_STYLE = """pre.diff{font-size:0.8em;background:#fafafa;border:1px solid #dd
 pre.diff .add{background:#e3f6e3} pre.diff .del{background:#fde2e2} pre.diff .hunk{color:#557}"""
 
 
-def before_after(before: pd.DataFrame, after: pd.DataFrame, original_feeds: Mapping[int, float]) -> pd.DataFrame:
+def before_after(before: pd.DataFrame, after: pd.DataFrame, original_feeds: Mapping[int, float],
+                 tool_of=int) -> pd.DataFrame:
     """One row per program line with feed moves: the original run's and the optimized run's values (SI)."""
     lines = sorted(original_feeds)
-    a, b = line_runs(before, original_feeds, lines), line_runs(after, original_feeds, lines)
+    a, b = line_runs(before, original_feeds, lines, tool_of), line_runs(after, original_feeds, lines, tool_of)
     rows = []
     for line in lines:
         if line not in a or line not in b:
@@ -123,7 +124,7 @@ def write_optimize_report(folder: Path, part, spec: OptimizeSpec, limits: Mappin
                           stopped: str, speeds: Mapping = ()) -> Path:
     """Write the page and the CSV into ``folder``; the page's path."""
     from milling_twin.orchestrator.optimize.program_edit import feed_lines
-    from milling_twin.orchestrator.optimize.run import _parser
+    from milling_twin.orchestrator.optimize.run import _parser, tool_numbers
 
     parse = _parser(part)
     moving = feed_lines(parse(original_text))
@@ -131,7 +132,7 @@ def write_optimize_report(folder: Path, part, spec: OptimizeSpec, limits: Mappin
     original = iterations[0]
     before = pd.read_parquet(original.run_dir / "blocks.parquet")
     after = pd.read_parquet(best.run_dir / "blocks.parquet")
-    table = before_after(before, after, original_feeds)
+    table = before_after(before, after, original_feeds, tool_numbers(part))
     atomic_files.write_with(folder / "blocks_before_after.csv", lambda p: _display(table).to_csv(p, index=False,
                                                                                         float_format="%.6g"))
 

@@ -137,6 +137,16 @@ def _parser(part) -> Callable[[str], Program]:
     return parse
 
 
+def tool_numbers(part) -> Callable[[int], int]:
+    """The cutting tool of a block's tool number: with one cutting tool, that tool (also for T0, a program that
+    selects none, as the process report takes it); with several, the number itself."""
+    cutting = part.cutting_tools
+    if len(cutting) == 1:
+        only = cutting[0].tool.number
+        return lambda number: only
+    return int
+
+
 def _peak_forces(runs: Mapping[int, schedule.LineRun]) -> dict[int, float]:
     peaks: dict[int, float] = {}
     for run in runs.values():
@@ -186,6 +196,7 @@ def optimize(part_file: str | Path, *, fmu_dir: str | Path, out: str | Path = "r
     check_name(name, f"{part_file}: [scenario].name")
     folder = (Path(out) / "optimize" / name).resolve()
     parse = _parser(part)
+    tool_of = tool_numbers(part)
     original_text = program_edit.read_program(part.program)
     program = parse(original_text)
     moving = program_edit.feed_lines(program)
@@ -222,7 +233,7 @@ def optimize(part_file: str | Path, *, fmu_dir: str | Path, out: str | Path = "r
                 raise OptimizeError(f"iteration {k} ({program_path}): the run gave no rows ({results.status}); "
                                     f"the iterations before are in {folder / 'optimize.json'}")
             blocks = pd.read_parquet(results.process_report.blocks_parquet)
-            runs = schedule.line_runs(blocks, original_feeds, list(moving))
+            runs = schedule.line_runs(blocks, original_feeds, list(moving), tool_of)
             history.append(runs)
             if not original_runs:
                 original_runs.update(runs)
@@ -250,7 +261,7 @@ def optimize(part_file: str | Path, *, fmu_dir: str | Path, out: str | Path = "r
         stopped = f"{spec.max_iterations} iterations"
         scale = 1.0
         speeds = spindle.choose_speeds(part, pd.read_parquet(iterations[0].run_dir / "blocks.parquet"),
-                                       spec.speed_range, spec.stability_margin)
+                                       spec.speed_range, spec.stability_margin, tool_of)
         chosen.update(speeds)
         ratios = {tool: choice.ratio for tool, choice in speeds.items() if choice.ratio != 1.0}
         first = 1

@@ -67,9 +67,11 @@ class ToolLimits:
     flutes: int
 
 
-def line_runs(blocks: pd.DataFrame, original_feeds: Mapping[int, float], lines: Sequence[int]) -> dict[int, LineRun]:
+def line_runs(blocks: pd.DataFrame, original_feeds: Mapping[int, float], lines: Sequence[int],
+              tool_of: Callable[[int], int] = int) -> dict[int, LineRun]:
     """The lines of ``lines`` (those with feed moves) in one run's block table; ``original_feeds``: each line's
-    programmed feed in the original program (m/s)."""
+    programmed feed in the original program (m/s); ``tool_of``: the cutting tool of a block's tool number (a part
+    cut by one tool: that tool, also where the program selects none, T0)."""
     out: dict[int, LineRun] = {}
     wanted = set(lines)
     for line, rows in blocks[blocks["line"].isin(wanted)].groupby("line", sort=True):
@@ -78,7 +80,7 @@ def line_runs(blocks: pd.DataFrame, original_feeds: Mapping[int, float], lines: 
         metrics = {name: float(np.nan_to_num(np.nanmax(rows[column].to_numpy(float)), nan=0.0))
                    if rows[column].notna().any() else 0.0 for name, column in METRICS.items()}
         out[int(line)] = LineRun(
-            line=int(line), tool=int(rows["tool"].iloc[0]), factor=feed / original if original > 0 else 1.0,
+            line=int(line), tool=tool_of(int(rows["tool"].iloc[0])), factor=feed / original if original > 0 else 1.0,
             feed=feed, spindle=float(np.nanmean(np.abs(rows["spindle_speed"].to_numpy(float)))),
             duration=float(rows["duration"].sum()),
             cuts=bool((rows["in_cut_fraction"].to_numpy(float) > IN_CUT).any()),

@@ -10,6 +10,7 @@ limit (and a note). The re-simulation then says whether the blocks still chatter
 from __future__ import annotations
 
 import math
+from collections.abc import Callable
 from dataclasses import dataclass
 
 import numpy as np
@@ -41,16 +42,18 @@ def _speed(rad_s: float) -> float:
     return abs(rad_s) * 60.0 / (2.0 * math.pi)
 
 
-def choose_speeds(part, blocks: pd.DataFrame, speed_range: tuple[float, float],
-                  margin: float) -> dict[int, SpeedChoice]:
-    """The speed of each tool whose blocks chatter in ``blocks`` (the original run's table, SI)."""
+def choose_speeds(part, blocks: pd.DataFrame, speed_range: tuple[float, float], margin: float,
+                  tool_of: Callable[[int], int] = int) -> dict[int, SpeedChoice]:
+    """The speed of each tool whose blocks chatter in ``blocks`` (the original run's table, SI); ``tool_of``: the
+    cutting tool of a block's tool number."""
     ktc, krc = part.material.coefficients.get("Ktc"), part.material.coefficients.get("Krc")
     out: dict[int, SpeedChoice] = {}
     if not ktc or krc is None:
         return out
     for cut in part.cutting_tools:
         number = cut.tool.number
-        rows = blocks[(blocks["tool"] == number) & blocks["chatter"].fillna(False).astype(bool)]
+        mine = np.array([tool_of(int(t)) == number for t in blocks["tool"].to_numpy()], dtype=bool)
+        rows = blocks[mine & blocks["chatter"].fillna(False).astype(bool).to_numpy()]
         if rows.empty or not (cut.modes_x or cut.modes_y) or cut.tool.flutes < 1:
             continue
         programmed = round(_speed(float(rows["spindle_speed"].abs().mean())), 6)

@@ -72,7 +72,7 @@ def _split_code_comment(raw: str, sinumerik: bool) -> int:
 
 
 @dataclass(frozen=True)
-class _FWord:
+class _Word:
     start: int
     end: int
     value: float
@@ -83,7 +83,7 @@ def _too_long(raw: str) -> str:
     return raw.strip()[:80]
 
 
-def _words(raw: str, file: str, line: int, sinumerik: bool, letter: str = "F") -> list[_FWord]:
+def _words(raw: str, file: str, line: int, sinumerik: bool, letter: str = "F") -> list[_Word]:
     """The F (or S) words of one program line with their spans."""
     if sinumerik:
         at_re, number_re = (_SINUMERIK_F_AT, _SINUMERIK_F_NUMBER) if letter == "F" else \
@@ -96,13 +96,13 @@ def _words(raw: str, file: str, line: int, sinumerik: bool, letter: str = "F") -
                 what = "feed" if letter == "F" else "spindle speed"
                 raise ProgramEditError(f'{file} line {line}: "{_too_long(raw)}": the {what} is an expression; the '
                                        f"optimizer writes numeric {letter} words only (give the {what} as a number)")
-            found.append(_FWord(number.start(), number.end(), float(number.group(2)), number.group(2)))
+            found.append(_Word(number.start(), number.end(), float(number.group(2)), number.group(2)))
         return found
     try:
         words = word_spans(raw, file, line)
     except ProgramError as exc:
         raise ProgramEditError(str(exc)) from None
-    return [_FWord(a, b, value, text) for word, value, text, a, b in words if word == letter]
+    return [_Word(a, b, value, text) for word, value, text, a, b in words if word == letter]
 
 
 def feed_lines(program: Program) -> dict[int, list[Move]]:
@@ -174,7 +174,7 @@ def rewrite_feeds(text: str, factors: Mapping[int, float], parse, file: str = "p
             raise ProgramEditError(f"{file} line {line}: no feed move on this line to change the feed of")
         if not (math.isfinite(factor) and factor > 0.0):
             raise ProgramEditError(f"{file} line {line}: feed factor {factor!r} is not a positive number")
-    old_modal: _FWord | None = None     # the F word in force in the original, line by line
+    old_modal: _Word | None = None     # the F word in force in the original, line by line
     new_modal: float | None = None      # the F value in force in the rewritten program
     out: list[str] = []
     changed: list[int] = []

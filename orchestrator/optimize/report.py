@@ -9,9 +9,8 @@ from __future__ import annotations
 
 import difflib
 import html
-import io
 import math
-from collections.abc import Mapping, Sequence
+from collections.abc import Callable, Mapping, Sequence
 from pathlib import Path
 
 import numpy as np
@@ -21,6 +20,7 @@ from matplotlib.figure import Figure
 from milling_twin.orchestrator import atomic_files
 from milling_twin.orchestrator.optimize.schedule import ToolLimits, line_runs
 from milling_twin.orchestrator.optimize.spec import OptimizeSpec
+from milling_twin.orchestrator.part.plots import _png
 from milling_twin.orchestrator.part.report import STYLE, _html_table, _img
 
 __all__ = ["write_optimize_report", "before_after"]
@@ -101,9 +101,7 @@ def _figure(table: pd.DataFrame, limits: Mapping[int, ToolLimits], force_scale: 
     bottom.legend(loc="upper right", fontsize=8)
     bottom.grid(alpha=0.3)
     fig.tight_layout()
-    buffer = io.BytesIO()
-    fig.savefig(buffer, format="png", dpi=90)
-    return buffer.getvalue()
+    return _png(fig)
 
 
 def _diff_html(before: str, after: str, name: str) -> tuple[str, int]:
@@ -121,18 +119,14 @@ def _diff_html(before: str, after: str, name: str) -> tuple[str, int]:
 
 def write_optimize_report(folder: Path, part, spec: OptimizeSpec, limits: Mapping[int, ToolLimits],
                           iterations: Sequence, best, original_text: str, optimized_text: str,
-                          stopped: str, speeds: Mapping = ()) -> Path:
-    """Write the page and the CSV into ``folder``; the page's path."""
-    from milling_twin.orchestrator.optimize.program_edit import feed_lines
-    from milling_twin.orchestrator.optimize.run import _parser, tool_numbers
-
-    parse = _parser(part)
-    moving = feed_lines(parse(original_text))
-    original_feeds = {line: max(m.feed for m in moves) for line, moves in moving.items()}
+                          stopped: str, original_feeds: Mapping[int, float], tool_of: Callable[[int], int],
+                          speeds: Mapping = ()) -> Path:
+    """Write the page and the CSV into ``folder``; the page's path. ``original_feeds``: each feed-move line's
+    programmed feed in the original (m/s); ``tool_of``: the cutting tool of a block's tool number."""
     original = iterations[0]
     before = pd.read_parquet(original.run_dir / "blocks.parquet")
     after = pd.read_parquet(best.run_dir / "blocks.parquet")
-    table = before_after(before, after, original_feeds, tool_numbers(part))
+    table = before_after(before, after, original_feeds, tool_of)
     atomic_files.write_with(folder / "blocks_before_after.csv", lambda p: _display(table).to_csv(p, index=False,
                                                                                         float_format="%.6g"))
 

@@ -20,6 +20,7 @@ Layout of ``<out>/optimize/<part name>/``:
 """
 from __future__ import annotations
 
+import functools
 import json
 import logging
 import math
@@ -35,10 +36,11 @@ from typing import Any
 import pandas as pd
 
 from milling_twin.models.interpolator.definition import default_parameters
-from milling_twin.models.interpolator.parser import DIALECTS, Program, parse_program
+from milling_twin.models.interpolator.parser import Program
 from milling_twin.orchestrator import atomic_files
 from milling_twin.orchestrator.optimize import program_edit, schedule, spindle
 from milling_twin.orchestrator.optimize.spec import OptimizeSpec, read_optimize
+from milling_twin.orchestrator.part import checks
 from milling_twin.orchestrator.scenario import ScenarioError, _Ctx
 
 __all__ = ["Iteration", "OptimizeError", "OptimizeResult", "optimize"]
@@ -130,11 +132,9 @@ def _part_document(path: Path) -> tuple[_Ctx, dict[str, Any]]:
 
 
 def _parser(part) -> Callable[[str], Program]:
-    parameters = {**default_parameters(), **part.machine}
-
-    def parse(text: str) -> Program:
-        return parse_program(text, parameters, str(part.program), dialect=DIALECTS[part.dialect], tools=part.tools)
-    return parse
+    """The part's program text as the Interpolator reads it (orchestrator/part/checks.py)."""
+    return functools.partial(checks.parse_text, file=str(part.program), dialect=part.dialect, tools=part.tools,
+                             machine=part.machine)
 
 
 def tool_numbers(part) -> Callable[[int], int]:
@@ -295,7 +295,7 @@ def optimize(part_file: str | Path, *, fmu_dir: str | Path, out: str | Path = "r
         optimized = folder / f"{part.program.stem}_optimized{part.program.suffix}"
         shutil.copyfile(best.program, optimized)
         report = write_optimize_report(folder, part, spec, limits, iterations, best, original_text,
-                                       program_edit.read_program(best.program), stopped,
+                                       program_edit.read_program(best.program), stopped, original_feeds, tool_of,
                                        speeds if best.number > 0 else {})
         record()
     notes = [f"the runs leave out the part file's {', '.join(f'[{t}]' for t in RECORDING_TABLES if t in doc)}: "

@@ -68,9 +68,13 @@ class FeedPath:
 
 def parse(program: Path, dialect: str, tools: Sequence[Tool], machine: Mapping[str, float]) -> Program:
     """The program as the Interpolator reads it; a ProgramError (file, line, text, expected) for a refusal."""
-    parameters = {**default_parameters(), **machine}
-    return parse_program(program.read_text(encoding="latin-1"), parameters, str(program),
-                         dialect=DIALECTS[dialect], tools=tools)
+    return parse_text(program.read_text(encoding="latin-1"), str(program), dialect, tools, machine)
+
+
+def parse_text(text: str, file: str, dialect: str, tools: Sequence[Tool], machine: Mapping[str, float]) -> Program:
+    """``text`` as the Interpolator reads it, with the part's dialect, tool table and machine parameters (messages
+    name ``file``): the program of ``parse`` and the optimizer's rewritten programs alike."""
+    return parse_program(text, {**default_parameters(), **machine}, file, dialect=DIALECTS[dialect], tools=tools)
 
 
 def feed_path(program: Program) -> FeedPath:

@@ -308,6 +308,9 @@ def _optimize(p: argparse.ArgumentParser) -> None:
                         "peak force (default: [optimize].objective, else time)")
     p.add_argument("--max-iterations", type=int, default=None,
                    help="re-simulations after the original run (default: [optimize].max_iterations, else 6)")
+    p.add_argument("--no-sub-blocks", action="store_true",
+                   help="one feed per program line: no line split into sub-blocks (default: "
+                        "[optimize].sub_blocks, else split where the engagement changes along a line)")
     p.add_argument("--no-progress", action="store_true", help="no progress bar")
 
 

@@ -20,6 +20,7 @@ from matplotlib.figure import Figure
 from milling_twin.orchestrator import atomic_files
 from milling_twin.orchestrator.optimize.schedule import ToolLimits, line_runs
 from milling_twin.orchestrator.optimize.spec import OptimizeSpec
+from milling_twin.orchestrator.optimize.sub_blocks import SplitProgram
 from milling_twin.orchestrator.part.plots import _png
 from milling_twin.orchestrator.part.report import STYLE, _html_table, _img
 
@@ -31,16 +32,23 @@ pre.diff .add{background:#e3f6e3} pre.diff .del{background:#fde2e2} pre.diff .hu
 
 
 def before_after(before: pd.DataFrame, after: pd.DataFrame, original_feeds: Mapping[int, float],
-                 tool_of=int) -> pd.DataFrame:
-    """One row per program line with feed moves: the original run's and the optimized run's values (SI)."""
+                 tool_of=int, split: tuple[SplitProgram, Mapping[int, float]] | None = None) -> pd.DataFrame:
+    """One row per program line with feed moves: the original run's and the optimized run's values (SI).
+    ``split``: the optimized program has sub-blocks: the split program and its lines' feeds before optimizing;
+    then a row per line of it, the original line's values before (the whole line's)."""
     lines = sorted(original_feeds)
-    a, b = line_runs(before, original_feeds, lines, tool_of), line_runs(after, original_feeds, lines, tool_of)
+    a = line_runs(before, original_feeds, lines, tool_of)
+    after_feeds = original_feeds if split is None else split[1]
+    b = line_runs(after, after_feeds, sorted(after_feeds), tool_of)
     rows = []
-    for line in lines:
-        if line not in a or line not in b:
+    for new in sorted(after_feeds):
+        line = new if split is None else split[0].origin[new]
+        if line not in a or new not in b:
             continue
-        x, y = a[line], b[line]
-        rows.append({"line": line, "tool": x.tool, "cuts": x.cuts, "feed_before": x.feed, "feed_after": y.feed,
+        x, y = a[line], b[new]
+        part = None if split is None else split[0].parts.get(new)
+        rows.append({"line": line, "sub_block": f"{part[0]}/{part[1]}" if part else "", "tool": x.tool,
+                     "cuts": x.cuts, "feed_before": x.feed, "feed_after": y.feed,
                      "factor": y.factor, "time_before": x.duration, "time_after": y.duration,
                      **{f"{name}_before": x.metrics[name] for name in x.metrics},
                      **{f"{name}_after": y.metrics[name] for name in y.metrics},
@@ -50,7 +58,7 @@ def before_after(before: pd.DataFrame, after: pd.DataFrame, original_feeds: Mapp
 
 # column -> (header, factor from SI to the display unit, digits)
 _DISPLAY = {
-    "line": ("line", 1, 0), "tool": ("tool", 1, 0), "cuts": ("cuts", 1, 0),
+    "line": ("line", 1, 0), "sub_block": ("sub-block", 1, 0), "tool": ("tool", 1, 0), "cuts": ("cuts", 1, 0),
     "feed_before": ("F before [mm/min]", 60000.0, 1), "feed_after": ("F after [mm/min]", 60000.0, 1),
     "factor": ("factor", 1.0, 3),
     "time_before": ("time before [s]", 1.0, 3), "time_after": ("time after [s]", 1.0, 3),
@@ -72,6 +80,8 @@ def _display(table: pd.DataFrame) -> pd.DataFrame:
 
 
 def _cell(value, digits: int) -> str:
+    if isinstance(value, str):
+        return value
     if isinstance(value, (bool, np.bool_)):
         return "yes" if value else ""
     if isinstance(value, (int, np.integer)):
@@ -95,9 +105,11 @@ def _figure(table: pd.DataFrame, limits: Mapping[int, ToolLimits], force_scale: 
         if force is not None:
             bottom.axhline(force * force_scale, color="#c33", lw=1, ls="--", label=f"T{tool} force limit")
     bottom.set_ylabel("largest force [N]")
-    bottom.set_xlabel("program lines with feed moves, in program order")
+    bottom.set_xlabel("program lines with feed moves, in program order (69.1: sub-block 1 of line 69)")
     step = max(1, len(x) // 25)
-    bottom.set_xticks(x[::step], [str(v) for v in table["line"].iloc[::step]], rotation=90, fontsize=7)
+    labels = [f"{line}.{part.split('/')[0]}" if part else str(line)
+              for line, part in zip(table["line"], table["sub_block"])]
+    bottom.set_xticks(x[::step], labels[::step], rotation=90, fontsize=7)
     bottom.legend(loc="upper right", fontsize=8)
     bottom.grid(alpha=0.3)
     fig.tight_layout()
@@ -120,13 +132,14 @@ def _diff_html(before: str, after: str, name: str) -> tuple[str, int]:
 def write_optimize_report(folder: Path, part, spec: OptimizeSpec, limits: Mapping[int, ToolLimits],
                           iterations: Sequence, best, original_text: str, optimized_text: str,
                           stopped: str, original_feeds: Mapping[int, float], tool_of: Callable[[int], int],
-                          speeds: Mapping = ()) -> Path:
+                          speeds: Mapping = (), split: tuple[SplitProgram, Mapping[int, float]] | None = None) -> Path:
     """Write the page and the CSV into ``folder``; the page's path. ``original_feeds``: each feed-move line's
-    programmed feed in the original (m/s); ``tool_of``: the cutting tool of a block's tool number."""
+    programmed feed in the original (m/s); ``tool_of``: the cutting tool of a block's tool number; ``split``: the
+    best program has sub-blocks (see :func:`before_after`)."""
     original = iterations[0]
     before = pd.read_parquet(original.run_dir / "blocks.parquet")
     after = pd.read_parquet(best.run_dir / "blocks.parquet")
-    table = before_after(before, after, original_feeds, tool_of)
+    table = before_after(before, after, original_feeds, tool_of, split)
     atomic_files.write_with(folder / "blocks_before_after.csv", lambda p: _display(table).to_csv(p, index=False,
                                                                                         float_format="%.6g"))
 
@@ -138,8 +151,11 @@ def write_optimize_report(folder: Path, part, spec: OptimizeSpec, limits: Mappin
             ["cycle time", f"{t0:.2f} s -> {t1:.2f} s ({(t1 / t0 - 1) * 100:+.1f} %)"],
             ["largest force", f"{p0:.1f} N -> {p1:.1f} N ({(p1 / p0 - 1) * 100:+.1f} %)" if p0 > 0 else "none"],
             ["best run", f"iteration {best.number} of {len(iterations) - 1} ({stopped})"],
-            ["lines with feed moves", f"{len(table)}, {int((table['factor'] != 1.0).sum()) if len(table) else 0} "
-                                      f"with a new feed"]]
+            ["lines with feed moves", f"{len(original_feeds)}, "
+                                      f"{len({line for line, f in zip(table['line'], table['factor']) if f != 1.0})}"
+                                      f" with a new feed"],
+            ["sub-blocks", f"{len(split[0].plans)} lines split into {len(split[0].parts)} sub-blocks where their "
+                           f"engagement changes" if split else "none"]]
     summary = "<table class='summary'>" + "".join(
         f"<tr><td><b>{html.escape(a)}</b></td><td>{html.escape(b)}</td></tr>" for a, b in head) + "</table>"
     limit_rows = []
@@ -184,7 +200,9 @@ def write_optimize_report(folder: Path, part, spec: OptimizeSpec, limits: Mappin
             f"{' (times the scale of the best run: objective force)' if spec.objective == 'force' else ''}.</p>"
             f"{speeds_html}<h2>Iterations</h2>{iterations_html}{figure}"
             f"<h2>Program lines before and after</h2>{_html_table(list(shown.columns), rows)}"
-            f"<h2>What changed in the program</h2><p class='note'>{n_diff} diff lines; only F words change, every "
-            f"line stays where it was. The optimized program and each iteration's are files beside this page.</p>"
+            f"<h2>What changed in the program</h2><p class='note'>{n_diff} diff lines; only F words change"
+            f"{' and sub-blocks are inserted above the line they are part of, each with a comment naming it' if split else ''}"
+            f"; every original line is kept. The optimized program and each iteration's are files beside this "
+            f"page.</p>"
             f"{diff}</body></html>")
     return atomic_files.write_text(folder / "optimize_report.html", page)

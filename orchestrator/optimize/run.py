@@ -39,6 +39,8 @@ from milling_twin.models.interpolator.definition import default_parameters
 from milling_twin.models.interpolator.parser import Program
 from milling_twin.orchestrator import atomic_files
 from milling_twin.orchestrator.optimize import program_edit, schedule, spindle
+from milling_twin.orchestrator.optimize.sub_blocks import (SplitProgram, SubBlockPlan, line_profiles, plan_sub_blocks,
+                                                           split_lines, splittable_lines)
 from milling_twin.orchestrator.optimize.spec import OptimizeSpec, read_optimize
 from milling_twin.orchestrator.part import checks
 from milling_twin.orchestrator.scenario import ScenarioError, _Ctx
@@ -66,6 +68,7 @@ class Iteration:
     factors: dict[int, float]             # feed factor per program line (1: as originally programmed)
     force_scale: float                    # objective "force": the force limits' scale of this iteration
     wall_time: float                      # s: the run and its report
+    sub_blocks: bool = False              # its program lines are those of the program with sub-blocks
 
     @property
     def feasible(self) -> bool:
@@ -86,6 +89,7 @@ class OptimizeResult:
     stopped: str                           # why the iteration ended
     notes: tuple[str, ...] = field(default_factory=tuple)
     speeds: dict[int, spindle.SpeedChoice] = field(default_factory=dict)  # tools whose blocks chattered
+    sub_blocks: SplitProgram | None = None   # the lines split (the iterations with ``sub_blocks``)
 
     @property
     def original(self) -> Iteration:
@@ -171,8 +175,42 @@ def _resolved_limits(spec: OptimizeSpec, part, original: Mapping[int, schedule.L
     return out
 
 
+@dataclass(frozen=True)
+class _Base:
+    """The program the feeds are scheduled on: the original, or the original with its sub-blocks."""
+    text: str
+    feeds: dict[int, float]            # each feed-move line's programmed feed (m/s)
+    plunges: frozenset[int]            # lines that cut descending more steeply than plunge_slope
+    split: SplitProgram | None = None
+
+    @classmethod
+    def of(cls, text: str, parse: Callable[[str], Program], plunge_slope: float,
+           split: SplitProgram | None = None) -> "_Base":
+        program = parse(text)
+        feeds = {line: max(m.feed for m in moves) for line, moves in program_edit.feed_lines(program).items()}
+        steep = frozenset(line for line, slope in program_edit.descent_slopes(program).items() if slope > plunge_slope)
+        return cls(text, feeds, steep, split)
+
+    def origin(self, line: int) -> int:
+        """The original program's line of one of this program's lines."""
+        return line if self.split is None else self.split.origin[line]
+
+
+def _plan_sub_blocks(spec: OptimizeSpec, part, base: _Base, parse: Callable[[str], Program], run_dir: Path,
+                     tool_of: Callable[[int], int]) -> dict[int, SubBlockPlan]:
+    """The straight lines of the original run whose force changes along them (not plunges, not in air)."""
+    from milling_twin.orchestrator.results import load_results
+
+    program = parse(base.text)
+    candidates = set(splittable_lines(program, base.text, str(part.program))) - base.plunges
+    diameters = {cut.tool.number: cut.tool.diameter for cut in part.cutting_tools}
+    frame = load_results(run_dir)
+    profiles = line_profiles(frame, program, candidates, lambda tool: diameters.get(tool_of(tool)))
+    return plan_sub_blocks(profiles, spec.sub_block_length)
+
+
 def optimize(part_file: str | Path, *, fmu_dir: str | Path, out: str | Path = "runs", objective: str | None = None,
-             max_iterations: int | None = None, progress: bool = False,
+             max_iterations: int | None = None, sub_blocks: bool | None = None, progress: bool = False,
              echo: Callable[[str], None] | None = None) -> OptimizeResult:
     """Optimize the feeds of a whole-part scenario's program (see the module docstring)."""
     from milling_twin.api import simulate
@@ -190,6 +228,8 @@ def optimize(part_file: str | Path, *, fmu_dir: str | Path, out: str | Path = "r
         spec = replace(spec, objective=objective)
     if max_iterations is not None:
         spec = replace(spec, max_iterations=max_iterations)
+    if sub_blocks is not None:
+        spec = replace(spec, sub_blocks=sub_blocks)
     scenario0 = load_scenario(part_file, fmu_dir, document=doc)
     part = scenario0.part
     name = scenario0.name
@@ -198,10 +238,8 @@ def optimize(part_file: str | Path, *, fmu_dir: str | Path, out: str | Path = "r
     parse = _parser(part)
     tool_of = tool_numbers(part)
     original_text = program_edit.read_program(part.program)
-    program = parse(original_text)
-    moving = program_edit.feed_lines(program)
-    original_feeds = {line: max(m.feed for m in moves) for line, moves in moving.items()}
-    plunges = {line for line, slope in program_edit.descent_slopes(program).items() if slope > spec.plunge_slope}
+    base = _Base.of(original_text, parse, spec.plunge_slope)
+    original_feeds = base.feeds
     iterations: list[Iteration] = []
     history: list[dict[int, schedule.LineRun]] = []
     limits: dict[int, schedule.ToolLimits] = {}
@@ -215,7 +253,7 @@ def optimize(part_file: str | Path, *, fmu_dir: str | Path, out: str | Path = "r
 
         def record() -> None:
             atomic_files.write_text(folder / "optimize.json", json.dumps(_document(
-                part_file, spec, limits, iterations, time.perf_counter() - t_start, chosen), indent=1))
+                part_file, spec, limits, iterations, time.perf_counter() - t_start, chosen, base.split), indent=1))
 
         def run(k: int, text: str, factors: dict[int, float], scale: float) -> Iteration:
             program_path = runs_dir / f"{k}{part.program.suffix}"
@@ -233,15 +271,16 @@ def optimize(part_file: str | Path, *, fmu_dir: str | Path, out: str | Path = "r
                 raise OptimizeError(f"iteration {k} ({program_path}): the run gave no rows ({results.status}); "
                                     f"the iterations before are in {folder / 'optimize.json'}")
             blocks = pd.read_parquet(results.process_report.blocks_parquet)
-            runs = schedule.line_runs(blocks, original_feeds, list(moving), tool_of)
+            runs = schedule.line_runs(blocks, base.feeds, list(base.feeds), tool_of)
             history.append(runs)
             if not original_runs:
                 original_runs.update(runs)
             if not limits:
                 limits.update(_resolved_limits(spec, part, runs, original_feeds))
             # the limits themselves (objective force: the scaled force limit only steers the schedule; the run is
-            # judged by its largest force and its cycle time)
-            broken = schedule.violations(runs, limits.get, spec.tolerance, original_runs or runs)
+            # judged by its largest force and its cycle time); chatter against the original line's
+            reference = {line: original_runs[base.origin(line)] for line in runs if base.origin(line) in original_runs}
+            broken = schedule.violations(runs, limits.get, spec.tolerance, reference)
             if results.status != "completed":  # an FMU ended the run (a tool displacement out of range, say)
                 broken.append(f"the run did not complete: {results.status}")
             if spec.objective == "force" and k > 0 and \
@@ -249,7 +288,8 @@ def optimize(part_file: str | Path, *, fmu_dir: str | Path, out: str | Path = "r
                 broken.append(f"cycle time {results.process_report.machining_time:.4g} s longer than the "
                               f"original's {iterations[0].cycle_time:.4g} s")
             it = Iteration(k, program_path, Path(results.run_dir), results.process_report.machining_time,
-                           _peak_forces(runs), tuple(broken), dict(factors), scale, time.perf_counter() - t0)
+                           _peak_forces(runs), tuple(broken), dict(factors), scale, time.perf_counter() - t0,
+                           base.split is not None)
             iterations.append(it)
             record()
             peak = max(it.peak_force.values(), default=0.0)
@@ -257,19 +297,27 @@ def optimize(part_file: str | Path, *, fmu_dir: str | Path, out: str | Path = "r
                 f"{'every limit holds' if it.feasible else f'{len(broken)} limits broken'} ({it.wall_time:.1f} s)")
             return it
 
-        run(0, original_text, {line: 1.0 for line in moving}, 1.0)
+        run(0, original_text, {line: 1.0 for line in base.feeds}, 1.0)
         stopped = f"{spec.max_iterations} iterations"
         scale = 1.0
         speeds = spindle.choose_speeds(part, pd.read_parquet(iterations[0].run_dir / "blocks.parquet"),
                                        spec.speed_range, spec.stability_margin, tool_of)
         chosen.update(speeds)
         ratios = {tool: choice.ratio for tool, choice in speeds.items() if choice.ratio != 1.0}
+        plans = _plan_sub_blocks(spec, part, base, parse, iterations[0].run_dir, tool_of) if spec.sub_blocks else {}
         first = 1
-        if ratios:
-            # a chattering tool at the speed of its stable pocket, its feeds in proportion (the same chip); the feed
-            # schedule starts again from this run: the forces of the old speed are no model for the new one
+        if plans:
+            split = split_lines(original_text, plans, parse, str(part.program), part.dialect)
+            base = _Base.of(split.text, parse, spec.plunge_slope, split)
+            say(f"sub-blocks: {len(plans)} lines split into {len(split.parts)} sub-blocks where their engagement "
+                f"changes")
+        if ratios or plans:
+            # a chattering tool at the speed of its stable pocket, its feeds in proportion (the same chip), and the
+            # lines split into their sub-blocks: the feed schedule starts again from this run (the forces of the old
+            # speed are no model for the new one; the sub-blocks have their own)
             keep_chip = {line: ratios.get(run0.tool, 1.0) for line, run0 in history[0].items()}
-            edited = program_edit.rewrite_feeds(original_text, keep_chip, parse, str(part.program), part.dialect,
+            keep_chip = {line: keep_chip.get(base.origin(line), 1.0) for line in base.feeds}
+            edited = program_edit.rewrite_feeds(base.text, keep_chip, parse, str(part.program), part.dialect,
                                                 ratios)
             ratios = edited.speeds
             run(1, edited.text, edited.factors, scale)
@@ -277,15 +325,15 @@ def optimize(part_file: str | Path, *, fmu_dir: str | Path, out: str | Path = "r
             first = 2
         for k in range(first, spec.max_iterations + 1):
             if spec.objective == "force":
-                scale = schedule.scale_for_time(history, original_feeds, limits.get, spec.air_moves,
-                                                iterations[-1].cycle_time, iterations[0].cycle_time, plunges)
-            factors = schedule.next_factors(history, original_feeds, limits.get, spec.air_moves, scale, plunges)
+                scale = schedule.scale_for_time(history, base.feeds, limits.get, spec.air_moves,
+                                                iterations[-1].cycle_time, iterations[0].cycle_time, base.plunges)
+            factors = schedule.next_factors(history, base.feeds, limits.get, spec.air_moves, scale, base.plunges)
             last = iterations[-1]
             if all(abs(factors[line] - last.factors.get(line, 1.0)) <= 1e-3 * last.factors.get(line, 1.0)
                    for line in factors) and last.feasible:
                 stopped = "converged: the feeds no longer change"
                 break
-            edited = program_edit.rewrite_feeds(original_text, factors, parse, str(part.program), part.dialect,
+            edited = program_edit.rewrite_feeds(base.text, factors, parse, str(part.program), part.dialect,
                                                 ratios)
             it = run(k, edited.text, edited.factors, scale)
             if it.feasible and last.feasible and abs(_objective(it, spec) / _objective(last, spec) - 1) < CONVERGED:
@@ -296,7 +344,8 @@ def optimize(part_file: str | Path, *, fmu_dir: str | Path, out: str | Path = "r
         shutil.copyfile(best.program, optimized)
         report = write_optimize_report(folder, part, spec, limits, iterations, best, original_text,
                                        program_edit.read_program(best.program), stopped, original_feeds, tool_of,
-                                       speeds if best.number > 0 else {})
+                                       speeds if best.number > 0 else {},
+                                       (base.split, base.feeds) if best.sub_blocks else None)
         record()
     notes = [f"the runs leave out the part file's {', '.join(f'[{t}]' for t in RECORDING_TABLES if t in doc)}: "
              f"a recording belongs to the original program's run"] if any(t in doc for t in RECORDING_TABLES) else []
@@ -305,7 +354,7 @@ def optimize(part_file: str | Path, *, fmu_dir: str | Path, out: str | Path = "r
                      "original")
     notes += [f"T{tool}: {choice.note}" for tool, choice in speeds.items() if choice.note]
     return OptimizeResult(name, folder, spec.objective, tuple(iterations), best, optimized, report, limits,
-                          time.perf_counter() - t_start, stopped, tuple(notes), speeds)
+                          time.perf_counter() - t_start, stopped, tuple(notes), speeds, base.split)
 
 
 def _objective(it: Iteration, spec: OptimizeSpec) -> float:
@@ -319,8 +368,8 @@ def _best(iterations: list[Iteration], spec: OptimizeSpec) -> Iteration:
 
 
 def _document(part_file: Path, spec: OptimizeSpec, limits: Mapping[int, schedule.ToolLimits],
-              iterations: list[Iteration], wall_time: float,
-              speeds: Mapping[int, spindle.SpeedChoice]) -> dict[str, Any]:
+              iterations: list[Iteration], wall_time: float, speeds: Mapping[int, spindle.SpeedChoice],
+              split: SplitProgram | None) -> dict[str, Any]:
     def finite(x: float) -> float | None:
         return x if math.isfinite(x) else None
     return {
@@ -336,7 +385,13 @@ def _document(part_file: Path, spec: OptimizeSpec, limits: Mapping[int, schedule
                   "deflection": "m", "feed_per_tooth_min": "m", "feed_per_tooth_max": "m", "feed": "m/s",
                   "programmed": "rpm", "chosen": "rpm", "deepest_chattering_cut": "m", "limit_programmed": "m",
                   "limit_chosen": "m"},
+        # the lines of the program with sub-blocks (the iterations with "sub_blocks": their factors' lines): each
+        # one's line in the original, and for the parts of a split line which part of how many
+        "sub_blocks": {str(line): {"line": split.origin[line], **({"part": part[0], "of": part[1]}
+                                                                   if (part := split.parts.get(line)) else {})}
+                       for line in sorted(split.origin)} if split else {},
         "iterations": [{"iteration": it.number, "program": str(it.program), "run_dir": str(it.run_dir),
+                        "sub_blocks": it.sub_blocks,
                         "cycle_time": it.cycle_time, "peak_force": {str(k): v for k, v in it.peak_force.items()},
                         "feasible": it.feasible, "violations": list(it.violations), "force_scale": it.force_scale,
                         "wall_time": it.wall_time, "factors": {str(k): v for k, v in it.factors.items()}}

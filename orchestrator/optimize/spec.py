@@ -14,6 +14,8 @@ air_moves = "fastest"     # feed moves in air: "fastest" (the largest feed the t
 plunge_slope = 0.25       # a line that cuts while descending more steeply (depth per path length) keeps its feed
 speed_range = [0.7, 1.3]  # a tool whose blocks chatter: speeds allowed, times the programmed one ([1, 1]: keep S)
 stability_margin = 0.25   # ... and the stability limit of the speed chosen, at least 1.25 x its deepest cut
+sub_blocks = true         # split a straight line whose engagement changes along it into sub-blocks with their F
+sub_block_length = { value = 3, unit = "mm" }   # the shortest sub-block (default: the tool's radius)
 [optimize.limits]         # every tool's; [optimize.limits.T2] for tool 2's own (it takes these as defaults)
 force = { value = 250, unit = "N" }           # largest resultant force; default: the original run's, per tool
 torque = { value = 1.2, unit = "N.m" }        # default: none
@@ -39,7 +41,7 @@ __all__ = ["Limits", "OptimizeSpec", "read_optimize", "OBJECTIVES", "AIR_MOVES",
 OBJECTIVES = ("time", "force")
 AIR_MOVES = ("fastest", "keep")
 KEYS = ("objective", "max_iterations", "tolerance", "air_moves", "plunge_slope", "speed_range", "stability_margin",
-        "limits")
+        "sub_blocks", "sub_block_length", "limits")
 LIMIT_KEYS = ("force", "torque", "power", "deflection", "feed_per_tooth", "feed")
 # the limits on the process, by the block-table column they bound (SI)
 METRICS = {"force": "force_max", "torque": "torque_max", "power": "spindle_power_max",
@@ -72,6 +74,8 @@ class OptimizeSpec:
     plunge_slope: float = 0.25      # descent per path length (0.25: 14 deg) from which a cutting line keeps its feed
     speed_range: tuple[float, float] = (0.7, 1.3)   # a chattering tool's speeds allowed, x the programmed speed
     stability_margin: float = 0.25  # the chosen speed's stability limit: at least (1 + this) x the deepest cut
+    sub_blocks: bool = True         # split straight lines whose engagement changes along them
+    sub_block_length: float | None = None   # m: the shortest sub-block; None: the tool's radius
     limits: Limits = field(default_factory=Limits)            # every tool's
     tool_limits: dict[int, Limits] = field(default_factory=dict)  # a tool's own (the others taken from `limits`)
 
@@ -117,6 +121,10 @@ def read_optimize(ctx: TomlAccess, raw: Any) -> OptimizeSpec:
         ctx.fail("[optimize].speed_range", f"expected [low, high] shares of the programmed speed with "
                                            f"0 < low <= 1 <= high, got {speed_range!r}")
     margin = ctx.number(table, "[optimize]", "stability_margin", 0.25, minimum=0.0)
+    split = table.get("sub_blocks", True)
+    if not isinstance(split, bool):
+        ctx.fail("[optimize].sub_blocks", f"expected true or false, got {split!r}")
+    sub_block_length = quantity(ctx, table, "[optimize]", "sub_block_length", "m", None, positive=True)
     limits_table = table.get("limits", {})
     if not isinstance(limits_table, dict):
         ctx.fail("[optimize.limits]", f"expected a table, got {limits_table!r}")
@@ -132,4 +140,4 @@ def read_optimize(ctx: TomlAccess, raw: Any) -> OptimizeSpec:
         ctx.table(sub, key, LIMIT_KEYS)
         own[int(name[1:])] = _limits(ctx, sub, key, common)
     return OptimizeSpec(objective, iterations, tolerance, air, plunge, (float(speed_range[0]), float(speed_range[1])),
-                        margin, common, own)
+                        margin, split, sub_block_length, common, own)

@@ -178,16 +178,18 @@ def calibrate(spec: str | Path, *, fmu_dir: str | Path | None = None, out: str |
 
 def optimize(part: str | Path, *, fmu_dir: str | Path | None = None, out: str | Path = "runs",
              objective: str | None = None, max_iterations: int | None = None, sub_blocks: bool | None = None,
-             progress: bool = False, echo: Callable[[str], None] | None = None):
+             workers: int | None = 0, progress: bool = False, echo: Callable[[str], None] | None = None):
     """Optimize the feeds of a whole-part scenario's program block by block within its ``[optimize]`` limits,
     each step verified by re-simulating the part (docs/optimize.md): into ``out/optimize/<part name>/``.
     ``objective``: "time" or "force" (default: the file's, else "time"); ``sub_blocks``: split lines whose
-    engagement changes (default: the file's, else True); ``echo`` receives a line per iteration.
+    engagement changes (default: the file's, else True); ``workers``: the study layer's, for a chattering tool's
+    simulated stability map (0: in this process; None: one per core); ``echo`` receives a line per iteration.
     Returns an ``OptimizeResult`` (the iterations, the best one, the optimized program and the report)."""
     from milling_twin.orchestrator.optimize.run import optimize as run
 
     return run(part, fmu_dir=fmu_dir if fmu_dir is not None else default_fmu_dir(), out=out, objective=objective,
-               max_iterations=max_iterations, sub_blocks=sub_blocks, progress=progress, echo=echo)
+               max_iterations=max_iterations, sub_blocks=sub_blocks, workers=workers, progress=progress,
+               echo=echo)
 
 
 def sweep(study: str | Path, *, fmu_dir: str | Path | None = None, out: str | Path = "runs",

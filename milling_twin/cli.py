@@ -311,6 +311,9 @@ def _optimize(p: argparse.ArgumentParser) -> None:
     p.add_argument("--no-sub-blocks", action="store_true",
                    help="one feed per program line: no line split into sub-blocks (default: "
                         "[optimize].sub_blocks, else split where the engagement changes along a line)")
+    p.add_argument("--workers", type=int, default=0,
+                   help="the study layer's workers for a chattering tool's simulated stability map (default 0: in "
+                        "this process, a map takes seconds)")
     p.add_argument("--no-progress", action="store_true", help="no progress bar")
 
 

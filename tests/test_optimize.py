@@ -112,12 +112,14 @@ def test_a_scenario_without_part_is_refused(tmp_path: Path, fmu_dir: Path, capsy
 
 def test_the_tiny_part_is_cut_faster_at_its_force_limit(tmp_path: Path, fmu_dir: Path) -> None:
     """The slot at 600 mm/min has its largest force near 131 N; with a limit of 150 N the optimizer raises the
-    feed until the re-simulated slot stays within 1 % of it, changing only F words."""
+    feed until the re-simulated slot stays within 1 % of it, changing only F words (one feed per line: the
+    sub-blocks are tests/test_optimize_sub_blocks.py's)."""
     part = write_part(tmp_path / "part", ("[part.spindle]", '[optimize]\nmax_iterations = 5\n[optimize.limits]\n'
                                           'force = { value = 150, unit = "N" }\n'
                                           'feed_per_tooth = { value = [0.01, 0.3], unit = "mm" }\n[part.spindle]'))
     lines: list[str] = []
-    result = milling_twin.optimize(part, fmu_dir=fmu_dir, out=tmp_path / "runs", echo=lines.append)
+    result = milling_twin.optimize(part, fmu_dir=fmu_dir, out=tmp_path / "runs", echo=lines.append,
+                                   sub_blocks=False)
     folder = tmp_path / "runs" / "optimize" / "tiny_part"
     original, best = result.original, result.best
     assert best.number > 0 and best.feasible
@@ -173,28 +175,42 @@ def test_a_killed_optimization_leaves_its_iterations_readable(tmp_path: Path, fm
         assert Path(it["program"]).is_file() and (Path(it["run_dir"]) / "blocks.parquet").is_file()
 
 
-def test_a_chattering_tool_gets_the_speed_of_a_stable_pocket(tmp_path: Path, fmu_dir: Path) -> None:
-    """The tiny part 0.2 mm deep on the flexible tool of scenarios/chatter.toml (922 Hz, 1.1 %, 1.34e6 N/m): at
-    6000 rpm with 3 flutes the slot is beyond the zero-order limit (0.15 mm) and chatters; the optimizer moves S to
-    the nearest speed whose limit is 1.25 x the depth (the lobe above 6000 rpm), and the slot no longer chatters."""
+@pytest.mark.parametrize("speed_from", ["simulated", "zero-order"])
+def test_a_chattering_tool_gets_the_speed_of_a_stable_pocket(tmp_path: Path, fmu_dir: Path, speed_from: str) -> None:
+    """The tiny part 0.1 mm deep on the flexible tool of scenarios/chatter.toml (922 Hz, 1.1 %, 1.34e6 N/m): at
+    5850 rpm with 3 flutes, below the lobe at 6150 rpm (a zero-order limit of 0.088 mm), the slot chatters. The
+    optimizer moves S to the nearest speed stable at 1.25 x the depth: in the tool's simulated map (a study of its
+    force/vibration loop whose files stay beside the optimization), or by the zero-order limit; in the
+    re-simulation the slot no longer chatters."""
     from cases.part_case import MODES, PROGRAM
 
     mode = "[ { frequency = 922.0, damping = 0.011, stiffness = 1.34e6 } ]"
     part = write_part(tmp_path / "part", (MODES, f"[part.tool_modes]\nx = {mode}\ny = {mode}\n"),
-                      ("[part.spindle]", "[optimize]\nmax_iterations = 2\n[part.spindle]"),
-                      program=PROGRAM.replace("G1 Z-2 F300", "G1 Z-0.2 F300"))
+                      ("[part.spindle]", f'[optimize]\nmax_iterations = 2\nspeed_from = "{speed_from}"\n'
+                                         f'[part.spindle]'),
+                      program=PROGRAM.replace("G1 Z-2 F300", "G1 Z-0.1 F300").replace("S6000", "S5850"))
     result = milling_twin.optimize(part, fmu_dir=fmu_dir, out=tmp_path / "runs")
     choice = result.speeds[1]
-    assert choice.programmed == pytest.approx(6000.0) and choice.limit_programmed < 0.2e-3
-    assert 6000.0 < choice.chosen < 7800.0 and choice.limit_chosen >= 1.25 * 0.2e-3 and choice.note == ""
-    new = result.program.read_text()
-    assert f"S{choice.chosen:.0f} M3" in new and "S6000" not in new
+    assert choice.programmed == pytest.approx(5850.0) and choice.limit_programmed < 0.1e-3
+    assert 0.7 * 5850 <= choice.chosen <= 1.3 * 5850 and abs(choice.chosen - 5850) >= 50
+    assert choice.source == speed_from and choice.note == ""
     folder = tmp_path / "runs" / "optimize" / "tiny_part"
+    if speed_from == "simulated":
+        assert choice.map is not None and choice.map.depth == pytest.approx(1.25 * 0.1e-3)
+        assert choice.stable_chosen and choice.chip_chosen <= 0.1
+        assert not dict(zip(choice.map.speeds, choice.map.stable))[5850.0]
+        assert len(choice.map.speeds) >= 30 and choice.study == folder / "speeds" / "T1_speeds_fine.toml"
+        assert choice.study.is_file() and (folder / "speeds" / "T1_speeds.toml").is_file()
+    else:
+        assert choice.limit_chosen >= 1.25 * 0.1e-3 and choice.map is None and choice.stable_chosen is None
+    new = result.program.read_text()
+    assert f"S{choice.chosen:.0f} M3" in new and "S5850" not in new
     table = pd.read_csv(folder / "blocks_before_after.csv")
-    slot = table[table["line"] == 6].iloc[0]
-    assert bool(slot["chatter before"]) and not bool(slot["chatter after"])
+    slot = table[table["line"] == 6]
+    assert bool(slot["chatter before"].iloc[0]) and not slot["chatter after"].astype(bool).any()
     assert result.best.feasible and result.best.number >= 1
-    assert json.loads((folder / "optimize.json").read_text())["spindle_speeds"]["1"]["chosen"] == choice.chosen
+    doc = json.loads((folder / "optimize.json").read_text())
+    assert doc["spindle_speeds"]["1"]["chosen"] == choice.chosen and doc["spindle_speeds"]["1"]["source"] == speed_from
     assert "<h2>Spindle speeds</h2>" in result.report.read_text()
 
 

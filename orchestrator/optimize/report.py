@@ -116,6 +116,34 @@ def _figure(table: pd.DataFrame, limits: Mapping[int, ToolLimits], force_scale: 
     return _png(fig)
 
 
+def _speed_map_figure(choice) -> bytes:
+    """A chattering tool's simulated map: the dynamic chip per speed, stable or not, the two speeds marked."""
+    from milling_twin.orchestrator.optimize.speed_map import LIMIT_CYCLE_CHIP
+
+    fig = Figure(figsize=(10, 4))
+    ax = fig.subplots()
+    speed_map = choice.map
+    speeds = np.asarray(speed_map.speeds)
+    chip = np.asarray(speed_map.chip, dtype=float)
+    finite = np.isfinite(chip) & (chip > 0)
+    top = 10.0 * max(float(chip[finite].max()) if finite.any() else 1.0, LIMIT_CYCLE_CHIP)
+    shown = np.where(finite, chip, top)   # a case that diverged (or failed) at the top of the axis
+    stable = np.asarray(speed_map.stable)
+    ax.semilogy(speeds, shown, color="#888", lw=0.8)
+    ax.scatter(speeds[stable], shown[stable], color="#1f5fbf", zorder=3, label="stable")
+    ax.scatter(speeds[~stable], shown[~stable], facecolors="none", edgecolors="#c33", zorder=3,
+               label="chatter (at the top: the vibration diverged)")
+    ax.axhline(LIMIT_CYCLE_CHIP, color="#c33", lw=0.8, ls=":")
+    ax.axvline(choice.programmed, color="#555", ls="--", label=f"programmed {choice.programmed:.0f} rpm")
+    ax.axvline(choice.chosen, color="#1f5fbf", ls="-", label=f"chosen {choice.chosen:.0f} rpm")
+    ax.set_xlabel("spindle speed [rpm]")
+    ax.set_ylabel("dynamic chip RMS / feed per tooth")
+    ax.grid(alpha=0.3)
+    ax.legend(loc="lower left", fontsize=8)
+    fig.tight_layout()
+    return _png(fig)
+
+
 def _diff_html(before: str, after: str, name: str) -> tuple[str, int]:
     diff = list(difflib.unified_diff(before.splitlines(), after.splitlines(), f"{name} (original)",
                                      f"{name} (optimized)", lineterm="", n=1))
@@ -170,15 +198,25 @@ def write_optimize_report(folder: Path, part, spec: OptimizeSpec, limits: Mappin
                            str(lim.flutes)])
     limits_html = _html_table(["tool", "force [N]", "torque [N.m]", "spindle power [kW]", "deflection [um]",
                                "fz min [mm]", "fz max [mm]", "feed max [mm/min]", "flutes"], limit_rows)
-    speed_rows = [[f"T{c.tool}", f"{c.programmed:.0f}", f"{c.chosen:.0f}", f"{c.depth * 1e3:.3f}",
-                   f"{c.limit_programmed * 1e3:.3f}", f"{c.limit_chosen * 1e3:.3f}", c.note]
-                  for c in dict(speeds).values()]
+    speed_rows = [[f"T{c.tool}", f"{c.programmed:.0f}", f"{c.chosen:.0f}", c.source, f"{c.depth * 1e3:.3f}",
+                   _cell(c.chip_programmed, 4), _cell(c.chip_chosen, 4), f"{c.limit_programmed * 1e3:.3f}",
+                   f"{c.limit_chosen * 1e3:.3f}", c.note] for c in dict(speeds).values()]
+    maps = "".join(_img(_speed_map_figure(c), f"T{c.tool}: the simulated stability map",
+                        f"The tool's force/vibration loop slotting {c.map.depth * 1e3:.3g} mm deep "
+                        f"({1 + spec.stability_margin:g} x its deepest chattering cut) at each speed: the dynamic "
+                        f"chip's RMS over the feed per tooth (filled: stable; dotted: the share above which a "
+                        f"bounded vibration is chatter). The study files are in speeds/ beside this page "
+                        f"({c.study.name} the last round).")
+                   for c in dict(speeds).values() if c.map is not None)
     speeds_html = ("<h2>Spindle speeds</h2>" + _html_table(
-        ["tool", "programmed [rpm]", "chosen [rpm]", "deepest chattering cut [mm]", "limit at programmed [mm]",
-         "limit at chosen [mm]", "note"], speed_rows) + "<p class='note'>A tool whose blocks chatter in the original "
-        "run: the speed closest to the programmed one (within " f"{spec.speed_range[0]:g}..{spec.speed_range[1]:g} x) "
-        f"whose zero-order slotting limit is at least {1 + spec.stability_margin:g} x its deepest chattering cut; "
-        "its feeds follow to keep the chip.</p>") if speed_rows else ""
+        ["tool", "programmed [rpm]", "chosen [rpm]", "stable by", "deepest chattering cut [mm]",
+         "dynamic chip at programmed [x fz]", "dynamic chip at chosen [x fz]", "zero-order limit at programmed [mm]",
+         "zero-order limit at chosen [mm]", "note"], speed_rows) + "<p class='note'>A tool whose blocks chatter in "
+        "the original run: the speed closest to the programmed one (within "
+        f"{spec.speed_range[0]:g}..{spec.speed_range[1]:g} x) that is stable at {1 + spec.stability_margin:g} x "
+        "its deepest chattering cut, in the tool's simulated stability map (its force/vibration loop over the "
+        "speeds: \"simulated\") or by the zero-order slotting limit (\"zero-order\"); its feeds follow to keep "
+        "the chip.</p>" + maps) if speed_rows else ""
     iteration_rows = [[str(it.number), f"{it.cycle_time:.3f}", f"{max(it.peak_force.values(), default=0):.1f}",
                        "yes" if it.feasible else f"no: {'; '.join(it.violations[:3])}"
                        + (f" (+{len(it.violations) - 3})" if len(it.violations) > 3 else ""),

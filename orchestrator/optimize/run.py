@@ -39,6 +39,7 @@ from milling_twin.models.interpolator.definition import default_parameters
 from milling_twin.models.interpolator.parser import Program
 from milling_twin.orchestrator import atomic_files
 from milling_twin.orchestrator.optimize import program_edit, schedule, spindle
+from milling_twin.orchestrator.optimize.speed_map import simulate_speeds
 from milling_twin.orchestrator.optimize.sub_blocks import (SplitProgram, SubBlockPlan, line_profiles, plan_sub_blocks,
                                                            split_lines, splittable_lines)
 from milling_twin.orchestrator.optimize.spec import OptimizeSpec, read_optimize
@@ -210,9 +211,11 @@ def _plan_sub_blocks(spec: OptimizeSpec, part, base: _Base, parse: Callable[[str
 
 
 def optimize(part_file: str | Path, *, fmu_dir: str | Path, out: str | Path = "runs", objective: str | None = None,
-             max_iterations: int | None = None, sub_blocks: bool | None = None, progress: bool = False,
+             max_iterations: int | None = None, sub_blocks: bool | None = None, workers: int | None = 0,
+             progress: bool = False,
              echo: Callable[[str], None] | None = None) -> OptimizeResult:
-    """Optimize the feeds of a whole-part scenario's program (see the module docstring)."""
+    """Optimize the feeds of a whole-part scenario's program (see the module docstring); ``workers``: the study
+    layer's for a chattering tool's simulated stability map (0: in this process; None: the machine's cores)."""
     from milling_twin.api import simulate
     from milling_twin.orchestrator.optimize.report import write_optimize_report
     from milling_twin.orchestrator.results import RunFolder
@@ -300,8 +303,14 @@ def optimize(part_file: str | Path, *, fmu_dir: str | Path, out: str | Path = "r
         run(0, original_text, {line: 1.0 for line in base.feeds}, 1.0)
         stopped = f"{spec.max_iterations} iterations"
         scale = 1.0
+        def speed_map(cut, speeds, depth, per_tooth, label):  # a chattering tool's simulated map: a study
+            say(f"T{cut.tool.number} chatters: its simulated stability map at {depth * 1e3:.3g} mm over "
+                f"{len(speeds)} speeds")
+            return simulate_speeds(folder / "speeds", part, cut, speeds, depth, per_tooth, Path(fmu_dir).resolve(),
+                                   workers, label)
         speeds = spindle.choose_speeds(part, pd.read_parquet(iterations[0].run_dir / "blocks.parquet"),
-                                       spec.speed_range, spec.stability_margin, tool_of)
+                                       spec.speed_range, spec.stability_margin, tool_of,
+                                       speed_map if spec.speed_from == "simulated" else None)
         chosen.update(speeds)
         ratios = {tool: choice.ratio for tool, choice in speeds.items() if choice.ratio != 1.0}
         plans = _plan_sub_blocks(spec, part, base, parse, iterations[0].run_dir, tool_of) if spec.sub_blocks else {}
@@ -380,11 +389,16 @@ def _document(part_file: Path, spec: OptimizeSpec, limits: Mapping[int, schedule
                                "flutes": lim.flutes} for tool, lim in limits.items()},
         "spindle_speeds": {str(tool): {"programmed": c.programmed, "chosen": c.chosen, "deepest_chattering_cut": c.depth,
                                        "limit_programmed": c.limit_programmed, "limit_chosen": c.limit_chosen,
+                                       "source": c.source, "dynamic_chip_programmed": finite(c.chip_programmed),
+                                       "dynamic_chip_chosen": finite(c.chip_chosen),
+                                       "stable_in_simulated_map": c.stable_chosen,
+                                       "study": str(c.study) if c.study else None,
                                        "note": c.note} for tool, c in speeds.items()},
         "units": {"cycle_time": "s", "peak_force": "N", "force": "N", "torque": "N.m", "power": "W",
                   "deflection": "m", "feed_per_tooth_min": "m", "feed_per_tooth_max": "m", "feed": "m/s",
                   "programmed": "rpm", "chosen": "rpm", "deepest_chattering_cut": "m", "limit_programmed": "m",
-                  "limit_chosen": "m"},
+                  "limit_chosen": "m", "dynamic_chip_programmed": "1 (x the feed per tooth)",
+                  "dynamic_chip_chosen": "1 (x the feed per tooth)"},
         # the lines of the program with sub-blocks (the iterations with "sub_blocks": their factors' lines): each
         # one's line in the original, and for the parts of a split line which part of how many
         "sub_blocks": {str(line): {"line": split.origin[line], **({"part": part[0], "of": part[1]}

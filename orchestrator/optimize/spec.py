@@ -13,7 +13,9 @@ tolerance = 0.01          # a limit holds when the re-simulation stays within it
 air_moves = "fastest"     # feed moves in air: "fastest" (the largest feed the tool's limits allow) or "keep"
 plunge_slope = 0.25       # a line that cuts while descending more steeply (depth per path length) keeps its feed
 speed_range = [0.7, 1.3]  # a tool whose blocks chatter: speeds allowed, times the programmed one ([1, 1]: keep S)
-stability_margin = 0.25   # ... and the stability limit of the speed chosen, at least 1.25 x its deepest cut
+stability_margin = 0.25   # ... and the speed chosen stable at 1.25 x its deepest chattering cut
+speed_from = "simulated"  # stable means: in the tool's simulated stability map ("simulated", default), or below
+                          # the zero-order limit of slotting ("zero-order")
 sub_blocks = true         # split a straight line whose engagement changes along it into sub-blocks with their F
 sub_block_length = { value = 3, unit = "mm" }   # the shortest sub-block (default: the tool's radius)
 [optimize.limits]         # every tool's; [optimize.limits.T2] for tool 2's own (it takes these as defaults)
@@ -36,12 +38,13 @@ from typing import Any
 from milling_twin.orchestrator.part.spec import _factor, _value_unit, quantity
 from milling_twin.orchestrator.toml_access import TomlAccess
 
-__all__ = ["Limits", "OptimizeSpec", "read_optimize", "OBJECTIVES", "AIR_MOVES", "METRICS"]
+__all__ = ["Limits", "OptimizeSpec", "read_optimize", "OBJECTIVES", "AIR_MOVES", "METRICS", "SPEED_FROM"]
 
 OBJECTIVES = ("time", "force")
 AIR_MOVES = ("fastest", "keep")
 KEYS = ("objective", "max_iterations", "tolerance", "air_moves", "plunge_slope", "speed_range", "stability_margin",
-        "sub_blocks", "sub_block_length", "limits")
+        "speed_from", "sub_blocks", "sub_block_length", "limits")
+SPEED_FROM = ("simulated", "zero-order")
 LIMIT_KEYS = ("force", "torque", "power", "deflection", "feed_per_tooth", "feed")
 # the limits on the process, by the block-table column they bound (SI)
 METRICS = {"force": "force_max", "torque": "torque_max", "power": "spindle_power_max",
@@ -74,6 +77,7 @@ class OptimizeSpec:
     plunge_slope: float = 0.25      # descent per path length (0.25: 14 deg) from which a cutting line keeps its feed
     speed_range: tuple[float, float] = (0.7, 1.3)   # a chattering tool's speeds allowed, x the programmed speed
     stability_margin: float = 0.25  # the chosen speed's stability limit: at least (1 + this) x the deepest cut
+    speed_from: str = "simulated"   # stable in the tool's simulated map, or by the zero-order limit
     sub_blocks: bool = True         # split straight lines whose engagement changes along them
     sub_block_length: float | None = None   # m: the shortest sub-block; None: the tool's radius
     limits: Limits = field(default_factory=Limits)            # every tool's
@@ -121,6 +125,7 @@ def read_optimize(ctx: TomlAccess, raw: Any) -> OptimizeSpec:
         ctx.fail("[optimize].speed_range", f"expected [low, high] shares of the programmed speed with "
                                            f"0 < low <= 1 <= high, got {speed_range!r}")
     margin = ctx.number(table, "[optimize]", "stability_margin", 0.25, minimum=0.0)
+    speed_from = ctx.string(table, "[optimize]", "speed_from", "simulated", SPEED_FROM)
     split = table.get("sub_blocks", True)
     if not isinstance(split, bool):
         ctx.fail("[optimize].sub_blocks", f"expected true or false, got {split!r}")
@@ -140,4 +145,4 @@ def read_optimize(ctx: TomlAccess, raw: Any) -> OptimizeSpec:
         ctx.table(sub, key, LIMIT_KEYS)
         own[int(name[1:])] = _limits(ctx, sub, key, common)
     return OptimizeSpec(objective, iterations, tolerance, air, plunge, (float(speed_range[0]), float(speed_range[1])),
-                        margin, split, sub_block_length, common, own)
+                        margin, speed_from, split, sub_block_length, common, own)

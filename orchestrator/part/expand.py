@@ -277,10 +277,10 @@ def explicit_text(part_file: Path, fmu_dir: Path, target_dir: Path) -> tuple[str
     header = (f"# The explicit scenario of {part_file.name} (its [part] expanded by `milling-twin expand`): the same "
               f"run as the part file.\n# Values in SI units; paths relative to this file.\n")
     warnings = "".join(f"# check: {w}\n" for w in part.warnings)
-    return header + warnings + "\n" + _toml(relocate(explicit, part_file.parent, target_dir)), part
+    return header + warnings + "\n" + scenario_toml(relocate(explicit, part_file.parent, target_dir)), part
 
 
-def _toml(doc: Mapping[str, Any]) -> str:
+def scenario_toml(doc: Mapping[str, Any]) -> str:
     """``doc`` as TOML in reading order ([scenario] first), arrays of tables as ``[[name]]`` blocks."""
     order = ("scenario", "fmus", "connections", "stepping", "on_change", "recorded", "alignment", "inputs", "compare",
              "outputs")

@@ -57,7 +57,7 @@ if TYPE_CHECKING:
     from milling_twin.orchestrator.study.spec import Study
 
 __all__ = ["MapConfig", "MapRow", "Onset", "chatter_growth", "dynamic_chip_growth", "growth_windows", "map_config",
-           "map_paths", "map_rows", "onset_of", "onsets", "plot_map", "references", "sd_curve", "speed_range",
+           "map_paths", "map_rows", "dynamic_chip_rms", "onset_of", "onsets", "plot_map", "references", "sd_curve", "speed_range",
            "stability_map", "table_text", "write_csv"]
 
 RPM = 60.0 / (2 * math.pi)  # rad/s -> rpm
@@ -69,11 +69,11 @@ def growth_windows(start_time: float, stop_time: float) -> tuple[tuple[float, fl
     return ((start_time + 0.5 * span, start_time + 0.75 * span), (start_time + 0.75 * span, stop_time))
 
 
-def dynamic_chip_growth(scenario: Scenario, frame: pd.DataFrame,
-                        windows: tuple[tuple[float, float], tuple[float, float]]) -> float:
+def dynamic_chip_rms(scenario: Scenario, frame: pd.DataFrame,
+                     windows: Sequence[tuple[float, float]]) -> list[float]:
     """The RMS of the dynamic chip e(t) = r(t) - r(t - tau) (r: the tool tip displacement in x and y, tau: the tooth
-    period) in the second of ``windows`` [s] over the first. The forced response repeats every tooth period and
-    cancels in e at every output step, so e is the regenerative (free) vibration alone."""
+    period) in each of ``windows`` [s], m. The forced response repeats every tooth period and cancels in e at every
+    output step, so e is the regenerative (free) vibration alone."""
     force = scenario.instance("force")
     tau = 2 * math.pi / (int(force.parameters.get("n_flutes", 2)) * force.inputs["spindle_speed"])
     t = frame["time"].to_numpy(float)
@@ -81,20 +81,29 @@ def dynamic_chip_growth(scenario: Scenario, frame: pd.DataFrame,
     for axis in ("x", "y"):
         r = frame[f"vibration.tip_displacement_{axis}"].to_numpy(float)
         squares += (r - np.interp(t - tau, t, r)) ** 2
-    rms = [math.sqrt(float(np.mean(squares[(t >= start) & (t < stop)]))) for start, stop in windows]
+    return [math.sqrt(float(np.mean(squares[(t >= start) & (t < stop)]))) for start, stop in windows]
+
+
+def dynamic_chip_growth(scenario: Scenario, frame: pd.DataFrame,
+                        windows: tuple[tuple[float, float], tuple[float, float]]) -> float:
+    """The RMS of the dynamic chip (:func:`dynamic_chip_rms`) in the second of ``windows`` over the first."""
+    rms = dynamic_chip_rms(scenario, frame, windows)
     return rms[1] / rms[0] if rms[0] > 0 else math.inf
 
 
 @register("chatter_growth")
 def chatter_growth(case: CaseRun) -> dict[str, float]:
-    """``growth_x``, ``growth_y``, ``growth`` (the larger), ``stable`` (1 when growth <= 1, else 0) and
-    ``chip_growth`` (:func:`dynamic_chip_growth`) of one case, over :func:`growth_windows`."""
+    """``growth_x``, ``growth_y``, ``growth`` (the larger), ``stable`` (1 when growth <= 1, else 0),
+    ``chip_growth`` (:func:`dynamic_chip_growth`) and ``chip_rms`` (m: the dynamic chip's RMS in the second window,
+    which tells a decayed vibration from chatter grown into a limit cycle, whose growth is about 1 too) of one
+    case, over :func:`growth_windows`."""
     scenario = case.scenario
     windows = growth_windows(scenario.start_time, scenario.stop_time)
     gx, gy = displacement_growth(scenario, case.results, windows)
     growth = max(gx, gy)
+    rms = dynamic_chip_rms(scenario, case.results, windows)
     return {"growth_x": float(gx), "growth_y": float(gy), "growth": float(growth), "stable": float(growth <= 1.0),
-            "chip_growth": float(dynamic_chip_growth(scenario, case.results, windows))}
+            "chip_growth": float(rms[1] / rms[0] if rms[0] > 0 else math.inf), "chip_rms": float(rms[1])}
 
 
 @dataclass(frozen=True)

@@ -1,0 +1,72 @@
+"""Benchmark of the feed optimizer's spindle speeds: a slot that chatters moved to a stable pocket, per programmed
+speed. The tiny test part (tests/cases/part_case.py: a 10 mm 3-flute end mill slotting a 50 mm aluminium block)
+on the flexible tool of scenarios/chatter.toml (922 Hz, 1.1 % damping, 1.34e6 N/m in x and y), cut DEPTH deep, is
+optimized at each programmed speed with the speed taken from the tool's simulated stability map and from the
+zero-order lobes. Per case: whether the original's slot chatters (the process report's indicator), the speed
+chosen, whether the simulated map has it stable at 1.25 x the depth, whether the re-simulated slot chatters, the
+cycle times and the wall time. A script, not a timed test:
+
+    .venv/bin/python tests/benchmarks/optimize_chatter.py [--speeds 4800 5850 6600 7200] [--depth 0.1]
+"""
+from __future__ import annotations
+
+import argparse
+import sys
+import tempfile
+import time
+from pathlib import Path
+
+import pandas as pd
+
+import milling_twin
+
+REPO = Path(__file__).resolve().parents[2]
+sys.path.insert(0, str(REPO / "tests"))
+
+from cases.part_case import MODES, PROGRAM, write_part  # noqa: E402
+
+FLEXIBLE = "[ { frequency = 922.0, damping = 0.011, stiffness = 1.34e6 } ]"
+
+
+def main() -> int:
+    parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    parser.add_argument("--speeds", nargs="+", type=float, default=[4800, 5400, 5850, 6600, 7200, 8000])
+    parser.add_argument("--depth", type=float, default=0.1, help="axial depth of the slot, mm")
+    parser.add_argument("--sources", nargs="+", choices=("simulated", "zero-order"),
+                        default=["simulated", "zero-order"])
+    parser.add_argument("--fmu-dir", type=Path, default=REPO / "build" / "fmus")
+    args = parser.parse_args()
+    print(f"{'rpm':>6} {'source':>10} {'chatter before':>14} {'chosen rpm':>10} {'stable in map':>13} "
+          f"{'chatter after':>13} {'cycle s':>14} {'wall s':>6}")
+    with tempfile.TemporaryDirectory() as out:
+        for speed in args.speeds:
+            for source in args.sources:
+                folder = Path(out) / f"{speed:.0f}_{source}"
+                part = write_part(folder / "part", (MODES, f"[part.tool_modes]\nx = {FLEXIBLE}\ny = {FLEXIBLE}\n"),
+                                  ("[part.spindle]", f'[optimize]\nmax_iterations = 2\nspeed_from = "{source}"\n'
+                                                     f"[part.spindle]"),
+                                  program=PROGRAM.replace("G1 Z-2 F300", f"G1 Z-{args.depth:g} F300")
+                                  .replace("S6000", f"S{speed:.0f}"))
+                start = time.perf_counter()
+                try:
+                    result = milling_twin.optimize(part, fmu_dir=args.fmu_dir, out=folder / "runs")
+                except Exception as exc:  # the original run itself may fail: its vibration out of range
+                    print(f"{speed:>6.0f} {source:>10} {'':>14} the optimization failed: {str(exc)[:110]}")
+                    continue
+                wall = time.perf_counter() - start
+                table = pd.read_csv(result.folder / "blocks_before_after.csv")
+                slot = table[table["line"] == 6]
+                before = bool(slot["chatter before"].astype(bool).any())
+                after = bool(slot["chatter after"].astype(bool).any())
+                choice = result.speeds.get(1)
+                chosen = f"{choice.chosen:.0f}" if choice else "kept"
+                stable = "" if choice is None or choice.stable_chosen is None else str(choice.stable_chosen)
+                print(f"{speed:>6.0f} {source:>10} {str(before):>14} {chosen:>10} {stable:>13} {str(after):>13} "
+                      f"{result.original.cycle_time:>6.2f}->{result.best.cycle_time:<6.2f} {wall:>6.0f}", flush=True)
+                for note in result.notes:
+                    print(f"{'':>6} note: {note}")
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -144,8 +144,16 @@ def _reported(run: Callable[..., RunResult], scenario: Scenario, out: Path, fold
         if "zmap_file" in scenario.instance(WORKPIECE).variables:
             zmap = (folder.path / "final_zmap.asc").resolve()
             scenario = with_values(scenario, {f"{WORKPIECE}.zmap_file": str(zmap)})
-    result = run(scenario, out, progress=progress, stepping=stepping, fmi_call_logger=fmi_call_logger,
-                 folder=folder)
+    from milling_twin.orchestrator.master import SimulationError
+
+    try:
+        result = run(scenario, out, progress=progress, stepping=stepping, fmi_call_logger=fmi_call_logger,
+                     folder=folder)
+    except SimulationError as exc:
+        exc.run_dir = folder.path
+        if scenario.part is not None:  # the blocks up to the failure: where and how the part went wrong
+            exc.process_report = _partial_process_report(scenario, folder.path, exc)
+        raise
     frame = load_results(result.run_dir)
     report = process = None
     if scenario.compare and result.rows:
@@ -158,6 +166,21 @@ def _reported(run: Callable[..., RunResult], scenario: Scenario, out: Path, fold
         process = write_process_report(scenario.part, frame, result.run_dir, zmap_file=zmap,
                                        comparisons=report.comparisons if report else ())
     return Results(frame, result, scenario, report, result.run_dir, process)
+
+
+def _partial_process_report(scenario: Scenario, run_dir: Path, exc: Exception):
+    """The process report of a whole-part run that failed, from the rows it wrote (None without any)."""
+    from milling_twin.orchestrator.part.report import write_process_report
+
+    try:
+        frame = load_results(run_dir)
+    except (OSError, ValueError):
+        return None
+    if frame.empty:
+        return None
+    return write_process_report(scenario.part, frame, run_dir, zmap_file=None,
+                                warnings=[f"the run failed: {exc}; the table ends at t = {frame['time'].iloc[-1]:g} s"
+                                          if "time" in frame.columns else f"the run failed: {exc}"])
 
 
 def calibrate(spec: str | Path, *, fmu_dir: str | Path | None = None, out: str | Path = "runs",

@@ -130,7 +130,12 @@ def _restore_fmpy_fmi2_logger() -> None:
 
 
 class SimulationError(RuntimeError):
-    """An FMI call failed; names the instance, the time, the function and the FMI status."""
+    """An FMI call failed; names the instance, the time, the function and the FMI status. ``run_dir``: the run
+    folder with the rows written before the failure; ``process_report``: a whole-part run's per-block report of
+    those rows (``milling_twin.simulate`` writes it), None otherwise."""
+
+    run_dir: Any = None
+    process_report: Any = None
 
     def __init__(self, instance: str, t: float, status: str, function: str = "doStep",
                  messages: Sequence[str] = ()) -> None:

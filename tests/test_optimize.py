@@ -231,3 +231,30 @@ def test_a_part_cut_by_one_tool_takes_its_limits_also_where_the_program_selects_
                            "torque_max": [0.5], "spindle_power_max": [900.0], "deflection_max": [1e-5]})
     runs = schedule.line_runs(blocks, {6: 0.01}, [6], tool_numbers(one))
     assert runs[6].tool == 1 and runs[6].metrics["force"] == 100.0
+
+
+def test_a_program_whose_chatter_breaks_the_run_gets_a_stable_speed(tmp_path: Path, fmu_dir: Path) -> None:
+    """At 5400 rpm, between two lobes, the tiny part's slot on the flexible tool chatters until the tool's
+    displacement leaves the FMUs' range and the run fails: simulate raises with the blocks up to there (a partial
+    process report naming the failure), and the optimizer takes the speed of the simulated map's pocket from them;
+    the optimized program runs to its end without chatter."""
+    from cases.part_case import MODES, PROGRAM
+    from milling_twin.orchestrator.master import SimulationError
+
+    mode = "[ { frequency = 922.0, damping = 0.011, stiffness = 1.34e6 } ]"
+    part = write_part(tmp_path / "part", (MODES, f"[part.tool_modes]\nx = {mode}\ny = {mode}\n"),
+                      ("[part.spindle]", "[optimize]\nmax_iterations = 2\n[part.spindle]"),
+                      program=PROGRAM.replace("G1 Z-2 F300", "G1 Z-0.1 F300").replace("S6000", "S5400"))
+    with pytest.raises(SimulationError, match="out of its allowed range") as failed:
+        milling_twin.simulate(part, fmu_dir=fmu_dir, out=tmp_path / "plain")
+    report = failed.value.process_report
+    assert report is not None and failed.value.run_dir == tmp_path / "plain" / "tiny_part"
+    blocks = pd.read_parquet(report.blocks_parquet)
+    assert 6 in set(blocks["line"]) and "the run failed" in report.html.read_text()
+    result = milling_twin.optimize(part, fmu_dir=fmu_dir, out=tmp_path / "runs")
+    assert result.original.status.startswith("failed") and not result.original.feasible
+    choice = result.speeds[1]
+    assert choice.stable_chosen and abs(choice.chosen - 5400.0) > 200 and choice.note == ""
+    assert result.best.number >= 1 and result.best.status == "completed" and result.best.feasible
+    table = pd.read_csv(result.folder / "blocks_before_after.csv")
+    assert not table[table["line"] == 6]["chatter after"].astype(bool).any()

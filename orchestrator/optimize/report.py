@@ -176,7 +176,9 @@ def write_optimize_report(folder: Path, part, spec: OptimizeSpec, limits: Mappin
     title = f"Feed optimization: {part.program.name}"
     head = [["objective", "the shortest cycle within the limits" if spec.objective == "time"
              else "the original cycle time with the lowest peak force"],
-            ["cycle time", f"{t0:.2f} s -> {t1:.2f} s ({(t1 / t0 - 1) * 100:+.1f} %)"],
+            ["cycle time", f"{t0:.2f} s -> {t1:.2f} s ({(t1 / t0 - 1) * 100:+.1f} %)" if original.status == "completed"
+             else f"the original's run did not complete ({original.status[:200]}): {t0:.2f} s of it; the "
+                  f"optimized program {t1:.2f} s"],
             ["largest force", f"{p0:.1f} N -> {p1:.1f} N ({(p1 / p0 - 1) * 100:+.1f} %)" if p0 > 0 else "none"],
             ["best run", f"iteration {best.number} of {len(iterations) - 1} ({stopped})"],
             ["lines with feed moves", f"{len(original_feeds)}, "

@@ -43,6 +43,7 @@ from milling_twin.orchestrator.optimize.speed_map import simulate_speeds
 from milling_twin.orchestrator.optimize.sub_blocks import (SplitProgram, SubBlockPlan, line_profiles, plan_sub_blocks,
                                                            split_lines, splittable_lines)
 from milling_twin.orchestrator.optimize.spec import OptimizeSpec, read_optimize
+from milling_twin.orchestrator.master import SimulationError
 from milling_twin.orchestrator.part import checks
 from milling_twin.orchestrator.scenario import ScenarioError, _Ctx
 
@@ -70,6 +71,7 @@ class Iteration:
     force_scale: float                    # objective "force": the force limits' scale of this iteration
     wall_time: float                      # s: the run and its report
     sub_blocks: bool = False              # its program lines are those of the program with sub-blocks
+    status: str = "completed"             # the run's: "completed", or how it ended ("failed: ...")
 
     @property
     def feasible(self) -> bool:
@@ -269,11 +271,15 @@ def optimize(part_file: str | Path, *, fmu_dir: str | Path, out: str | Path = "r
             edited["part"] = {**doc["part"], "program": str(program_path)}
             scenario = load_scenario(part_file, fmu_dir, document=edited)
             t0 = time.perf_counter()
-            results = simulate(scenario, out=runs_dir, progress=progress)
-            if results.process_report is None:  # no rows: nothing to schedule from
-                raise OptimizeError(f"iteration {k} ({program_path}): the run gave no rows ({results.status}); "
+            try:
+                results = simulate(scenario, out=runs_dir, progress=progress)
+                status, process, run_dir = results.status, results.process_report, Path(results.run_dir)
+            except SimulationError as exc:  # an FMU refused a value (a vibration out of its range, say)
+                status, process, run_dir = f"failed: {exc}", exc.process_report, Path(exc.run_dir or runs_dir)
+            if process is None:  # no rows: nothing to schedule from
+                raise OptimizeError(f"iteration {k} ({program_path}): the run gave no rows ({status}); "
                                     f"the iterations before are in {folder / 'optimize.json'}")
-            blocks = pd.read_parquet(results.process_report.blocks_parquet)
+            blocks = pd.read_parquet(process.blocks_parquet)
             runs = schedule.line_runs(blocks, base.feeds, list(base.feeds), tool_of)
             history.append(runs)
             if not original_runs:
@@ -284,15 +290,16 @@ def optimize(part_file: str | Path, *, fmu_dir: str | Path, out: str | Path = "r
             # judged by its largest force and its cycle time); chatter against the original line's
             reference = {line: original_runs[base.origin(line)] for line in runs if base.origin(line) in original_runs}
             broken = schedule.violations(runs, limits.get, spec.tolerance, reference)
-            if results.status != "completed":  # an FMU ended the run (a tool displacement out of range, say)
-                broken.append(f"the run did not complete: {results.status}")
-            if spec.objective == "force" and k > 0 and \
-                    results.process_report.machining_time > iterations[0].cycle_time * (1 + spec.tolerance):
-                broken.append(f"cycle time {results.process_report.machining_time:.4g} s longer than the "
-                              f"original's {iterations[0].cycle_time:.4g} s")
-            it = Iteration(k, program_path, Path(results.run_dir), results.process_report.machining_time,
+            if status != "completed":  # an FMU ended or failed the run (a tool displacement out of range, say)
+                broken.append(f"the run did not complete: {status}")
+            reference = _reference_time(iterations)
+            if spec.objective == "force" and reference is not None and \
+                    process.machining_time > reference * (1 + spec.tolerance):
+                broken.append(f"cycle time {process.machining_time:.4g} s longer than the "
+                              f"original's {reference:.4g} s")
+            it = Iteration(k, program_path, run_dir, process.machining_time,
                            _peak_forces(runs), tuple(broken), dict(factors), scale, time.perf_counter() - t0,
-                           base.split is not None)
+                           base.split is not None, status)
             iterations.append(it)
             record()
             peak = max(it.peak_force.values(), default=0.0)
@@ -313,6 +320,10 @@ def optimize(part_file: str | Path, *, fmu_dir: str | Path, out: str | Path = "r
                                        speed_map if spec.speed_from == "simulated" else None)
         chosen.update(speeds)
         ratios = {tool: choice.ratio for tool, choice in speeds.items() if choice.ratio != 1.0}
+        if iterations[0].status != "completed" and not ratios:
+            raise OptimizeError(f"the original program's run did not complete ({iterations[0].status}) and no "
+                                f"chattering tool's speed could change that; its blocks so far are in "
+                                f"{iterations[0].run_dir}")
         plans = _plan_sub_blocks(spec, part, base, parse, iterations[0].run_dir, tool_of) if spec.sub_blocks else {}
         first = 1
         if plans:
@@ -329,13 +340,16 @@ def optimize(part_file: str | Path, *, fmu_dir: str | Path, out: str | Path = "r
             edited = program_edit.rewrite_feeds(base.text, keep_chip, parse, str(part.program), part.dialect,
                                                 ratios)
             ratios = edited.speeds
-            run(1, edited.text, edited.factors, scale)
+            first_run = run(1, edited.text, edited.factors, scale)
             history[:] = history[1:]
-            first = 2
+            first = 2 if first_run.status == "completed" else spec.max_iterations + 1
+            if first_run.status != "completed":
+                stopped = f"iteration 1's run did not complete ({first_run.status})"
         for k in range(first, spec.max_iterations + 1):
             if spec.objective == "force":
                 scale = schedule.scale_for_time(history, base.feeds, limits.get, spec.air_moves,
-                                                iterations[-1].cycle_time, iterations[0].cycle_time, base.plunges)
+                                                iterations[-1].cycle_time, _reference_time(iterations),
+                                                base.plunges)
             factors = schedule.next_factors(history, base.feeds, limits.get, spec.air_moves, scale, base.plunges)
             last = iterations[-1]
             if all(abs(factors[line] - last.factors.get(line, 1.0)) <= 1e-3 * last.factors.get(line, 1.0)
@@ -345,6 +359,9 @@ def optimize(part_file: str | Path, *, fmu_dir: str | Path, out: str | Path = "r
             edited = program_edit.rewrite_feeds(base.text, factors, parse, str(part.program), part.dialect,
                                                 ratios)
             it = run(k, edited.text, edited.factors, scale)
+            if it.status != "completed":  # its blocks end where it failed: no schedule for the lines after
+                stopped = f"iteration {k}'s run did not complete ({it.status})"
+                break
             if it.feasible and last.feasible and abs(_objective(it, spec) / _objective(last, spec) - 1) < CONVERGED:
                 stopped = "converged: two runs in a row meet the limits with the same objective"
                 break
@@ -364,6 +381,12 @@ def optimize(part_file: str | Path, *, fmu_dir: str | Path, out: str | Path = "r
     notes += [f"T{tool}: {choice.note}" for tool, choice in speeds.items() if choice.note]
     return OptimizeResult(name, folder, spec.objective, tuple(iterations), best, optimized, report, limits,
                           time.perf_counter() - t_start, stopped, tuple(notes), speeds, base.split)
+
+
+def _reference_time(iterations: list[Iteration]) -> float | None:
+    """The cycle time the objective "force" keeps: the original's, or where the original's run failed (a tool's
+    vibration out of range) that of the first run that completed (the speed moved to a stable pocket)."""
+    return next((it.cycle_time for it in iterations if it.status == "completed"), None)
 
 
 def _objective(it: Iteration, spec: OptimizeSpec) -> float:
@@ -408,5 +431,6 @@ def _document(part_file: Path, spec: OptimizeSpec, limits: Mapping[int, schedule
                         "sub_blocks": it.sub_blocks,
                         "cycle_time": it.cycle_time, "peak_force": {str(k): v for k, v in it.peak_force.items()},
                         "feasible": it.feasible, "violations": list(it.violations), "force_scale": it.force_scale,
+                        "status": it.status,
                         "wall_time": it.wall_time, "factors": {str(k): v for k, v in it.factors.items()}}
                        for it in iterations]}

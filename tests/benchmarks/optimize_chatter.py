@@ -2,7 +2,8 @@
 speed. The tiny test part (tests/cases/part_case.py: a 10 mm 3-flute end mill slotting a 50 mm aluminium block)
 on the flexible tool of scenarios/chatter.toml (922 Hz, 1.1 % damping, 1.34e6 N/m in x and y), cut DEPTH deep, is
 optimized at each programmed speed with the speed taken from the tool's simulated stability map and from the
-zero-order lobes. Per case: whether the original's slot chatters (the process report's indicator), the speed
+zero-order lobes. Per case: whether the original's slot chatters (the process report's indicator; "diverged": its
+vibration grew beyond the FMUs' range and the run failed there), the speed
 chosen, whether the simulated map has it stable at 1.25 x the depth, whether the re-simulated slot chatters, the
 cycle times and the wall time. A script, not a timed test:
 
@@ -61,8 +62,11 @@ def main() -> int:
                 choice = result.speeds.get(1)
                 chosen = f"{choice.chosen:.0f}" if choice else "kept"
                 stable = "" if choice is None or choice.stable_chosen is None else str(choice.stable_chosen)
-                print(f"{speed:>6.0f} {source:>10} {str(before):>14} {chosen:>10} {stable:>13} {str(after):>13} "
-                      f"{result.original.cycle_time:>6.2f}->{result.best.cycle_time:<6.2f} {wall:>6.0f}", flush=True)
+                failed = result.original.status != "completed"   # the vibration left the FMUs' range
+                before_text = "diverged" if failed else str(before)
+                cycle = f"{'failed' if failed else f'{result.original.cycle_time:.2f}'}->{result.best.cycle_time:.2f}"
+                print(f"{speed:>6.0f} {source:>10} {before_text:>14} {chosen:>10} {stable:>13} {str(after):>13} "
+                      f"{cycle:>14} {wall:>6.0f}", flush=True)
                 for note in result.notes:
                     print(f"{'':>6} note: {note}")
     return 0

@@ -67,6 +67,17 @@ def test_air_moves_plunges_and_chatter() -> None:
     assert next_factors(history, FEEDS, lambda tool: LIMITS, "keep")[11] == 1.0  # the fastest without chatter
 
 
+def test_a_value_the_feed_cannot_bring_under_its_limit_falls_in_bounded_steps() -> None:
+    """A force of 170 N at factor 1 and 160 N at 0.5 (an edge force, a forced vibration: 150 N at no feed): the
+    secant meets the 150 N limit at no positive feed. The next factor is the proportional step, not ~0; and a
+    factor never falls more than GROWTH times from one run to the next."""
+    history = [{10: run(10, 1.0, 170.0)}, {10: run(10, 0.5, 160.0)}]
+    factor = next_factors(history, FEEDS, lambda tool: LIMITS, "keep")[10]
+    assert factor == pytest.approx(0.5 * 150.0 / 160.0)
+    steep = [{10: run(10, 1.0, 1500.0)}]   # ten times the limit: proportional would be 0.1, a fall of 10
+    assert next_factors(steep, FEEDS, lambda tool: LIMITS, "keep")[10] == pytest.approx(1.0 / schedule.GROWTH)
+
+
 def test_a_tool_the_part_does_not_cut_with_or_a_stopped_spindle_keeps_its_feed() -> None:
     history = [{10: run(10, 1.0, 50.0, tool=7), 11: run(11, 1.0, 50.0, spindle=0.0)}]
     factors = next_factors(history, FEEDS, lambda tool: LIMITS if tool == 1 else None, "fastest")
@@ -92,7 +103,11 @@ def test_the_force_objective_scale_gives_the_target_time() -> None:
      "[optimize.limits].feed_per_tooth", "expected 0 <= min < max"),
     ("[optimize.limits]\nforce = { value = 100, unit = \"N.m\" }\n", "[optimize.limits].force", "unit 'N.m'"),
     ("[optimize.limits.T2]\nspeed = 3\n", "[optimize.limits.T2].speed", "unknown key 'speed'"),
-], ids=["unknown-key", "objective", "feed-per-tooth-range", "force-unit", "tool-unknown-key"])
+    ("[optimize]\nspeed_from = \"lobes\"\n", "[optimize].speed_from", "'lobes' is not one of simulated, zero-order"),
+    ("[optimize]\nsub_blocks = 1\n", "[optimize].sub_blocks", "expected true or false, got 1"),
+    ("[optimize]\nsub_block_length = { value = -2, unit = \"mm\" }\n", "[optimize].sub_block_length", "must be > 0"),
+], ids=["unknown-key", "objective", "feed-per-tooth-range", "force-unit", "tool-unknown-key", "speed-from",
+        "sub-blocks", "sub-block-length"])
 def test_a_bad_optimize_section_names_the_file_and_key(tmp_path: Path, fmu_dir: Path, section: str, key: str,
                                                        message: str) -> None:
     part = write_part(tmp_path / "part", ("[part.spindle]", section + "[part.spindle]"))

@@ -10,9 +10,11 @@ factor for the next run:
   mechanistic force is linear in the feed per tooth (``K_c b h + K_e b``), and so are the torque, the cutting
   power and the deflection: from two runs at different feeds the line through both is the model (secant), from one
   the value is taken as proportional to the feed (which overestimates the rise, so the first step stays inside the
-  limit). The factor is the smallest over the limits, within the feed-per-tooth range and the machine's feed, and
-  at most ``GROWTH`` times the last run's (a line whose feed is held by acceleration does not react to F); never
-  below the thinnest chip (the per-tooth minimum) unless a limit itself holds the line there;
+  limit; where the secant says no positive feed meets the limit, an edge force or a forced vibration holding the
+  value up, the proportional step). The factor is the smallest over the limits, within the feed-per-tooth range
+  and the machine's feed, and within ``GROWTH`` times or one ``GROWTH``-th of the last run's (a line whose feed is
+  held by acceleration does not react to F; a drop, too, is a step the next run corrects); never below the
+  thinnest chip (the per-tooth minimum) unless a limit itself holds the line there;
 - a line in air: with ``air_moves = "fastest"`` the largest feed the tool's limits allow (never slower than
   programmed); with ``"keep"`` as programmed;
 - a line that chatters where the original did not: no faster than the fastest run in which it did not;
@@ -38,7 +40,7 @@ from milling_twin.orchestrator.optimize.spec import METRICS, Limits
 __all__ = ["GROWTH", "LineRun", "ToolLimits", "line_runs", "next_factors", "violations", "predicted_time",
            "scale_for_time"]
 
-GROWTH = 4.0          # a line's factor rises at most this much from one run to the next
+GROWTH = 4.0          # a line's factor rises (and falls) at most this much from one run to the next
 IN_CUT = 1e-9         # in_cut_fraction above which a line cuts
 
 
@@ -101,7 +103,10 @@ def _limited_factor(points: list[tuple[float, float]], limit: float) -> float:
     slope = (m1 - m0) / (f1 - f0)
     if slope <= 1e-3 * m1 / f1:  # the value barely follows the feed (held by acceleration, say): proportional
         return proportional
-    return (limit - (m1 - slope * f1)) / slope
+    secant = (limit - (m1 - slope * f1)) / slope
+    # a line whose value stays above the limit at any feed (the secant through zero or below: an edge force, a
+    # forced vibration): the proportional step, which never reaches zero
+    return secant if secant > 0.0 else proportional
 
 
 def _feed_bounds(line: LineRun, original_feed: float, limits: ToolLimits) -> tuple[float, float]:
@@ -141,6 +146,7 @@ def next_factors(history: Sequence[Mapping[int, LineRun]], original_feeds: Mappi
         if "force" in limits.process and force_scale != 1.0:
             target = min(target, _limited_factor(points("force"), limits.process["force"] * force_scale))
         factor = min(target, highest, GROWTH * run.factor)
+        factor = max(factor, run.factor / GROWTH)  # and falls at most as much: a step the next run can correct
         if factor < lowest:  # up to the thinnest chip, unless a limit on the process holds the line lower
             factor = min(lowest, limit_factor, highest)
         if line in plunges:  # the end cutting edges are not modelled: a plunge's force is not predicted

@@ -184,15 +184,17 @@ class _Base:
     text: str
     feeds: dict[int, float]            # each feed-move line's programmed feed (m/s)
     plunges: frozenset[int]            # lines that cut descending more steeply than plunge_slope
+    tools: dict[int, int]              # each feed-move line's tool number (as the program selects it)
     split: SplitProgram | None = None
 
     @classmethod
     def of(cls, text: str, parse: Callable[[str], Program], plunge_slope: float,
            split: SplitProgram | None = None) -> "_Base":
         program = parse(text)
-        feeds = {line: max(m.feed for m in moves) for line, moves in program_edit.feed_lines(program).items()}
+        moving = program_edit.feed_lines(program)
+        feeds = {line: max(m.feed for m in moves) for line, moves in moving.items()}
         steep = frozenset(line for line, slope in program_edit.descent_slopes(program).items() if slope > plunge_slope)
-        return cls(text, feeds, steep, split)
+        return cls(text, feeds, steep, {line: moves[0].tool for line, moves in moving.items()}, split)
 
     def origin(self, line: int) -> int:
         """The original program's line of one of this program's lines."""
@@ -310,6 +312,7 @@ def optimize(part_file: str | Path, *, fmu_dir: str | Path, out: str | Path = "r
         run(0, original_text, {line: 1.0 for line in base.feeds}, 1.0)
         stopped = f"{spec.max_iterations} iterations"
         scale = 1.0
+
         def speed_map(cut, speeds, depth, per_tooth, label):  # a chattering tool's simulated map: a study
             say(f"T{cut.tool.number} chatters: its simulated stability map at {depth * 1e3:.3g} mm over "
                 f"{len(speeds)} speeds")
@@ -335,8 +338,7 @@ def optimize(part_file: str | Path, *, fmu_dir: str | Path, out: str | Path = "r
             # a chattering tool at the speed of its stable pocket, its feeds in proportion (the same chip), and the
             # lines split into their sub-blocks: the feed schedule starts again from this run (the forces of the old
             # speed are no model for the new one; the sub-blocks have their own)
-            keep_chip = {line: ratios.get(run0.tool, 1.0) for line, run0 in history[0].items()}
-            keep_chip = {line: keep_chip.get(base.origin(line), 1.0) for line in base.feeds}
+            keep_chip = {line: ratios.get(tool_of(base.tools[line]), 1.0) for line in base.feeds}
             edited = program_edit.rewrite_feeds(base.text, keep_chip, parse, str(part.program), part.dialect,
                                                 ratios)
             ratios = edited.speeds

@@ -32,14 +32,13 @@ import numpy as np
 import tomli_w
 
 from milling_twin.orchestrator import atomic_files
-from milling_twin.orchestrator.part.expand import scenario_toml
+from milling_twin.orchestrator.part.expand import force_tool_parameters, scenario_toml, vibration_parameters
 from milling_twin.orchestrator.part.model import CutTool, Part
 
 __all__ = ["LIMIT_CYCLE_CHIP", "NOISE_CHIP", "SPEEDS", "MIN_TEETH", "SpeedMap", "least_chatter", "merged", "pocket_speed", "simulate_speeds", "tool_loop_document"]
 
 SPEEDS = 25            # spindle speeds over the allowed range
 MIN_TEETH = 60         # tooth periods the slowest case runs at least (the growth compares its last two quarters)
-STEP = 1e-5            # s: the fine step of the whole-part runs' force/vibration loop
 DIVERGED = "out of its allowed range"   # a case whose displacement left the FMUs' range: it chattered
 LIMIT_CYCLE_CHIP = 0.1  # a dynamic chip RMS above this share of the feed per tooth: chatter (a limit cycle)
 NOISE_CHIP = 1e-3       # ... below this share: the vibration has died out (stable whatever its growth)
@@ -68,23 +67,19 @@ def tool_loop_document(part: Part, cut: CutTool, speed_rpm: float, depth: float,
     """The force/vibration loop of one tool slotting at one speed and depth: a scenario document (SI values)."""
     tool = cut.tool
     omega = speed_rpm * 2.0 * math.pi / 60.0
-    force = {"n_flutes": tool.flutes, "tool_diameter": tool.diameter, "helix_angle": tool.helix,
-             **part.material.coefficients}
-    vibration: dict[str, Any] = {"n_modes_x": len(cut.modes_x), "n_modes_y": len(cut.modes_y)}
-    for axis, modes in (("x", cut.modes_x), ("y", cut.modes_y)):
-        for i, mode in enumerate(modes, start=1):
-            vibration.update({f"frequency_{axis}{i}": mode.frequency, f"damping_{axis}{i}": mode.damping,
-                              f"stiffness_{axis}{i}": mode.stiffness})
+    force = {**force_tool_parameters(cut), **part.material.coefficients}
+    vibration = vibration_parameters(cut)
     feed = feed_per_tooth * tool.flutes * omega / (2.0 * math.pi)
+    step = part.fine_step   # the whole-part run's step of the loop in material
     return {
-        "scenario": {"name": f"T{tool.number}_loop", "stop_time": stop_time, "output_interval": STEP,
+        "scenario": {"name": f"T{tool.number}_loop", "stop_time": stop_time, "output_interval": step,
                      "description": f"T{tool.number}'s force/vibration loop slotting {depth * 1e3:.4g} mm deep "
                                     f"(the feed optimizer's speed check)"},
         "fmus": {
-            "force": {"fmu": "CuttingForce", "step_size": STEP, "parameters": force,
+            "force": {"fmu": "CuttingForce", "step_size": step, "parameters": force,
                       "inputs": {"spindle_speed": omega, "feed_velocity_x": feed, "axial_depth": depth,
                                  "entry_angle": 0.0, "exit_angle": math.pi}},
-            "vibration": {"fmu": "ToolVibration", "step_size": STEP, "parameters": vibration}},
+            "vibration": {"fmu": "ToolVibration", "step_size": step, "parameters": vibration}},
         "connections": [{"from": "force.Fx", "to": "vibration.force_x"},
                         {"from": "force.Fy", "to": "vibration.force_y"},
                         {"from": "vibration.tip_displacement_x", "to": "force.displacement_x", "delay": True},

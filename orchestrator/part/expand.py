@@ -140,10 +140,10 @@ def explicit_scenario(part: Part, variables: Mapping[str, Mapping[str, Variable]
     fastest = max(part.machine.get("rapid_feed", 0.0), part.machine.get("max_feed", 0.0))
     if fastest * 1.5 > 2.0:  # the Workpiece's default max_tool_speed (2 m/s) refuses faster jumps
         workpiece["max_tool_speed"] = 1.5 * fastest
-    force: dict[str, Any] = _force_tool(cutting[0])
+    force: dict[str, Any] = force_tool_parameters(cutting[0])
     if part.force_model == "CuttingForce":
         force.update(part.material.coefficients)
-    vibration = _vibration_tool(cutting[0])
+    vibration = vibration_parameters(cutting[0])
     power: dict[str, Any] = dict(part.spindle)
     from_force = part.cutting_power == "force"
     if "cutting_power_from_force" in has[POWER]:
@@ -184,8 +184,8 @@ def explicit_scenario(part: Part, variables: Mapping[str, Mapping[str, Variable]
     if several:  # the tool change: the next tool's geometry and modes from the communication point it shows
         doc["on_change"] = [{"output": f"{INTERPOLATOR}.tool_number", "equals": c.tool.number, "set": {
             **{f"{WORKPIECE}.{k}": v for k, v in _workpiece_tool(c, True).items()},
-            **{f"{FORCE}.{k}": v for k, v in _force_tool(c).items()},
-            **{f"{VIBRATION}.{k}": v for k, v in _vibration_tool(c).items()}}} for c in cutting]
+            **{f"{FORCE}.{k}": v for k, v in force_tool_parameters(c).items()},
+            **{f"{VIBRATION}.{k}": v for k, v in vibration_parameters(c).items()}}} for c in cutting]
     for name in ("recorded", "inputs", "compare", "alignment"):
         if name in beside:
             doc[name] = copy.deepcopy(beside[name])
@@ -200,11 +200,12 @@ def _workpiece_tool(c: CutTool, with_length: bool) -> dict[str, Any]:
     return {**values, "tool_length": c.length} if with_length else values
 
 
-def _force_tool(c: CutTool) -> dict[str, Any]:
+def force_tool_parameters(c: CutTool) -> dict[str, Any]:
+    """The force model's parameters of one tool (its geometry; the material's coefficients are the part's)."""
     return {"n_flutes": c.tool.flutes, "tool_diameter": c.tool.diameter, "helix_angle": c.tool.helix}
 
 
-def _vibration_tool(c: CutTool) -> dict[str, Any]:
+def vibration_parameters(c: CutTool) -> dict[str, Any]:
     """ToolVibration's modes of one tool; with tool changes the unused modes of a direction are switched off by
     n_modes (their values stay those of the tool that had them)."""
     vibration: dict[str, Any] = {"n_modes_x": len(c.modes_x), "n_modes_y": len(c.modes_y)}

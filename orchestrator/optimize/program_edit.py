@@ -232,13 +232,17 @@ def _f_text(old: str, value: str, sinumerik: bool) -> str:
     return f"{letter}{value}"
 
 
+def written_in_lower_case(code: str) -> bool:
+    """Whether a line's words are written in lower case (``g1 x10 f500``): words added to it follow."""
+    return any(c.isalpha() and c.islower() for c in code) and not any(c.isalpha() and c.isupper() for c in code)
+
+
 def _f_insertion(raw: str, value: str, sinumerik: bool) -> tuple[int, int, str]:
     """An F word added after the line's last word (before a trailing comment), as an edit of ``raw``."""
     at = _split_code_comment(raw, sinumerik)
     code, rest = raw[:at], raw[at:]
     stripped = code.rstrip()
-    lower = any(c.isalpha() and c.islower() for c in stripped) and not any(
-        c.isalpha() and c.isupper() for c in stripped)
+    lower = written_in_lower_case(stripped)
     space = "" if code[len(stripped):] or not rest else " "
     return len(stripped), len(stripped), f" {'f' if lower else 'F'}{value}{space}"
 

@@ -31,7 +31,7 @@ import pandas as pd
 from milling_twin.models.interpolator.parser import (COMP_OFF, DIALECT_SINUMERIK, DIALECTS, MOVE_LINE, Move,
                                                      Program, ProgramError, word_spans)
 from milling_twin.orchestrator.optimize.program_edit import (ProgramEditError, _check_in_order, _KEPT,
-                                                             _split_code_comment, feed_lines)
+                                                             _split_code_comment, feed_lines, written_in_lower_case)
 from milling_twin.orchestrator.part.blocks import Signals
 from milling_twin.orchestrator.part.model import FORCE, INTERPOLATOR
 
@@ -229,8 +229,7 @@ def _number(value: float, scale: float) -> str:
 
 def _inserted(raw: str, move: Move, scale: float, at: float, part: int, parts: int, line: int,
               sinumerik: bool) -> str:
-    lower = any(c.isalpha() and c.islower() for c in raw[:_split_code_comment(raw, sinumerik)]) and not any(
-        c.isalpha() and c.isupper() for c in raw[:_split_code_comment(raw, sinumerik)])
+    lower = written_in_lower_case(raw[:_split_code_comment(raw, sinumerik)])
     words = ["G1"]
     for a, letter in enumerate("XYZ"):
         if move.end[a] != move.start[a]:

@@ -273,3 +273,23 @@ def test_a_program_whose_chatter_breaks_the_run_gets_a_stable_speed(tmp_path: Pa
     assert result.best.number >= 1 and result.best.status == "completed" and result.best.feasible
     table = pd.read_csv(result.folder / "blocks_before_after.csv")
     assert not table[table["line"] == 6]["chatter after"].astype(bool).any()
+
+
+def test_a_stable_speed_that_the_program_cannot_hold_keeps_s_with_a_note(tmp_path: Path, fmu_dir: Path) -> None:
+    """The chattering slot of the test above, its feeds given per revolution (G95): a new S would change every
+    feed with it, which the move-by-move check refuses. The optimizer keeps S, says why, and still schedules the
+    feeds."""
+    from cases.part_case import MODES, PROGRAM
+
+    mode = "[ { frequency = 922.0, damping = 0.011, stiffness = 1.34e6 } ]"
+    program = PROGRAM.replace("G1 Z-2 F300", "G95 G1 Z-0.1 F0.05").replace("G1 X60 F600", "G1 X60 F0.1") \
+        .replace("S6000", "S5850")
+    part = write_part(tmp_path / "part", (MODES, f"[part.tool_modes]\nx = {mode}\ny = {mode}\n"),
+                      ("[part.spindle]", '[optimize]\nmax_iterations = 1\nspeed_from = "zero-order"\n'
+                                         '[part.spindle]'), program=program)
+    result = milling_twin.optimize(part, fmu_dir=fmu_dir, out=tmp_path / "runs")
+    choice = result.speeds[1]
+    assert choice.chosen == choice.programmed == pytest.approx(5850.0)
+    assert "cannot be written into this program" in choice.note and "S kept" in choice.note
+    assert any("S kept" in note for note in result.notes)
+    assert "S5850" in result.program.read_text()

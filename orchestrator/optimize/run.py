@@ -321,8 +321,18 @@ def optimize(part_file: str | Path, *, fmu_dir: str | Path, out: str | Path = "r
         speeds = spindle.choose_speeds(part, pd.read_parquet(iterations[0].run_dir / "blocks.parquet"),
                                        spec.speed_range, spec.stability_margin, tool_of,
                                        speed_map if spec.speed_from == "simulated" else None)
-        chosen.update(speeds)
         ratios = {tool: choice.ratio for tool, choice in speeds.items() if choice.ratio != 1.0}
+        if ratios:
+            try:  # the S words and the feeds that keep the chip, as the program can hold them
+                program_edit.rewrite_feeds(original_text, {line: ratios.get(tool_of(base.tools[line]), 1.0)
+                                                           for line in base.feeds},
+                                           parse, str(part.program), part.dialect, ratios)
+            except program_edit.ProgramEditError as exc:  # feeds per revolution (G95) follow S: not this way
+                speeds = {tool: replace(c, chosen=c.programmed, note=f"the speed of a stable pocket "
+                                        f"({c.chosen:.0f} rpm) cannot be written into this program ({exc}): S kept")
+                          if tool in ratios else c for tool, c in speeds.items()}
+                ratios = {}
+        chosen.update(speeds)
         if iterations[0].status != "completed" and not ratios:
             raise OptimizeError(f"the original program's run did not complete ({iterations[0].status}) and no "
                                 f"chattering tool's speed could change that; its blocks so far are in "

@@ -76,7 +76,8 @@ def test_a_planned_line_is_written_as_its_parts_above_it_with_a_comment_naming_i
     # the feed schedule then gives each part its own F; the original line keeps every word but F
     edited = program_edit.rewrite_feeds(split.text, {6: 4.0, 7: 1.0, 8: 0.5}, parse)
     new = edited.text.splitlines()
-    assert new[5].startswith("G1 X7.5 F2400.") and new[6].startswith("G1 X25. F600 ") and new[7] == "N60 G1 X60 F300.0 (SLOT)"
+    assert new[5].startswith("G1 X7.5 F2400.") and new[6].startswith("G1 X25. F600 ")
+    assert new[7] == "N60 G1 X60 F300.0 (SLOT)"
 
 
 def test_inch_lowercase_and_sinumerik_programs_get_parts_in_their_own_words() -> None:
@@ -113,8 +114,8 @@ def test_a_slot_that_starts_in_air_runs_its_air_part_at_the_fastest_feed(tmp_pat
     program = PROGRAM.replace("G0 X-10 Y10 Z5", "G0 X-40 Y10 Z5")
     section = ('[optimize]\nmax_iterations = 4\n[optimize.limits]\nforce = { value = 150, unit = "N" }\n'
                'feed_per_tooth = { value = [0.01, 0.1], unit = "mm" }\n[part.spindle]')
-    part = write_part(tmp_path / "part", ("[part.spindle]", section), ('start_x = { value = -10', 'start_x = { value = -40'),
-                      program=program)
+    part = write_part(tmp_path / "part", ("[part.spindle]", section),
+                      ('start_x = { value = -10', 'start_x = { value = -40'), program=program)
     whole = milling_twin.optimize(part, fmu_dir=fmu_dir, out=tmp_path / "whole", sub_blocks=False)
     result = milling_twin.optimize(part, fmu_dir=fmu_dir, out=tmp_path / "split")
     assert result.sub_blocks is not None and 6 in result.sub_blocks.plans

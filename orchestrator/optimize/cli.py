@@ -9,7 +9,8 @@ from milling_twin import api
 def command(args: argparse.Namespace) -> int:
     result = api.optimize(args.part, fmu_dir=args.fmu_dir, out=args.out, objective=args.objective,
                           max_iterations=args.max_iterations,
-                          sub_blocks=False if args.no_sub_blocks else None, workers=args.workers, progress=not args.no_progress, echo=print)
+                          sub_blocks=False if args.no_sub_blocks else None, workers=args.workers,
+                          progress=not args.no_progress, echo=print)
     original, best = result.original, result.best
     p0, p1 = max(original.peak_force.values(), default=0.0), max(best.peak_force.values(), default=0.0)
     print(f"{result.name}: cycle time {original.cycle_time:.2f} s -> {best.cycle_time:.2f} s "

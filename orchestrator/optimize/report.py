@@ -26,6 +26,7 @@ from milling_twin.orchestrator.part.report import STYLE, _html_table, _img
 
 __all__ = ["write_optimize_report", "before_after"]
 
+INSERTED = " and sub-blocks are inserted above the line they are part of, each with a comment naming it"
 MAX_DIFF_LINES = 2000   # lines of the diff shown on the page (the programs themselves are files beside it)
 DIFF_STYLE = """pre.diff{font-size:0.8em;background:#fafafa;border:1px solid #ddd;padding:0.5em;overflow-x:auto}
 pre.diff .add{background:#e3f6e3} pre.diff .del{background:#fde2e2} pre.diff .hunk{color:#557}"""
@@ -64,7 +65,8 @@ _DISPLAY = {
     "time_before": ("time before [s]", 1.0, 3), "time_after": ("time after [s]", 1.0, 3),
     "force_before": ("force max before [N]", 1.0, 1), "force_after": ("force max after [N]", 1.0, 1),
     "torque_before": ("torque max before [N.m]", 1.0, 3), "torque_after": ("torque max after [N.m]", 1.0, 3),
-    "power_before": ("spindle power max before [kW]", 1e-3, 3), "power_after": ("spindle power max after [kW]", 1e-3, 3),
+    "power_before": ("spindle power max before [kW]", 1e-3, 3),
+    "power_after": ("spindle power max after [kW]", 1e-3, 3),
     "deflection_before": ("deflection max before [um]", 1e6, 2),
     "deflection_after": ("deflection max after [um]", 1e6, 2),
     "chatter_before": ("chatter before", 1, 0), "chatter_after": ("chatter after", 1, 0),
@@ -241,7 +243,7 @@ def write_optimize_report(folder: Path, part, spec: OptimizeSpec, limits: Mappin
             f"{speeds_html}<h2>Iterations</h2>{iterations_html}{figure}"
             f"<h2>Program lines before and after</h2>{_html_table(list(shown.columns), rows)}"
             f"<h2>What changed in the program</h2><p class='note'>{n_diff} diff lines; only F words change"
-            f"{' and sub-blocks are inserted above the line they are part of, each with a comment naming it' if split else ''}"
+            f"{INSERTED if split else ''}"
             f"; every original line is kept. The optimized program and each iteration's are files beside this "
             f"page.</p>"
             f"{diff}</body></html>")

@@ -35,7 +35,8 @@ from milling_twin.orchestrator import atomic_files
 from milling_twin.orchestrator.part.expand import force_tool_parameters, scenario_toml, vibration_parameters
 from milling_twin.orchestrator.part.model import CutTool, Part
 
-__all__ = ["LIMIT_CYCLE_CHIP", "NOISE_CHIP", "SPEEDS", "MIN_TEETH", "SpeedMap", "least_chatter", "merged", "pocket_speed", "simulate_speeds", "tool_loop_document"]
+__all__ = ["LIMIT_CYCLE_CHIP", "NOISE_CHIP", "SPEEDS", "MIN_TEETH", "SpeedMap", "least_chatter", "merged",
+           "pocket_speed", "simulate_speeds", "tool_loop_document"]
 
 SPEEDS = 25            # spindle speeds over the allowed range
 MIN_TEETH = 60         # tooth periods the slowest case runs at least (the growth compares its last two quarters)
@@ -51,7 +52,8 @@ class SpeedMap:
     depth: float                 # m: the depth simulated ((1 + margin) x the deepest chattering cut)
     speeds: tuple[float, ...]    # rpm
     growth: tuple[float, ...]    # chip_growth of the case (inf: it diverged; NaN: it failed otherwise)
-    chip: tuple[float, ...]      # its dynamic chip RMS in the last quarter over the feed per tooth (inf, NaN: as growth)
+    chip: tuple[float, ...]      # its dynamic chip's RMS in the last quarter over the feed per tooth (inf, NaN: as
+                                 # growth)
     study: Path                  # the study file
     summary: Path                # its summary.parquet
     wall_time: float             # s

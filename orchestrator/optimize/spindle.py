@@ -108,8 +108,8 @@ def choose_speeds(part, blocks: pd.DataFrame, speed_range: tuple[float, float], 
     return out
 
 
-def _simulated_choice(zoa: SpeedChoice, cut: CutTool, lobes, simulate: SpeedSimulation, speed_range: tuple[float, float],
-                      depth: float, per_tooth: float) -> SpeedChoice:
+def _simulated_choice(zoa: SpeedChoice, cut: CutTool, lobes, simulate: SpeedSimulation,
+                      speed_range: tuple[float, float], depth: float, per_tooth: float) -> SpeedChoice:
     programmed = zoa.programmed
     grid = np.linspace(programmed * speed_range[0], programmed * speed_range[1], SPEEDS)
     coarse = simulate(cut, np.r_[grid, programmed], depth, per_tooth, "")

@@ -4,17 +4,17 @@ A line that runs from air into full width, across an earlier slot or into a corn
 length, so the heaviest part of it sets the feed of all of it. :func:`plan_sub_blocks` reads the original run's
 samples of every cutting straight line (the resultant force against the position along the line; the force at a
 fixed feed follows the engagement, which the path alone decides), cuts the line into bins of half the tool's
-diameter, joins neighbouring bins whose largest forces are within :data:`LEVEL_RATIO` of each other (air, force 0,
-is a level of its own), merges parts shorter than the shortest sub-block (default: the tool's radius) into their closest neighbour, and
-keeps at most :data:`MAX_PARTS`. Each boundary moves :data:`MARGIN` x the tool diameter away from the heavier part,
-so that part covers its whole rise.
+diameter (or of the shortest sub-block, if longer), joins neighbouring bins whose largest forces are within
+:data:`LEVEL_RATIO` of each other (air, force 0, is a level of its own), merges parts shorter than the shortest
+sub-block (default: the tool's radius) into their closest neighbour, and keeps at most :data:`MAX_PARTS`. Each
+boundary moves :data:`MARGIN` x the tool diameter away from the heavier part, so that part covers its whole rise.
 
 :func:`split_lines` writes the program with each planned line as its sub-blocks: the line itself stays as it was
-(the last part, ending where it always ended) and the parts before it are new lines inserted above it, ``G1`` and
+(the last part, ending where it always ended) and the parts before it are new lines inserted above it, ``G1``,
 the axis words of the part's end point and the line's own F word if it has one, with a comment naming the
 original line (``(SUB-BLOCK 1/3 OF N310, LINE 69)``; Sinumerik ``; sub-block 1/3 of N310, line 69``); the feed
-schedule then writes each part's F. The result is parsed again and compared with the original move by move: every move the same
-but for its line, each split move's parts chained end to end on the original segment (within
+schedule then writes each part's F. The result is parsed again and compared with the original move by move:
+every move the same but for its line, each split move's parts chained end to end on the original segment (within
 :data:`ON_LINE` m). A line qualifies only when this is exact by construction: one straight feed move (``G1``),
 absolute coordinates, no cutter radius compensation, no exact stop, and no word but N, G1, X, Y, Z and F (a word
 that changes the machine's state would take effect after the inserted parts, not before).
@@ -119,7 +119,8 @@ def plan_line(profile: LineProfile, min_length: float) -> SubBlockPlan | None:
     parts: list[list[float]] = []
     low = high = 0.0
     for i, value in enumerate(peak):
-        if parts and (value > 0.0) == (high > 0.0) and (high == 0.0 or max(high, value) <= LEVEL_RATIO * min(low, value)):
+        same_kind = (value > 0.0) == (high > 0.0)   # air stays air, cut stays cut
+        if parts and same_kind and (high == 0.0 or max(high, value) <= LEVEL_RATIO * min(low, value)):
             parts[-1][1], parts[-1][2] = i + 1, max(parts[-1][2], value)
             low, high = min(low, value), max(high, value)
             continue

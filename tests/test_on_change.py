@@ -238,7 +238,7 @@ def test_the_entries_write_back_as_toml(runs, fmu_dir, tmp_path):
     assert load_scenario(write(tmp_path, entries="\n" + text), fmu_dir).on_change == scenario.on_change
     written = tomllib.loads(ENTRIES)["on_change"]
     doc = {"scenario": {"name": "x"}, "on_change": written, "outputs": {"record": ["interp.x"]}}
-    assert tomllib.loads(expand._toml(doc)) == doc
+    assert tomllib.loads(expand.scenario_toml(doc)) == doc
 
 
 BAD = {

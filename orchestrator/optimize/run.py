@@ -322,11 +322,15 @@ def optimize(part_file: str | Path, *, fmu_dir: str | Path, out: str | Path = "r
                                        spec.speed_range, spec.stability_margin, tool_of,
                                        speed_map if spec.speed_from == "simulated" else None)
         ratios = {tool: choice.ratio for tool, choice in speeds.items() if choice.ratio != 1.0}
+
+        def at_new_speeds(program: _Base) -> program_edit.EditedProgram:
+            """``program`` with the tools' new S words and their feeds in proportion (the same chip)."""
+            return program_edit.rewrite_feeds(program.text, {line: ratios.get(tool_of(program.tools[line]), 1.0)
+                                                             for line in program.feeds},
+                                              parse, str(part.program), part.dialect, ratios)
         if ratios:
-            try:  # the S words and the feeds that keep the chip, as the program can hold them
-                program_edit.rewrite_feeds(original_text, {line: ratios.get(tool_of(base.tools[line]), 1.0)
-                                                           for line in base.feeds},
-                                           parse, str(part.program), part.dialect, ratios)
+            try:  # checked on the original, so that a refusal names the program's own lines
+                at_new_speeds(base)
             except program_edit.ProgramEditError as exc:  # feeds per revolution (G95) follow S: not this way
                 speeds = {tool: replace(c, chosen=c.programmed, note=f"the speed of a stable pocket "
                                         f"({c.chosen:.0f} rpm) cannot be written into this program ({exc}): S kept")
@@ -348,9 +352,7 @@ def optimize(part_file: str | Path, *, fmu_dir: str | Path, out: str | Path = "r
             # a chattering tool at the speed of its stable pocket, its feeds in proportion (the same chip), and the
             # lines split into their sub-blocks: the feed schedule starts again from this run (the forces of the old
             # speed are no model for the new one; the sub-blocks have their own)
-            keep_chip = {line: ratios.get(tool_of(base.tools[line]), 1.0) for line in base.feeds}
-            edited = program_edit.rewrite_feeds(base.text, keep_chip, parse, str(part.program), part.dialect,
-                                                ratios)
+            edited = at_new_speeds(base)
             ratios = edited.speeds
             first_run = run(1, edited.text, edited.factors, scale)
             history[:] = history[1:]

@@ -24,6 +24,7 @@ grid are stable too (inside a pocket, not on its edge), else the closest stable 
 from __future__ import annotations
 
 import math
+import time
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -94,8 +95,6 @@ def tool_loop_document(part: Part, cut: CutTool, speed_rpm: float, depth: float,
 def simulate_speeds(folder: Path, part: Part, cut: CutTool, speeds_rpm: np.ndarray, depth: float,
                     feed_per_tooth: float, fmu_dir: Path, workers: int | None = 0, label: str = "") -> SpeedMap:
     """Write and run the study of ``cut``'s loop at ``depth`` over ``speeds_rpm`` (see the module docstring)."""
-    import time
-
     from milling_twin.orchestrator.study.run import sweep
     from milling_twin.orchestrator.study.spec import load_study
 

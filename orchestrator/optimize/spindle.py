@@ -119,14 +119,13 @@ def _simulated_choice(zoa: SpeedChoice, cut: CutTool, lobes, simulate: SpeedSimu
     fine = np.clip(np.linspace(focus - step, focus + step, FINE_SPEEDS), grid[0], grid[-1])
     found = merged(coarse, simulate(cut, fine, depth, per_tooth, "_fine"))
     pick = pocket_speed(found, programmed)
+    chip = dict(zip(found.speeds, found.chip))
     note = ""
     if pick is None:
         pick = least_chatter(found)
-        chip = dict(zip(found.speeds, found.chip))[pick]
         note = (f"no speed in {speed_range[0]:g}..{speed_range[1]:g} x {programmed:.0f} rpm is stable in the "
                 f"simulated map at {depth * 1e3:.3g} mm (the deepest chattering cut with the margin): the least "
-                f"chatter is at {pick:.0f} rpm, a dynamic chip of {chip:.3g} x the feed per tooth")
-    chip = dict(zip(found.speeds, found.chip))
+                f"chatter is at {pick:.0f} rpm, a dynamic chip of {chip[pick]:.3g} x the feed per tooth")
     limit = float(np.nan_to_num(lobes.limit(np.array([pick]))[0], nan=0.0))
     return SpeedChoice(zoa.tool, programmed, float(round(pick)), zoa.depth, zoa.limit_programmed, limit, note,
                        "simulated", chip.get(float(round(programmed)), math.nan), chip.get(pick, math.nan),

@@ -56,9 +56,9 @@ if TYPE_CHECKING:
     from milling_twin.orchestrator.scenario import Scenario
     from milling_twin.orchestrator.study.spec import Study
 
-__all__ = ["MapConfig", "MapRow", "Onset", "chatter_growth", "dynamic_chip_growth", "growth_windows", "map_config",
-           "map_paths", "map_rows", "dynamic_chip_rms", "onset_of", "onsets", "plot_map", "references", "sd_curve", "speed_range",
-           "stability_map", "table_text", "write_csv"]
+__all__ = ["MapConfig", "MapRow", "Onset", "chatter_growth", "dynamic_chip_growth", "dynamic_chip_rms",
+           "growth_windows", "map_config", "map_paths", "map_rows", "onset_of", "onsets", "plot_map", "references",
+           "sd_curve", "speed_range", "stability_map", "table_text", "write_csv"]
 
 RPM = 60.0 / (2 * math.pi)  # rad/s -> rpm
 
@@ -87,7 +87,10 @@ def dynamic_chip_rms(scenario: Scenario, frame: pd.DataFrame,
 def dynamic_chip_growth(scenario: Scenario, frame: pd.DataFrame,
                         windows: tuple[tuple[float, float], tuple[float, float]]) -> float:
     """The RMS of the dynamic chip (:func:`dynamic_chip_rms`) in the second of ``windows`` over the first."""
-    rms = dynamic_chip_rms(scenario, frame, windows)
+    return _second_over_first(dynamic_chip_rms(scenario, frame, windows))
+
+
+def _second_over_first(rms: Sequence[float]) -> float:
     return rms[1] / rms[0] if rms[0] > 0 else math.inf
 
 
@@ -103,7 +106,7 @@ def chatter_growth(case: CaseRun) -> dict[str, float]:
     growth = max(gx, gy)
     rms = dynamic_chip_rms(scenario, case.results, windows)
     return {"growth_x": float(gx), "growth_y": float(gy), "growth": float(growth), "stable": float(growth <= 1.0),
-            "chip_growth": float(rms[1] / rms[0] if rms[0] > 0 else math.inf), "chip_rms": float(rms[1])}
+            "chip_growth": float(_second_over_first(rms)), "chip_rms": float(rms[1])}
 
 
 @dataclass(frozen=True)

@@ -3,6 +3,7 @@ summary, a failing case, --resume, the command. The dask cluster: tests/test_stu
 from __future__ import annotations
 
 import concurrent.futures
+import math
 import os
 import signal
 import subprocess
@@ -14,11 +15,13 @@ import pandas as pd
 import pytest
 
 from milling_twin.cli import main
+from milling_twin.orchestrator.study.batching import TASK_SECONDS, BatchSizer
 from milling_twin.orchestrator.study.cases import case_id
 from milling_twin.orchestrator.study.executor import SerialExecutor, open_executor
 from milling_twin.orchestrator.study.reduce import REDUCTIONS, get_reduction
 from milling_twin.orchestrator.study.run import sweep
 from milling_twin.orchestrator.study.spec import StudyError, load_study
+from milling_twin.orchestrator.study.summary import SummaryStore
 
 REPO = Path(__file__).resolve().parents[1]
 CHATTER = REPO / "scenarios" / "chatter.toml"
@@ -190,6 +193,39 @@ def test_the_serial_executor_hands_back_results_and_exceptions() -> None:
     with pytest.raises(ValueError, match="choose one"):
         with open_executor(workers=2, scheduler="tcp://127.0.0.1:1"):
             pass
+
+
+def test_tasks_grow_from_one_case_to_the_aim_and_shrink_at_the_end() -> None:
+    sizer = BatchSizer(slots=2)
+    assert sizer.size(240) == 1  # nothing measured yet
+    for wall in (0.04, 0.05, 0.06, math.nan):  # a lost case (NaN) does not count
+        sizer.record(wall)
+    assert sizer.size(240) == round(TASK_SECONDS / 0.05) == 5
+    assert sizer.size(12) == 3 and sizer.size(1) == 1  # the last tasks: ceil(remaining / (2 x slots))
+    for wall in (0.0, 0.0, 0.0):  # median of 0, 0, 0, 0.04, 0.05, 0.06: 0.02 s, so 12.5 cases
+        sizer.record(wall)
+    assert sizer.size(1000) == 12
+    assert BatchSizer(slots=1, max_cases=4).size(100) == 1
+    fast = BatchSizer(slots=1, max_cases=4)
+    fast.record(0.0)
+    assert fast.size(100) == 4
+    with pytest.raises(ValueError, match="nothing to size"):
+        sizer.size(0)
+
+
+def test_the_summary_kept_in_memory_is_the_one_on_disk(tmp_path: Path) -> None:
+    store = SummaryStore(tmp_path / "study")
+    rows = [{"case_id": f"c{i}", "status": "ok" if i else "failed", "error": "" if i else "E: no", "x": 0.5 * i,
+             "n": i, "y": math.nan if i == 1 else float(i), "run_status": "completed", "wall_time": 0.1,
+             "run_dir": f"c{i}"} for i in range(3)]
+    store.clear()
+    for row in rows:
+        store.write(row)
+    store.write({**rows[0], "status": "ok", "error": ""})  # a case run again replaces its row
+    kept = store.consolidate(["c2", "c0", "c1"], ["x", "n"])
+    read = SummaryStore(tmp_path / "study").consolidate(["c2", "c0", "c1"], ["x", "n"])
+    pd.testing.assert_frame_equal(kept, read, check_exact=True)
+    assert list(kept["case_id"]) == ["c2", "c0", "c1"] and kept.loc[1, "status"] == "ok"
 
 
 def test_reductions_are_registered_by_name() -> None:

@@ -116,6 +116,29 @@ variable = "force.Fx"
     return path
 
 
+def _worker_settings() -> tuple[str | None, bool]:
+    import os
+
+    import dask
+
+    return os.environ.get("MALLOC_TRIM_THRESHOLD_"), dask.config.get("distributed.worker.profile.enabled")
+
+
+def test_the_embedded_cluster_s_workers_are_set_up_for_short_cases(monkeypatch: pytest.MonkeyPatch) -> None:
+    import dask
+
+    from milling_twin.orchestrator.study.executor import open_executor
+
+    monkeypatch.delenv("MALLOC_TRIM_THRESHOLD_", raising=False)
+    with open_executor(workers=1) as executor:
+        assert executor.submit(_worker_settings).result() == (None, False)  # glibc's own mmap threshold, no profiler
+    import os
+
+    assert "MALLOC_TRIM_THRESHOLD_" not in os.environ  # the nanny did not set it in this process either
+    assert dask.config.get("distributed.worker.profile.enabled") is True  # this process's configuration is restored
+    assert dask.config.get("distributed.nanny.pre-spawn-environ")["MALLOC_TRIM_THRESHOLD_"] == 65536
+
+
 def test_a_killed_worker_loses_no_case_and_its_case_runs_again(tmp_path: Path, fmu_dir: Path) -> None:
     study = load_study(kill_study(tmp_path, "[1e-5, 2e-5, 4e-5]", -1.0), fmu_dir)
     result = sweep(study, tmp_path / "out", workers=2, progress=False)

@@ -4,7 +4,8 @@
 
 - ``workers=None, scheduler=None``: an embedded ``dask.distributed`` ``LocalCluster`` sized to the machine (one worker
   process per usable core, one thread each: FMUs run in worker processes, so an FMU that crashes kills only its
-  worker and dask reschedules its tasks elsewhere), the dashboard on a free port, quiet logs;
+  worker and dask reschedules its tasks elsewhere), the dashboard on a free port, quiet logs, and its workers
+  configured for many short cases (:data:`LOCAL_WORKER_CONFIG`);
 - ``workers=N`` (N >= 1): the same with N local worker processes;
 - ``workers=0``: :class:`SerialExecutor`, everything in this process in submission order (debugging, tests and the
   bit-identical reference of a parallel run);
@@ -28,6 +29,16 @@ from pathlib import Path
 from typing import Any, TypeVar
 
 T = TypeVar("T")
+
+# dask's defaults for the embedded cluster's workers that cost short cases dearly (measured on the 240 cases of
+# studies/stability_map.toml, ~40 ms each: 2 workers took 1.7x the cases' serial CPU time with the defaults, 1.1x
+# without these two; docs/studies.md#measured):
+# - the nanny sets MALLOC_TRIM_THRESHOLD_=65536 in every worker, which also fixes glibc's mmap threshold: every
+#   allocation above 128 kB (a run's output chunks, an FMU's buffers) is then mapped, page-faulted and unmapped
+#   again, case after case (None unsets it);
+# - the statistical profiler walks the running task's stack every 10 ms for the dashboard's profile page.
+LOCAL_WORKER_CONFIG = {"distributed.nanny.pre-spawn-environ.MALLOC_TRIM_THRESHOLD_": None,
+                       "distributed.worker.profile.enabled": False}
 
 
 class SerialExecutor(concurrent.futures.Executor):
@@ -53,6 +64,27 @@ class SerialExecutor(concurrent.futures.Executor):
         self._shut = True
 
 
+def executor_slots(executor: concurrent.futures.Executor) -> int:
+    """How many tasks ``executor`` runs at once: 1 for the serial one; a dask cluster's worker threads now (workers
+    of an existing cluster may come and go: ask again later); a pool's ``max_workers``."""
+    if isinstance(executor, SerialExecutor):
+        return 1
+    client = getattr(executor, "_client", None)  # dask's ClientExecutor keeps its Client there
+    if client is not None:
+        return max(1, sum(client.nthreads().values()))
+    return max(1, int(getattr(executor, "_max_workers", 0) or machine_workers()))
+
+
+def submit_in_background(executor: concurrent.futures.Executor, fn: Callable[..., T], /,
+                         *args: Any) -> concurrent.futures.Future[T]:
+    """``executor.submit(fn, *args)`` behind every task submitted without it: a dask cluster runs tasks by priority
+    (then in submission order), so such work fills the moments when no other task is waiting. Elsewhere (the serial
+    executor, a pool) it is an ordinary submission."""
+    if getattr(executor, "_client", None) is not None:  # dask's ClientExecutor passes it on to Client.submit
+        return executor.submit(fn, *args, priority=-1)
+    return executor.submit(fn, *args)
+
+
 def machine_workers() -> int:
     """The number of cores this process may use (the default size of the embedded cluster)."""
     try:
@@ -75,9 +107,12 @@ def _client_for(workers: int | None, scheduler: str | None):  # -> (Client, Loca
             raise ValueError(f"scheduler {scheduler!r}: neither an address (tcp://host:port) nor an existing "
                              "scheduler file")
         return Client(scheduler_file=str(path.resolve())), None
+    import dask
+
     n = machine_workers() if workers is None else workers
-    cluster = LocalCluster(n_workers=n, threads_per_worker=1, processes=True, dashboard_address=":0",
-                           silence_logs=logging.ERROR)
+    with dask.config.set(LOCAL_WORKER_CONFIG):  # the nannies keep the config they start with (restarts too)
+        cluster = LocalCluster(n_workers=n, threads_per_worker=1, processes=True, dashboard_address=":0",
+                               silence_logs=logging.ERROR)
     try:
         return Client(cluster), cluster
     except BaseException:

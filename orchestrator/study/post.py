@@ -13,7 +13,10 @@ A post-processor is registered with its options' table and their reader::
 - the function: called by ``sweep`` on the command's process after the summary is written (``summary``: the
   consolidated summary, failed rows included; ``folder``: ``<out>/<study name>/``, where its files go; ``executor``:
   the study's executor, still open, for work of its own that parallelises). It may print what a reader of the
-  command wants to see.
+  command wants to see;
+- ``prepare(study, config, executor) -> prepared`` (optional): called when the executor opens, before the cases,
+  for work that needs no case (submitted with :func:`~milling_twin.orchestrator.study.executor.submit_in_background`, it
+  fills the workers' idle moments); the function then gets its result as a sixth argument.
 
 Modules that register one are listed in :data:`milling_twin.orchestrator.study.reduce.PLUGIN_MODULES` (imported on
 demand, as for reductions).
@@ -32,17 +35,19 @@ class PostProcess:
     name: str
     table: str  # the [study.<table>] of its options
     check: Callable[[Mapping[str, Any], str], Any]  # (table, where) -> config
-    run: Callable[..., Any]  # run(summary, study, folder, config, executor)
+    run: Callable[..., Any]  # run(summary, study, folder, config, executor[, prepared])
+    prepare: Callable[..., Any] | None = None  # prepare(study, config, executor) -> prepared, before the cases
 
 
 POSTS: dict[str, PostProcess] = {}
 
 
-def register_post(name: str, *, table: str,
-                  check: Callable[[Mapping[str, Any], str], Any]) -> Callable[[Callable[..., Any]], Callable[..., Any]]:
-    """Decorator registering ``fn(summary, study, folder, config, executor)`` as the post-processor ``name``."""
+def register_post(name: str, *, table: str, check: Callable[[Mapping[str, Any], str], Any],
+                  prepare: Callable[..., Any] | None = None) -> Callable[[Callable[..., Any]], Callable[..., Any]]:
+    """Decorator registering ``fn(summary, study, folder, config, executor)`` as the post-processor ``name``; with
+    ``prepare``, ``fn(summary, study, folder, config, executor, prepared)``."""
     def add(fn: Callable[..., Any]) -> Callable[..., Any]:
-        POSTS[name] = PostProcess(name, table, check, fn)
+        POSTS[name] = PostProcess(name, table, check, fn, prepare)
         return fn
     return add
 

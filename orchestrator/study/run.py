@@ -1,10 +1,11 @@
 """Running a study: every case through the executor, the summary written as cases finish.
 
-:func:`sweep` submits one :func:`run_case` per case to :func:`~milling_twin.orchestrator.study.executor.open_executor`
-(the embedded dask cluster, N local workers, an existing scheduler, or serially in this process). On the worker a
-case is the ordinary run: the base scenario with the case's values (``with_values``, named by the case id), run by
-the master into ``<out>/<study>/cases/<case id>/`` (Parquet, run.json, the report), then reduced there; only the
-summary row comes back. A case that fails (an invalid value, an FMU error, a reduction that raises, a worker lost
+:func:`sweep` submits the cases to :func:`~milling_twin.orchestrator.study.executor.open_executor` (the embedded dask
+cluster, N local workers, an existing scheduler, or serially in this process), several per task on a cluster
+(:func:`run_cases`, sized by :mod:`~milling_twin.orchestrator.study.batching`). On the worker a case is the ordinary
+run: the base scenario with the case's values (``with_values``, named by the case id), run by the master into
+``<out>/<study>/cases/<case id>/`` (Parquet, run.json, the report), then reduced there; only the summary row comes
+back. A case that fails (an invalid value, an FMU error, a reduction that raises, a worker lost
 more often than dask retries) gives a row with status "failed" and the message; the study goes on.
 """
 from __future__ import annotations
@@ -13,6 +14,7 @@ import logging
 import math
 import time
 import traceback
+from collections import deque
 from collections.abc import Callable, Mapping
 from contextlib import nullcontext
 from concurrent.futures import FIRST_COMPLETED, Executor, Future, wait
@@ -25,13 +27,14 @@ from tqdm import tqdm
 
 from milling_twin.orchestrator.results import RunFolder
 from milling_twin.orchestrator.scenario import Scenario
-from milling_twin.orchestrator.study.executor import SerialExecutor, open_executor
+from milling_twin.orchestrator.study.batching import BatchSizer
+from milling_twin.orchestrator.study.executor import SerialExecutor, executor_slots, open_executor
 from milling_twin.orchestrator.study.reduce import CaseRun, get_reduction
 from milling_twin.orchestrator.study.refine import refined_values
 from milling_twin.orchestrator.study.spec import Case, ReduceSpec, Study, StudyError
 from milling_twin.orchestrator.study.summary import SummaryStore
 
-__all__ = ["CaseTask", "StudyResult", "run_case", "sweep"]
+__all__ = ["CaseTask", "StudyResult", "run_case", "run_cases", "si_inputs", "sweep"]
 
 _log = logging.getLogger(__name__)
 
@@ -66,7 +69,8 @@ class StudyResult:
         return self.folder / "summary.parquet"
 
 
-def _si_inputs(scenario: Scenario, names: tuple[str, ...]) -> dict[str, Any]:
+def si_inputs(scenario: Scenario, names: tuple[str, ...]) -> dict[str, Any]:
+    """The values of ``names`` ("instance.variable", a parameter or a constant input) in ``scenario``, SI."""
     out: dict[str, Any] = {}
     for name in names:
         instance, _, variable = name.partition(".")
@@ -104,7 +108,7 @@ def run_case(task: CaseTask) -> dict[str, Any]:
     run_status = ""
     try:
         scenario = with_values(task.scenario, case.values, name=case.case_id)
-        row.update(_si_inputs(scenario, task.inputs))
+        row.update(si_inputs(scenario, task.inputs))
         results = simulate(scenario, out=task.cases_dir, stepping=task.stepping, progress=False)
         run_status = results.status
         if results.run.signal is not None:  # SIGINT/SIGTERM/SIGHUP stop the study (this case's rows are kept)
@@ -128,6 +132,11 @@ def run_case(task: CaseTask) -> dict[str, Any]:
     return row
 
 
+def run_cases(tasks: tuple[CaseTask, ...]) -> list[dict[str, Any]]:
+    """Several cases in one task on a worker (:mod:`~milling_twin.orchestrator.study.batching`): their rows."""
+    return [run_case(task) for task in tasks]
+
+
 def _lost_row(task: CaseTask, exc: BaseException) -> dict[str, Any]:
     """The row of a case whose task itself failed (its worker died more often than dask retries, say)."""
     return {"case_id": task.case.case_id, "status": "failed", "error": _message(exc),
@@ -135,30 +144,50 @@ def _lost_row(task: CaseTask, exc: BaseException) -> dict[str, Any]:
             "run_dir": str(task.cases_dir / task.case.case_id)}
 
 
+SLOTS_SECONDS = 1.0  # how often a dispatch asks the cluster again how many workers it has
+
+
 def _dispatch(executor: Executor, tasks: list[CaseTask], store: SummaryStore, bar: tqdm) -> None:
-    """Submit the tasks (all at once to a cluster, which schedules them; one at a time to the serial executor,
-    which runs a task as it is submitted) and write each row as its case finishes."""
-    window = 1 if isinstance(executor, SerialExecutor) else len(tasks)
-    pending: dict[Future, CaseTask] = {}
-    queue = iter(tasks)
+    """Run the cases and write each row as its task finishes. The serial executor runs one case as it is submitted;
+    a cluster gets tasks of several cases (sized by :class:`BatchSizer` from the case times so far), two per worker
+    thread in flight so that none waits for this process. A task of several cases that fails as a task (its worker
+    killed more often than dask retries) is split: its cases run again one per task, so only a case that kills its
+    workers itself ends as a failed row."""
+    serial = isinstance(executor, SerialExecutor)
+    slots, asked = executor_slots(executor), time.monotonic()
+    sizer = BatchSizer(slots)
+    pending: dict[Future, tuple[CaseTask, ...]] = {}
+    queue: deque[tuple[CaseTask, ...]] = deque()  # single cases of split tasks, first
+    todo = deque(tasks)
     while True:
-        for task in queue:
-            pending[executor.submit(run_case, task)] = task
-            if len(pending) >= window:
-                break
+        if not serial and time.monotonic() - asked > SLOTS_SECONDS:
+            slots, asked = executor_slots(executor), time.monotonic()
+            sizer.slots = slots
+        window = 1 if serial else 2 * slots
+        while (queue or todo) and len(pending) < window:
+            if queue:
+                batch = queue.popleft()
+            else:
+                batch = tuple(todo.popleft() for _ in range(1 if serial else sizer.size(len(todo))))
+            pending[executor.submit(run_cases, batch)] = batch
         if not pending:
             return
         finished, _ = wait(pending, return_when=FIRST_COMPLETED)
         for future in finished:
-            task = pending.pop(future)
+            batch = pending.pop(future)
             try:
-                row = future.result()
-            except Exception as exc:  # noqa: BLE001 - the task (not the case) failed: recorded, the study goes on
-                row = _lost_row(task, exc)
-            if row["status"] != "ok":
-                _log.info("case %s failed: %s", row["case_id"], row["error"])
-            store.write(row)
-            bar.update()
+                rows = future.result()
+            except Exception as exc:  # noqa: BLE001 - the task (not a case) failed: recorded, the study goes on
+                if len(batch) > 1:
+                    queue.extend((task,) for task in batch)
+                    continue
+                rows = [_lost_row(batch[0], exc)]
+            for row in rows:
+                if row["status"] != "ok":
+                    _log.info("case %s failed: %s", row["case_id"], row["error"])
+                store.write(row)
+                sizer.record(row["wall_time"])
+            bar.update(len(rows))
 
 
 def _study_doc(study: Study, cases: list[Case], workers: int | None, scheduler: str | None) -> dict[str, Any]:
@@ -238,6 +267,8 @@ def _sweep(study: Study, folder: Path, workers: int | None, scheduler: str | Non
     needed = post is not None or study.refine is not None or any(c.case_id not in done for c in cases)
     ran = 0
     with open_executor(workers, scheduler) if needed else nullcontext() as executor:
+        prepared = () if post is None or post.prepare is None else (
+            post.prepare(study, study.post_config, executor),)
         try:
             ran += _run_cases(executor, study, cases, done, store, folder, stepping, progress, study.name)
             if study.refine is not None:
@@ -246,7 +277,7 @@ def _sweep(study: Study, folder: Path, workers: int | None, scheduler: str | Non
             summary = store.consolidate([c.case_id for c in cases], study.variables)
         if post is not None:  # on the same executor: its own parallel work (the map's references) uses the workers
             try:
-                post.run(summary, study, folder, study.post_config, executor)
+                post.run(summary, study, folder, study.post_config, executor, *prepared)
             except Exception as exc:
                 exc.add_note(f"post-processor {study.post!r} of {study.path}; the summary is written: "
                              f"{folder / 'summary.parquet'}")

@@ -36,8 +36,9 @@ import csv
 import math
 import time
 from collections.abc import Mapping, Sequence
-from concurrent.futures import Executor
+from concurrent.futures import Executor, Future
 from dataclasses import dataclass
+from functools import partial
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
@@ -45,6 +46,7 @@ import numpy as np
 
 from milling_twin.models.stability import semi_discretization_limit, stability_lobes
 from milling_twin.orchestrator import atomic_files
+from milling_twin.orchestrator.study.executor import submit_in_background
 from milling_twin.orchestrator.study.post import register_post
 from milling_twin.orchestrator.study.reduce import CaseRun, register
 from milling_twin.orchestrator.study.refine import first_crossing
@@ -56,9 +58,10 @@ if TYPE_CHECKING:
     from milling_twin.orchestrator.scenario import Scenario
     from milling_twin.orchestrator.study.spec import Study
 
-__all__ = ["MapConfig", "MapRow", "Onset", "chatter_growth", "dynamic_chip_growth", "dynamic_chip_rms",
-           "growth_windows", "map_config", "map_paths", "map_rows", "onset_of", "onsets", "plot_map", "references",
-           "sd_curve", "speed_range", "stability_map", "table_text", "write_csv"]
+__all__ = ["MapConfig", "MapRow", "Onset", "chatter_growth", "curve_speeds", "dynamic_chip_growth", "dynamic_chip_rms",
+           "growth_windows", "map_config", "map_paths", "map_rows", "onset_of", "onsets", "plot_map", "prepare_map",
+           "references", "sd_curve", "sd_limits", "speed_range", "stability_map", "submit_sd_limits", "table_text",
+           "write_csv"]
 
 RPM = 60.0 / (2 * math.pi)  # rad/s -> rpm
 
@@ -163,21 +166,40 @@ def onsets(summary: pd.DataFrame, speed: str = "force.spindle_speed", depth: str
     return result
 
 
-def sd_limits(tool: ToolAndCut, speeds_rpm: Sequence[float], executor: Executor | None = None) -> np.ndarray:
+def _sd_arguments(tool: ToolAndCut, speed_rpm: float) -> tuple[Any, ...]:
+    return (tool.modes_x, tool.modes_y, tool.ktc, tool.krc, tool.n_flutes, float(speed_rpm), tool.entry, tool.exit)
+
+
+def submit_sd_limits(tool: ToolAndCut, speeds_rpm: Sequence[float], executor: Executor,
+                     background: bool = False) -> dict[float, Future[float]]:
+    """The semi-discretization onsets [m] at ``speeds_rpm`` as futures by speed, one task per speed on ``executor``;
+    ``background``: behind every other task submitted (:func:`submit_in_background`)."""
+    submit = partial(submit_in_background, executor) if background else executor.submit
+    return {n: submit(semi_discretization_limit, *_sd_arguments(tool, n))
+            for n in dict.fromkeys(map(float, speeds_rpm))}
+
+
+def sd_limits(tool: ToolAndCut, speeds_rpm: Sequence[float], executor: Executor | None = None,
+              started: Mapping[float, Future[float]] | None = None) -> np.ndarray:
     """Semi-discretization onsets [m] at ``speeds_rpm``, one task per speed on ``executor`` (in order; in this
-    process without one): each takes tens of milliseconds, the map needs about 140."""
-    tasks = [(tool.modes_x, tool.modes_y, tool.ktc, tool.krc, tool.n_flutes, float(n), tool.entry, tool.exit)
-             for n in speeds_rpm]
+    process without one): each takes tens of milliseconds, the map needs about 140. ``started``: futures of some
+    of them submitted earlier (:func:`submit_sd_limits`), used where a speed is exactly one of theirs."""
+    speeds = [float(n) for n in speeds_rpm]
+    values: dict[float, Future[float] | float] = dict(started or {})
+    missing = [n for n in dict.fromkeys(speeds) if n not in values]
     if executor is None:
-        return np.array([semi_discretization_limit(*t) for t in tasks], dtype=float)
-    return np.array(list(executor.map(semi_discretization_limit, *zip(*tasks))) if tasks else [], dtype=float)
+        values.update({n: semi_discretization_limit(*_sd_arguments(tool, n)) for n in missing})
+    else:
+        values.update(submit_sd_limits(tool, missing, executor))
+    return np.array([v.result() if isinstance(v, Future) else v for v in (values[n] for n in speeds)], dtype=float)
 
 
 def references(tool: ToolAndCut, speeds_rpm: Sequence[float], zoa_lobes: int = 60,
-               executor: Executor | None = None) -> tuple[np.ndarray, np.ndarray]:
+               executor: Executor | None = None,
+               started: Mapping[float, Future[float]] | None = None) -> tuple[np.ndarray, np.ndarray]:
     """(semi-discretization, zero-order) onsets [m] at ``speeds_rpm`` for the tool, coefficients and immersion."""
     speeds = np.asarray(speeds_rpm, dtype=float)
-    return sd_limits(tool, speeds, executor), _zero_order(tool, zoa_lobes).limit(speeds)
+    return sd_limits(tool, speeds, executor, started), _zero_order(tool, zoa_lobes).limit(speeds)
 
 
 def _zero_order(tool: ToolAndCut, lobes: int):  # -> Lobes
@@ -268,17 +290,25 @@ def table_text(rows: Sequence[MapRow]) -> str:
 
 def speed_range(cases: pd.DataFrame, speed: str) -> tuple[float, float]:
     """The figure's speed axis [rpm]: the cases' speeds and 3 % of their range either side."""
-    n = cases[speed].to_numpy(float) * RPM
+    return _speed_axis(cases[speed].to_numpy(float) * RPM)
+
+
+def _speed_axis(n: np.ndarray) -> tuple[float, float]:
     low, high = (float(np.min(n)), float(np.max(n))) if n.size else (1.0, 2.0)
     margin = 0.03 * (high - low) if high > low else 0.05 * high
     return low - margin, high + margin
 
 
-def sd_curve(tool: ToolAndCut, speeds: tuple[float, float], points: int,
-             executor: Executor | None = None) -> tuple[np.ndarray, np.ndarray]:
+def curve_speeds(speeds: tuple[float, float], points: int) -> np.ndarray:
+    """The speeds [rpm] of the semi-discretization curve of the figure: ``points`` evenly over ``speeds``."""
+    return np.linspace(speeds[0], speeds[1], points)
+
+
+def sd_curve(tool: ToolAndCut, speeds: tuple[float, float], points: int, executor: Executor | None = None,
+             started: Mapping[float, Future[float]] | None = None) -> tuple[np.ndarray, np.ndarray]:
     """(speeds [rpm], semi-discretization onsets [m]) at ``points`` speeds evenly over ``speeds``."""
-    n = np.linspace(speeds[0], speeds[1], points)
-    return n, sd_limits(tool, n, executor)
+    n = curve_speeds(speeds, points)
+    return n, sd_limits(tool, n, executor, started)
 
 
 def plot_map(path: Path, cases: pd.DataFrame, rows: Sequence[MapRow], tool: ToolAndCut, speed: str, depth: str,
@@ -376,16 +406,18 @@ def map_paths(out_dir: Path, growth: str, first: bool) -> tuple[Path, Path]:
 
 
 def stability_map(summary: pd.DataFrame, base: Scenario, out_dir: Path, config: MapConfig = MapConfig(),
-                  echo: bool = True, executor: Executor | None = None) -> dict[str, list[MapRow]]:
+                  echo: bool = True, executor: Executor | None = None,
+                  started: Mapping[float, Future[float]] | None = None) -> dict[str, list[MapRow]]:
     """The maps of a finished study, one per growth column of ``config``: onsets per speed (co-sim, SD, ZOA) in a CSV
     (printed when ``echo``) and a figure (:func:`map_paths`). ``base``: the study's base scenario (its tool);
-    ``executor``: where the semi-discretization limits are computed (the study's workers; None: here)."""
+    ``executor``: where the semi-discretization limits are computed (the study's workers; None: here); ``started``:
+    limits submitted before (:func:`prepare_map`)."""
     t0 = time.perf_counter()
     tool = tool_and_cut(base)
     failed = int((summary["status"] != "ok").sum()) if "status" in summary.columns else 0
     speeds = [o.speed_rpm for o in onsets(summary, config.speed, config.depth, config.growth[0])]
-    reference = dict(zip(speeds, zip(*references(tool, speeds, config.zoa_lobes, executor))))  # for every column
-    curve = (sd_curve(tool, speed_range(summary, config.speed), config.curve_points, executor)
+    reference = dict(zip(speeds, zip(*references(tool, speeds, config.zoa_lobes, executor, started))))
+    curve = (sd_curve(tool, speed_range(summary, config.speed), config.curve_points, executor, started)
              if config.curve_points else None)
     maps: dict[str, list[MapRow]] = {}
     for k, growth in enumerate(config.growth):
@@ -408,8 +440,33 @@ def stability_map(summary: pd.DataFrame, base: Scenario, out_dir: Path, config: 
     return maps
 
 
-@register_post("stability_map", table="map", check=map_config)
-def _post(summary: pd.DataFrame, study: Study, folder: Path, config: MapConfig, executor: Executor) -> None:
+def prepare_map(study: Study, config: MapConfig, executor: Executor) -> dict[float, Future[float]]:
+    """Before the cases run: the semi-discretization limits the map will need (at the study's speeds and along the
+    figure's curve) submitted behind the cases, so that the workers compute them where they would wait (at the end
+    of each refinement round, while this process draws) instead of after the sweep. A case whose values cannot be
+    applied is left out (it fails when it runs)."""
+    from milling_twin.orchestrator.scenario import with_values
+    from milling_twin.orchestrator.study.run import si_inputs
+
+    base = study.scenario()
+    speeds = []
+    for case in study.cases:
+        try:
+            value = si_inputs(with_values(base, case.values), (config.speed,))[config.speed]
+        except Exception:  # noqa: BLE001 - the case's own run reports it
+            continue
+        if isinstance(value, (int, float)) and not isinstance(value, bool):
+            speeds.append(float(value) * RPM)
+    if not speeds:
+        return {}
+    rpm = np.unique(np.array(speeds))
+    curve = curve_speeds(_speed_axis(np.array(speeds)), config.curve_points) if config.curve_points else []
+    return submit_sd_limits(tool_and_cut(study.base), [*rpm, *curve], executor, background=True)
+
+
+@register_post("stability_map", table="map", check=map_config, prepare=prepare_map)
+def _post(summary: pd.DataFrame, study: Study, folder: Path, config: MapConfig, executor: Executor,
+          started: Mapping[float, Future[float]]) -> None:
     """``[study] post = "stability_map"``: the maps of the finished sweep into its folder, the tables printed; the
-    semi-discretization limits on the study's workers."""
-    stability_map(summary, study.base, folder, config, executor=executor)
+    semi-discretization limits on the study's workers (submitted by :func:`prepare_map`)."""
+    stability_map(summary, study.base, folder, config, executor=executor, started=started)

@@ -152,6 +152,41 @@ def test_map_of_a_tiny_real_grid_through_the_serial_executor(tmp_path: Path, cap
         assert figure.stat().st_size > 20_000
 
 
+class CountingExecutor:
+    """Runs each submission at once and counts them (a ClientExecutor's ``priority`` never reaches it)."""
+
+    def __init__(self) -> None:
+        from milling_twin.orchestrator.study.executor import SerialExecutor
+
+        self.inner, self.submitted = SerialExecutor(), 0
+
+    def submit(self, fn, /, *args):  # noqa: ANN001, ANN202 - the Executor protocol
+        self.submitted += 1
+        return self.inner.submit(fn, *args)
+
+
+def test_the_map_s_limits_prepared_before_the_cases_are_all_it_needs(tmp_path: Path) -> None:
+    """prepare_map submits, before any case, the limits at the study's speeds and along the figure's curve; the map
+    made afterwards from the summary submits none of its own and writes the serial map."""
+    from milling_twin.api import sweep
+    from milling_twin.orchestrator.study.spec import load_study
+
+    path = tmp_path / "tiny.toml"
+    path.write_text(TINY_STUDY.format(base=SCENARIO.as_posix()))
+    result = sweep(path, fmu_dir=fmu_dir(), out=tmp_path / "out", workers=0, progress=False)
+    study = load_study(path, fmu_dir())
+    before = CountingExecutor()
+    started = sm.prepare_map(study, study.post_config, before)
+    assert before.submitted == len(started) == 2 + 4  # two speeds, four curve points
+    after = CountingExecutor()
+    sm.stability_map(result.summary, study.base, tmp_path, study.post_config, echo=False, executor=after,
+                     started=started)
+    assert after.submitted == 0
+    for growth, first in (("growth", True), ("chip_growth", False)):
+        assert (sm.map_paths(tmp_path, growth, first)[0].read_text()
+                == sm.map_paths(result.folder, growth, first)[0].read_text())
+
+
 def test_study_file_map_errors_name_the_file_and_key(tmp_path: Path) -> None:
     from milling_twin.orchestrator.study.spec import StudyError, load_study
 
@@ -174,5 +209,8 @@ def test_the_sd_limits_through_an_executor_are_the_serial_ones_in_order() -> Non
     with ThreadPoolExecutor(2) as executor:
         parallel = sm.sd_limits(tool, speeds, executor)
     assert np.array_equal(parallel, sm.sd_limits(tool, speeds))
+    started = sm.submit_sd_limits(tool, speeds[1:], CountingExecutor())  # some computed before
+    counting = CountingExecutor()
+    assert np.array_equal(sm.sd_limits(tool, speeds, counting, started), parallel) and counting.submitted == 1
     assert parallel[0] == semi_discretization_limit(tool.modes_x, tool.modes_y, tool.ktc, tool.krc, tool.n_flutes,
                                                     6000.0, tool.entry, tool.exit)

@@ -213,6 +213,41 @@ def test_tasks_grow_from_one_case_to_the_aim_and_shrink_at_the_end() -> None:
         sizer.size(0)
 
 
+def test_a_task_of_several_cases_that_fails_as_a_task_runs_them_again_one_by_one(
+        tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
+    """A cluster gets tasks of several cases once the first have been timed; a task that fails as a task (its
+    worker lost, here an exception outside any case's own handling) is split, so only the case that fails alone
+    is a failed row, every other case has its row."""
+    from tqdm import tqdm
+
+    from milling_twin.orchestrator.study import run as study_run
+    from milling_twin.orchestrator.study.spec import Case
+
+    tasks = [study_run.CaseTask(Case(f"c{i:02d}", {}, "test"), None, tmp_path / "cases", (), ())  # type: ignore
+             for i in range(40)]
+    batches: list[int] = []
+
+    def fake_run_case(task: study_run.CaseTask) -> dict:
+        if task.case.case_id == "c20":
+            raise RuntimeError("worker lost")
+        return {"case_id": task.case.case_id, "status": "ok", "error": "", "run_status": "completed",
+                "wall_time": 0.01, "run_dir": str(task.cases_dir / task.case.case_id)}
+
+    def counted(batch: tuple) -> list:
+        batches.append(len(batch))
+        return [fake_run_case(task) for task in batch]
+
+    monkeypatch.setattr(study_run, "run_cases", counted)
+    store = SummaryStore(tmp_path / "study")
+    with concurrent.futures.ThreadPoolExecutor(2) as executor:
+        study_run._dispatch(executor, tasks, store, tqdm(disable=True))
+    rows = store.rows()
+    assert sorted(rows) == [t.case.case_id for t in tasks]
+    assert [cid for cid, row in rows.items() if row["status"] != "ok"] == ["c20"]
+    assert rows["c20"]["error"] == "RuntimeError: worker lost"
+    assert batches[0] == 1 and max(batches) > 1 and batches.count(1) > 4  # batched, then split
+
+
 def test_the_summary_kept_in_memory_is_the_one_on_disk(tmp_path: Path) -> None:
     store = SummaryStore(tmp_path / "study")
     rows = [{"case_id": f"c{i}", "status": "ok" if i else "failed", "error": "" if i else "E: no", "x": 0.5 * i,

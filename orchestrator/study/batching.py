@@ -2,9 +2,10 @@
 that every worker stays busy to the end.
 
 A dask task costs the scheduler, the client and the worker's event loop a few milliseconds of CPU each, on the same
-cores that run the cases. With cases of ~40 ms (the stability map's 0.2 s at 10 us) one case per task took 1.25 to
-1.44 times the serial time on 2 workers of a 2-core machine, four cases per task 1.71 to 1.78 and eight 1.86
-(docs/studies.md#measured). Case times are not known before the first cases finish, so :class:`BatchSizer` starts
+cores that run the cases. The 240 cases of the stability map (~40 ms each: 0.2 s at 10 us) ran 1.25 to 1.44 times
+faster on 2 workers of a 2-core machine than serially with one case per task, 1.68 to 1.78 times with four and
+1.66 to 1.86 with eight (a one-off comparison in one process, the cases alone; the benchmark of the whole study:
+docs/studies.md#measured). Case times are not known before the first cases finish, so :class:`BatchSizer` starts
 with one case per task and sizes later tasks from the median case time measured so far:
 
     size = round(TASK_SECONDS / median case time), within 1 .. MAX_CASES,

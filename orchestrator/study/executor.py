@@ -31,8 +31,8 @@ from typing import Any, TypeVar
 T = TypeVar("T")
 
 # dask's defaults for the embedded cluster's workers that cost short cases dearly (measured on the 240 cases of
-# studies/stability_map.toml, ~40 ms each: 2 workers took 1.7x the cases' serial CPU time with the defaults, 1.1x
-# without these two; docs/studies.md#measured):
+# studies/stability_map.toml, ~40 ms each: on 2 workers the cases took 1.45x their serial CPU time with the
+# defaults, 1.0 to 1.1x without these two; docs/studies.md#measured):
 # - the nanny sets MALLOC_TRIM_THRESHOLD_=65536 in every worker, which also fixes glibc's mmap threshold: every
 #   allocation above 128 kB (a run's output chunks, an FMU's buffers) is then mapped, page-faulted and unmapped
 #   again, case after case (None unsets it);

@@ -1,16 +1,19 @@
 """A study serially and on N local dask workers, in one process, alternately (docs/studies.md).
 
     .venv/bin/python tests/benchmarks/study_workers.py [STUDY] [--workers 2] [--repeats 2] [--stop-time S]
-                                                       [--fmu-dir build/fmus]
+                                                       [--fmu-dir build/fmus] [--baseline]
 
 Per repeat and executor: the sweep's wall time (cluster start and close included), the sum of the cases' own wall
-times (on their workers), and the ratio serial / parallel. Then the engine's cost: the embedded cluster's start and
+times (on their workers), and the ratio serial / parallel. ``--baseline`` adds, in each repeat, the same workers as
+the cluster ran them before tasks held several cases: one case per task and dask's own worker settings (its
+MALLOC_TRIM_THRESHOLD_ and profiler, see docs/studies.md). Then the engine's cost: the embedded cluster's start and
 close, and the round trip of 200 trivial tasks through its executor (s per task). The load average is printed
 before and after: on a shared machine other processes take cores too.
 """
 from __future__ import annotations
 
 import argparse
+import contextlib
 import os
 import tempfile
 import time
@@ -18,6 +21,9 @@ from concurrent.futures import wait
 from dataclasses import replace
 from pathlib import Path
 
+from milling_twin.orchestrator.study import executor as study_executor
+from milling_twin.orchestrator.study import run as study_run
+from milling_twin.orchestrator.study.batching import BatchSizer
 from milling_twin.orchestrator.study.executor import open_executor
 from milling_twin.orchestrator.study.run import sweep
 from milling_twin.orchestrator.study.spec import load_study
@@ -29,6 +35,24 @@ def nothing(i: int) -> int:
     return i
 
 
+@contextlib.contextmanager
+def one_case_per_task_and_dask_defaults():
+    """The dispatch and the embedded cluster as they were: tasks of one case, dask's worker settings (its nanny
+    also sets MALLOC_TRIM_THRESHOLD_ in this process's environment, which later workers would inherit: undone)."""
+    sizer, config = study_run.BatchSizer, study_executor.LOCAL_WORKER_CONFIG
+    trim = os.environ.get("MALLOC_TRIM_THRESHOLD_")
+    study_run.BatchSizer = lambda slots: BatchSizer(slots, max_cases=1)  # type: ignore[assignment, misc]
+    study_executor.LOCAL_WORKER_CONFIG = {}
+    try:
+        yield
+    finally:
+        study_run.BatchSizer, study_executor.LOCAL_WORKER_CONFIG = sizer, config
+        if trim is None:
+            os.environ.pop("MALLOC_TRIM_THRESHOLD_", None)
+        else:
+            os.environ["MALLOC_TRIM_THRESHOLD_"] = trim
+
+
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     parser.add_argument("study", type=Path, nargs="?", default=REPO / "studies" / "spindle_depth.toml")
@@ -36,6 +60,7 @@ def main() -> None:
     parser.add_argument("--repeats", type=int, default=2)
     parser.add_argument("--stop-time", type=float, default=None, help="instead of the study's stop_time (s)")
     parser.add_argument("--fmu-dir", type=Path, default=Path(os.environ.get("MILLING_TWIN_FMU_DIR", "build/fmus")))
+    parser.add_argument("--baseline", action="store_true", help="also one case per task with dask's worker settings")
     args = parser.parse_args()
     study = load_study(args.study, args.fmu_dir)
     if args.stop_time is not None:
@@ -45,12 +70,19 @@ def main() -> None:
     with tempfile.TemporaryDirectory(prefix="study-bench-") as folder:
         for repeat in range(args.repeats):
             walls = {}
-            for workers in (0, args.workers):
-                result = sweep(study, Path(folder) / str(workers), workers=workers, progress=False)
-                walls[workers] = result.wall_time
-                print(f"repeat {repeat + 1}, workers={workers}: {result.wall_time:.2f} s "
+            runs = [("serial", 0, contextlib.nullcontext), (f"{args.workers} workers", args.workers,
+                                                            contextlib.nullcontext)]
+            if args.baseline:
+                runs.insert(1, (f"{args.workers} workers, baseline", args.workers,
+                                one_case_per_task_and_dask_defaults))
+            for label, workers, setting in runs:
+                with setting():
+                    result = sweep(study, Path(folder) / label.replace(" ", "_"), workers=workers, progress=False)
+                walls[label] = result.wall_time
+                print(f"repeat {repeat + 1}, {label}: {result.wall_time:.2f} s "
                       f"(cases' own {result.summary['wall_time'].sum():.2f} s; {result.failed} failed)")
-            print(f"repeat {repeat + 1}: serial / {args.workers} workers = {walls[0] / walls[args.workers]:.2f}")
+            print(f"repeat {repeat + 1}: " + ", ".join(f"serial / {label} = {walls['serial'] / wall:.2f}"
+                                                       for label, wall in walls.items() if label != "serial"))
     t0 = time.perf_counter()
     with open_executor(workers=args.workers) as executor:
         t1 = time.perf_counter()

@@ -164,8 +164,9 @@ CUTTING_FORCE = ModelDefinition(
     equations=equations,
     update=update,
     native_states=("delayed_displacement_x", "delayed_displacement_y"),
-    # model.c interpolates the history at t - T, T = 2 pi/(N omega), the current displacement being its last sample;
-    # before the first step there is no history and the delayed displacement is the current one
+    # model.c interpolates the history one period T = 2 pi/(N omega) before the current displacement's sample (the
+    # newest sample when the inputs equal it, else now: DisplacementHistory); before the first step there is no
+    # history and the delayed displacement is the current one
     native_dependencies=(("delayed_displacement_x", ("n_flutes", "spindle_speed", "displacement_x")),
                          ("delayed_displacement_y", ("n_flutes", "spindle_speed", "displacement_y"))),
     native_initial_states=(("delayed_displacement_x", "displacement_x"), ("delayed_displacement_y", "displacement_y")),
@@ -362,15 +363,20 @@ class HistoryTooShort(RuntimeError):
 class DisplacementHistory:
     """The displacement history of the force FMUs (fmus/common/displacement_history.c, CuttingForce and
     ForceNet): a ring of ``size`` samples ``(t, x, y)`` taken at each doStep from the inputs at its start; the
-    delayed displacement by linear interpolation at ``t - T`` over those samples and the current inputs at ``t``
-    (before the oldest sample: its value, "no regeneration yet"). Same operations in the same order as the C."""
+    delayed displacement by linear interpolation over those samples and the current inputs, one period ``T``
+    before the current inputs (before the oldest sample: its value, "no regeneration yet"). The current inputs are
+    the newest sample when they equal it (after a doStep: the inputs held over it), else a sample at ``time``
+    (inputs set since), so the current and the delayed displacement are one period apart, as in the delay
+    equation. Same operations in the same order as the C."""
 
     def __init__(self, size: int):
         self.samples: deque[tuple[float, float, float]] = deque(maxlen=int(size))
 
     def delayed(self, time: float, period: float, x: float, y: float) -> tuple[float, float]:
-        samples = list(self.samples) + [(time, x, y)]
-        td = time - period
+        newest = self.samples[-1] if self.samples else None
+        now = newest[0] if newest is not None and newest[1] == x and newest[2] == y else time
+        samples = list(self.samples) + [(now, x, y)]
+        td = now - period
         if td <= samples[0][0]:
             return samples[0][1], samples[0][2]
         i = bisect.bisect_right([s[0] for s in samples], td) - 1
@@ -381,7 +387,7 @@ class DisplacementHistory:
     def record(self, time: float, step_size: float, x: float, y: float, period: float, cutting: bool) -> None:
         """Stores the sample; raises HistoryTooShort when the full ring does not reach one period back."""
         self.samples.append((time, x, y))
-        if len(self.samples) == self.samples.maxlen and cutting and self.samples[0][0] > time + step_size - period:
+        if len(self.samples) == self.samples.maxlen and cutting and self.samples[0][0] > time - period:
             raise HistoryTooShort(f"history of {len(self.samples)} samples does not reach one tooth period back")
 
 

@@ -264,7 +264,8 @@ def test_history_ring_and_delayed_displacement_equal_the_reference(fmu: Path) ->
 def test_a_displacement_step_changes_the_chip_for_one_tooth_period(fmu: Path) -> None:
     """The tool moves 5 um towards the feed at t0 and stays: the chip is thicker until the next flute
     cuts the surface this one leaves, one tooth period later; then the forces are those of no offset
-    (a static offset is no regeneration)."""
+    (a static offset is no regeneration). The outputs after a step hold the inputs at its start as the newest
+    displacement sample, so the one-period window of samples [t0, t0 + T] shows in the outputs up to t0 + T + h."""
     h, steps, jump = 1e-5, 1500, 600
     rows = {}
     for offset in (0.0, 5e-6):
@@ -280,8 +281,8 @@ def test_a_displacement_step_changes_the_chip_for_one_tooth_period(fmu: Path) ->
         rows[offset] = np.array(out)
     t = h * np.arange(1, steps + 1)
     t0 = jump * h
-    during = (t > t0 + h) & (t < t0 + PERIOD - h)
-    after = t > t0 + PERIOD + h
+    during = (t > t0 + h) & (t < t0 + PERIOD)
+    after = t > t0 + PERIOD + 1.5 * h
     assert np.array_equal(rows[0.0][t <= t0], rows[5e-6][t <= t0])
     assert np.array_equal(rows[0.0][after], rows[5e-6][after])
     change = rows[5e-6][during] - rows[0.0][during]

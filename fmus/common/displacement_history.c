@@ -60,13 +60,14 @@ int history_record(FmuInstance *instance, DisplacementHistory *h, int32_t histor
     h->next = (h->next + 1) % h->capacity;
     if (h->count < h->capacity) h->count++;
     if (h->count == limit && cutting) {
-        const double end = time + step_size, oldest = sample(instance, h, 0)[0];
-        if (oldest > end - period) {
+        /* the outputs after this step take its start as the newest sample: they need one period before it */
+        const double oldest = sample(instance, h, 0)[0];
+        if (oldest > time - period) {
             fmu_log(instance, FMU_ERROR, "logStatusError",
                     "doStep: t = %g s: the displacement history (history_size = %d samples, %g s at this step size) "
                     "is shorter than one tooth period 2*pi/(n_flutes*spindle_speed) = %g s (n_flutes = %d, "
                     "spindle_speed = %g rad/s); set history_size to at least %.0f or use larger steps",
-                    time, (int)history_size, end - oldest, period, (int)n_flutes, spindle_speed,
+                    time, (int)history_size, time - oldest, period, (int)n_flutes, spindle_speed,
                     ceil(period / step_size) + 2.0);
             return -1;
         }
@@ -86,8 +87,14 @@ static bool brackets(const FmuInstance *instance, const DisplacementHistory *h, 
 void history_delayed(const FmuInstance *instance, DisplacementHistory *h, double time, double period, double x,
                      double y, double *delayed_x, double *delayed_y) {
     size_t n = h->count, lo = 0, hi = n, hint = h->hint;
-    const double td = time - period;
-    const double current[SAMPLE_SIZE] = {time, x, y};
+    /* the current inputs are the newest sample when they equal it (the outputs after a step: the inputs its start
+     * recorded), else a sample at `time` (inputs set since): either way the current and the delayed displacement
+     * are one period apart, as in the delay equation (at `time` - period the chip would regenerate over one step
+     * less than a period, which moved the simulated onset of chatter by up to 7 % at 10 us steps) */
+    const double *newest = n > 0 ? sample(instance, h, n - 1) : NULL;
+    const double now = newest != NULL && newest[1] == x && newest[2] == y ? newest[0] : time;
+    const double td = now - period;
+    const double current[SAMPLE_SIZE] = {now, x, y};
     const double *a = n > 0 ? sample(instance, h, 0) : current, *b;
     double w;
     if (td <= a[0]) {

@@ -6,8 +6,11 @@
  *   doubles (kept: ForceNet's network). The ring starts small and doubles as samples arrive until it holds
  *   history_size of them: a short run (and its FMU states) stays small, and the values do not depend on the
  *   growth;
- * - the displacement one tooth period T ago is interpolated linearly over those samples and the current inputs
- *   at the instance time. Before the oldest sample the oldest value is used (no history yet: no regeneration).
+ * - the displacement one tooth period T before the current inputs is interpolated linearly over those samples and
+ *   the current inputs. The current inputs are the newest sample when they equal it (after a doStep: the inputs
+ *   its start recorded, held over the step), else a sample at the instance time (inputs set since), so the
+ *   current and the delayed displacement are always one period apart. Before the oldest sample the oldest value
+ *   is used (no history yet: no regeneration).
  *
  * models.cutting_force.DisplacementHistory is the same algorithm in Python. */
 #ifndef DISPLACEMENT_HISTORY_H
@@ -33,14 +36,15 @@ int history_start(struct FmuInstance *instance, DisplacementHistory *history, si
                   const char *function);
 
 /* In doStep at `time`: records the sample, growing the ring up to history_size; then, when the ring is full,
- * `cutting` and its oldest sample newer than one tooth period `period` before the step's end, fails naming
- * history_size, n_flutes and spindle_speed and the size needed. 0, or -1 (logged). */
+ * `cutting` and its oldest sample newer than one tooth period `period` before the step's start (what the outputs
+ * after the step need), fails naming history_size, n_flutes and spindle_speed and the size needed. 0, or -1
+ * (logged). */
 int history_record(struct FmuInstance *instance, DisplacementHistory *history, int32_t history_size, double time,
                    double step_size, double x, double y, double period, bool cutting, int32_t n_flutes,
                    double spindle_speed);
 
-/* The displacement at `time` - `period`, with the current inputs (x, y) at `time` as the newest sample
- * (remembers where it found it: history->hint). */
+/* The displacement one `period` before the current inputs (x, y): before the newest sample's time when they equal
+ * it, else before `time` (remembers where it found it: history->hint). */
 void history_delayed(const struct FmuInstance *instance, DisplacementHistory *history, double time,
                      double period, double x, double y, double *delayed_x, double *delayed_y);
 

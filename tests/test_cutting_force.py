@@ -14,6 +14,7 @@ from fmu_helpers import ERROR, OK, WARNING, Slave, assert_close, fmu_dir, fmu_id
 from milling_twin.models.cutting_force import (
     AL7075_CARBIDE,
     CUTTING_FORCE,
+    DisplacementHistory,
     OMEGA_MIN,
     TWO_PI,
     identify_slot_coefficients,
@@ -259,6 +260,25 @@ def test_history_ring_and_delayed_displacement_equal_the_reference(fmu: Path) ->
     assert_close(np.array(rows), expected, what="outputs")
     without = reference_trajectory([{**p, "displacement_x": 0.0, "displacement_y": 0.0} for p in points], h)
     assert np.sqrt(np.mean((expected[:, 0] - without[:, 0]) ** 2)) > 0.05 * np.sqrt(np.mean(without[:, 0] ** 2))
+
+
+def test_the_delayed_displacement_is_one_period_before_the_current_inputs_sample() -> None:
+    """The regenerative delay is exactly T: after the step from t_k the outputs hold the inputs x(t_k), and the
+    delayed displacement is x(t_k - T) (a ramp, which linear interpolation reproduces), not x(t_k + h - T); inputs
+    set since the step are a sample at the current time. (The C code is held to this class to 1e-12.)"""
+    h, period, c = 1e-5, 1.234e-3, 2.0
+    history = DisplacementHistory(1000)
+    for k in range(300):
+        t = k * h
+        history.record(t, h, c * t, -c * t, period, True)
+        dx, dy = history.delayed(t + h, period, c * t, -c * t)  # the outputs at t + h, inputs of t
+        if t > period:
+            assert dx == pytest.approx(c * (t - period), rel=1e-12, abs=1e-15) and dy == pytest.approx(-dx)
+        else:
+            assert (dx, dy) == (0.0, 0.0)  # before the oldest sample: no regeneration yet
+    now = 300 * h
+    dx, _ = history.delayed(now, period, 5.0, 0.0)  # set since the last step: a sample now
+    assert dx == pytest.approx(c * (now - period), rel=1e-12)
 
 
 def test_a_displacement_step_changes_the_chip_for_one_tooth_period(fmu: Path) -> None:

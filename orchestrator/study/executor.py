@@ -64,12 +64,17 @@ class SerialExecutor(concurrent.futures.Executor):
         self._shut = True
 
 
+def _dask_client(executor: concurrent.futures.Executor) -> Any:
+    """The dask Client behind ``executor`` (dask's ClientExecutor keeps it as ``_client``), or None."""
+    return getattr(executor, "_client", None)
+
+
 def executor_slots(executor: concurrent.futures.Executor) -> int:
     """How many tasks ``executor`` runs at once: 1 for the serial one; a dask cluster's worker threads now (workers
     of an existing cluster may come and go: ask again later); a pool's ``max_workers``."""
     if isinstance(executor, SerialExecutor):
         return 1
-    client = getattr(executor, "_client", None)  # dask's ClientExecutor keeps its Client there
+    client = _dask_client(executor)
     if client is not None:
         return max(1, sum(client.nthreads().values()))
     return max(1, int(getattr(executor, "_max_workers", 0) or machine_workers()))
@@ -80,7 +85,7 @@ def submit_in_background(executor: concurrent.futures.Executor, fn: Callable[...
     """``executor.submit(fn, *args)`` behind every task submitted without it: a dask cluster runs tasks by priority
     (then in submission order), so such work fills the moments when no other task is waiting. Elsewhere (the serial
     executor, a pool) it is an ordinary submission."""
-    if getattr(executor, "_client", None) is not None:  # dask's ClientExecutor passes it on to Client.submit
+    if _dask_client(executor) is not None:  # dask's ClientExecutor passes it on to Client.submit
         return executor.submit(fn, *args, priority=-1)
     return executor.submit(fn, *args)
 

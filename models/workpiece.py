@@ -59,21 +59,25 @@ current one; the tip is the controlled point of the inputs ``tool_x, tool_y, too
    in the previous one: the material cut within the last ``R`` to ``2R`` of travel (plus up to a step's).
    When there is one, the engaged height is at most ``cut top - z`` (z the tip's height), and the tool
    is not engaged at all when that is not above 0 (all it cut lies below the tip: it has risen from
-   its cut). When there is none (no cell lowered in the two stretches: the first contact after a move
-   through air, or a pass that has cut nothing for that long), the test points' height stands, so an
-   entry is not delayed. So the walls an earlier level left that a deeper level approaches but does not
+   its cut). When there is none (no cell lowered in the two stretches: a move through air, or a pass
+   that has cut nothing for that long), the tool is not engaged: it removes nothing, whatever the test
+   circle sees (the walls a retrace runs along, the end wall of the cut it retraces, the uncut fillet of
+   a corner it runs into). A contact after air therefore counts from the step that lowers its first
+   cell, when the cutter covers that cell's centre: up to ``delta`` plus half a cell diagonal of travel
+   after the test circle first sees the material (0.43 mm on a 0.25 mm grid), where the Z-map's
+   material begins (heights stand for cell centres). A cut narrower than a cell that lowers no cell
+   centre is not seen either (a finer grid resolves it). So the walls an earlier level left that a deeper level approaches but does not
    cut (the wall ahead as it runs into a corner of the earlier path, the end wall of an earlier cut, the
    walls around the tool where it stops or retracts after the cut) are left out while it cuts the
    layer, and material higher than all it cut in the window counts from the step that lowers its first
    cell (a step-down into material of the full height: within about a cell of travel after the cutter
    reaches it, where the test points saw it earlier, 0.7 mm with a 10 mm tool on a 0.25 mm grid). The
    cut top bounds the height only: the angles and the radial depth stay the test points', and the map's
-   rows divide the bounded height. What remains: a pass
-   that has cut nothing for more than the window (a retrace) still sees the earlier level's walls within
-   about ``sqrt(2 R delta)`` of the end of an earlier cut (more along an arc), near a corner of the
-   earlier path and along arcs tighter than ``R/2``: it is engaged there, with their height; a pass
-   that cuts a sliver of the full height (a second level that strays from the first, along arcs tighter
-   than ``R/2``) reports the sliver's height.
+   rows divide the bounded height. What remains: within the window after a cut (the first ``R`` to
+   ``2R`` of a retrace that follows it, a tool stopped or retracting where it has just cut) the walls
+   the test circle sees still count, up to the cut top; a pass that cuts a sliver of the full height
+   (a second level that strays from the first, along arcs tighter than ``R/2``) reports the sliver's
+   height.
 
    - ``entry_angle`` / ``exit_angle``: the first and last engaged angle. ``M + 1`` angles
      ``phi_m = m pi / M`` (``M = ceil(pi R / delta)``, about one cell of arc) are each tested over
@@ -528,7 +532,7 @@ class ZMap:
         the cut of the cells lowered in the current and the previous stretch of travel (-inf: none)."""
         x, y, z = self.position
         out = dict.fromkeys(OUTPUTS, 0.0)
-        if z >= self.top:
+        if z >= self.top or cut_top == -math.inf:  # above the stock, or no material cut in the window
             return out
         ux, uy = self._direction(self.cos_phi, self.sin_phi)           # angles
         rho = self.profile_r + self.delta                              # profile samples
@@ -564,11 +568,10 @@ class ZMap:
                 axial = max(axial, run_deep if run_deep > -math.inf else run_top)
         if first < 0:
             return out
-        if cut_top > -math.inf:  # the engaged height is no more than that of the material the tool cuts
-            if not cut_top - z > 0.0:
-                return out
-            if cut_top - z < axial:
-                axial = cut_top - z
+        if not cut_top - z > 0.0:  # all it cut lies below the tip: it has risen from its cut
+            return out
+        if cut_top - z < axial:  # the engaged height is no more than that of the material the tool cuts
+            axial = cut_top - z
         entry, exit_ = self._angle(first), self._angle(last)
         if first > 0:
             entry = self._boundary(entry, self._angle(first - 1))

@@ -674,8 +674,9 @@ def test_half_immersion_down_milling_next_to_a_previous_pass(fmu: Path) -> None:
 @pytest.mark.parametrize("angle", [0.0, 30.0])
 def test_retracing_a_cut_is_no_engagement(fmu: Path, tool: str, angle: float) -> None:
     """A slot, then the same slot again (a spring pass): the second pass cuts nothing and reports no
-    engagement, although the slot's walls touch the cutter along both flanks, until it comes within
-    sqrt(2 R delta) (1.6 mm here) of the end of the first cut, whose end wall it then sees."""
+    engagement, although the slot's walls touch the cutter along both flanks, and up to the end of the first
+    cut, whose end wall the test circle sees over the last sqrt(2 R delta) (1.6 mm here): the tool lowers no
+    cell, so there is no cut top."""
     parameters = {"corner_radius": 5 * MM} if tool == "ball" else {}
     u = np.array([math.cos(math.radians(angle)), math.sin(math.radians(angle)), 0.0])
     origin = np.array([0.0, 20.1 * MM, 28 * MM])
@@ -686,8 +687,22 @@ def test_retracing_a_cut_is_no_engagement(fmu: Path, tool: str, angle: float) ->
     slave.unload()
     first, again = rows[:len(slot)], rows[-len(slot):]
     assert np.max(first[:, OUTPUTS.index("radial_depth")]) > 0
-    assert not np.any(again[:-20, STEP_OUTPUTS])  # the last 2 mm: the end wall
+    assert not np.any(again[:, STEP_OUTPUTS])
     assert np.all(again[:, OUTPUTS.index("mrr")] == 0.0)
+
+
+def test_tracing_a_pocket_s_loop_again_is_no_engagement_up_to_its_corners(fmu: Path) -> None:
+    """A rectangular loop cut at 1.5 mm (a pocket's walls), then the same loop again at that depth, as the
+    plate's pocket levels end: the second loop cuts nothing and reports no engagement, also where it runs into
+    each corner, whose uncut fillet (at the tool radius about the corner point) the test circle sees over the
+    last half millimetre, and where it stops there (the test points alone gave the fillet's height there)."""
+    corners = [(30 * MM, 20 * MM), (60 * MM, 20 * MM), (60 * MM, 40 * MM), (30 * MM, 40 * MM), (30 * MM, 20 * MM)]
+    points, slices = levels(corners, [1.5 * MM, 1.5 * MM], 0.1 * MM)
+    rows = run_both(fmu, {}, points)
+    first, again = rows[slices[0]], rows[slices[1]]
+    assert np.count_nonzero(first[:, OUTPUTS.index("axial_depth")]) > 0.9 * len(first)
+    assert np.all(again[:, OUTPUTS.index("mrr")] == 0.0)
+    assert not np.any(again[:, STEP_OUTPUTS])
 
 
 # ---- second levels: a path cut again deeper reports the layer it cuts ----

@@ -521,7 +521,7 @@ static void engagement(FmuInstance *instance, double volume, double cut_top) {
         w->probed_feed_x = fx;
         w->probed_feed_y = fy;
     }
-    if (z >= w->top) {
+    if (z >= w->top || !(cut_top > -INFINITY)) { /* above the stock, or no material cut in the window */
         zero_outputs(instance);
         return;
     }
@@ -534,13 +534,11 @@ static void engagement(FmuInstance *instance, double volume, double cut_top) {
         return;
     }
     axial = w->scan_axial;
-    if (cut_top > -INFINITY) { /* the engaged height is no more than that of the material the tool cuts */
-        if (!(cut_top - z > 0.0)) {
-            zero_outputs(instance);
-            return;
-        }
-        if (cut_top - z < axial) axial = cut_top - z;
+    if (!(cut_top - z > 0.0)) { /* all it cut lies below the tip: it has risen from its cut */
+        zero_outputs(instance);
+        return;
     }
+    if (cut_top - z < axial) axial = cut_top - z; /* no more than the height of the material the tool cuts */
     if (!rooms_hold(instance, &w->bisection_rooms) || w->bisected_first != w->scan_first ||
         w->bisected_last != w->scan_last) {
         /* its last probes lie within 1/1024 of a sample of a cell's edge: they hold for a few steps */

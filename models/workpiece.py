@@ -66,7 +66,9 @@ current one; the tip is the controlled point of the inputs ``tool_x, tool_y, too
    cell, when the cutter covers that cell's centre: up to ``delta`` plus half a cell diagonal of travel
    after the test circle first sees the material (0.43 mm on a 0.25 mm grid), where the Z-map's
    material begins (heights stand for cell centres). A cut narrower than a cell that lowers no cell
-   centre is not seen either (a finer grid resolves it). So the walls an earlier level left that a deeper level approaches but does not
+   centre is not seen either (a finer grid resolves it). A step that rises more than it moves sideways
+   and lowers no cell (a retract) is not engaged either: its flanks slide up the walls they touch. So
+   the walls an earlier level left that a deeper level approaches but does not
    cut (the wall ahead as it runs into a corner of the earlier path, the end wall of an earlier cut, the
    walls around the tool where it stops or retracts after the cut) are left out while it cuts the
    layer, and material higher than all it cut in the window counts from the step that lowers its first
@@ -74,8 +76,8 @@ current one; the tip is the controlled point of the inputs ``tool_x, tool_y, too
    reaches it, where the test points saw it earlier, 0.7 mm with a 10 mm tool on a 0.25 mm grid). The
    cut top bounds the height only: the angles and the radial depth stay the test points', and the map's
    rows divide the bounded height. What remains: within the window after a cut (the first ``R`` to
-   ``2R`` of a retrace that follows it, a tool stopped or retracting where it has just cut) the walls
-   the test circle sees still count, up to the cut top; a pass that cuts a sliver of the full height
+   ``2R`` of a retrace that follows it, a tool stopped where it has just cut) the walls the test circle
+   sees still count, up to the cut top; a pass that cuts a sliver of the full height
    (a second level that strays from the first, along arcs tighter than ``R/2``) reports the sliver's
    height.
 
@@ -663,7 +665,10 @@ class ZMap:
         self.point_z = z
         self.removed_height += volume
         self.removed_volume = self.removed_height * (self.dx * self.dy)
-        out = self._engagement(max(stretch_top, self.previous_stretch_top))
+        # a step that rises more than it moves sideways and lowers no cell cuts nothing (a retract: the flanks
+        # slide up the walls they touch): not engaged, as without a cut top (module docstring, step 2)
+        retracting = sz > horizontal and volume == 0.0
+        out = self._engagement(-math.inf if retracting else max(stretch_top, self.previous_stretch_top))
         if self.stretch_travel >= self.radius:  # the stretch ends with this step
             self.previous_stretch_top, self.stretch_top, self.stretch_travel = stretch_top, -math.inf, 0.0
         else:

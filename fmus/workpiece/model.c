@@ -728,7 +728,10 @@ FmuStatus model_do_step(FmuInstance *instance, double time, double step_size) {
     w->y = end[1];
     w->z = end[2];
     w->point_z = v->tool_z;
-    engagement(instance, volume, max2(stretch_top, w->previous_stretch_top));
+    /* a step that rises more than it moves sideways and lowers no cell cuts nothing (a retract: the flanks slide
+     * up the walls they touch): not engaged, as without a cut top (models/workpiece.py, step 2) */
+    engagement(instance, volume, sz > horizontal && volume == 0.0 ? -INFINITY
+                                                                  : max2(stretch_top, w->previous_stretch_top));
     if (w->stretch_travel >= w->radius) { /* the stretch ends with this step */
         w->previous_stretch_top = stretch_top;
         w->stretch_top = -INFINITY;

@@ -67,18 +67,35 @@ demo: fmus
 	$(MILLING_TWIN) run scenarios/al_bracket.toml --fmu-dir $(BUILD)/fmus --out runs --no-progress
 	$(MILLING_TWIN) run scenarios/al_plate.toml --fmu-dir $(BUILD)/fmus --out runs --no-progress
 
-# The package (docs/packaging.md): dist/milling_twin-<version>-py3-none-manylinux_<glibc>_<arch>.whl with every FMU
+# The package (docs/packaging.md): dist/milling_twin-<version>-py3-none-<platform>.whl with every FMU
 # of WHEEL_FMUS (the cross-compiled build/fmus-all/ when it holds FMUs, else build/fmus/) and the stepper library; its
 # tag names the newest glibc the binaries need. setup.py copies them in; it compiles nothing.
 WHEEL_FMUS ?= $(if $(wildcard $(BUILD)/fmus-all/*.fmu),$(BUILD)/fmus-all,$(BUILD)/fmus)
 # WHEEL_STEPPER: the stepper library (default: WHEEL_FMUS/stepper/<arch>-linux/ from the cross-compilation, else
-# build/stepper/); e.g. build/fmus-all/stepper/aarch64-linux/libmilling_stepper.so makes the aarch64 wheel.
+# build/stepper/); e.g. build/fmus-all/stepper/aarch64-linux/libmilling_stepper.so makes the aarch64 wheel,
+# build/fmus-all/stepper/x86_64-windows/milling_stepper.dll the Windows one (`make wheels`: all five).
 WHEEL_STEPPER ?=
 wheel: fmus
 	rm -rf build/python-wheel dist/milling_twin-*.whl
 	MILLING_TWIN_WHEEL_FMUS=$(abspath $(WHEEL_FMUS)) \
 	  MILLING_TWIN_WHEEL_STEPPER=$(if $(WHEEL_STEPPER),$(abspath $(WHEEL_STEPPER))) \
 	  $(VENV_PYTHON) -m pip wheel --no-deps --quiet -w dist .
+	@ls dist/milling_twin-*.whl
+
+# One wheel per platform from the cross-compiled build/fmus-all/ (docs/packaging.md): the same FMUs, with every
+# platform's binaries inside, and in each wheel its platform's stepper library: manylinux_2_17_x86_64 and _aarch64,
+# win_amd64, macosx_11_0_x86_64 and _arm64.
+STEPPER_LIBRARIES := x86_64-linux/libmilling_stepper.so aarch64-linux/libmilling_stepper.so \
+  x86_64-windows/milling_stepper.dll x86_64-darwin/libmilling_stepper.dylib aarch64-darwin/libmilling_stepper.dylib
+.PHONY: wheels
+wheels: fmus-all-platforms
+	rm -rf build/python-wheel dist/milling_twin-*.whl
+	for library in $(STEPPER_LIBRARIES); do \
+	  MILLING_TWIN_WHEEL_FMUS=$(abspath $(BUILD)/fmus-all) \
+	    MILLING_TWIN_WHEEL_STEPPER=$(abspath $(BUILD)/fmus-all/stepper)/$$library \
+	    $(VENV_PYTHON) -m pip wheel --no-deps --quiet -w dist . || exit 1; \
+	  rm -rf build/python-wheel; \
+	done
 	@ls dist/milling_twin-*.whl
 
 # The FMUs alone, for users of other FMI tools: dist/milling-twin-fmus-<version>.tar.gz (the .fmu files of

@@ -7,25 +7,37 @@ library from ``$MILLING_TWIN_WHEEL_STEPPER``, else the cross-compiled one for th
 (``<fmus>/stepper/x86_64-linux/``), else ``build/stepper/libmilling_stepper.so``. Nothing is compiled here:
 ``make wheel`` builds them with CMake first.
 
-The tag: the stepper library is native code loaded by ctypes (no CPython ABI), so the wheel is
-``py3-none-manylinux_<glibc>_<arch>``, where <glibc> is the newest GLIBC_x.y symbol version the stepper library and
-the FMUs' Linux binaries of the same architecture reference (2.17, manylinux2014, at the least).
+The tag: the stepper library is native code loaded by ctypes (no CPython ABI), so the wheel is ``py3-none-<platform>``
+for the system the stepper library is built for:
+
+- Linux (ELF): ``manylinux_<glibc>_<arch>``, where <glibc> is the newest GLIBC_x.y symbol version the stepper library
+  and the FMUs' Linux binaries of the same architecture reference (2.17, manylinux2014, at the least), when every
+  FMU has a Linux binary of that architecture;
+- Windows (PE): ``win_amd64`` (``win_arm64``), when every FMU has a Windows binary of that architecture;
+- macOS (Mach-O): ``macosx_<major>_<minor>_<arch>`` (``universal2`` for a library of both architectures), the newest
+  minimum macOS version of the library's slices and of the FMUs' slices of its architectures, when every FMU has
+  them all.
+
+A stepper library for another system than the FMUs were built for (the native build has Linux binaries only) is
+refused, naming the FMUs that lack it.
 """
 from __future__ import annotations
 
 import os
 import platform
 import zipfile
-from collections.abc import Mapping
+from collections.abc import Iterator, Mapping
 from dataclasses import dataclass
 from pathlib import Path
 
 from buildtools.elf import ElfError, elf_needs, is_elf
+from buildtools.native import NativeError, is_macho, is_pe, macho_slices, pe_machine
 
 FMUS_ENV = "MILLING_TWIN_WHEEL_FMUS"
 STEPPER_ENV = "MILLING_TWIN_WHEEL_STEPPER"
 STEPPER_NAME = "libmilling_stepper.so"
 GLIBC_FLOOR = (2, 17)
+WINDOWS_TAGS = {"x86_64": "win_amd64", "aarch64": "win_arm64"}
 # where they go inside the package (milling_twin/fmus/, milling_twin/stepper/: the stepper beside the FMUs' folder,
 # where the orchestrator looks first)
 PACKAGE_FMUS = Path("milling_twin") / "fmus"
@@ -48,34 +60,84 @@ class WheelFiles:
         return self.stepper is not None
 
     def platform_tag(self) -> str:
-        """manylinux_<major>_<minor>_<arch> from what the stepper library and the FMUs' binaries need."""
+        """The wheel's platform tag, from what the stepper library is built for and what the FMUs' binaries for
+        that platform need (module docstring); raises :class:`WheelFilesError` naming the file."""
         if self.stepper is None:
             raise WheelFilesError("a Python-only wheel has no platform tag")
         data = self.stepper.read_bytes()
-        if not is_elf(data):
-            raise WheelFilesError(f"{self.stepper}: not a Linux shared library (ELF); only Linux wheels are built")
         try:
-            stepper = elf_needs(data, str(self.stepper))
-            needed = [stepper.glibc, *self._fmu_glibc(stepper.machine)]
-        except ElfError as exc:
+            if is_elf(data):
+                return self._linux_tag(data)
+            if is_pe(data):
+                return self._windows_tag(data)
+            if is_macho(data):
+                return self._macos_tag(data)
+        except (ElfError, NativeError) as exc:
             raise WheelFilesError(str(exc)) from exc
+        raise WheelFilesError(f"{self.stepper}: neither a Linux (ELF), Windows (PE) nor macOS (Mach-O) library")
+
+    def _linux_tag(self, data: bytes) -> str:
+        """manylinux_<major>_<minor>_<arch>: the newest glibc the stepper and the FMUs' ELF binaries for its
+        architecture reference (other platforms' binaries are skipped)."""
+        stepper = elf_needs(data, str(self.stepper))
+        needed, have = [stepper.glibc], set()
+        for name, binary in self._binaries():
+            if is_elf(binary):
+                needs = elf_needs(binary, name)
+                if needs.machine == stepper.machine:
+                    needed.append(needs.glibc)
+                    have.add(name.rsplit(":binaries/", 1)[0])
+        self._require(have, f"Linux {stepper.machine}")
         major, minor = max([GLIBC_FLOOR, *(v for v in needed if v is not None)])
         return f"manylinux_{major}_{minor}_{stepper.machine}"
 
-    def _fmu_glibc(self, machine: str) -> list[tuple[int, int] | None]:
-        """The glibc versions the FMUs' ELF binaries for ``machine`` need (other platforms' binaries are skipped)."""
-        found = []
+    def _windows_tag(self, data: bytes) -> str:
+        """win_amd64 or win_arm64, when every FMU has a Windows binary of the stepper's architecture."""
+        arch = pe_machine(data, str(self.stepper))
+        have = {fmu for fmu, binary in self._binaries_by_fmu() if is_pe(binary) and pe_machine(binary, fmu) == arch}
+        self._require(have, f"Windows {arch}")
+        return WINDOWS_TAGS[arch]
+
+    def _macos_tag(self, data: bytes) -> str:
+        """macosx_<major>_<minor>_<arch> (universal2 for a stepper of both architectures), the newest minimum macOS
+        of the stepper's slices and of the FMUs' slices of those architectures, when every FMU has them all."""
+        slices = macho_slices(data, str(self.stepper))
+        archs = {piece.arch for piece in slices}
+        oldest = [piece.min_macos for piece in slices]
+        found: dict[str, set[str]] = {}
+        for fmu, binary in self._binaries_by_fmu():
+            if is_macho(binary):
+                for piece in macho_slices(binary, fmu):
+                    if piece.arch in archs:
+                        found.setdefault(fmu, set()).add(piece.arch)
+                        oldest.append(piece.min_macos)
+        self._require({fmu for fmu, have in found.items() if have == archs}, f"macOS {'+'.join(sorted(archs))}")
+        major, minor = max(oldest)
+        if major >= 11 and minor:  # from macOS 11 on, installers match major versions only (macosx_<major>_0)
+            major, minor = major + 1, 0
+        arch = "universal2" if archs == {"x86_64", "arm64"} else archs.pop()
+        return f"macosx_{major}_{minor}_{arch}"
+
+    def _require(self, have: set[str], platform_name: str) -> None:
+        missing = sorted(str(fmu) for fmu in self.fmus if str(fmu) not in have)
+        if missing:
+            raise WheelFilesError(
+                f"{self.stepper} is a {platform_name} library, but {len(missing)} of {len(self.fmus)} FMUs have no "
+                f"{platform_name} binary: {', '.join(missing)} (build them for every platform: "
+                "`make fmus-all-platforms`, docs/portability.md)")
+
+    def _binaries(self) -> Iterator[tuple[str, bytes]]:
+        """Every file under binaries/ in every FMU: (``fmu:path`` for messages, its bytes)."""
         for fmu in self.fmus:
             with zipfile.ZipFile(fmu) as archive:
                 for name in archive.namelist():
-                    if not name.startswith("binaries/") or name.endswith("/"):
-                        continue
-                    data = archive.read(name)
-                    if is_elf(data):
-                        needs = elf_needs(data, f"{fmu}:{name}")
-                        if needs.machine == machine:
-                            found.append(needs.glibc)
-        return found
+                    if name.startswith("binaries/") and not name.endswith("/"):
+                        yield f"{fmu}:{name}", archive.read(name)
+
+    def _binaries_by_fmu(self) -> Iterator[tuple[str, bytes]]:
+        """As :meth:`_binaries`, named by the FMU's path alone."""
+        for name, binary in self._binaries():
+            yield name.rsplit(":binaries/", 1)[0], binary
 
 
 def _path(root: Path, text: str) -> Path:

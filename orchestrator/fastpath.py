@@ -2,7 +2,8 @@
 
 fmpy still does what it does well: extracting, loading and instantiating the FMUs, setting
 parameters and initializing (``milling_twin.orchestrator.master`` does all of that once, for both paths). After
-setup, :class:`Stepper` hands the C library (``libmilling_stepper.so``) each instance's FMI function
+setup, :class:`Stepper` hands the C library (``libmilling_stepper.so``; ``.dylib`` on macOS, ``milling_stepper.dll``
+on Windows: :data:`LIBRARY_NAME`) each instance's FMI function
 pointers (taken from the library fmpy loaded) and component, the ctypes input and output buffers
 the Python path itself uses, the connection table (as addresses of the source elements, with their
 unit factors) and the recorded columns. ``stp_run`` then performs a chunk of ticks without
@@ -48,6 +49,7 @@ from __future__ import annotations
 import ctypes
 import functools
 import os
+import sys
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 from pathlib import Path
@@ -62,7 +64,9 @@ __all__ = ["LIBRARY_ENV", "LIBRARY_NAME", "Choice", "FastPathUnavailable", "Step
            "find_library", "load_library", "unsupported"]
 
 LIBRARY_ENV = "MILLING_TWIN_STEPPER"
-LIBRARY_NAME = "libmilling_stepper.so"
+# the stepper library's file on this system, as CMake and fmus/cross/build_all_platforms.py name it
+LIBRARY_NAMES = {"win32": "milling_stepper.dll", "darwin": "libmilling_stepper.dylib"}
+LIBRARY_NAME = LIBRARY_NAMES.get(sys.platform, "libmilling_stepper.so")
 ABI_VERSION = 6
 CHUNK_SECONDS = 0.1  # wall time a chunk should take: the Ctrl-C latency and progress-bar period
 FIRST_CHUNK_TICKS = 256

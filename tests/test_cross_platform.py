@@ -228,6 +228,71 @@ def test_universal_darwin64_slices_are_aligned_and_whole(cross):
     assert slices[1][0] + slices[1][1] == len(fat)
 
 
+# ---- wheels for every platform ----
+
+def _stepper(cross: Path, platform: str) -> Path:
+    kind = PLATFORMS_FMI3[platform][0]
+    return cross / "stepper" / platform / f"{'' if kind == 'PE' else 'lib'}milling_stepper{EXTENSIONS[kind]}"
+
+
+def test_the_wheel_tag_follows_the_stepper_library_s_platform(cross):
+    """buildtools/wheel_files.py reads the tag from the binaries: manylinux for ELF, win_amd64 for PE, macosx for
+    Mach-O with the oldest macOS the slices name (11.0, the cross build's floor)."""
+    sys.path.insert(0, str(REPO))  # buildtools/ (the build helpers: not installed)
+    from buildtools.native import macho_slices
+    from buildtools.wheel_files import WheelFiles
+    every = tuple(sorted(cross.glob("*.fmu")))
+    only = tuple(cross / name for name in ALL_PLATFORM_FMUS)
+    assert WheelFiles(every, _stepper(cross, "x86_64-linux")).platform_tag() == "manylinux_2_17_x86_64"
+    assert WheelFiles(every, _stepper(cross, "x86_64-windows")).platform_tag() == "win_amd64"
+    assert WheelFiles(only, _stepper(cross, "aarch64-linux")).platform_tag() == "manylinux_2_17_aarch64"
+    assert WheelFiles(only, _stepper(cross, "x86_64-darwin")).platform_tag() == "macosx_11_0_x86_64"
+    assert WheelFiles(only, _stepper(cross, "aarch64-darwin")).platform_tag() == "macosx_11_0_arm64"
+    with zipfile.ZipFile(cross / "SpindlePower_fmi2.fmu") as archive:
+        fat = archive.read("binaries/darwin64/SpindlePower.dylib")
+    assert {(p.arch, p.min_macos) for p in macho_slices(fat, "darwin64")} == {("x86_64", (11, 0)), ("arm64", (11, 0))}
+
+
+@pytest.mark.parametrize("platform", ["aarch64-linux", "x86_64-darwin", "aarch64-darwin"])
+def test_a_wheel_whose_fmus_lack_the_stepper_s_platform_is_refused(cross, platform):
+    """Most FMUs of the fixture are built for Linux x86_64 and Windows only: a wheel for another platform would
+    install FMUs that do not load there. The message names the platform and the FMUs."""
+    sys.path.insert(0, str(REPO))
+    from buildtools.wheel_files import WheelFiles, WheelFilesError
+    with pytest.raises(WheelFilesError, match=r"14 of 16 FMUs have no (Linux aarch64|macOS (x86_64|arm64)) "
+                                              r"binary: .*CuttingForce\.fmu"):
+        WheelFiles(tuple(sorted(cross.glob("*.fmu"))), _stepper(cross, platform)).platform_tag()
+
+
+def test_the_windows_wheel_carries_the_dll_and_every_fmu(cross, tmp_path):
+    """`pip wheel` with the cross-built FMUs and the Windows stepper library (docs/packaging.md): a win_amd64 wheel
+    holding milling_stepper.dll, which the fast path looks for on Windows, and every FMU with its Windows binary.
+    It is not installed here: that needs a Windows Python."""
+    from test_wheel import FMUS_ENV, STEPPER_ENV, copy_tracked
+
+    from milling_twin.orchestrator.fastpath import LIBRARY_NAMES
+    source = tmp_path / "src"
+    copy_tracked(source)
+    fmus = tmp_path / "fmus"
+    fmus.mkdir()
+    for path in cross.glob("*.fmu"):
+        shutil.copy(path, fmus / path.name)
+    env = {**os.environ, FMUS_ENV: str(fmus), STEPPER_ENV: str(_stepper(cross, "x86_64-windows"))}
+    build = subprocess.run([sys.executable, "-m", "pip", "wheel", "--no-deps", "--quiet", "-w", str(tmp_path / "dist"),
+                            str(source)], capture_output=True, text=True, env=env, timeout=600)
+    assert build.returncode == 0, build.stderr[-3000:]
+    (wheel,) = (tmp_path / "dist").glob("milling_twin-*.whl")
+    assert wheel.name.endswith("-py3-none-win_amd64.whl"), wheel.name
+    with zipfile.ZipFile(wheel) as archive:
+        names = set(archive.namelist())
+        assert f"milling_twin/stepper/{LIBRARY_NAMES['win32']}" in names
+        assert {f"milling_twin/fmus/{p.name}" for p in fmus.glob("*.fmu")} <= names
+        inner = archive.read("milling_twin/fmus/CuttingForce.fmu")
+    (tmp_path / "CuttingForce.fmu").write_bytes(inner)
+    with zipfile.ZipFile(tmp_path / "CuttingForce.fmu") as fmu:
+        assert "binaries/x86_64-windows/CuttingForce.dll" in fmu.namelist()
+
+
 # ---- glibc 2.17 ----
 
 def glibc_versions(library: Path) -> set[tuple[int, ...]]:

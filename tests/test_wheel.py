@@ -174,7 +174,7 @@ def _without_compilers(path: str) -> str:
     return os.pathsep.join(kept)
 
 
-def _copy_tracked(target: Path) -> None:
+def copy_tracked(target: Path) -> None:
     # tracked and new (not ignored) files: the tree as `pip wheel .` sees it, without build/ and caches
     tracked = subprocess.run(["git", "ls-files", "--cached", "--others", "--exclude-standard", *WHEEL_SOURCES],
                              cwd=REPO_ROOT, capture_output=True, text=True, check=True).stdout.split()
@@ -197,7 +197,7 @@ def _user_copy(scenario: str, folders: tuple[str, ...], target: Path) -> Path:
 def test_the_wheel_installs_and_runs_without_a_compiler(tmp_path: Path) -> None:
     fmus, stepper = _built()
     source = tmp_path / "src"
-    _copy_tracked(source)
+    copy_tracked(source)
     env = {**os.environ, FMUS_ENV: str(fmus), STEPPER_ENV: str(stepper)}
     build = subprocess.run([sys.executable, "-m", "pip", "wheel", "--no-deps", "--quiet", "-w", str(tmp_path / "dist"),
                             str(source)], capture_output=True, text=True, env=env, timeout=600)

@@ -59,8 +59,9 @@ PLATFORMS: tuple[Platform, ...] = (
     Platform("x86_64-windows", "x86_64-windows-gnu", "x86_64-windows", "win64", ".dll"),
     Platform("aarch64-linux", "aarch64-linux-gnu.2.17", "aarch64-linux", "aarch64-linux", ".so",
              ("-lm", "-Wl,--no-undefined")),
-    Platform("x86_64-darwin", "x86_64-macos", "x86_64-darwin", "darwin64", ".dylib"),
-    Platform("aarch64-darwin", "aarch64-macos", "aarch64-darwin", "darwin64", ".dylib"),
+    # macOS 11, the first on Apple Silicon, as the oldest supported (zig's default is its newest SDK's version)
+    Platform("x86_64-darwin", "x86_64-macos.11.0", "x86_64-darwin", "darwin64", ".dylib"),
+    Platform("aarch64-darwin", "aarch64-macos.11.0", "aarch64-darwin", "darwin64", ".dylib"),
 )
 PLATFORM_KEYS = tuple(p.key for p in PLATFORMS)
 

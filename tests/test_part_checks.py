@@ -134,6 +134,23 @@ def test_a_feed_move_in_the_stock_with_the_spindle_stopped_warns(tmp_path: Path,
     assert warnings == (f"{tmp_path / 'prog.nc'} line 5: a feed move in the stock with the spindle stopped",)
 
 
+def test_a_rapid_into_stock_no_feed_move_has_cut_warns(tmp_path: Path, fmu_dir: Path) -> None:
+    """The G0 that plunges 1 mm beside the slot (at y 3: the slot, cut at y 10 with the 10 mm tool, reaches down to
+    y 5) is a collision, named with its line and tool before anything runs; the slot's own G0 retract, and a G0 down
+    into the slot after it is cut, are not."""
+    collision = PROGRAM.replace("G0 Z5\nM5\n", "G0 Z5\nG0 X30 Y3\nG0 Z-1\nG0 Z5\nM5\n")
+    warnings = _warnings(tmp_path / "collision", fmu_dir, collision)
+    rapids = [w for w in warnings if "rapid move (G0)" in w]
+    assert rapids == [f"{tmp_path / 'collision' / 'prog.nc'} line 9: the rapid move (G0) with T1 goes 1.000 mm into "
+                      "the stock where no earlier feed move has cut (from x y z = 30.000 3.000 -0.500 mm): on the "
+                      "machine a collision"], warnings
+    into_the_slot = PROGRAM.replace("G0 Z5\nM5\n", "G0 Z5\nG0 X30 Y8\nG0 Z-1.5\nG0 Z5\nM5\n")
+    assert not [w for w in _warnings(tmp_path / "slot", fmu_dir, into_the_slot) if "rapid" in w]
+    before_the_slot = PROGRAM.replace("G0 X-10 Y10 Z5\n", "G0 X30 Y10 Z5\nG0 Z-1\nG0 Z5\nG0 X-10 Y10\n")
+    assert [w for w in _warnings(tmp_path / "before", fmu_dir, before_the_slot) if "rapid" in w]
+    assert not [w for w in _warnings(tmp_path / "clean", fmu_dir, PROGRAM) if "rapid" in w]
+
+
 def test_arcs_are_followed_along_their_sweep(tmp_path: Path, fmu_dir: Path) -> None:
     # a half circle from the left of the block, bulging into it: only its middle is over the stock
     program = PROGRAM.replace("G0 X-10 Y10 Z5\nG1 Z-2 F300\nG1 X60 F600",

@@ -88,15 +88,16 @@ def test_a_two_tool_part_cuts_each_slot_with_its_tool(tmp_path: Path, fmu_dir: P
 
 
 def test_a_rapid_move_into_the_material_is_reported_as_a_collision(tmp_path: Path, fmu_dir: Path) -> None:
-    """The program checks before the run do not follow rapids (what a rapid passes through depends on what earlier
-    blocks removed); the Workpiece sees the G0 that plunges 1 mm into the block and the process report names its
-    line and tool. The slot's own G1 plunge and the G0 retract out of the slot are no collision."""
+    """The Workpiece sees the G0 that plunges 1 mm into the block and the process report names its line and tool,
+    beside the program check's warning of the same line (tests/test_part_checks.py). The slot's own G1 plunge and
+    the G0 retract out of the slot are no collision."""
     program = PROGRAM.replace("G0 Z5\nM5\n", "G0 Z5\nG0 X30 Y3\nG0 Z-1\nG0 Z5\nM5\n")
     result = milling_twin.simulate(milling_twin.load_scenario(write_part(tmp_path / "part", program=program),
                                                              fmu_dir), out=tmp_path / "runs")
     report = result.process_report
     assert report is not None
-    collisions = [w for w in report.warnings if "rapid move (G0)" in w]
+    collisions = [w for w in report.warnings if "rapid move (G0)" in w and "removes" in w]
+    assert [w for w in report.warnings if "rapid move (G0)" in w and "where no earlier feed move has cut" in w]
     # line 9, "G0 Z-1": 1 mm deep, the 10 mm tool at y 3 cuts its circle between the block's edge (y 0) and the
     # slot (from y 5): 47 mm3
     assert len(collisions) == 1 and collisions[0].startswith("line 9: the rapid move (G0) with T1 removes"), \

@@ -2,7 +2,8 @@
 
 The program is parsed once, as the Interpolator FMU parses it (the Python reference of its parser, with the
 dialect, the tool table and the machine parameters of the part), and every feed move (G1, G2/G3, NURBS; not G0)
-is followed as the path of the tool tip, sampled at most ``SAMPLE_SPACING`` apart, in the program's coordinates
+is followed as the path of the tool tip, sampled at most ``SAMPLE_SPACING`` apart (the rapid moves too, kept
+apart), in the program's coordinates
 (the Interpolator's ``x_program``, ``y_program``, ``z_program``: the work offset and the tool length of G43
 taken off; the stock is given in them). At each
 sample the tool, of the radius its tool table entry gives, is
@@ -25,13 +26,16 @@ each tool that cuts where it is in the spindle:
 
 - no feed move is ever in the stock (the stock is never touched: wrong origin, or a program for another setup);
 - the tip goes deeper below the stock top than the tool's flute length while over the stock (line and tool);
-- a feed move is in the stock with the spindle stopped (line).
+- a feed move is in the stock with the spindle stopped (line);
+- a rapid move (G0) takes the tool tip into the stock where no earlier feed move has cut (line, tool, depth): a
+  collision on the machine (only the tip's axis point is tested, so a rapid grazing material beside it is left to
+  the run, whose process report names every rapid that removes material).
 """
 from __future__ import annotations
 
 import logging
 import math
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from pathlib import Path
 from collections.abc import Callable, Mapping, Sequence
 from typing import NoReturn
@@ -40,8 +44,8 @@ import numpy as np
 
 from milling_twin.models.interpolator.definition import default_parameters
 from milling_twin.models.interpolator.nurbs import Nurbs
-from milling_twin.models.interpolator.parser import (DIALECTS, MOVE_ARC, MOVE_LINE, MOVE_NURBS, Program,
-                                                    Tool, parse_program)
+from milling_twin.models.interpolator.parser import (DIALECTS, MOVE_ARC, MOVE_LINE, MOVE_NURBS, MOVE_RAPID,
+                                                    Program, Tool, parse_program)
 from milling_twin.models.interpolator.path import ArcShape
 from milling_twin.models.interpolator.tool_table import find_tool
 from milling_twin.orchestrator.part.model import Stock
@@ -64,6 +68,12 @@ class FeedPath:
     spindle_on: np.ndarray  # (n,) bool
     offsets: np.ndarray     # (n, 3): the machine position of the program zero (work offset, G52, G43 tool length)
     selected: tuple[int, ...] = ()  # the tools the moves run with (rapids too), in order, without repetition
+    # the rapid moves (G0) sampled the same way: tip positions (program coordinates), line, tool, and how many feed
+    # samples come before each (the feed moves run before it)
+    rapid_points: np.ndarray = field(default_factory=lambda: np.zeros((0, 3)))
+    rapid_lines: np.ndarray = field(default_factory=lambda: np.zeros(0, dtype=int))
+    rapid_tools: np.ndarray = field(default_factory=lambda: np.zeros(0, dtype=int))
+    rapid_after: np.ndarray = field(default_factory=lambda: np.zeros(0, dtype=int))
 
 
 def parse(program: Path, dialect: str, tools: Sequence[Tool], machine: Mapping[str, float]) -> Program:
@@ -77,20 +87,37 @@ def parse_text(text: str, file: str, dialect: str, tools: Sequence[Tool], machin
     return parse_program(text, {**default_parameters(), **machine}, file, dialect=DIALECTS[dialect], tools=tools)
 
 
+def _line_samples(move) -> list[list[float]]:
+    length = math.dist(move.start, move.end)
+    n = max(1, math.ceil(length / SAMPLE_SPACING))
+    a, b = np.asarray(move.start), np.asarray(move.end)
+    return [list(a + (b - a) * (k / n)) for k in range(n + 1)]
+
+
 def feed_path(program: Program) -> FeedPath:
-    """The tool tip along every feed move, sampled at most SAMPLE_SPACING (and ARC_STEP on arcs) apart."""
+    """The tool tip along every feed move, sampled at most SAMPLE_SPACING (and ARC_STEP on arcs) apart, and along
+    every rapid move (kept apart: rapids do not cut)."""
     points: list[list[float]] = []
     lines: list[int] = []
     tools: list[int] = []
     spindle: list[bool] = []
     offsets: list[tuple[float, float, float]] = []
+    rapids: list[list[float]] = []
+    rapid_lines: list[int] = []
+    rapid_tools: list[int] = []
+    rapid_after: list[int] = []
     curves: dict[int, Nurbs] = {}
     for move in program.moves:
+        if move.kind == MOVE_RAPID:
+            offset = move.offset
+            samples = _line_samples(move)
+            rapids.extend([[q[0] - offset[0], q[1] - offset[1], q[2] - offset[2]] for q in samples])
+            rapid_lines.extend([move.line] * len(samples))
+            rapid_tools.extend([move.tool] * len(samples))
+            rapid_after.extend([len(points)] * len(samples))
+            continue
         if move.kind == MOVE_LINE:
-            length = math.dist(move.start, move.end)
-            n = max(1, math.ceil(length / SAMPLE_SPACING))
-            a, b = np.asarray(move.start), np.asarray(move.end)
-            samples = [list(a + (b - a) * (k / n)) for k in range(n + 1)]
+            samples = _line_samples(move)
         elif move.kind == MOVE_ARC:
             arc = ArcShape(move)
             n = max(1, math.ceil(arc.length / SAMPLE_SPACING), math.ceil(abs(move.sweep) / ARC_STEP))
@@ -103,7 +130,7 @@ def feed_path(program: Program) -> FeedPath:
             n = max(16, math.ceil(length / SAMPLE_SPACING))
             samples = [curve.evaluate(move.u0 + (move.u1 - move.u0) * k / n, 0, lo, hi)[0] for k in range(n + 1)]
         else:
-            continue  # rapid moves do not cut (a rapid into the stock is not checked), dwells do not move
+            continue  # dwells do not move
         offset = move.offset  # the work offset, G52 and the tool length (G43): the samples in program coordinates
         points.extend([[q[0] - offset[0], q[1] - offset[1], q[2] - offset[2]] for q in samples])
         lines.extend([move.line] * len(samples))
@@ -113,7 +140,9 @@ def feed_path(program: Program) -> FeedPath:
     return FeedPath(program.file, np.asarray(points, dtype=float).reshape(-1, 3), np.asarray(lines, dtype=int),
                     np.asarray(tools, dtype=int), np.asarray(spindle, dtype=bool),
                     np.asarray(offsets, dtype=float).reshape(-1, 3),
-                    tuple(dict.fromkeys(move.tool for move in program.moves)))
+                    tuple(dict.fromkeys(move.tool for move in program.moves)),
+                    np.asarray(rapids, dtype=float).reshape(-1, 3), np.asarray(rapid_lines, dtype=int),
+                    np.asarray(rapid_tools, dtype=int), np.asarray(rapid_after, dtype=int))
 
 
 def _effective_tools(path: FeedPath, tools: Sequence[Tool]) -> np.ndarray:
@@ -239,6 +268,7 @@ def check_part(path: FeedPath, tools: Sequence[Tool], cutting: Sequence[tuple[To
             warnings.append(f"{path.file} line {deep_lines[0]}{more}: T{tool.number} cuts {_mm(depth)} mm below "
                             f"the stock top, deeper than its flute length {_mm(flute_length)} mm")
         stopped |= over & (z < stock.top - TOLERANCE) & ~path.spindle_on
+    warnings += _rapids_into_uncut_stock(path, tools, stock)
     if stopped.any():
         stopped_lines = list(dict.fromkeys(int(n) for n in path.lines[stopped]))
         more = f" (and {len(stopped_lines) - 1} more lines)" if len(stopped_lines) > 1 else ""
@@ -247,6 +277,44 @@ def check_part(path: FeedPath, tools: Sequence[Tool], cutting: Sequence[tuple[To
     for text in warnings:
         _log.warning("%s", text)
     return warnings
+
+
+def _rapids_into_uncut_stock(path: FeedPath, tools: Sequence[Tool], stock: Stock) -> list[str]:
+    """One warning per line whose rapid move takes the tool tip into the stock where no earlier feed move has cut:
+    inside the stock's block, and no feed sample before it within its tool's radius (plus half the sample spacing,
+    which covers the path between samples) in x-y at or below the rapid's height, nor an earlier rapid sample (the
+    way out of a collision is not a second one). Only the tip's axis point is
+    tested, so every warning is a collision on the machine; a rapid that grazes uncut material beside its axis is
+    left to the run (the process report names each rapid that removes material)."""
+    x, y, z = path.rapid_points[:, 0], path.rapid_points[:, 1], path.rapid_points[:, 2]
+    x0, y0 = stock.origin[0], stock.origin[1]
+    inside = ((x > x0 + TOLERANCE) & (x < x0 + stock.size[0] - TOLERANCE) & (y > y0 + TOLERANCE)
+              & (y < y0 + stock.size[1] - TOLERANCE) & (z < stock.top - TOLERANCE) & (z > stock.origin[2]))
+    if not inside.any():
+        return []
+    reach = _radii(_effective_tools(path, tools), tools) + 0.5 * SAMPLE_SPACING
+    numbers = np.where(path.rapid_tools == 0, tools[0].number, path.rapid_tools) if len(tools) == 1 \
+        else path.rapid_tools
+    rapid_reach = _radii(numbers, tools) + 0.5 * SAMPLE_SPACING
+    found: dict[int, tuple[int, float, np.ndarray]] = {}  # line -> (tool, depth below the top, first point)
+
+    def cut(points: np.ndarray, radii: np.ndarray, k: int) -> bool:
+        return bool(np.any((np.hypot(points[:, 0] - x[k], points[:, 1] - y[k]) < radii)
+                           & (points[:, 2] <= z[k] + TOLERANCE)))
+
+    for k in np.flatnonzero(inside):
+        line = int(path.rapid_lines[k])
+        n = int(path.rapid_after[k])
+        # cut by a feed move before it, or by an earlier rapid (the way out of a collision is no second one)
+        if cut(path.points[:n], reach[:n], k) or cut(path.rapid_points[:k], rapid_reach[:k], k):
+            continue
+        depth = stock.top - float(z[k])
+        if line not in found or depth > found[line][1]:
+            point = found[line][2] if line in found else path.rapid_points[k]
+            found[line] = (int(numbers[k]), depth, point)
+    return [f"{path.file} line {line}: the rapid move (G0) with T{tool} goes {_mm(depth)} mm into the stock where no "
+            f"earlier feed move has cut (from x y z = {' '.join(_mm(v) for v in point)} mm): on the machine a "
+            f"collision" for line, (tool, depth, point) in found.items()]
 
 
 def _mm(value: float) -> str:

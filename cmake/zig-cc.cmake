@@ -44,8 +44,7 @@ foreach(tool cc ar ranlib)
        WORLD_READ WORLD_EXECUTE)
 endforeach()
 set(CMAKE_C_COMPILER "${zig_wrappers}/cc")
-# As fmus/cross/build_all_platforms.py: no FMA contraction (gcc's default under -std=c99), and ForceNet's baseline
-# kernel (its run-time AVX2 choice needs libgcc's __cpu_model, which zig does not link).
-set(CMAKE_C_FLAGS_INIT "-ffp-contract=off -DFORCENET_KERNEL=1")
+# As fmus/cross/build_all_platforms.py: no FMA contraction (gcc's default under -std=c99).
+set(CMAKE_C_FLAGS_INIT "-ffp-contract=off")
 set(CMAKE_AR "${zig_wrappers}/ar" CACHE FILEPATH "zig ar")
 set(CMAKE_RANLIB "${zig_wrappers}/ranlib" CACHE FILEPATH "zig ranlib")

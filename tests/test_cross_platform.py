@@ -7,6 +7,7 @@ binaries' results to 1e-12 on every FMU. Skipped with the reason when zig (PyPI 
 from __future__ import annotations
 
 import importlib.util
+import math
 import os
 import re
 import shutil
@@ -18,6 +19,7 @@ import zipfile
 from dataclasses import dataclass
 from pathlib import Path
 
+import numpy as np
 import pytest
 
 from fmu_helpers import REPO, expected_fmus, fmu_dir, split_fmu_name
@@ -226,6 +228,37 @@ def test_universal_darwin64_slices_are_aligned_and_whole(cross):
     assert all(offset % (1 << align) == 0 for offset, _size, align in slices)
     assert slices[0][0] >= 8 + 20 * count and slices[0][0] + slices[0][1] <= slices[1][0]
     assert slices[1][0] + slices[1][1] == len(fat)
+
+
+# ---- ForceNet's kernel ----
+
+@pytest.mark.parametrize("name", ["ForceNet.fmu", "ForceNet_fmi2.fmu"])
+def test_the_cross_built_forcenet_picks_its_kernel_by_the_cpu_and_matches_the_native_build(cross, name):
+    """The cross build compiles ForceNet's AVX2 kernel too (its own cpuid probe: zig links no libgcc, whose
+    __cpu_model __builtin_cpu_supports reads). Its Linux x86_64 binary, loaded by fmpy here, names at instantiation
+    the kernel this CPU's features pick, the native build's choice, and steps a cut to the native build's outputs bit
+    for bit (the kernels compute the same sums in the same order)."""
+    from fmu_helpers import Slave
+    outputs = ("Fx", "Fy", "Fz", "torque")
+    results, kernels = [], []
+    for path in (cross / name, cross / "original" / name):
+        with Slave(path) as slave:
+            slave.instantiate(logging_on=True)
+            kernels.append([m.message for m in slave.messages if "network kernel" in m.message])
+            slave.initialize({"axial_depth": 0.002, "entry_angle": 0.0, "exit_angle": math.pi,
+                              "spindle_speed": 1000.0, "feed_velocity_x": 0.01})
+            rows = []
+            for _ in range(200):
+                slave.step(1e-5)
+                rows.append(slave.get(outputs))
+            results.append(np.array(rows))
+    assert len(kernels[0]) == 1 and kernels[0] == kernels[1], kernels
+    cpuinfo = Path("/proc/cpuinfo")
+    if cpuinfo.is_file():  # the kernel /proc/cpuinfo's flags (the CPU's and the OS's support) call for
+        avx2 = re.search(r"^flags\s*:.*\bavx2\b", cpuinfo.read_text(), re.MULTILINE) is not None
+        assert kernels[0][0].endswith("network kernel AVX2" if avx2 else "network kernel baseline"), kernels
+    assert np.any(results[1] != 0.0)
+    assert np.array_equal(results[0], results[1])
 
 
 # ---- wheels for every platform ----

@@ -56,6 +56,10 @@ struct FmuInstance {
     /* the Float64 outputs, when they are one run of doubles in v (from the variable table, at creation;
      * count 0 when they are not): the check for non-finite outputs after every step reads just those */
     size_t output_run_offset, output_run_count;
+    /* what the CPU this process runs on offers, for a model to pick a kernel by (ForceNet: AVX2), set by the
+     * model's instantiate hook; not part of FMU states (they copy v, internal and the heap), so a state
+     * serialized on another machine and restored here keeps this machine's */
+    unsigned cpu_features;
 };
 
 /* Lifetime. */

@@ -37,10 +37,7 @@ WARNINGS = ["-Wall", "-Wextra", "-Wpedantic", "-Werror", "-Wshadow", "-Wstrict-p
             "-Wconversion", "-Wno-sign-conversion"]
 # C99 as the native build; no FMA contraction (gcc's default under -std=c99), so that aarch64, where clang would
 # fuse a*b+c, computes what x86_64 computes.
-COMMON_FLAGS = ["-std=c99", "-O2", "-DNDEBUG", "-ffp-contract=off", "-fvisibility=hidden", "-fPIC", "-g0",
-                # ForceNet's run-time AVX2 choice calls __builtin_cpu_supports, whose __cpu_model zig's runtime
-                # lacks: the cross builds take the baseline kernel (the same sums in the same order)
-                "-DFORCENET_KERNEL=1"]
+COMMON_FLAGS = ["-std=c99", "-O2", "-DNDEBUG", "-ffp-contract=off", "-fvisibility=hidden", "-fPIC", "-g0"]
 
 
 @dataclass(frozen=True)

@@ -277,9 +277,27 @@ static void dense_baseline(const double *restrict w, const double *restrict b, s
 }
 
 #if defined(__x86_64__) && defined(__GNUC__) && defined(__has_attribute)
-#if __has_attribute(target) && __has_builtin(__builtin_cpu_supports)
+#if __has_attribute(target)
 #define FORCENET_WIDE_KERNELS 1
 #endif
+#endif
+
+#ifdef FORCENET_WIDE_KERNELS
+#include <cpuid.h>
+
+/* AVX2 in the CPU and its 256-bit registers saved by the operating system (OSXSAVE, XCR0 bits 1 and 2): what
+ * __builtin_cpu_supports("avx2") tells, without libgcc's __cpu_model, which zig's cc does not link. */
+unsigned forcenet_cpu_features(void) {
+    unsigned a, b, c, d, xcr0, xcr0_high;
+    if (!__get_cpuid(1, &a, &b, &c, &d) || !(c & bit_OSXSAVE) || !(c & bit_AVX)) return 0u;
+    __asm__ __volatile__("xgetbv" : "=a"(xcr0), "=d"(xcr0_high) : "c"(0u));
+    (void)xcr0_high;
+    if ((xcr0 & 6u) != 6u) return 0u;
+    if (!__get_cpuid_count(7, 0, &a, &b, &c, &d)) return 0u;
+    return (b & bit_AVX2) ? FORCENET_CPU_AVX2 : 0u;
+}
+#else
+unsigned forcenet_cpu_features(void) { return 0u; }
 #endif
 
 #ifdef FORCENET_WIDE_KERNELS
@@ -402,12 +420,14 @@ __attribute__((target("avx2"))) static void network_avx2(const ForceNetLayout *l
 #endif
 
 void forcenet_network(const ForceNetLayout *layout, const double *params, const double *features, size_t n,
-                      double *loads) {
+                      double *loads, unsigned cpu_features) {
 #ifdef FORCENET_WIDE_KERNELS
-    if (FORCENET_KERNEL == 2 || (FORCENET_KERNEL == 0 && __builtin_cpu_supports("avx2"))) {
+    if (FORCENET_KERNEL == 2 || (FORCENET_KERNEL == 0 && (cpu_features & FORCENET_CPU_AVX2))) {
         network_avx2(layout, params, features, n, loads);
         return;
     }
+#else
+    (void)cpu_features;
 #endif
     network_baseline(layout, params, features, n, loads);
 }
@@ -495,7 +515,8 @@ size_t forcenet_elements(const ForceNetLayout *layout, const ForceNetCut *cut, d
     return count;
 }
 
-void forcenet_tool(const ForceNetLayout *layout, const double *params, const ForceNetCut *cut, ForceNetTool *out) {
+void forcenet_tool(const ForceNetLayout *layout, const double *params, const ForceNetCut *cut, ForceNetTool *out,
+                   unsigned cpu_features) {
     double features[FORCENET_MAX_ELEMENTS * N_FEATURES], loads[FORCENET_MAX_ELEMENTS * N_LOADS];
     double s[FORCENET_MAX_ELEMENTS], c[FORCENET_MAX_ELEMENTS], z[FORCENET_MAX_ELEMENTS], r[FORCENET_MAX_ELEMENTS];
     const double dz = cut->axial_depth / ELEMENTS_PER_FLUTE;
@@ -504,7 +525,7 @@ void forcenet_tool(const ForceNetLayout *layout, const double *params, const For
     size_t n = forcenet_elements(layout, cut, features, s, c, z, r), i;
     memset(out, 0, sizeof *out);
     if (n == 0) return;
-    forcenet_network(layout, params, features, n, loads);
+    forcenet_network(layout, params, features, n, loads, cpu_features);
     for (i = 0; i < n; i++) {
         double ft = loads[3 * i] * dz, fr = loads[3 * i + 1] * dz, fa = loads[3 * i + 2] * dz;
         double dfx = -ft * c[i] - fr * s[i], dfy = ft * s[i] - fr * c[i];

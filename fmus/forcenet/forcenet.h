@@ -40,9 +40,16 @@ int forcenet_parse(const unsigned char *data, size_t size, ForceNetLayout *layou
 /* Reads a whole file (at most FORCENET_MAX_FILE_BYTES); the caller frees it. NULL and a message on failure. */
 unsigned char *forcenet_read_file(const char *path, size_t *size, char *message, size_t message_size);
 
-/* Loads per unit edge length [N/m] (n x 3) of n elements from their features (n x 7). */
+/* What the CPU running this process offers the network's kernels (FORCENET_CPU_* bits): cpuid on x86-64
+ * (AVX2 and the operating system's saving of its registers), 0 elsewhere. A cpuid is slow under a hypervisor
+ * (tens of microseconds), so callers ask once (the FMU at instantiation) and pass the bits on. */
+#define FORCENET_CPU_AVX2 1u
+unsigned forcenet_cpu_features(void);
+
+/* Loads per unit edge length [N/m] (n x 3) of n elements from their features (n x 7), with the AVX2 kernel
+ * when `cpu_features` has FORCENET_CPU_AVX2 (the same sums in the same order: bit-identical loads). */
 void forcenet_network(const ForceNetLayout *layout, const double *params, const double *features, size_t n,
-                      double *loads);
+                      double *loads, unsigned cpu_features);
 
 /* The cutting state of one evaluation (SI units, the FMU's variables) */
 typedef struct {
@@ -69,6 +76,7 @@ size_t forcenet_elements(const ForceNetLayout *layout, const ForceNetCut *cut, d
                          double *cos_phi, double *z, double *radius);
 
 /* One full evaluation of the tool: elements, network, forces and moments. */
-void forcenet_tool(const ForceNetLayout *layout, const double *params, const ForceNetCut *cut, ForceNetTool *out);
+void forcenet_tool(const ForceNetLayout *layout, const double *params, const ForceNetCut *cut, ForceNetTool *out,
+                  unsigned cpu_features);
 
 #endif

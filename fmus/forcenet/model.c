@@ -34,6 +34,7 @@ FmuStatus model_instantiate(FmuInstance *instance, const char *function) {
     ForceNetLayout layout;
     const char *source = path;
     in->loaded = false;
+    instance->cpu_features = forcenet_cpu_features(); /* once: a cpuid costs tens of us under a hypervisor */
     if (instance->resource_path[0] == '\0') {
         data = FORCENET_DEFAULT_WEIGHTS;
         size = sizeof FORCENET_DEFAULT_WEIGHTS;
@@ -67,6 +68,8 @@ FmuStatus model_instantiate(FmuInstance *instance, const char *function) {
     forcenet_parse(data, size, &in->net, instance->heap, message, sizeof message);
     free(file);
     in->loaded = true;
+    fmu_log(instance, FMU_OK, "logEvents", "%s: network kernel %s", function,
+            (instance->cpu_features & FORCENET_CPU_AVX2) ? "AVX2" : "baseline");
     return FMU_OK;
 }
 
@@ -137,7 +140,7 @@ void model_update_outputs(FmuInstance *instance) {
         cut.exit_angle = v->exit_angle;
         cut.angle = v->states.angle;
         cut.engagement = v->engagement;
-        forcenet_tool(&instance->internal.net, instance->heap, &cut, &tool);
+        forcenet_tool(&instance->internal.net, instance->heap, &cut, &tool, instance->cpu_features);
     }
     v->Fx = tool.Fx;
     v->Fy = tool.Fy;

@@ -58,7 +58,7 @@ static void evaluate(const ForceNetLayout *layout, const double *params, const u
     double features[2 * N_FEATURES], loads[2 * N_LOADS];
     size_t i;
     for (i = 0; i < 2 * N_FEATURES; i++) features[i] = ((double)data[(i * 7) % size] - 128.0) / 32.0;
-    forcenet_network(layout, params, features, 2, loads);
+    forcenet_network(layout, params, features, 2, loads, forcenet_cpu_features());
     memset(&cut, 0, sizeof cut);
     cut.n_flutes = 1 + data[size / 2] % MAX_FLUTES;
     cut.tool_diameter = 0.01;
@@ -71,7 +71,7 @@ static void evaluate(const ForceNetLayout *layout, const double *params, const u
     cut.entry_angle = 0.0;
     cut.exit_angle = 3.141592653589793;
     cut.angle = (double)data[size / 3] / 40.0;
-    forcenet_tool(layout, params, &cut, &tool);
+    forcenet_tool(layout, params, &cut, &tool, forcenet_cpu_features());
     REQUIRE(tool.elements <= FORCENET_MAX_ELEMENTS, "more elements in contact than the tool has");
 }
 

@@ -51,6 +51,7 @@ static double now_ns(void) {
 int main(int argc, char **argv) {
     ForceNetLayout layout;
     double *params = NULL;
+    const unsigned cpu = forcenet_cpu_features(); /* once, as the FMU at instantiation */
     if (argc < 3 || load(argv[2], &layout, &params) != 0) {
         fprintf(stderr, "usage: %s loads|tool|bench WEIGHTS ... (see the source)\n", argv[0]);
         return 2;
@@ -64,7 +65,7 @@ int main(int argc, char **argv) {
         if (!features || !loads) return 2;
         for (i = 0; i < n * N_FEATURES; i++)
             if (scanf("%lf", &features[i]) != 1) return 2;
-        forcenet_network(&layout, params, features, n, loads);
+        forcenet_network(&layout, params, features, n, loads, cpu);
         for (i = 0; i < n; i++) printf("%.17g %.17g %.17g\n", loads[3 * i], loads[3 * i + 1], loads[3 * i + 2]);
         free(features);
         free(loads);
@@ -83,7 +84,7 @@ int main(int argc, char **argv) {
         cut.entry_angle = atof(argv[11]);
         cut.exit_angle = atof(argv[12]);
         cut.angle = atof(argv[13]);
-        forcenet_tool(&layout, params, &cut, &out);
+        forcenet_tool(&layout, params, &cut, &out, cpu);
         printf("%.17g %.17g %.17g %.17g %.17g %.17g %.17g %.17g %zu\n", out.Fx, out.Fy, out.Fz, out.torque,
                out.power, out.Mx, out.My, out.Mz, out.elements);
     } else if (strcmp(argv[1], "bench") == 0 && argc == 12) {
@@ -107,7 +108,7 @@ int main(int argc, char **argv) {
             double start;
             cut.angle = 6.283185307179586 * (double)(k % 3600) / 3600.0;
             start = now_ns();
-            forcenet_tool(&layout, params, &cut, &out);
+            forcenet_tool(&layout, params, &cut, &out, cpu);
             times[k] = now_ns() - start;
             total += times[k];
             elements += (double)out.elements;

@@ -81,12 +81,12 @@ class WheelFiles:
         architecture reference (other platforms' binaries are skipped)."""
         stepper = elf_needs(data, str(self.stepper))
         needed, have = [stepper.glibc], set()
-        for name, binary in self._binaries():
+        for fmu, member, binary in self._binaries():
             if is_elf(binary):
-                needs = elf_needs(binary, name)
+                needs = elf_needs(binary, f"{fmu}:{member}")
                 if needs.machine == stepper.machine:
                     needed.append(needs.glibc)
-                    have.add(name.rsplit(":binaries/", 1)[0])
+                    have.add(fmu)
         self._require(have, f"Linux {stepper.machine}")
         major, minor = max([GLIBC_FLOOR, *(v for v in needed if v is not None)])
         return f"manylinux_{major}_{minor}_{stepper.machine}"
@@ -94,7 +94,8 @@ class WheelFiles:
     def _windows_tag(self, data: bytes) -> str:
         """win_amd64 or win_arm64, when every FMU has a Windows binary of the stepper's architecture."""
         arch = pe_machine(data, str(self.stepper))
-        have = {fmu for fmu, binary in self._binaries_by_fmu() if is_pe(binary) and pe_machine(binary, fmu) == arch}
+        have = {fmu for fmu, member, binary in self._binaries()
+                if is_pe(binary) and pe_machine(binary, f"{fmu}:{member}") == arch}
         self._require(have, f"Windows {arch}")
         return WINDOWS_TAGS[arch]
 
@@ -105,9 +106,9 @@ class WheelFiles:
         archs = {piece.arch for piece in slices}
         oldest = [piece.min_macos for piece in slices]
         found: dict[str, set[str]] = {}
-        for fmu, binary in self._binaries_by_fmu():
+        for fmu, member, binary in self._binaries():
             if is_macho(binary):
-                for piece in macho_slices(binary, fmu):
+                for piece in macho_slices(binary, f"{fmu}:{member}"):
                     if piece.arch in archs:
                         found.setdefault(fmu, set()).add(piece.arch)
                         oldest.append(piece.min_macos)
@@ -126,18 +127,13 @@ class WheelFiles:
                 f"{platform_name} binary: {', '.join(missing)} (build them for every platform: "
                 "`make fmus-all-platforms`, docs/portability.md)")
 
-    def _binaries(self) -> Iterator[tuple[str, bytes]]:
-        """Every file under binaries/ in every FMU: (``fmu:path`` for messages, its bytes)."""
+    def _binaries(self) -> Iterator[tuple[str, str, bytes]]:
+        """Every file under binaries/ in every FMU: (the FMU's path, the file's name in it, its bytes)."""
         for fmu in self.fmus:
             with zipfile.ZipFile(fmu) as archive:
                 for name in archive.namelist():
                     if name.startswith("binaries/") and not name.endswith("/"):
-                        yield f"{fmu}:{name}", archive.read(name)
-
-    def _binaries_by_fmu(self) -> Iterator[tuple[str, bytes]]:
-        """As :meth:`_binaries`, named by the FMU's path alone."""
-        for name, binary in self._binaries():
-            yield name.rsplit(":binaries/", 1)[0], binary
+                        yield str(fmu), name, archive.read(name)
 
 
 def _path(root: Path, text: str) -> Path:

@@ -94,6 +94,11 @@ def _line_samples(move) -> list[list[float]]:
     return [list(a + (b - a) * (k / n)) for k in range(n + 1)]
 
 
+def _in_program(samples: list, offset: Sequence[float]) -> list[list[float]]:
+    """Machine positions less the program zero (work offset, G52, G43 tool length): program coordinates."""
+    return [[q[0] - offset[0], q[1] - offset[1], q[2] - offset[2]] for q in samples]
+
+
 def feed_path(program: Program) -> FeedPath:
     """The tool tip along every feed move, sampled at most SAMPLE_SPACING (and ARC_STEP on arcs) apart, and along
     every rapid move (kept apart: rapids do not cut)."""
@@ -109,9 +114,8 @@ def feed_path(program: Program) -> FeedPath:
     curves: dict[int, Nurbs] = {}
     for move in program.moves:
         if move.kind == MOVE_RAPID:
-            offset = move.offset
             samples = _line_samples(move)
-            rapids.extend([[q[0] - offset[0], q[1] - offset[1], q[2] - offset[2]] for q in samples])
+            rapids.extend(_in_program(samples, move.offset))
             rapid_lines.extend([move.line] * len(samples))
             rapid_tools.extend([move.tool] * len(samples))
             rapid_after.extend([len(points)] * len(samples))
@@ -131,8 +135,8 @@ def feed_path(program: Program) -> FeedPath:
             samples = [curve.evaluate(move.u0 + (move.u1 - move.u0) * k / n, 0, lo, hi)[0] for k in range(n + 1)]
         else:
             continue  # dwells do not move
-        offset = move.offset  # the work offset, G52 and the tool length (G43): the samples in program coordinates
-        points.extend([[q[0] - offset[0], q[1] - offset[1], q[2] - offset[2]] for q in samples])
+        offset = move.offset
+        points.extend(_in_program(samples, offset))
         lines.extend([move.line] * len(samples))
         tools.extend([move.tool] * len(samples))
         spindle.extend([move.spindle_on] * len(samples))
@@ -145,11 +149,13 @@ def feed_path(program: Program) -> FeedPath:
                     np.asarray(rapid_tools, dtype=int), np.asarray(rapid_after, dtype=int))
 
 
-def _effective_tools(path: FeedPath, tools: Sequence[Tool]) -> np.ndarray:
-    """Each sample's tool; tool 0 (none selected) is the table's only tool when it holds exactly one."""
+def _effective_tools(path: FeedPath, tools: Sequence[Tool], numbers: np.ndarray | None = None) -> np.ndarray:
+    """Each sample's tool (``numbers``: of other samples than the feed path's, its rapids'); tool 0 (none selected)
+    is the table's only tool when it holds exactly one."""
+    numbers = path.tools if numbers is None else numbers
     if len(tools) == 1:
-        return np.where(path.tools == 0, tools[0].number, path.tools)
-    return path.tools
+        return np.where(numbers == 0, tools[0].number, numbers)
+    return numbers
 
 
 def _over(path: FeedPath, stock: Stock, radius: np.ndarray | float) -> np.ndarray:
@@ -293,8 +299,7 @@ def _rapids_into_uncut_stock(path: FeedPath, tools: Sequence[Tool], stock: Stock
     if not inside.any():
         return []
     reach = _radii(_effective_tools(path, tools), tools) + 0.5 * SAMPLE_SPACING
-    numbers = np.where(path.rapid_tools == 0, tools[0].number, path.rapid_tools) if len(tools) == 1 \
-        else path.rapid_tools
+    numbers = _effective_tools(path, tools, path.rapid_tools)
     rapid_reach = _radii(numbers, tools) + 0.5 * SAMPLE_SPACING
     found: dict[int, tuple[int, float, np.ndarray]] = {}  # line -> (tool, depth below the top, first point)
 

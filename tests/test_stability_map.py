@@ -214,3 +214,23 @@ def test_the_sd_limits_through_an_executor_are_the_serial_ones_in_order() -> Non
     assert np.array_equal(sm.sd_limits(tool, speeds, counting, started), parallel) and counting.submitted == 1
     assert parallel[0] == semi_discretization_limit(tool.modes_x, tool.modes_y, tool.ktc, tool.krc, tool.n_flutes,
                                                     6000.0, tool.entry, tool.exit)
+
+
+def test_the_committed_map_s_depth_grid_brackets_the_sd_onset_at_every_speed() -> None:
+    """studies/stability_map.toml can compare the co-simulated onset with semi-discretization at every one of its
+    speeds only if its depths reach below and above each speed's SD onset (by more than the 5 % the comparison
+    allows): a narrower grid leaves speeds 'stable up to' its top, as 14000 and 25000 rpm were at 0.3 mm."""
+    from milling_twin.orchestrator.scenario import with_values
+    from milling_twin.orchestrator.study.run import si_inputs
+    from milling_twin.orchestrator.study.spec import load_study
+
+    study = load_study(repo_root() / "studies" / "stability_map.toml", fmu_dir())
+    names = ("force.spindle_speed", "force.axial_depth")
+    points = [si_inputs(with_values(study.base, case.values), names) for case in study.cases]
+    speeds = sorted({p[names[0]] * 60 / (2 * math.pi) for p in points})
+    depths = np.array(sorted({p[names[1]] for p in points}))
+    assert len(speeds) == 20 and len(depths) == 12
+    limits = sm.sd_limits(tool_and_cut(study.base), speeds)
+    assert np.all(np.isfinite(limits))
+    for rpm, limit in zip(speeds, limits):
+        assert depths[0] < limit / 1.05 and limit * 1.05 < depths[-1], (rpm, limit, depths[[0, -1]])

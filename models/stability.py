@@ -345,29 +345,63 @@ def semi_discretization_limit(modes_x: tuple[Mode, ...], modes_y: tuple[Mode, ..
                               max_depth: float | None = None) -> float:
     """Limiting axial depth [m] at one spindle speed: the smallest depth whose monodromy matrix has a spectral
     radius >= 1. Depths rise by ``ratio`` from a fifth of the Tlusty scale until the first unstable one (an
-    unstable island narrower than ``ratio`` below it can be missed), then bisection to ``rtol``. ``inf`` when
-    stable up to ``max_depth`` (default 1000 times that scale)."""
+    unstable island narrower than ``ratio`` below it can be missed), then the bracket narrows to ``rtol``
+    (:func:`_radius_crossing`). ``inf`` when stable up to ``max_depth`` (default 1000 times that scale)."""
     sd = SemiDiscretization.build(modes_x, modes_y, ktc, krc, n_flutes, speed_rpm, entry, exit, steps)
     scale = _depth_scale(modes_x, modes_y, ktc, n_flutes)
     ceiling = max_depth if max_depth is not None else 1000 * scale
-    low = 0.0
+    low, rho_low = 0.0, 0.0
     high = 0.2 * scale
-    while sd.spectral_radius(high) < 1.0:
-        low, high = high, high * ratio
+    rho_high = sd.spectral_radius(high)
+    while rho_high < 1.0:
+        low, rho_low = high, rho_high
+        high *= ratio
         if low >= ceiling:
             return math.inf
+        rho_high = sd.spectral_radius(high)
     if low == 0.0:  # unstable at the first depth: halve down to a stable one
         low = high / 2
-        while sd.spectral_radius(low) >= 1.0:
-            high, low = low, low / 2
+        rho_low = sd.spectral_radius(low)
+        while rho_low >= 1.0:
+            high, rho_high, low = low, rho_low, low / 2
             if low < 1e-6 * scale:
                 return 0.0
+            rho_low = sd.spectral_radius(low)
+    return _radius_crossing(sd.spectral_radius, low, rho_low, high, rho_high, rtol)
+
+
+def _radius_crossing(radius: Callable[[float], float], low: float, rho_low: float, high: float, rho_high: float,
+                     rtol: float) -> float:
+    """The depth where ``radius`` crosses 1 between a stable ``low`` and an unstable ``high`` (their radii
+    given), as the middle of a bracket narrower than ``rtol`` times its upper end, as bisection would give it.
+    False position on log(radius) with the Illinois rule (the end that stays has its value halved), each
+    estimate kept a quarter of the tolerance inside the bracket so that a converged estimate closes it from its
+    other side; a bisection step after every estimate that did not halve the bracket, so that a radius far from
+    log-linear (a kink where the dominant eigenvalue changes) costs at most twice bisection. About 5 radii
+    instead of bisection's 8 from a bracket of 25 %."""
+    f_low, f_high = math.log(rho_low), math.log(rho_high)
+    kept = 0  # -1: low moved last, +1: high moved last
+    width_before = math.inf  # the bracket's width before a false-position step, inf after a bisection
     while high - low > rtol * high:
-        middle = 0.5 * (low + high)
-        if sd.spectral_radius(middle) < 1.0:
-            low = middle
+        if high - low > 0.5 * width_before:  # the last false position did not halve the bracket
+            depth = 0.5 * (low + high)
+            width_before = math.inf
         else:
-            high = middle
+            margin = 0.25 * rtol * high
+            estimate = (low * f_high - high * f_low) / (f_high - f_low)
+            depth = min(max(estimate, low + margin), high - margin)
+            width_before = high - low
+        value = math.log(radius(depth))
+        if value < 0.0:
+            low, f_low = depth, value
+            if kept == -1:
+                f_high *= 0.5
+            kept = -1
+        else:
+            high, f_high = depth, value
+            if kept == 1:
+                f_low *= 0.5
+            kept = 1
     return 0.5 * (low + high)
 
 

@@ -204,3 +204,30 @@ def test_the_one_thread_blas_switch_holds_for_overlapping_users_and_restores_the
         t.join()
     assert inside == [[1] * len(controls)] * 3
     assert [get() for get, _ in controls] == before
+
+
+@pytest.mark.parametrize("radius, root, smooth", [
+    (lambda a: math.exp(40 * (a - 0.3)), 0.3, True),  # log(radius) linear: false position is exact at once
+    (lambda a: a ** 6 / 0.3 ** 6, 0.3, True),  # curved
+    (lambda a: 0.5 + 0.5 * a / 0.37 if a < 0.37 else 1.0 + 20 * (a - 0.37), 0.37, False),  # a kink at the crossing
+    (lambda a: 1.0 - 0.02 * (0.33 - a) if a < 0.33 else 1.0 + 1e-4 * (a - 0.33), 0.33, False),  # flat above
+])
+def test_the_radius_crossing_brackets_the_root_within_rtol_in_fewer_radii_than_bisection(radius, root,
+                                                                                          smooth) -> None:
+    """Fewer radii than bisection where log(radius) is smooth, at most twice as many at a kink."""
+    from milling_twin.models.stability import _radius_crossing
+
+    calls = []
+
+    def counted(a: float) -> float:
+        calls.append(a)
+        return radius(a)
+
+    low, high = 0.28, 0.28 * 1.25 ** 2  # a bracket as the rise leaves it
+    found = _radius_crossing(counted, low, radius(low), high, radius(high), 1e-3)
+    assert abs(found - root) <= 0.5e-3 * found
+    stable = [a for a in calls if radius(a) < 1.0]
+    unstable = [a for a in calls if radius(a) >= 1.0]
+    assert stable and unstable and min(unstable) - max(stable) <= 1e-3 * min(unstable)  # a closed bracket
+    bisection = math.ceil(math.log2((high - low) / (1e-3 * root)))
+    assert len(calls) <= (bisection - 2 if smooth else 2 * bisection)

@@ -105,6 +105,30 @@ def test_chatter_growth_is_registered() -> None:
     assert tool_and_cut(load_scenario(SCENARIO, fmu_dir())).modes_x == (MODE,)
 
 
+def test_the_dynamic_chip_of_a_forced_response_cancels_where_the_tooth_period_is_no_multiple_of_the_step() -> None:
+    """A forced response (harmonics of the tooth period, as a stable cut settles into) plus a decaying free
+    vibration 1e-3 of its size: the dynamic chip's RMS is the free vibration's, its growth that vibration's
+    decay, also at 25500 rpm where tau is 117.65 output steps of 10 us (a linear interpolation of r(t - tau) left
+    3e-4 of the forced response there, and the growth levelled off at 1)."""
+    scenario = load_scenario(SCENARIO, fmu_dir())
+    rpm = 25500.0
+    force = scenario.instance("force")
+    force.inputs["spindle_speed"] = rpm / sm.RPM
+    tau = 60.0 / (2 * rpm)
+    t = np.arange(0.0, 0.2 + 5e-6, 1e-5)
+    forced = sum(1e-6 / k ** 2 * np.sin(2 * math.pi * k * t / tau + k) for k in (1, 2, 3))
+    decay = 20.0  # 1/s
+    free = 1e-9 * np.exp(-decay * t) * np.sin(2 * math.pi * 922.0 * t)
+    frame = pd.DataFrame({"time": t, "vibration.tip_displacement_x": forced + free,
+                          "vibration.tip_displacement_y": 0.5 * forced})
+    windows = sm.growth_windows(0.0, 0.2)
+    growth = sm.dynamic_chip_growth(scenario, frame, windows)
+    assert growth == pytest.approx(math.exp(-decay * 0.05), rel=0.02) and growth < 0.95
+    only_free = pd.DataFrame({"time": t, "vibration.tip_displacement_x": free, "vibration.tip_displacement_y": 0 * t})
+    assert sm.dynamic_chip_rms(scenario, frame, windows) == pytest.approx(
+        sm.dynamic_chip_rms(scenario, only_free, windows), rel=0.02)
+
+
 TINY_STUDY = """
 [study]
 name = "tiny_map"

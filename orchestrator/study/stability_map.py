@@ -43,6 +43,7 @@ from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
 import numpy as np
+from scipy.interpolate import CubicSpline
 
 from milling_twin.models.stability import semi_discretization_limit, stability_lobes
 from milling_twin.orchestrator import atomic_files
@@ -76,14 +77,18 @@ def dynamic_chip_rms(scenario: Scenario, frame: pd.DataFrame,
                      windows: Sequence[tuple[float, float]]) -> list[float]:
     """The RMS of the dynamic chip e(t) = r(t) - r(t - tau) (r: the tool tip displacement in x and y, tau: the tooth
     period) in each of ``windows`` [s], m. The forced response repeats every tooth period and cancels in e at every
-    output step, so e is the regenerative (free) vibration alone."""
+    output step, so e is the regenerative (free) vibration alone. r(t - tau) between output steps is a cubic
+    spline's: a linear one leaves about (omega h)^2 / 8 of the forced response in e where tau is no multiple of
+    the output step h (3e-4 of it at 850 Hz and 10 us, as large as a decayed free vibration), so the growth
+    of a stable cut levelled off at 1 and crossed it by chance (25500 rpm on the 922 Hz tool)."""
     force = scenario.instance("force")
     tau = 2 * math.pi / (int(force.parameters.get("n_flutes", 2)) * force.inputs["spindle_speed"])
     t = frame["time"].to_numpy(float)
     squares = np.zeros_like(t)
+    delayed = np.clip(t - tau, t[0], t[-1])  # before the start: the first sample, as the windows never are
     for axis in ("x", "y"):
         r = frame[f"vibration.tip_displacement_{axis}"].to_numpy(float)
-        squares += (r - np.interp(t - tau, t, r)) ** 2
+        squares += (r - CubicSpline(t, r)(delayed)) ** 2
     return [math.sqrt(float(np.mean(squares[(t >= start) & (t < stop)]))) for start, stop in windows]
 
 

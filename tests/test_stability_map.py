@@ -129,6 +129,35 @@ def test_the_dynamic_chip_of_a_forced_response_cancels_where_the_tooth_period_is
         sm.dynamic_chip_rms(scenario, only_free, windows), rel=0.02)
 
 
+def test_a_dynamic_chip_larger_than_half_the_feed_per_tooth_is_a_limit_cycle_of_infinite_growth() -> None:
+    """Chatter grown into a limit cycle (the tool leaves the cut, the growth stops near 1) is chatter once the
+    dynamic chip's RMS exceeds LIMIT_CYCLE_CHIP feeds per tooth: its chip_growth is the growth while it grew (inf
+    when it never did); the same vibration 100 times smaller, a slowly decaying stable cut, keeps its measured
+    growth."""
+    from milling_twin.orchestrator.study.reduce import CaseRun
+
+    scenario = load_scenario(SCENARIO, fmu_dir())
+    force = scenario.instance("force")
+    rpm = force.inputs["spindle_speed"] * sm.RPM
+    tau = 60.0 / (2 * rpm)
+    fz = sm.feed_per_tooth(scenario)
+    assert fz == pytest.approx(force.inputs["feed_velocity_x"] * tau)
+    t = np.arange(0.0, scenario.stop_time + 5e-6, 1e-5)
+    quarter = scenario.stop_time / 4
+
+    def growth_of(r: np.ndarray) -> dict[str, float]:
+        frame = pd.DataFrame({"time": t, "vibration.tip_displacement_x": r, "vibration.tip_displacement_y": 0 * t})
+        return sm.chatter_growth(CaseRun("c", {}, scenario, Path("."), "ok", frame=frame))
+
+    wave = np.sin(2 * math.pi * 950.0 * t)
+    saturated = growth_of(2 * fz * np.exp(-0.1 * t) * wave)  # RMS 1.41 feeds per tooth, never grew
+    assert math.isinf(saturated["chip_growth"]) and saturated["chip_rms"] > sm.LIMIT_CYCLE_CHIP * fz
+    grew = growth_of(2 * fz * np.minimum(np.exp(30 * (t - 2 * quarter)), 1.0) * wave)  # e^30/s up to mid-run
+    assert grew["chip_growth"] == pytest.approx(math.exp(30 * quarter), rel=0.05)  # the first quarter from tau
+    stable = growth_of(0.02 * fz * np.exp(-0.1 * t) * wave)  # RMS 0.014 feeds per tooth
+    assert stable["chip_growth"] == pytest.approx(math.exp(-0.1 * quarter), rel=1e-3)
+
+
 TINY_STUDY = """
 [study]
 name = "tiny_map"

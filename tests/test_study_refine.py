@@ -60,6 +60,30 @@ def test_one_new_case_per_bracketed_group_with_the_values_of_the_case_below() ->
         refined_values(summary, RefineSpec("depth", "chip"), ("speed", "depth"), values, None)
 
 
+def test_extend_adds_a_case_beyond_the_end_of_groups_on_one_side_of_the_threshold() -> None:
+    """With extend, a group stable at its deepest case gets one deeper (times extend), a group unstable at its
+    shallowest one shallower (divided by extend); a bracketed group is refined as without it; a group with a failed
+    case is left alone; the next round then refines the bracket the new case makes."""
+    summary = _summary([
+        ("a1", 100.0, 1.0, 0.5, "ok"), ("a2", 100.0, 2.0, math.e, "ok"),              # bracketed
+        ("b1", 200.0, 1.0, 0.2, "ok"), ("b2", 200.0, 2.0, 0.4, "ok"),                 # stable throughout
+        ("c1", 300.0, 1.0, 0.5, "ok"), ("c2", 300.0, 2.0, 0.9, "failed"),             # failed: left alone
+        ("e1", 500.0, 1.0, 1.5, "ok"), ("e2", 500.0, 2.0, 4.0, "ok"),                 # unstable throughout
+    ])
+    values = {cid: {"speed": s, "depth": d} for cid, s, d, _, _ in summary.itertuples(index=False, name=None)}
+    assert len(refined_values(summary, RefineSpec("depth", "growth"), ("speed", "depth"), values, None)) == 1
+    made = refined_values(summary, RefineSpec("depth", "growth", extend=1.5), ("speed", "depth"), values, None)
+    by_speed = {new["speed"]: new["depth"] for _, new in made}
+    assert set(by_speed) == {100.0, 200.0, 500.0}
+    assert by_speed[200.0] == pytest.approx(3.0) and by_speed[500.0] == pytest.approx(1.0 / 1.5)
+    (deeper,) = [cid for cid, new in made if new["speed"] == 200.0]
+    summary = pd.concat([summary, _summary([(deeper, 200.0, 3.0, 2.0, "ok")])], ignore_index=True)
+    values[deeper] = {"speed": 200.0, "depth": 3.0}
+    again = {new["speed"]: new["depth"] for _, new in
+             refined_values(summary, RefineSpec("depth", "growth", extend=1.5), ("speed", "depth"), values, None)}
+    assert 2.0 < again[200.0] < 3.0  # refined inside the bracket the extension made
+
+
 BASE = f"""\
 [study]
 name = "refined"
@@ -84,6 +108,8 @@ kind = "chatter_growth"
      "[study.refine].threshold", "> 0 with scale"),
     ("[study.refine]\nvariable = \"force.axial_depth\"\noutput = \"g\"\nsteps = 2\n", "[study.refine].steps",
      "unknown key"),
+    ("[study.refine]\nvariable = \"force.axial_depth\"\noutput = \"g\"\nextend = 1\n", "[study.refine].extend",
+     "a factor above 1"),
 ])
 def test_bad_refine_tables_name_the_key(tmp_path: Path, fmu_dir: Path, body: str, key: str, message: str) -> None:
     path = tmp_path / "study.toml"

@@ -17,6 +17,12 @@ rest.
     rounds = 3                       # default 3
     scale = "log"                    # "log" (default) or "linear": how output is interpolated
     tolerance = 0.005                # default 0.005: a bracket narrower than this (relative) is not refined
+    extend = 1.27                    # optional: a group on one side of the threshold only gets a case beyond it
+
+With ``extend`` (a factor > 1), a group whose cases all finished on one side of the threshold (a speed stable up
+to the grid's deepest depth, say) gets, in the same rounds, a case at its largest value times ``extend`` (all
+below the threshold) or at its smallest divided by it (all above), until it brackets a crossing, which the next
+rounds refine. A group with a failed case is not extended (a failure marks neither side).
 """
 from __future__ import annotations
 
@@ -31,9 +37,9 @@ import pandas as pd
 from milling_twin.orchestrator.study.cases import case_id
 from milling_twin.orchestrator.study.summary import FIRST, LAST
 
-__all__ = ["Bracket", "RefineSpec", "first_crossing", "read_refine", "refined_values"]
+__all__ = ["Bracket", "RefineSpec", "beyond_the_ends", "first_crossing", "read_refine", "refined_values"]
 
-REFINE_KEYS = ("variable", "output", "threshold", "rounds", "scale", "tolerance")
+REFINE_KEYS = ("variable", "output", "threshold", "rounds", "scale", "tolerance", "extend")
 # the new value stays this share of the bracket away from either end, so that a round always shrinks it
 SAFEGUARD = 0.1
 
@@ -46,6 +52,7 @@ class RefineSpec:
     rounds: int = 3
     scale: str = "log"
     tolerance: float = 0.005
+    extend: float | None = None  # a factor > 1: groups on one side of the threshold get a case beyond their end
     key: str = "[study.refine]"
 
 
@@ -84,17 +91,25 @@ def first_crossing(x: Sequence[float], y: Sequence[float], threshold: float
     return int(above[0]) - 1, int(above[0])
 
 
-def brackets(summary: pd.DataFrame, spec: RefineSpec, variables: Sequence[str]) -> list[Bracket]:
-    """The bracket of every group of finished cases (same values of every variable but ``spec.variable``)."""
+def _check_output(summary: pd.DataFrame, spec: RefineSpec, variables: Sequence[str]) -> None:
     if spec.output not in summary.columns:
         given = [str(c) for c in summary.columns if c not in variables and c not in (*FIRST, *LAST)]
         raise KeyError(f"{spec.output!r} is no output of the reductions (they give {', '.join(given) or 'none'})")
-    rows = summary[(summary["status"] == "ok") & summary[spec.variable].notna() & summary[spec.output].notna()]
+
+
+def _groups(rows: pd.DataFrame, spec: RefineSpec, variables: Sequence[str]) -> list[pd.DataFrame]:
+    """``rows`` by the values of every variable but ``spec.variable``, each sorted by it."""
     others = [v for v in variables if v != spec.variable and v in rows.columns]
-    groups = rows.groupby(others, sort=True, dropna=False) if others else [((), rows)]
+    groups = [g for _, g in rows.groupby(others, sort=True, dropna=False)] if others else [rows]
+    return [g.sort_values(spec.variable, kind="stable") for g in groups]
+
+
+def brackets(summary: pd.DataFrame, spec: RefineSpec, variables: Sequence[str]) -> list[Bracket]:
+    """The bracket of every group of finished cases (same values of every variable but ``spec.variable``)."""
+    _check_output(summary, spec, variables)
+    rows = summary[(summary["status"] == "ok") & summary[spec.variable].notna() & summary[spec.output].notna()]
     found = []
-    for _, group in groups:
-        group = group.sort_values(spec.variable, kind="stable")
+    for group in _groups(rows, spec, variables):
         x = group[spec.variable].to_numpy(dtype=float)
         y = group[spec.output].to_numpy(dtype=float)
         crossing = first_crossing(x, y, spec.threshold)
@@ -102,6 +117,26 @@ def brackets(summary: pd.DataFrame, spec: RefineSpec, variables: Sequence[str]) 
             continue
         i, j = crossing
         found.append(Bracket(float(x[i]), float(x[j]), float(y[i]), float(y[j]), str(group["case_id"].iloc[i])))
+    return found
+
+
+def beyond_the_ends(summary: pd.DataFrame, spec: RefineSpec, variables: Sequence[str]) -> list[tuple[str, float]]:
+    """With ``spec.extend``: (case id, value) of the next case of every group whose cases all finished on one side of
+    the threshold: its largest value times ``extend`` when every output is at or below it, its smallest divided by
+    ``extend`` when every output is above. Groups with a failed case or without a finite output are left alone."""
+    if spec.extend is None:
+        return []
+    _check_output(summary, spec, variables)
+    found = []
+    for group in _groups(summary[summary[spec.variable].notna()], spec, variables):
+        y = group[spec.output].to_numpy(dtype=float)
+        if not (group["status"] == "ok").all() or not np.all(np.isfinite(y)):
+            continue
+        x = group[spec.variable].to_numpy(dtype=float)
+        if np.all(y <= spec.threshold):
+            found.append((str(group["case_id"].iloc[-1]), float(x[-1]) * spec.extend))
+        elif np.all(y > spec.threshold):
+            found.append((str(group["case_id"].iloc[0]), float(x[0]) / spec.extend))
     return found
 
 
@@ -115,6 +150,9 @@ def refined_values(summary: pd.DataFrame, spec: RefineSpec, variables: Sequence[
         if bracket.high - bracket.low <= spec.tolerance * abs(bracket.high):
             continue
         values = {**values_of[bracket.low_case], spec.variable: bracket.estimate(spec.threshold, spec.scale)}
+        made.append((case_id(values, stop_time), values))
+    for end_case, value in beyond_the_ends(summary, spec, variables):
+        values = {**values_of[end_case], spec.variable: value}
         made.append((case_id(values, stop_time), values))
     return made
 
@@ -147,4 +185,9 @@ def read_refine(table: Any, variables: Sequence[str], fail: Callable[[str, str],
     tolerance = table.get("tolerance", 0.005)
     if isinstance(tolerance, bool) or not isinstance(tolerance, (int, float)) or not 0 <= tolerance < 1:
         fail(f"{key}.tolerance", f"expected a number from 0 to below 1, got {tolerance!r}")
-    return RefineSpec(variable, output, float(threshold), rounds, scale, float(tolerance))
+    extend = table.get("extend")
+    if extend is not None and (isinstance(extend, bool) or not isinstance(extend, (int, float))
+                               or not 1 < extend <= 100):
+        fail(f"{key}.extend", f"expected a factor above 1 (at most 100), got {extend!r}")
+    return RefineSpec(variable, output, float(threshold), rounds, scale, float(tolerance),
+                      None if extend is None else float(extend))

@@ -90,7 +90,8 @@ def dynamic_chip_rms(scenario: Scenario, frame: pd.DataFrame,
     for axis in ("x", "y"):
         r = frame[f"vibration.tip_displacement_{axis}"].to_numpy(float)
         squares[defined] += (r[defined] - CubicSpline(t, r)(delayed[defined])) ** 2
-    return [math.sqrt(float(np.mean(squares[defined & (t >= start) & (t < stop)]))) for start, stop in windows]
+    chosen = [squares[defined & (t >= start) & (t < stop)] for start, stop in windows]
+    return [math.sqrt(float(np.mean(c))) if c.size else math.nan for c in chosen]  # NaN: no e(t) in the window
 
 
 def dynamic_chip_growth(scenario: Scenario, frame: pd.DataFrame,
@@ -100,6 +101,8 @@ def dynamic_chip_growth(scenario: Scenario, frame: pd.DataFrame,
 
 
 def _second_over_first(rms: Sequence[float]) -> float:
+    if math.isnan(rms[0]) or math.isnan(rms[1]):
+        return math.nan  # a window without a sample: no growth to tell
     return rms[1] / rms[0] if rms[0] > 0 else math.inf
 
 
@@ -134,8 +137,8 @@ def chatter_growth(case: CaseRun) -> dict[str, float]:
     rms = dynamic_chip_rms(scenario, case.results, quarters)
     chip_growth = _second_over_first(rms[2:])
     if rms[3] > LIMIT_CYCLE_CHIP * feed_per_tooth(scenario):  # a limit cycle: the growth while it still grew
-        chip_growth = max(_second_over_first(rms[k:k + 2]) for k in range(3))
-        chip_growth = chip_growth if chip_growth > 1.0 else math.inf
+        grew = [g for g in (_second_over_first(rms[k:k + 2]) for k in range(3)) if g > 1.0]
+        chip_growth = max(grew) if grew else math.inf
     return {"growth_x": float(gx), "growth_y": float(gy), "growth": float(growth), "stable": float(growth <= 1.0),
             "chip_growth": float(chip_growth), "chip_rms": float(rms[3])}
 

@@ -189,6 +189,8 @@ def test_map_of_a_tiny_real_grid_through_the_serial_executor(tmp_path: Path, cap
     result = sweep(study, fmu_dir=fmu_dir(), out=tmp_path / "out", workers=0)
     summary = result.summary
     assert list(summary["status"]) == ["ok"] * 6
+    # serially, the limits the map needs are computed in its preparation, before the cases
+    assert list(result.phases) == ["executor start", "post preparation", "cases", "post-processing", "executor close"]
     assert {"growth_x", "growth_y", "growth", "stable", "chip_growth"} <= set(summary.columns)
     assert list(summary["stable"]) == [float(g <= 1) for g in summary["growth"]]
     printed = capsys.readouterr().out

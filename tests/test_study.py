@@ -6,6 +6,7 @@ import concurrent.futures
 import json
 import math
 import os
+import re
 import signal
 import subprocess
 import sys
@@ -293,6 +294,9 @@ def test_resume_runs_only_the_cases_not_finished(tmp_path: Path, fmu_dir: Path) 
     out = tmp_path / "out"
     full = sweep(study, out, workers=0, progress=False)
     assert full.ran == 4 and full.failed == 0
+    # where the time went: the phases in order (no refinement, no post-processor), together the sweep's wall time
+    assert list(full.phases) == ["executor start", "cases", "executor close"]
+    assert all(t >= 0 for t in full.phases.values()) and 0 < sum(full.phases.values()) <= full.wall_time
     parts = sorted((full.folder / "summary").glob("*.parquet"))
     assert len(parts) == 4
     # a study killed after two cases: two rows in summary/
@@ -317,6 +321,7 @@ def test_the_sweep_command(tmp_path: Path, fmu_dir: Path, capsys: pytest.Capture
     text = capsys.readouterr().out
     assert "s: 2 of 2 cases in the summary (2 run, 0 finished before), 1 failed" in text
     assert "failed " in text and "history_size = 16 samples" in text
+    assert re.search(r"on serial, in this process \(executor start [0-9.e-]+ s, cases [0-9.e-]+ s, executor close", text)
     assert (out / "s" / "summary.parquet").is_file() and (out / "s" / "summary.csv").is_file()
     bad = write(tmp_path, "[study.grid]\nforce.nope = [1.0]\n" + REDUCE, "bad.toml")
     assert main(["sweep", str(bad), "--fmu-dir", str(fmu_dir), "--workers", "0"]) == 2
@@ -405,6 +410,7 @@ def test_a_post_processor_runs_after_the_cases_with_its_table(tmp_path: Path, fm
         path.write_text(path.read_text().replace('stop_time = 0.005\n', 'stop_time = 0.005\npost = "count_ok"\n'))
         result = sweep(load_study(path, fmu_dir), tmp_path / "out", workers=0, progress=False)
         assert seen == [(4, 3, result.folder, 3)]
+        assert list(result.phases) == ["executor start", "cases", "post-processing", "executor close"]
         path.write_text(path.read_text().replace("least = 3", "least = \"x\""))
         with pytest.raises(StudyError) as info:
             load_study(path, fmu_dir)

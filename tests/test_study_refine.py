@@ -139,6 +139,7 @@ def test_refining_the_onset_of_chatter_and_resuming(tmp_path: Path, fmu_dir: Pat
     result = sweep(study, tmp_path / "out", workers=0, progress=False)
     summary = result.summary
     assert result.failed == 0 and len(summary) == result.ran and 3 <= result.ran <= 5
+    assert list(result.phases) == ["executor start", "cases", "refinement", "executor close"]
     first = onset_of(11000, [0.03e-3, 0.0456e-3], summary["chip_growth"].to_numpy()[:2])
     refined = onset_of(11000, summary["force.axial_depth"], summary["chip_growth"])
     assert refined.unstable_depth - refined.stable_depth < 0.25 * (0.0456e-3 - 0.03e-3)

@@ -2,10 +2,16 @@
 from __future__ import annotations
 
 import argparse
+from collections.abc import Mapping
 
 from milling_twin import api
 
 MAX_LISTED = 10  # failed cases listed with their message
+
+
+def phase_text(phases: Mapping[str, float]) -> str:
+    """``executor start 0.81 s, cases 5.2 s, ...``: where a sweep's wall time went."""
+    return ", ".join(f"{name} {seconds:.2g} s" for name, seconds in phases.items())
 
 
 def command(args: argparse.Namespace) -> int:
@@ -22,7 +28,7 @@ def command(args: argparse.Namespace) -> int:
              f"{result.workers} local workers" if result.workers else "the embedded local cluster")
     print(f"{result.name}: {len(summary)} of {result.ran + result.skipped} cases in the summary "
           f"({result.ran} run, {result.skipped} finished before), {result.failed} failed; "
-          f"{result.wall_time:.3g} s on {where}")
+          f"{result.wall_time:.3g} s on {where} ({phase_text(result.phases)})")
     failed = summary[summary["status"] != "ok"]
     for _, row in failed.head(MAX_LISTED).iterrows():
         print(f"failed {row['case_id']}: {row['error']}")

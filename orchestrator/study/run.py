@@ -18,7 +18,7 @@ from collections import deque
 from collections.abc import Callable, Mapping
 from contextlib import nullcontext
 from concurrent.futures import FIRST_COMPLETED, Executor, Future, wait
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
@@ -39,6 +39,12 @@ __all__ = ["CaseTask", "StudyResult", "run_case", "run_cases", "si_inputs", "swe
 _log = logging.getLogger(__name__)
 
 CASES = "cases"
+
+# What a sweep's wall time is spent on, in order (StudyResult.phases): opening the executor (a cluster's start, its
+# workers' imports), the post-processor's preparation (serially: its work; on a cluster: submitting it to fill the
+# workers' idle moments), the cases, the refinement rounds, the post-processor, closing the executor. On a cluster
+# the first and last are the fixed cost that parallel cases must earn back (docs/studies.md#measured).
+PHASES = ("executor start", "post preparation", "cases", "refinement", "post-processing", "executor close")
 
 
 @dataclass(frozen=True)
@@ -63,6 +69,7 @@ class StudyResult:
     failed: int  # rows with status "failed"
     wall_time: float  # s, the sweep (cluster start included)
     workers: int | None  # the executor's size when known (0: serial)
+    phases: Mapping[str, float] = field(default_factory=dict)  # s per phase of the sweep, in order (PHASES)
 
     @property
     def summary_file(self) -> Path:
@@ -266,13 +273,19 @@ def _sweep(study: Study, folder: Path, workers: int | None, scheduler: str | Non
         post = get_post(study.post)
     needed = post is not None or study.refine is not None or any(c.case_id not in done for c in cases)
     ran = 0
+    clock = _PhaseClock()
     with open_executor(workers, scheduler) if needed else nullcontext() as executor:
+        clock.lap("executor start")
         prepared = () if post is None or post.prepare is None else (
             post.prepare(study, study.post_config, executor),)
+        if prepared:
+            clock.lap("post preparation")
         try:
             ran += _run_cases(executor, study, cases, done, store, folder, stepping, progress, study.name)
+            clock.lap("cases")
             if study.refine is not None:
                 ran += _refine(executor, study, cases, done, store, folder, stepping, progress, doc)
+                clock.lap("refinement")
         finally:
             summary = store.consolidate([c.case_id for c in cases], study.variables)
         if post is not None:  # on the same executor: its own parallel work (the map's references) uses the workers
@@ -282,5 +295,21 @@ def _sweep(study: Study, folder: Path, workers: int | None, scheduler: str | Non
                 exc.add_note(f"post-processor {study.post!r} of {study.path}; the summary is written: "
                              f"{folder / 'summary.parquet'}")
                 raise
+            clock.lap("post-processing")
+    clock.lap("executor close")
     return StudyResult(study.name, folder, summary, ran, len(cases) - ran,
-                       int((summary["status"] != "ok").sum()), time.perf_counter() - t0, workers)
+                       int((summary["status"] != "ok").sum()), time.perf_counter() - t0, workers, clock.phases)
+
+
+@dataclass
+class _PhaseClock:
+    """Wall time per phase of a sweep: each :meth:`lap` ends the phase it names (started by the previous lap)."""
+
+    phases: dict[str, float] = field(default_factory=dict)
+    _last: float = field(default_factory=time.perf_counter)
+
+    def lap(self, phase: str) -> None:
+        assert phase in PHASES, phase
+        now = time.perf_counter()
+        self.phases[phase] = now - self._last
+        self._last = now

@@ -24,6 +24,7 @@ from pathlib import Path
 from milling_twin.orchestrator.study import executor as study_executor
 from milling_twin.orchestrator.study import run as study_run
 from milling_twin.orchestrator.study.batching import BatchSizer
+from milling_twin.orchestrator.study.cli import phase_text
 from milling_twin.orchestrator.study.executor import open_executor
 from milling_twin.orchestrator.study.run import sweep
 from milling_twin.orchestrator.study.spec import load_study
@@ -80,7 +81,8 @@ def main() -> None:
                     result = sweep(study, Path(folder) / label.replace(" ", "_"), workers=workers, progress=False)
                 walls[label] = result.wall_time
                 print(f"repeat {repeat + 1}, {label}: {result.wall_time:.2f} s "
-                      f"(cases' own {result.summary['wall_time'].sum():.2f} s; {result.failed} failed)")
+                      f"(cases' own {result.summary['wall_time'].sum():.2f} s; {result.failed} failed; "
+                      f"{phase_text(result.phases)})")
             print(f"repeat {repeat + 1}: " + ", ".join(f"serial / {label} = {walls['serial'] / wall:.2f}"
                                                        for label, wall in walls.items() if label != "serial"))
     t0 = time.perf_counter()

@@ -17,10 +17,14 @@ Conventions (Altintas, *Manufacturing Automation*, 2nd ed., Cambridge University
 * Edge point of flute j (0 .. N-1) at height z above the tool tip (z in 0 .. axial_depth):
   ``phi = angle + j*2*pi/N - z*tan(helix)/R``, a right-hand helix lagging behind the tip; ``angle``
   is the spindle angle (a state advanced by ``omega*h`` each step, output as ``spindle_angle``).
-* Chip thickness: ``h = max(0, static + dx*sin(phi) + dy*cos(phi) + r_j - r_(j-1))`` with
+* Chip thickness: ``h = max(0, min over k = 1..N of (k*static + r_j - r_(j-k)) + dx*sin(phi) +
+  dy*cos(phi))`` with ``r_j = runout_offset*cos(runout_angle - j*2*pi/N)`` the radius change of
+  flute j from an offset tool axis (Altintas' runout model, ch. 2.6: the surface in front of flute j
+  is the innermost one the flutes before it left, so a flute the runout holds back by more than the
+  feed cuts nothing and the next one cuts both feeds; without runout the minimum is ``static``) and
   ``dx, dy`` the tool displacement now minus one tooth period ago (regeneration: the surface the
-  previous flute left) and ``r_j = runout_offset*cos(runout_angle - j*2*pi/N)`` the radius change
-  of flute j from an offset tool axis (Altintas' runout model, ch. 2.6).
+  previous flute left; one delay only, also where the runout makes an earlier flute's surface the
+  one cut).
 * Element forces on the tool over a slice of height dz, only where h > 0 inside the window:
   ``dFt = Ktc*h*dz + Kte*dz``, ``dFr = Krc*h*dz + Kre*dz``, ``dFa = Kac*h*dz + Kae*dz``, projected
   ``dFx = -dFt*cos(phi) - dFr*sin(phi)``, ``dFy = dFt*sin(phi) - dFr*cos(phi)``, ``dFz = dFa``.
@@ -94,6 +98,19 @@ def element_force(v: Mapping[str, ca.SX], h: ca.SX, direction: str) -> ca.SX:
     return v[f"K{direction}c"] * h * ca.if_else(law == CHIP_LAW_LINEAR, 1, size_effect) + edge
 
 
+def _runout_chip(n_flutes: ca.SX, static: ca.SX, runout: Mapping[int, ca.SX]) -> ca.SX:
+    """The chip a flute cuts from the feed and the runout: ``min over back = 1..n_flutes of (back*static +
+    r_j - r_(j-back))`` (Kline and DeVor 1983; Altintas 2012, ch. 2.6), ``static`` the feed per tooth projected on
+    the edge's radial direction, ``runout[back]`` = ``r_j - r_(j-back)``. The material in front of flute j is what
+    every flute before it left: a flute that the runout holds back by more than the feed cuts
+    nothing, and the next one cuts the feed of both, so the material removed per revolution is the feed's whatever
+    the runout. Without runout and with ``static >= 0`` it is ``static`` exactly (back = 1)."""
+    chip = static + runout[1]
+    for back in range(2, MAX_FLUTES + 1):
+        chip = ca.if_else(n_flutes >= back, ca.fmin(chip, back * static + runout[back]), chip)
+    return chip
+
+
 def equations(v: Mapping[str, ca.SX]) -> dict[str, ca.SX]:
     turning, period = _tooth_period(v)
     vx, vy = v["feed_velocity_x"], v["feed_velocity_y"]
@@ -117,11 +134,14 @@ def equations(v: Mapping[str, ca.SX]) -> dict[str, ca.SX]:
         slice_sin.append(slice_sin[-1] * step_cos - slice_cos[-1] * step_sin)
         slice_cos.append(slice_cos[-1] * step_cos + slice_sin[-2] * step_sin)
     runout_sin0, runout_cos0 = ca.sin(v["runout_angle"]), ca.cos(v["runout_angle"])
-    runout_cos = {j: runout_cos0 * ca.cos(j * pitch) + runout_sin0 * ca.sin(j * pitch) for j in range(-1, MAX_FLUTES)}
+    runout_cos = {j: runout_cos0 * ca.cos(j * pitch) + runout_sin0 * ca.sin(j * pitch)
+                  for j in range(-MAX_FLUTES, MAX_FLUTES)}
     fx = fy = fz = torque = 0
     for j in range(MAX_FLUTES):
         active = v["n_flutes"] > j
-        runout = v["runout_offset"] * (runout_cos[j] - runout_cos[j - 1])
+        # r_j - r_(j-back): how much further out flute j reaches than the flute `back` teeth before it
+        runout = {back: v["runout_offset"] * (runout_cos[j] - runout_cos[j - back])
+                  for back in range(1, MAX_FLUTES + 1)}
         flute_radius = radius + v["runout_offset"] * runout_cos[j]
         pitch_sin, pitch_cos = ca.sin(j * pitch), ca.cos(j * pitch)
         for k in range(AXIAL_SLICES):
@@ -131,7 +151,7 @@ def equations(v: Mapping[str, ca.SX]) -> dict[str, ca.SX]:
             else:
                 s = slice_sin[k] * pitch_cos + slice_cos[k] * pitch_sin
                 c = slice_cos[k] * pitch_cos - slice_sin[k] * pitch_sin
-            h = period * (vx * s + vy * c) + dx * s + dy * c + runout
+            h = _runout_chip(v["n_flutes"], period * (vx * s + vy * c), runout) + dx * s + dy * c
             engaged = _wrap(phi + feed_angle - v["entry_angle"]) < width
             cutting = ca.logic_and(ca.logic_and(active, turning), ca.logic_and(engaged, h > 0))
             ft, fr, fa = (ca.if_else(cutting, element_force(v, h, direction) * dz, 0) for direction in "tra")

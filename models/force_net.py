@@ -13,10 +13,10 @@ outputs carry the names, units and ranges of the CuttingForce FMU, so a scenario
 changing ``fmu = "CuttingForce"`` into ``fmu = "ForceNet"``; ForceNet has no cutting coefficients (its network
 learnt them). The regenerative chip and runout are CuttingForce's: the displacement inputs go into the same
 displacement history (``fmus/common/displacement_history.c``, :class:`milling_twin.models.cutting_force.DisplacementHistory`)
-and the chip of flute m is ``h = T_tooth (v_x sin(phi) + v_y cos(phi)) + dx sin(phi) + dy cos(phi) + r_m - r_(m-1)``
-with ``(dx, dy)`` the displacement now minus one tooth period ago and ``r_m = runout_offset cos(runout_angle -
-m 2 pi / N)``; the network reads that h (trained on static chips only, it follows CuttingForce in the chatter
-loop: tests/test_forcenet.py).
+and the chip of flute m is ``h = min over k = 1..N of (k T_tooth (v_x sin(phi) + v_y cos(phi)) + r_m - r_(m-k)) +
+dx sin(phi) + dy cos(phi)`` with ``(dx, dy)`` the displacement now minus one tooth period ago and ``r_m =
+runout_offset cos(runout_angle - m 2 pi / N)``; the network reads that h (trained on static chips only, it follows
+CuttingForce in the chatter loop: tests/test_forcenet.py).
 
 1. **Cutting geometry image.** Over the tool envelope, a grid of H rows (heights ``z_k = (k + 1/2) a_p / H``,
    ``k = 0 .. H-1``, ``H = ELEMENTS_PER_FLUTE = 16``) by W columns (angles around the axis). Per pixel the
@@ -458,15 +458,21 @@ def elements(values: Mapping[str, float], angle: float, weights: Weights | None 
         for m in range(n):
             flute = angle + m * pitch
             sin_flute, cos_flute = math.sin(flute), math.cos(flute)
-            runout, flute_radius = 0.0, radius
+            # runout[back - 1] = r_m - r_(m-back) (CuttingForce's runout chip, models.cutting_force._runout_chip)
+            runout, flute_radius = [0.0] * n, radius
             if offset != 0.0:
-                runout = offset * (math.cos(direction - m * pitch) - math.cos(direction - (m - 1) * pitch))
-                flute_radius = radius + offset * math.cos(direction - m * pitch)
+                own = math.cos(direction - m * pitch)
+                runout = [offset * (own - math.cos(direction - (m - back) * pitch)) for back in range(1, n + 1)]
+                flute_radius = radius + offset * own
             for k in range(ELEMENTS_PER_FLUTE):
                 phi = flute - psi[k]
                 s = sin_flute * cos_psi[k] - cos_flute * sin_psi[k]
                 c = cos_flute * cos_psi[k] + sin_flute * sin_psi[k]
-                h = period * (vx * s + vy * c) + dx * s + dy * c + runout
+                static = period * (vx * s + vy * c)
+                chip = static + runout[0]
+                for back in range(2, n + 1):
+                    chip = min(chip, back * static + runout[back - 1])
+                h = chip + dx * s + dy * c
                 if not (h > 0.0 and _in_material(engagement, k, _wrap_scalar(phi + feed_angle),
                                                  _wrap_scalar(phi + feed_angle - entry) < width)):
                     continue

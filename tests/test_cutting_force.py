@@ -183,6 +183,32 @@ def test_start_angle_is_the_spindle_phase() -> None:
         np.testing.assert_allclose(shifted[name], moved[name], rtol=1e-9, atol=1e-9, err_msg=name)
 
 
+@pytest.mark.parametrize("runout_angle", [0.0, 0.3])
+def test_a_runout_larger_than_the_feed_moves_the_chip_to_the_next_flute(runout_angle: float) -> None:
+    """2 flutes slotting at 10 um per tooth, the tool axis 20 um off (the flutes' radii 40 um apart, times
+    cos(runout_angle)): flute 1 never reaches the surface flute 0 left and cuts nothing, flute 0 cuts the feed of
+    both (2 f_t sin(phi)), so over a revolution the shear forces, linear in the chip, are the runout-free ones (the
+    material removed is the feed's). The chip of flute 0 is not f_t sin(phi) + 40 um: that would remove more than
+    the feed."""
+    shear_only = {"Kte": 0.0, "Kre": 0.0, "Kae": 0.0}
+    feed_per_tooth = 10e-6
+    base = {"n_flutes": 2, "spindle_speed": OMEGA, "feed_velocity_x": feed_per_tooth * 2 * OMEGA / TWO_PI,
+            "axial_depth": 0.002, "helix_angle": 0.0, "entry_angle": 0.0, "exit_angle": math.pi, **shear_only}
+    angles = np.linspace(0, TWO_PI, 720, endpoint=False)  # symmetric under half a turn: each flute's angles
+    with_runout = CUTTING_FORCE.evaluate(**base, runout_offset=20e-6, runout_angle=runout_angle, angle=angles)
+    without = CUTTING_FORCE.evaluate(**base, angle=angles)
+    for name in ("Fx", "Fy", "Fz"):
+        assert np.mean(with_runout[name]) == pytest.approx(np.mean(without[name]), rel=1e-9), name
+    flute_1_alone = angles > math.pi  # flute 0 out of the slot (0 .. pi), flute 1 in it
+    resultant = {name: np.hypot(f["Fx"], f["Fy"]) for name, f in (("with", with_runout), ("without", without))}
+    assert np.all(resultant["with"][flute_1_alone] == 0) and np.all(resultant["without"][flute_1_alone][1:] > 0)
+    phi = angles[~flute_1_alone][1:]  # flute 0 in the slot: its chip is both feeds
+    defaults = CUTTING_FORCE.defaults()
+    chip = 2 * feed_per_tooth * np.sin(phi)
+    fy = base["axial_depth"] * chip * (defaults["Ktc"] * np.sin(phi) - defaults["Krc"] * np.cos(phi))
+    np.testing.assert_allclose(with_runout["Fy"][~flute_1_alone][1:], fy, rtol=1e-9, atol=1e-9)
+
+
 # ---- the C code specialized per flute count (ModelDefinition.specialize_on) ----
 
 

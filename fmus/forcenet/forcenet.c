@@ -483,18 +483,27 @@ size_t forcenet_elements(const ForceNetLayout *layout, const ForceNetCut *cut, d
     }
     for (m = 0; m < n; m++) {
         const double flute = cut->angle + (double)m * pitch, sin_flute = sin(flute), cos_flute = cos(flute);
-        double runout = 0.0, flute_radius = radius; /* r_m - r_(m-1): the chip the runout adds (CuttingForce's) */
+        /* runout[back - 1] = r_m - r_(m-back), how much further out flute m reaches than the flute back teeth
+         * before it: CuttingForce's runout chip (models/cutting_force.py, _runout_chip) */
+        double runout[MAX_FLUTES] = {0.0}, flute_radius = radius;
+        int back;
         if (offset != 0.0) {
             const double own = cos(cut->runout_angle - (double)m * pitch);
-            runout = offset * (own - cos(cut->runout_angle - (double)(m - 1) * pitch));
+            for (back = 1; back <= n; back++)
+                runout[back - 1] = offset * (own - cos(cut->runout_angle - (double)(m - back) * pitch));
             flute_radius = radius + offset * own;
         }
         for (k = 0; k < ELEMENTS_PER_FLUTE; k++) {
             const double phi = flute - psi[k];
             const double s = sin_flute * cos_psi[k] - cos_flute * sin_psi[k]; /* sin(phi) */
             const double c = cos_flute * cos_psi[k] + sin_flute * sin_psi[k]; /* cos(phi) */
-            const double h = period * (vx * s + vy * c) + dx * s + dy * c + runout;
-            double *f = features + count * N_FEATURES;
+            const double feed_chip = period * (vx * s + vy * c);
+            double chip = feed_chip + runout[0], h, *f = features + count * N_FEATURES;
+            for (back = 2; back <= n; back++) { /* the material every flute before this one left */
+                const double earlier = (double)back * feed_chip + runout[back - 1];
+                if (earlier < chip) chip = earlier;
+            }
+            h = chip + dx * s + dy * c;
             if (!(h > 0.0 && in_material(cut->engagement, k, wrap(phi + feed_angle),
                                          wrap(phi + feed_angle - entry) < width)))
                 continue;

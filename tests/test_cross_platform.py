@@ -475,3 +475,47 @@ def test_windows_dlls_under_wine_match_the_linux_binaries(cross, tmp_path):
         assert any(any(v != 0.0 for v in row_[1:]) for row_ in linux), f"{path.name}: every output stayed 0"
         worst[path.name] = difference
     print("largest relative Linux/Windows difference per FMU:", worst)
+
+
+# ---- MSVC's C (clang's emulation with mingw-w64's headers, compile-only: docs/portability.md) ----
+
+def load_script():
+    spec = importlib.util.spec_from_file_location("build_all_platforms", SCRIPT)
+    module = importlib.util.module_from_spec(spec)
+    sys.modules.setdefault(spec.name, module)  # its dataclasses look their module up there
+    spec.loader.exec_module(sys.modules[spec.name])
+    return sys.modules[spec.name]
+
+
+def test_every_fmu_and_the_stepper_compile_as_msvc_c(tmp_path):
+    if zig_missing():
+        pytest.skip(zig_missing())
+    result = subprocess.run([sys.executable, str(SCRIPT), "--check-msvc", "--fmu-dir", str(fmu_dir()),
+                             "--out", str(tmp_path)], capture_output=True, text=True)
+    assert result.returncode == 0, result.stderr
+    checked = {line.split(":")[0] for line in result.stdout.splitlines() if line.endswith("MSVC C ok")}
+    assert checked == {p.name for p in expected_fmus()} | {"stepper"}
+
+
+# What gcc and clang accept and cl.exe refuses: the check must refuse it too, naming the file.
+MSVC_REFUSED = {
+    "infinity_in_a_static_initializer": ("#include <math.h>\nstatic const double bound[2] = {-INFINITY, INFINITY};\n"
+                                         "double upper(void);\ndouble upper(void) { return bound[1]; }\n",
+                                         "not a compile-time constant"),
+    "variable_length_array": ("int last(int n);\nint last(int n) {\n    int a[n];\n    a[n - 1] = n;\n"
+                              "    return a[n - 1];\n}\n", "variable length array"),
+    "gcc_branch_not_taken": ("#ifndef __GNUC__\n#error the non-GCC branch\n#endif\nint one(void);\n"
+                             "int one(void) { return 1; }\n", "the non-GCC branch"),
+}
+
+
+@pytest.mark.parametrize("case", sorted(MSVC_REFUSED))
+def test_the_msvc_check_refuses_what_cl_refuses(case, tmp_path):
+    if zig_missing():
+        pytest.skip(zig_missing())
+    code, message = MSVC_REFUSED[case]
+    source = tmp_path / f"{case}.c"
+    source.write_text(code)
+    script = load_script()
+    with pytest.raises(script.CrossBuildError, match=rf"{case}\.c does not compile as MSVC C[\s\S]*{message}"):
+        script.check_msvc([source], [], [], tmp_path / "work", "check")

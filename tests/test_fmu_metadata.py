@@ -97,3 +97,26 @@ def test_licence_is_the_projects_declaration(tmp_path: Path, monkeypatch) -> Non
         assert codegen.licence() == codegen.NO_LICENCE
     finally:
         codegen.licence.cache_clear()
+
+
+def test_static_data_holds_no_infinity_which_msvc_does_not_take_as_a_constant() -> None:
+    """INFINITY/NAN are no constant expressions under MSVC 19.42 with the Windows SDK 10.0.26100 (error C2099 in a
+    static initializer): the variable tables bound an unbounded side by DBL_MAX, tuple constants refuse non-finite
+    values. The MSVC-mode compile of tests/test_cross_platform.py checks the C; this checks the generator."""
+    import dataclasses
+    import math
+
+    from milling_twin.models import MODELS
+    from milling_twin.models.codegen import c_bound, generate_constants, generate_table
+
+    assert (c_bound(-math.inf), c_bound(math.inf), c_bound(0.5)) == ("-DBL_MAX", "DBL_MAX", "0.5")
+    with pytest.raises(ValueError, match="NaN"):
+        c_bound(math.nan)
+    for model in MODELS.values():
+        for fmi in (2, 3):
+            table = generate_table(model, fmi)
+            assert "INFINITY" not in table and "NAN" not in table, (model.identifier, fmi)
+            assert "#include <float.h>" in table
+    bad = dataclasses.replace(MODELS["SpindlePower"], constants=(("LIMITS", (0.0, math.inf)),))
+    with pytest.raises(ValueError, match=r"constant LIMITS: inf in a tuple"):
+        generate_constants(bad)

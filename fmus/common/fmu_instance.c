@@ -1,5 +1,6 @@
 #include "fmu_instance.h"
 
+#include <float.h>
 #include <math.h>
 #include <stdarg.h>
 #include <stdint.h>
@@ -321,9 +322,10 @@ FmuStatus fmu_get_float64(FmuInstance *instance, const char *function, unsigned 
 }
 
 /* The shortest of %.15g..%.17g that reads back as `value`: the range [0.1, 3] of the model
- * description is reported as written there, not as [0.10000000000000001, 3]. */
+ * description is reported as written there, not as [0.10000000000000001, 3]; an unbounded side as inf. */
 static const char *format_number(char buffer[32], double value) {
     int precision;
+    if (value == DBL_MAX || value == -DBL_MAX) return value > 0.0 ? "inf" : "-inf"; /* an unbounded side */
     for (precision = 15; precision < 17; precision++) {
         snprintf(buffer, 32, "%.*g", precision, value);
         if (strtod(buffer, NULL) == value) return buffer;

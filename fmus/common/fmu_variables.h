@@ -19,7 +19,8 @@ typedef struct {
     FmuVariability variability;
     size_t offset;              /* of the (first) value in ModelVariables */
     size_t count;               /* number of values: 1, or the elements of an FMI 3 array (Float64 only) */
-    double min, max;            /* allowed range (Float64, Int32), checked on every set and at initialization */
+    double min, max;            /* allowed range (Float64, Int32), checked on every set and at initialization;
+                                 * -DBL_MAX/DBL_MAX for an unbounded side (INFINITY is no constant under MSVC) */
     const char *unit;
     unsigned int rank;          /* FMI 3 arrays: number of dimensions (0 for scalars and FMI 2 elements) */
     unsigned int dims[FMU_MAX_RANK]; /* their sizes, row-major: the element names in messages are name[i,j] */

@@ -2,6 +2,7 @@
 
     python fmus/cross/build_all_platforms.py [--fmu-dir build/fmus] [--out build/fmus-all] [--jobs 2]
                                              [--platform KEY ...] [--fmu NAME ...] [--no-stepper]
+    python fmus/cross/build_all_platforms.py --check-msvc [--fmu-dir build/fmus]
 
 Reads the FMUs that `cmake --build build` made (build/fmus/*.fmu, left unchanged), compiles each one's `sources/`
 (the same files an importer's `fmpy compile` rebuilds from) with zig's `cc` (PyPI package `ziglang`) for the
@@ -9,7 +10,8 @@ platforms of PLATFORMS, and writes each FMU again into --out with every binary i
 stepper library goes to <out>/stepper/<FMI 3 platform tuple>/. The Linux x86_64 binary is linked against glibc 2.17
 (it replaces the native build's, which needs the build machine's glibc). FMI 2 names only linux64, win64 and
 darwin64: its darwin64 binary is a universal Mach-O (x86_64 and arm64 slices), and its aarch64 Linux binary is
-in binaries/aarch64-linux/ (the FMI 3 tuple; FMI 2 has no name for it). docs/portability.md has the details.
+in binaries/aarch64-linux/ (the FMI 3 tuple; FMI 2 has no name for it). --check-msvc instead compiles every
+sources/ as MSVC C (clang's emulation of it; no binaries). docs/portability.md has the details.
 """
 from __future__ import annotations
 
@@ -123,6 +125,51 @@ def compile_library(sources: list[Path], include_dirs: list[Path], system_dirs: 
         leftover.unlink()
 
 
+# MSVC's C as clang emulates it (-target x86_64-windows-msvc: _MSC_VER defined, no __GNUC__), compile-only: zig
+# ships no MSVC runtime or Windows SDK, so mingw-w64's headers stand in for the SDK's and nothing is linked. It
+# compiles the non-GCC branch of every __GNUC__ guard (which the gcc and clang builds never see) and rejects what
+# cl.exe rejects among what gcc accepts: VLAs (optional in C11, absent in MSVC) and INFINITY/NAN in static
+# initializers (not constants in mingw-w64's non-GCC math.h, nor in the UCRT of the Windows SDK 10.0.26100 with
+# MSVC 19.42: error C2099). It is not cl.exe: clang still accepts GNU attributes and builtins outside the guards,
+# and cl.exe's own warnings are not checked.
+MSVC_TARGET = "x86_64-windows-msvc"
+MSVC_FLAGS = ["-std=c11", "-nostdlib", "-O2", "-g0", "-Werror=vla", *WARNINGS]
+# mingw-w64's stdlib.h puts __declspec(noreturn)/__declspec(deprecated) after the declarator when _MSC_VER is set,
+# which clang (and cl.exe) refuse; the real SDK puts them first. Empty, they change nothing that is checked here.
+MSVC_HEADER_SHIM = """#include <_mingw.h>
+#undef __MINGW_ATTRIB_NORETURN
+#define __MINGW_ATTRIB_NORETURN
+#undef __MINGW_ATTRIB_DEPRECATED
+#define __MINGW_ATTRIB_DEPRECATED
+"""
+
+
+def zig_lib_dir() -> Path:
+    """zig's lib/ folder (its libc headers), from `zig env`."""
+    result = subprocess.run([*zig_command(), "env"], capture_output=True, text=True)
+    found = re.search(r'"?\.?lib_dir"?\s*[=:]\s*"([^"]+)"', result.stdout)
+    if result.returncode != 0 or not found:
+        raise CrossBuildError(f"`zig env` did not name zig's lib_dir:\n{result.stdout}{result.stderr}")
+    return Path(found.group(1)).resolve()
+
+
+def check_msvc(sources: list[Path], include_dirs: list[Path], system_dirs: list[Path], work: Path,
+               label: str) -> None:
+    """Compile C sources in clang's MSVC mode (MSVC_TARGET); a failure names the file and clang's message."""
+    work.mkdir(parents=True, exist_ok=True)
+    shim = work / "msvc_sdk_shim.h"
+    shim.write_text(MSVC_HEADER_SHIM)
+    windows_headers = zig_lib_dir() / "libc" / "include" / "any-windows-any"
+    flags = [*MSVC_FLAGS, "-include", str(shim), *[f"-I{d}" for d in include_dirs],
+             *[f"-isystem{d}" for d in [*system_dirs, windows_headers]]]
+    for source in sources:
+        result = subprocess.run([*zig_command(), "cc", "-target", MSVC_TARGET, *flags, "-c", str(source),
+                                 "-o", str(work / f"{source.stem}.obj")], capture_output=True, text=True)
+        if result.returncode != 0:
+            raise CrossBuildError(f"{label}: {source.name} does not compile as MSVC C ({MSVC_TARGET}):\n"
+                                  f"{result.stderr.strip()}")
+
+
 # Mach-O CPU types of the universal (fat) header: x86_64 and arm64 (mach/machine.h).
 MACHO_CPU = {0x01000007: "x86_64", 0x0100000C: "arm64"}
 
@@ -234,6 +281,25 @@ def build_stepper(platform: Platform, out_dir: Path, objects: Path) -> str:
     return str(output.relative_to(out_dir))
 
 
+def check_all_msvc(sources: list[FmuSource], work: dict[Path, Path], no_stepper: bool, stepper_work: Path,
+                   jobs: int) -> None:
+    """check_msvc on every FMU's extracted sources/ (and the stepper library's source), `jobs` at once."""
+    stepper = REPO / "fmus" / "stepper"
+    third_party = REPO / "fmus" / "third_party"
+    with ThreadPoolExecutor(max_workers=max(1, jobs)) as pool:
+        checks = {f.path.name: pool.submit(check_msvc, sorted((work[f.path] / "sources").glob("*.c")),
+                                           [work[f.path] / "sources"], [work[f.path] / "fmi_headers"],
+                                           work[f.path] / "msvc", f"{f.path.name} ({f.identifier})")
+                  for f in sources}
+        if not no_stepper:
+            checks["stepper"] = pool.submit(check_msvc, [stepper / "stepper.c"], [stepper],
+                                            [third_party / "fmi2", third_party / "fmi3"], stepper_work,
+                                            "the stepper library (fmus/stepper/stepper.c)")
+        for name, check in checks.items():
+            check.result()
+            print(f"{name}: MSVC C ok", flush=True)
+
+
 def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     parser.add_argument("--fmu-dir", type=Path, default=REPO / "build" / "fmus",
@@ -247,6 +313,9 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--no-stepper", action="store_true", help="do not build the stepper library")
     parser.add_argument("--objects", type=Path, help="compiled objects, reused by content (default OUT/.objects)")
     parser.add_argument("--jobs", "-j", type=int, default=2, help="FMUs built at once (default 2)")
+    parser.add_argument("--check-msvc", action="store_true",
+                        help="only compile every FMU's sources/ and the stepper as MSVC C (clang's emulation, "
+                             "mingw-w64 headers; no binaries written) and report")
     args = parser.parse_args(argv)
 
     platforms = [p for p in PLATFORMS if not args.platform or p.key in args.platform]
@@ -269,6 +338,12 @@ def main(argv: list[str] | None = None) -> int:
         work = {f.path: args.out / ".work" / f.path.stem for f in sources}
         for fmu in sources:
             extract_sources(fmu, work[fmu.path])
+        if args.check_msvc:
+            check_all_msvc(sources, work, args.no_stepper, args.out / ".work" / "stepper-msvc", args.jobs)
+            shutil.rmtree(args.out / ".work", ignore_errors=True)
+            print(f"{len(fmus)} FMUs{'' if args.no_stepper else ' and the stepper'} compile as MSVC C "
+                  f"({MSVC_TARGET}) in {time.perf_counter() - start:.1f} s")
+            return 0
         with ThreadPoolExecutor(max_workers=max(1, args.jobs)) as pool:
             binaries = {(f.path, p.key): pool.submit(build_fmu_binary, f, p, work[f.path], objects)
                         for f in sources for p in platforms}

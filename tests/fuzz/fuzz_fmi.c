@@ -133,7 +133,8 @@ static double raw64(Harness *h) {
 /* A value for a variable with bounds [lo, hi]: mostly inside (the simulation goes on), else special. */
 static double pick_value(Harness *h, double lo, double hi) {
     uint8_t k = u8(h);
-    double a = isfinite(lo) ? lo : -1e3, b = isfinite(hi) ? hi : 1e3, f = u8(h) / 255.0;
+    /* an unbounded side is -DBL_MAX/DBL_MAX in the variable table */
+    double a = lo > -DBL_MAX ? lo : -1e3, b = hi < DBL_MAX ? hi : 1e3, f = u8(h) / 255.0;
     switch (k % 24) {
     case 0: return NAN;
     case 1: return INFINITY;

@@ -1,19 +1,24 @@
 """A study serially and on N local dask workers, in one process, alternately (docs/studies.md).
 
     .venv/bin/python tests/benchmarks/study_workers.py [STUDY] [--workers 2] [--repeats 2] [--stop-time S]
-                                                       [--fmu-dir build/fmus] [--baseline]
+                                                       [--fmu-dir build/fmus] [--baseline] [--ceiling]
 
 Per repeat and executor: the sweep's wall time (cluster start and close included), the sum of the cases' own wall
 times (on their workers), and the ratio serial / parallel. ``--baseline`` adds, in each repeat, the same workers as
 the cluster ran them before tasks held several cases: one case per task and dask's own worker settings (its
 MALLOC_TRIM_THRESHOLD_ and profiler, see docs/studies.md). Then the engine's cost: the embedded cluster's start and
-close, and the round trip of 200 trivial tasks through its executor (s per task). The load average is printed
-before and after: on a shared machine other processes take cores too.
+close, and the round trip of 200 trivial tasks through its executor (s per task). ``--ceiling`` adds what this
+machine allows without any engine: the study's cases (run_case, as a worker runs them) in one spawned process, then
+in N at once, each all of them, timed after a warm-up case and a barrier; N x (one's time) / (the slowest of N's)
+is the throughput ratio that no executor can beat here (shared caches, memory bandwidth and the disk's fsyncs
+bound it below N). The load average is printed before and after: on a shared machine other processes take cores
+too.
 """
 from __future__ import annotations
 
 import argparse
 import contextlib
+import multiprocessing
 import os
 import tempfile
 import time
@@ -26,7 +31,7 @@ from milling_twin.orchestrator.study import run as study_run
 from milling_twin.orchestrator.study.batching import BatchSizer
 from milling_twin.orchestrator.study.cli import phase_text
 from milling_twin.orchestrator.study.executor import open_executor
-from milling_twin.orchestrator.study.run import sweep
+from milling_twin.orchestrator.study.run import CaseTask, run_case, sweep
 from milling_twin.orchestrator.study.spec import load_study
 
 REPO = Path(__file__).resolve().parents[2]
@@ -34,6 +39,39 @@ REPO = Path(__file__).resolve().parents[2]
 
 def nothing(i: int) -> int:
     return i
+
+
+def timed_cases(warm_up: CaseTask, tasks: list[CaseTask], barrier, times) -> None:
+    """In a spawned process: one case untimed (imports, FMU load), then all of `tasks` after the barrier."""
+    run_case(warm_up)
+    barrier.wait()
+    t0 = time.perf_counter()
+    for task in tasks:
+        run_case(task)
+    times.put(time.perf_counter() - t0)
+
+
+def cases_in_processes(study, folder: Path, processes: int) -> float:
+    """The wall time of the slowest of `processes` spawned processes each running every case of the study."""
+    context = multiprocessing.get_context("spawn")
+    barrier, times = context.Barrier(processes), context.Queue()
+    base = study.scenario()
+
+    def tasks(where: Path, cases) -> list[CaseTask]:
+        return [CaseTask(case, base, where, study.reductions, study.variables) for case in cases]
+
+    jobs = [context.Process(target=timed_cases,
+                            args=(tasks(folder / f"warm-{k}", study.cases[:1])[0],
+                                  tasks(folder / f"cases-{k}", study.cases), barrier, times))
+            for k in range(processes)]
+    for job in jobs:
+        job.start()
+    walls = [times.get() for _ in jobs]
+    for job in jobs:
+        job.join()
+        if job.exitcode != 0:
+            raise RuntimeError(f"a ceiling process exited with {job.exitcode}")
+    return max(walls)
 
 
 @contextlib.contextmanager
@@ -62,6 +100,8 @@ def main() -> None:
     parser.add_argument("--stop-time", type=float, default=None, help="instead of the study's stop_time (s)")
     parser.add_argument("--fmu-dir", type=Path, default=Path(os.environ.get("MILLING_TWIN_FMU_DIR", "build/fmus")))
     parser.add_argument("--baseline", action="store_true", help="also one case per task with dask's worker settings")
+    parser.add_argument("--ceiling", action="store_true",
+                        help="also the engine-free ceiling: the cases in 1 and in N processes at once")
     args = parser.parse_args()
     study = load_study(args.study, args.fmu_dir)
     if args.stop_time is not None:
@@ -85,6 +125,13 @@ def main() -> None:
                       f"{phase_text(result.phases)})")
             print(f"repeat {repeat + 1}: " + ", ".join(f"serial / {label} = {walls['serial'] / wall:.2f}"
                                                        for label, wall in walls.items() if label != "serial"))
+            if args.ceiling:
+                where = Path(folder) / f"ceiling-{repeat}"
+                one = cases_in_processes(study, where / "one", 1)
+                many = cases_in_processes(study, where / "many", args.workers)
+                print(f"repeat {repeat + 1}, engine-free ceiling: {len(study.cases)} cases in one process "
+                      f"{one:.2f} s, in each of {args.workers} at once {many:.2f} s: throughput "
+                      f"{args.workers * one / many:.2f}x")
     t0 = time.perf_counter()
     with open_executor(workers=args.workers) as executor:
         t1 = time.perf_counter()

@@ -2,6 +2,7 @@
 from __future__ import annotations
 
 import os
+import signal
 from collections.abc import Callable
 from pathlib import Path
 
@@ -10,6 +11,7 @@ import pytest
 from cases.calibration_synthetic import TWO_FMU_CASE, edited
 
 REPO_ROOT = Path(__file__).resolve().parents[1]
+_STOP_SIGNALS = tuple(getattr(signal, name) for name in ("SIGINT", "SIGTERM", "SIGHUP") if hasattr(signal, name))
 FMU_NAMES = ("SpindlePower", "MrrEstimator")
 
 # Five samples, 0.1 s apart. Speed in rev/s, feed in mm/s, recorded power in kW.
@@ -25,6 +27,17 @@ speed,vx,vy,process,power
 # The two-FMU case (SpindlePower + MrrEstimator): one text for these tests and the synthetic power
 # calibration case, which edits it (tests/cases/calibration_synthetic.py).
 CASE_TOML = TWO_FMU_CASE
+
+
+def pytest_configure(config: pytest.Config) -> None:
+    """The stop-signal tests send SIGINT, SIGTERM and SIGHUP and expect a run to stop. A test command started in the
+    background of a non-interactive shell or under nohup inherits SIGINT or SIGHUP ignored, and a run leaves an
+    ignored signal ignored on purpose (orchestrator/master.py, _StopFlag; tested with start_run(ignored=...)):
+    the tests and the processes they start get the default dispositions back."""
+    del config
+    for signum in _STOP_SIGNALS:
+        if signal.getsignal(signum) is signal.SIG_IGN:
+            signal.signal(signum, signal.default_int_handler if signum == signal.SIGINT else signal.SIG_DFL)
 
 
 @pytest.fixture(scope="session")
@@ -77,17 +90,22 @@ record = ["power.P_total", "power.spindle_on"]
 LONG_P_TOTAL = 300.0
 
 
-def start_run(scenario: Path, fmu_dir: Path, tmp_path: Path, *options: str):
+def start_run(scenario: Path, fmu_dir: Path, tmp_path: Path, *options: str, ignored: tuple[int, ...] = ()):
     """Start the CLI on ``scenario`` in a subprocess writing to tmp_path/runs; returns the process.
-    TMPDIR: a killed run cannot remove its extracted FMUs; keep them in pytest's tmp_path."""
+    TMPDIR: a killed run cannot remove its extracted FMUs; keep them in pytest's tmp_path.
+    ``ignored``: signals the process starts with ignored (SIG_IGN), as nohup or a background job leaves them."""
     import subprocess
     import sys
+
+    def ignore() -> None:
+        for signum in ignored:
+            signal.signal(signum, signal.SIG_IGN)
 
     return subprocess.Popen(
         [sys.executable, "-m", "milling_twin", "run", str(scenario), "--fmu-dir", str(fmu_dir),
          "--out", str(tmp_path / "runs"), "--no-progress", *options],
         cwd=REPO_ROOT, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
-        env={**os.environ, "TMPDIR": str(tmp_path)})
+        env={**os.environ, "TMPDIR": str(tmp_path)}, preexec_fn=ignore if ignored else None)
 
 
 def wait_for_first_chunk(proc, run_dir: Path, timeout: float = 60.0) -> None:

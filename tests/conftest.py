@@ -4,6 +4,7 @@ from __future__ import annotations
 import os
 import signal
 from collections.abc import Callable
+from contextlib import contextmanager
 from pathlib import Path
 
 import pytest
@@ -11,7 +12,6 @@ import pytest
 from cases.calibration_synthetic import TWO_FMU_CASE, edited
 
 REPO_ROOT = Path(__file__).resolve().parents[1]
-_STOP_SIGNALS = tuple(getattr(signal, name) for name in ("SIGINT", "SIGTERM", "SIGHUP") if hasattr(signal, name))
 FMU_NAMES = ("SpindlePower", "MrrEstimator")
 
 # Five samples, 0.1 s apart. Speed in rev/s, feed in mm/s, recorded power in kW.
@@ -34,6 +34,8 @@ def pytest_configure(config: pytest.Config) -> None:
     background of a non-interactive shell or under nohup inherits SIGINT or SIGHUP ignored, and a run leaves an
     ignored signal ignored on purpose (orchestrator/master.py, _StopFlag; tested with start_run(ignored=...)):
     the tests and the processes they start get the default dispositions back."""
+    from milling_twin.orchestrator.master import _STOP_SIGNALS  # the signals a run stops on
+
     del config
     for signum in _STOP_SIGNALS:
         if signal.getsignal(signum) is signal.SIG_IGN:
@@ -118,13 +120,13 @@ def wait_for_first_chunk(proc, run_dir: Path, timeout: float = 60.0) -> None:
         time.sleep(0.02)
 
 
-@pytest.fixture
-def long_run(tmp_path: Path, fmu_dir: Path):
-    """Start the CLI on a run of ~10 minutes in a subprocess; yields (process, run folder)
-    once the first chunk is on disk. The process is killed at teardown if still alive."""
+@contextmanager
+def running_long(tmp_path: Path, fmu_dir: Path, ignored: tuple[int, ...] = ()):
+    """The CLI on a long run in a subprocess (``ignored``: see start_run); yields (process, run folder)
+    once the first chunk is on disk. The process is killed at exit if still alive."""
     scenario = tmp_path / "long.toml"
     scenario.write_text(LONG_TOML)
-    proc = start_run(scenario, fmu_dir, tmp_path)
+    proc = start_run(scenario, fmu_dir, tmp_path, ignored=ignored)
     run_dir = tmp_path / "runs" / "long"
     try:
         wait_for_first_chunk(proc, run_dir)
@@ -133,3 +135,10 @@ def long_run(tmp_path: Path, fmu_dir: Path):
         if proc.poll() is None:
             proc.kill()
         proc.communicate()
+
+
+@pytest.fixture
+def long_run(tmp_path: Path, fmu_dir: Path):
+    """running_long as a fixture."""
+    with running_long(tmp_path, fmu_dir) as started:
+        yield started

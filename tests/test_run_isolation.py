@@ -20,7 +20,7 @@ import pytest
 from tmpfs import mounted_tmpfs
 
 from cases.calibration_synthetic import write_power_case
-from conftest import LONG_TOML, REPO_ROOT, start_run, wait_for_first_chunk
+from conftest import LONG_TOML, REPO_ROOT, running_long
 from milling_twin import api
 from milling_twin.cli import main
 from milling_twin.orchestrator.calibrate import CalibrationSpecError, load_spec
@@ -257,21 +257,12 @@ def test_sigterm_and_sighup_end_a_run_like_ctrl_c(long_run, signum: int) -> None
 
 def test_a_signal_ignored_at_start_stays_ignored(tmp_path: Path, fmu_dir: Path) -> None:
     """Under nohup SIGHUP is ignored: the run goes on through it, and still stops on SIGINT."""
-    scenario = tmp_path / "long.toml"
-    scenario.write_text(LONG_TOML)
-    proc = start_run(scenario, fmu_dir, tmp_path, ignored=(signal.SIGHUP,))
-    run_dir = tmp_path / "runs" / "long"
-    try:
-        wait_for_first_chunk(proc, run_dir)
+    with running_long(tmp_path, fmu_dir, ignored=(signal.SIGHUP,)) as (proc, run_dir):
         proc.send_signal(signal.SIGHUP)
         time.sleep(0.3)
         assert proc.poll() is None, proc.communicate()
         proc.send_signal(signal.SIGINT)
         out, err = proc.communicate(timeout=60)
-    finally:
-        if proc.poll() is None:
-            proc.kill()
-            proc.communicate()
     assert proc.returncode == 130, out + err
     assert read_run_info(run_dir)["signal"] == "SIGINT"
 

@@ -16,6 +16,7 @@ sources/ as MSVC C (clang's emulation of it; no binaries). docs/portability.md h
 from __future__ import annotations
 
 import argparse
+import functools
 import hashlib
 import importlib.util
 import os
@@ -144,8 +145,9 @@ MSVC_HEADER_SHIM = """#include <_mingw.h>
 """
 
 
+@functools.cache
 def zig_lib_dir() -> Path:
-    """zig's lib/ folder (its libc headers), from `zig env`."""
+    """zig's lib/ folder (its libc headers), from `zig env` (asked once per process)."""
     result = subprocess.run([*zig_command(), "env"], capture_output=True, text=True)
     found = re.search(r'"?\.?lib_dir"?\s*[=:]\s*"([^"]+)"', result.stdout)
     if result.returncode != 0 or not found:
@@ -271,30 +273,33 @@ def write_fmu(fmu: FmuSource, entries: dict[str, Path], output: Path) -> None:
     partial.replace(output)
 
 
-def build_stepper(platform: Platform, out_dir: Path, objects: Path) -> str:
+STEPPER_LABEL = "the stepper library (fmus/stepper/stepper.c)"
+
+
+def stepper_sources() -> tuple[list[Path], list[Path], list[Path]]:
+    """The stepper library's C files, include folders and system include folders (the FMI standard's headers)."""
     stepper = REPO / "fmus" / "stepper"
     third_party = REPO / "fmus" / "third_party"
+    return [stepper / "stepper.c"], [stepper], [third_party / "fmi2", third_party / "fmi3"]
+
+
+def build_stepper(platform: Platform, out_dir: Path, objects: Path) -> str:
     prefix = "" if platform.extension == ".dll" else "lib"
     output = out_dir / "stepper" / platform.fmi3 / f"{prefix}milling_stepper{platform.extension}"
-    compile_library([stepper / "stepper.c"], [stepper], [third_party / "fmi2", third_party / "fmi3"], platform,
-                    output, "the stepper library (fmus/stepper/stepper.c)", objects)
+    compile_library(*stepper_sources(), platform, output, STEPPER_LABEL, objects)
     return str(output.relative_to(out_dir))
 
 
 def check_all_msvc(sources: list[FmuSource], work: dict[Path, Path], no_stepper: bool, stepper_work: Path,
                    jobs: int) -> None:
     """check_msvc on every FMU's extracted sources/ (and the stepper library's source), `jobs` at once."""
-    stepper = REPO / "fmus" / "stepper"
-    third_party = REPO / "fmus" / "third_party"
     with ThreadPoolExecutor(max_workers=max(1, jobs)) as pool:
         checks = {f.path.name: pool.submit(check_msvc, sorted((work[f.path] / "sources").glob("*.c")),
                                            [work[f.path] / "sources"], [work[f.path] / "fmi_headers"],
                                            work[f.path] / "msvc", f"{f.path.name} ({f.identifier})")
                   for f in sources}
         if not no_stepper:
-            checks["stepper"] = pool.submit(check_msvc, [stepper / "stepper.c"], [stepper],
-                                            [third_party / "fmi2", third_party / "fmi3"], stepper_work,
-                                            "the stepper library (fmus/stepper/stepper.c)")
+            checks["stepper"] = pool.submit(check_msvc, *stepper_sources(), stepper_work, STEPPER_LABEL)
         for name, check in checks.items():
             check.result()
             print(f"{name}: MSVC C ok", flush=True)

@@ -115,8 +115,12 @@ def java_environment() -> dict[str, str]:
 
 
 def run_java(driver: Path, fmu: Path, plan: Path, out: Path) -> subprocess.CompletedProcess:
-    return subprocess.run(["java", "-jar", str(driver), str(fmu), str(plan), str(out)], capture_output=True,
-                          text=True, timeout=300, env=java_environment())
+    """The driver on one FMU. The JVM's temporary folder is the output's: FMI4j extracts each FMU's binary into a
+    ``fmi4j_dll*`` folder there and leaves the folder behind, which in the system's /tmp piles up run after run."""
+    scratch = out.parent / "java-tmp"
+    scratch.mkdir(exist_ok=True)
+    return subprocess.run(["java", f"-Djava.io.tmpdir={scratch}", "-jar", str(driver), str(fmu), str(plan), str(out)],
+                          capture_output=True, text=True, timeout=300, env=java_environment())
 
 
 def run_fmi4j(driver: Path, fmu: Path, plan: Path, out: Path) -> tuple[list[str], np.ndarray]:

@@ -601,13 +601,26 @@ static void op_int_bool(Harness *h, bool integer, bool set) {
         REQUIRE(!(allowed && valid), "a valid %s %s failed", integer ? "Int32" : "Boolean", set ? "set" : "get");
 }
 
+/* The file temp_program writes, one per process (in $TMPDIR, else /tmp), removed when the process exits so that
+ * runs of the harness do not leave one file each behind. */
+static char temp_program_path[4096];
+
+static void remove_temp_program(void) {
+    if (temp_program_path[0]) remove(temp_program_path);
+}
+
 static char *temp_program(Harness *h) {
     /* a file holding fuzzed text, for string parameters that name a file (the Interpolator's program) */
-    static char path[64];
+    char *path = temp_program_path;
     size_t length, n;
     char *text = fuzz_string(h, &length);
     FILE *f;
-    if (!path[0]) snprintf(path, sizeof path, "/tmp/fuzz_fmi_%ld.nc", (long)getpid());
+    if (!path[0]) {
+        const char *folder = getenv("TMPDIR");
+        if (!folder || !folder[0]) folder = "/tmp";
+        snprintf(path, sizeof temp_program_path, "%s/fuzz_fmi_%ld.nc", folder, (long)getpid());
+        REQUIRE(atexit(remove_temp_program) == 0, "cannot register the removal of %s", path);
+    }
     f = fopen(path, "wb");
     REQUIRE(f != NULL, "cannot write %s", path);
     n = fwrite(text, 1, length, f);

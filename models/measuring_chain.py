@@ -216,29 +216,38 @@ def frequency_response_parts(values: Mapping[str, Any], frequencies_hz: Sequence
 
 
 @functools.lru_cache(maxsize=1)
-def _response_function() -> ca.Function:
-    """(every parameter, in the order of ``_parameter_starts``, angular frequency) -> (Re H, Im H): the
-    expression of ``_response_at`` compiled once, for numeric values: evaluated term by term in DM, a call for
-    51 frequencies took 135 ms against 0.8 ms (about a tenth of a slot-forces fit with the chain, whose phase
-    search calls it every round)."""
+def response_function() -> ca.Function:
+    """(the parameter vector of :func:`parameter_vector`, angular frequency) -> (Re H, Im H), each the vec() of the
+    3x3 matrix (column-major): the expression of ``_response_at`` compiled once. For numbers it replaces term by
+    term evaluation in DM (one call for 51 frequencies: 135 ms against 0.8 ms); for casadi expressions, mapped
+    over the frequencies, it keeps a fit's graph to one node where the per-frequency matrices of
+    ``frequency_response_parts`` make thousands."""
     names = list(_parameter_starts())
     parameters, omega = ca.SX.sym("parameters", len(names)), ca.SX.sym("omega")
     re, im = _response_at({n: parameters[k] for k, n in enumerate(names)}, omega)
     return ca.Function("frequency_response", [parameters, omega], [ca.vec(re), ca.vec(im)])
 
 
+def parameter_vector(values: Mapping[str, Any]) -> Any:
+    """The chain's parameters in the order :func:`response_function` takes them, the defaults for what ``values``
+    leaves out: a numpy vector for numbers, else a casadi column of the expressions' type (SX or MX)."""
+    merged = {**_parameter_starts(), **_checked(values)}
+    entries = [merged[n] for n in _parameter_starts()]
+    if all(isinstance(x, (int, float, np.number)) or (isinstance(x, ca.DM) and x.numel() == 1) for x in entries):
+        return np.array([float(x) for x in entries])
+    return ca.vertcat(*entries)
+
+
 def frequency_response(values: Mapping[str, Any], frequencies_hz: Sequence[float] | np.ndarray) -> Any:
     """H(j 2 pi f): a complex array (n frequencies, 3 measured axes, 3 force axes) for numeric ``values``; with
     casadi expressions among them, the (real, imag) lists of ``frequency_response_parts``."""
-    merged = {**_parameter_starts(), **_checked(values)}
-    if not all(isinstance(x, (int, float, np.number)) or (isinstance(x, ca.DM) and x.numel() == 1)
-               for x in merged.values()):
+    parameters = parameter_vector(values)
+    if not isinstance(parameters, np.ndarray):
         return frequency_response_parts(values, frequencies_hz)
     omega = 2 * math.pi * np.asarray(frequencies_hz, dtype=float).ravel()
     if omega.size == 0:
         return np.zeros((0, 3, 3), dtype=complex)
-    parameters = np.array([float(merged[n]) for n in _parameter_starts()])
-    re, im = _response_function().map(omega.size)(np.repeat(parameters[:, None], omega.size, axis=1), omega[None, :])
+    re, im = response_function().map(omega.size)(np.repeat(parameters[:, None], omega.size, axis=1), omega[None, :])
     # columns are vec() of each 3x3 (column-major): transpose back to rows = measured axes
     response = (np.asarray(re) + 1j * np.asarray(im)).T.reshape(-1, 3, 3)
     return np.transpose(response, (0, 2, 1))

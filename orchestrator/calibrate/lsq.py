@@ -84,8 +84,10 @@ class LeastSquaresSolver:
 
     def __init__(self, problem: LeastSquaresProblem, *, max_iterations: int = 200, tolerance: float = 1e-10,
                  hessian: str = "gauss-newton", expand: bool = False) -> None:
-        """``expand``: IPOPT evaluates the problem as one SX graph (faster for a graph of many small scalar
-        operations, such as a force model mapped over hundreds of angles; slower to build)."""
+        """``expand``: IPOPT evaluates the problem as one SX graph: faster for a graph of many small MX
+        operations, but slow to build for a large one (a slot-forces fit of five recordings with its force
+        mapped over 1,000 angles: 70 s to build, against 0.1 s for its MX graph of a few mapped SX functions,
+        whose evaluations took 10 % longer)."""
         self.problem = problem
         x, p, r = problem.x, problem.p, problem.residual
         jac = ca.jacobian(r, x)

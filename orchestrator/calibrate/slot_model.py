@@ -30,7 +30,8 @@ from milling_twin.models.cutting_force import (CHIP_LAW_EXPONENTIAL, CHIP_LAW_LI
                                                CUTTING_FORCE, equations)
 from milling_twin.models.measuring_chain import AXES as CHAIN_AXES
 from milling_twin.models.measuring_chain import (MEASURING_CHAIN, damping_name, frequency_name,
-                                                 frequency_response, frequency_response_parts, gain_name)
+                                                 frequency_response, frequency_response_parts, gain_name,
+                                                 parameter_vector, response_function)
 from milling_twin.orchestrator.validation.slot_milling import AXES  # recorded column -> model output
 
 __all__ = ["CHAIN_INSTANCE", "LAW_COEFFICIENTS", "OVERSAMPLE", "SlotModel", "chain_parameter_names"]
@@ -133,19 +134,16 @@ class SlotModel:
         cos, sin, _ = _dft(grid)
         real = ca.DM(cos[:harmonics]) @ force  # harmonics x 3
         imag = -ca.DM(sin[:harmonics]) @ force
-        h_re, h_im = frequency_response_parts(self.chain_values(theta), self.harmonics_hz(i))
-        rows_re, rows_im = [], []
-        for k in range(harmonics):
-            x_re, x_im = real[k, :].T, imag[k, :].T
-            rows_re.append((h_re[k] @ x_re - h_im[k] @ x_im).T)
-            rows_im.append((h_re[k] @ x_im + h_im[k] @ x_re).T)
+        omega = ca.DM(2 * math.pi * self.harmonics_hz(i)).T
+        chain = ca.repmat(parameter_vector(self.chain_values(theta)), 1, harmonics)
+        measured_re, measured_im = _chain_product().map(harmonics)(chain, omega, real.T, imag.T)  # 3 x harmonics
         back_cos, back_sin, _ = _dft(points)
         # the harmonics of the force (on the finer grid) at the sample angles: 2 Re(c_k e^(i k angle)), c_0 once
         weight = np.full(harmonics, 2.0 / grid)
         weight[0] = 1.0 / grid
         inverse_cos = ca.DM((back_cos * weight[:, None]).T)
         inverse_sin = ca.DM((back_sin * weight[:, None]).T)
-        return inverse_cos @ ca.vertcat(*rows_re) - inverse_sin @ ca.vertcat(*rows_im)
+        return inverse_cos @ measured_re.T - inverse_sin @ measured_im.T
 
     def fine_waveform(self, theta_model: np.ndarray, i: int, fine: int) -> np.ndarray:
         """The waveform over ``fine`` equal angles from 0 (fine x 3, numpy): for the phase search. With a chain,
@@ -163,6 +161,18 @@ class SlotModel:
         measured = np.zeros_like(spectrum)
         measured[:harmonics] = np.einsum("kij,kj->ki", response, spectrum[:harmonics])
         return np.fft.irfft(measured, n=fine, axis=0)
+
+
+@functools.lru_cache(maxsize=1)
+def _chain_product() -> ca.Function:
+    """(chain parameter vector, angular frequency, Re X, Im X) -> (Re, Im) of H(j omega) X for one harmonic X of
+    the force (3 axes): mapped over a recording's harmonics it is one node of the fit's graph, whose derivatives
+    casadi forms for all harmonics at once."""
+    parameters = ca.SX.sym("parameters", response_function().size1_in(0))
+    omega, x_re, x_im = ca.SX.sym("omega"), ca.SX.sym("x_re", 3), ca.SX.sym("x_im", 3)
+    h_re, h_im = (ca.reshape(h, 3, 3) for h in response_function()(parameters, omega))
+    return ca.Function("chain_product", [parameters, omega, x_re, x_im],
+                       [h_re @ x_re - h_im @ x_im, h_re @ x_im + h_im @ x_re])
 
 
 def chain_bounds(name: str) -> tuple[float, float]:

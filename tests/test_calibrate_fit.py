@@ -50,6 +50,34 @@ def test_noisy_recovery_within_the_intervals(power_study: RecoveryStudy) -> None
     assert np.median(sigma) == pytest.approx(5.0, rel=0.1)
 
 
+def test_levenberg_marquardt_finds_what_ipopt_finds(power_study: RecoveryStudy) -> None:
+    """[solver].algorithm picks the method: on the noise-free power case both recover the truth to 1e-6."""
+    recorded = power_study.model.predict(power_study.truth)
+    start = np.array([q.initial for q in power_study.prepared.parameters])[None, :]
+    outcomes = {algorithm: fit(power_study.model, recorded, weights=[1.0], sigma=[None],
+                               solver=SolverSpec(starts=1, noise="sigma", algorithm=algorithm),
+                               statistics=StatisticsSpec(), starts=start)
+                for algorithm in ("ipopt", "levenberg-marquardt")}
+    for algorithm, outcome in outcomes.items():
+        assert outcome.best.converged, (algorithm, outcome.best.message)
+        assert np.all(np.abs(outcome.theta - power_study.truth) / power_study.truth < 1e-6), algorithm
+    assert outcomes["levenberg-marquardt"].best.message.startswith("Converged")
+    assert outcomes["ipopt"].best.message == "Solve_Succeeded"
+
+
+def test_levenberg_marquardt_refuses_multiple_shooting(fmu_dir: Path, tmp_path: Path) -> None:
+    """Continuity constraints need IPOPT: the error names the key and the ways out, before any start runs."""
+    require_fmu(fmu_dir / "ToolVibration.fmu")
+    spec = load_spec(REPO / "scenarios" / "calibration" / "modal_impulse.toml")
+    spec = replace(spec, learning=((0.0, 0.01),), validation=(),
+                   solver=replace(spec.solver, starts=1, algorithm="levenberg-marquardt"))
+    study = RecoveryStudy(spec, fmu_dir, tmp_path, IMPULSE_TRUTH)
+    with pytest.raises(CalibrationError, match=r'\[solver\]\.algorithm = "levenberg-marquardt" takes no '
+                                               r'constraints.*\[solver\]\.shooting = "single"'):
+        fit(study.model, study.learning.recorded, weights=[1.0], sigma=[None], solver=spec.solver,
+            statistics=spec.statistics)
+
+
 def test_modal_parameters_from_an_impulse_noise_free(tmp_path: Path, fmu_dir: Path) -> None:
     """The dynamic path (ToolVibration, multiple shooting) recovers the mode that made the response."""
     require_fmu(fmu_dir / "ToolVibration.fmu")

@@ -119,6 +119,10 @@ def test_unknown_keys_and_types(case: Path) -> None:
     edited(case, ("[solver]\nstarts = 0", "[solver]\nstart = 3"))
     with pytest.raises(CalibrationSpecError, match=r"\[solver\].start: unknown key 'start'"):
         load_spec(case)
+    edited(case, ("[solver]\nstart = 3", '[solver]\nalgorithm = "newton"'))
+    with pytest.raises(CalibrationSpecError, match=r"\[solver\].algorithm: 'newton' is not one of auto, ipopt, "
+                                                   r"levenberg-marquardt"):
+        load_spec(case)
 
 
 def test_alignment_channels_are_checked(case: Path, fmu_dir: Path, tmp_path: Path) -> None:

@@ -21,7 +21,7 @@ import numpy as np
 from tqdm import tqdm
 
 from milling_twin.orchestrator.calibrate.errors import CalibrationError
-from milling_twin.orchestrator.calibrate.lsq import LeastSquaresSolver, StartOutcome
+from milling_twin.orchestrator.calibrate.lsq import LeastSquaresSolver, StartOutcome, with_algorithm
 from milling_twin.orchestrator.calibrate.parallel import columns_on, solve_starts
 from milling_twin.orchestrator.calibrate.parameters import Parameter, draw_starts
 from milling_twin.orchestrator.calibrate.residuals import EXACT, ResidualModel
@@ -88,8 +88,13 @@ def _fit(model: ResidualModel, recorded: np.ndarray, weights: Sequence[float], s
          strategy: Callable[[LeastSquaresSolver, np.ndarray, np.ndarray, int], StartOutcome] | None,
          executor: Executor | None) -> FitOutcome:
     t0 = time.perf_counter()
-    lsq = lsq or LeastSquaresSolver(model.problem, max_iterations=solver.max_iterations,
-                                    tolerance=solver.tolerance, hessian=solver.hessian)
+    if lsq is None:
+        try:
+            problem = with_algorithm(model.problem, solver.algorithm)
+        except ValueError as exc:
+            raise CalibrationError(str(exc)) from None
+        lsq = LeastSquaresSolver(problem, max_iterations=solver.max_iterations, tolerance=solver.tolerance,
+                                 hessian=solver.hessian)
     solve = strategy or (lambda s, x0, data, index: s.solve(x0, data, index=index))
     user = np.asarray(weights, dtype=float)
     noise = initial_sigma(recorded, sigma)

@@ -32,14 +32,15 @@ from __future__ import annotations
 
 import time
 from collections.abc import Callable
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 
 import casadi as ca
 import numpy as np
 
-__all__ = ["LeastSquaresProblem", "LeastSquaresSolver", "StartOutcome", "SUCCESS"]
+__all__ = ["ALGORITHMS", "LeastSquaresProblem", "LeastSquaresSolver", "StartOutcome", "SUCCESS", "with_algorithm"]
 
 SUCCESS = ("Solve_Succeeded", "Solved_To_Acceptable_Level")
+ALGORITHMS = ("ipopt", "levenberg-marquardt")
 
 
 @dataclass(frozen=True)
@@ -79,6 +80,21 @@ class StartOutcome:
         return self.status == "converged"
 
 
+def with_algorithm(problem: LeastSquaresProblem, choice: str) -> LeastSquaresProblem:
+    """``problem`` solved by ``choice`` (``[solver].algorithm``): "auto" keeps the problem's own (IPOPT, or
+    Levenberg-Marquardt where the model set it: the FMU path, the slot-forces waveform), else one of
+    :data:`ALGORITHMS`. A ValueError names the key when the choice cannot solve the problem."""
+    if choice == "auto":
+        return problem
+    if choice not in ALGORITHMS:
+        raise ValueError(f"[solver].algorithm = {choice!r}: expected \"auto\" or one of {', '.join(ALGORITHMS)}")
+    if choice == "levenberg-marquardt" and problem.constraints.numel():
+        raise ValueError('[solver].algorithm = "levenberg-marquardt" takes no constraints: this model has states '
+                         'fitted by multiple shooting (its continuity constraints need IPOPT); set [solver].shooting '
+                         '= "single" or the algorithm to "ipopt" or "auto"')
+    return replace(problem, algorithm=choice)
+
+
 class LeastSquaresSolver:
     """IPOPT built once for a problem; :meth:`solve` runs one start."""
 
@@ -96,14 +112,23 @@ class LeastSquaresSolver:
         if expand:
             self.check, self.residual = self.check.expand(), self.residual.expand()
         self.max_iterations, self.tolerance, self.hessian = max_iterations, tolerance, hessian
-        if problem.algorithm not in ("ipopt", "levenberg-marquardt"):
+        if problem.algorithm not in ALGORITHMS:
             raise ValueError(f"unknown least-squares algorithm {problem.algorithm!r}")
         if problem.algorithm == "levenberg-marquardt" and problem.constraints.numel():
             raise ValueError("the Levenberg-Marquardt method takes no constraints (multiple shooting needs IPOPT)")
+        n_g = problem.constraints.numel()
+        self.lbg = self.ubg = np.zeros(n_g)
+        self.nlp = None
+        if problem.algorithm == "ipopt":
+            self.nlp = self._ipopt(jac, expand)
+
+    def _ipopt(self, jac: ca.MX, expand: bool) -> ca.Function:
+        problem, hessian = self.problem, self.hessian
+        x, p, r = problem.x, problem.p, problem.residual
         nlp = {"x": x, "p": p, "f": 0.5 * ca.dot(r, r), "g": problem.constraints}
         options: dict = {"print_time": False, "error_on_fail": False,
-                         "ipopt": {"print_level": 0, "sb": "yes", "max_iter": max_iterations, "tol": tolerance,
-                                   "acceptable_tol": max(tolerance * 1e3, 1e-8), "acceptable_iter": 10}}
+                         "ipopt": {"print_level": 0, "sb": "yes", "max_iter": self.max_iterations,
+                                   "tol": self.tolerance, "acceptable_tol": max(self.tolerance * 1e3, 1e-8), "acceptable_iter": 10}}
         if expand:
             options["expand"] = True
         if problem.strict_bounds:
@@ -117,9 +142,7 @@ class LeastSquaresSolver:
                                               ["x", "p", "lam_f", "lam_g"], ["triu_hess_gamma_x_x"])
             if expand:
                 options["hess_lag"] = options["hess_lag"].expand()
-        self.nlp = ca.nlpsol("calibration", "ipopt", nlp, options)
-        n_g = problem.constraints.numel()
-        self.lbg = self.ubg = np.zeros(n_g)
+        return ca.nlpsol("calibration", "ipopt", nlp, options)
 
     def _precheck(self, x0: np.ndarray, p: np.ndarray) -> str | None:
         r, jac = self.residual_and_jacobian(x0, p)
@@ -216,16 +239,23 @@ class LeastSquaresSolver:
         lam = 1e-3
         status, state = "Maximum_Iterations_Exceeded", "not converged"
         iterations = 0
+        factor = None
         while iterations < self.max_iterations:
-            g = jac.T @ r
-            held = ((x <= lbx) & (g > 0)) | ((x >= ubx) & (g < 0)) | (lbx == ubx)
-            free = ~held
-            a = jac[:, free]
-            d = np.maximum(np.sum(a * a, axis=0), 1e-300)
+            if factor is None:  # once per Jacobian: a rejected step only changes lambda
+                g = jac.T @ r
+                held = ((x <= lbx) & (g > 0)) | ((x >= ubx) & (g < 0)) | (lbx == ubx)
+                free = ~held
+                a = jac[:, free]
+                d = np.maximum(np.sum(a * a, axis=0), 1e-300)
+                # ||A s + r|| = ||R s + Q^T r|| up to a constant (A = QR): each lambda's damped problem is then
+                # as small as the free parameters, not as the residuals (1,500 of them on the slot forces)
+                q, upper = np.linalg.qr(a)
+                factor = free, d, upper, q.T @ r
+            free, d, upper, projected = factor
             # the damped normal equations as a least-squares problem (better conditioned than forming A^T A)
-            aug = np.vstack([a, np.diag(np.sqrt(lam * d))])
+            aug = np.vstack([upper, np.diag(np.sqrt(lam * d))])
             step = np.zeros_like(x)
-            step[free] = np.linalg.lstsq(aug, -np.concatenate([r, np.zeros(free.sum())]), rcond=None)[0]
+            step[free] = np.linalg.lstsq(aug, -np.concatenate([projected, np.zeros(free.sum())]), rcond=None)[0]
             x_new = np.clip(x + step, lbx, ubx)
             moved = np.abs(x_new - x)
             r_new = self.residual_values(x_new, p)
@@ -240,6 +270,7 @@ class LeastSquaresSolver:
                     status, state = "Converged: relative decrease of the objective below the tolerance", "converged"
                     break
                 r, jac = self.residual_and_jacobian(x, p)
+                factor = None
             else:
                 lam *= 10
                 if lam > 1e12:

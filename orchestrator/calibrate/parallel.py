@@ -35,6 +35,7 @@ from __future__ import annotations
 from collections.abc import Iterator
 from concurrent.futures import Executor, Future, ThreadPoolExecutor
 from contextlib import contextmanager
+from dataclasses import replace
 
 import numpy as np
 from tqdm import tqdm
@@ -74,7 +75,8 @@ def solve_starts(model: ResidualModel, lsq: LeastSquaresSolver, thetas: np.ndarr
         own = fmu.detached()
         own.executor, own.remote, own.tasks, own.log = executor, True, tasks, []
         own_model = fmu_residuals(own, pairs)
-        runs.append((own, own_model, LeastSquaresSolver(own_model.problem, max_iterations=lsq.max_iterations,
+        problem = replace(own_model.problem, algorithm=lsq.problem.algorithm)  # the algorithm [solver] chose
+        runs.append((own, own_model, LeastSquaresSolver(problem, max_iterations=lsq.max_iterations,
                                                          tolerance=lsq.tolerance, hessian=lsq.hessian), x0))
     outcomes = []
     with ThreadPoolExecutor(max(1, min(MAX_THREADS, len(runs)))) as threads:

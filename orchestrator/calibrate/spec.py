@@ -59,9 +59,12 @@ recorded data)::
     starts = 4                        # multi-start: the initial values, then starts - 1 drawn ones
     seed = 0
     max_iterations = 200
-    tolerance = 1e-10                 # IPOPT tol; on the FMU path (Levenberg-Marquardt): relative decrease of the
-                                      # objective at which the iterations stop
+    tolerance = 1e-10                 # IPOPT tol; with Levenberg-Marquardt: relative decrease of the objective
+                                      # at which the iterations stop
     hessian = "gauss-newton"          # or "exact"
+    algorithm = "auto"                # "ipopt" (interior point), "levenberg-marquardt" (projected, bounds only:
+                                      # no multiple shooting) or "auto": IPOPT, Levenberg-Marquardt on the FMU
+                                      # path and for the slot-forces waveform
     shooting = "multiple"             # models with states: "multiple" or "single"
     shooting_interval = 100           # steps per shooting interval
     noise = "estimate"                # per-output noise level: "estimate" (two-stage: refit with each
@@ -138,6 +141,7 @@ from typing import Any, NoReturn
 from milling_twin.orchestrator.toml_access import TomlAccess
 from milling_twin.orchestrator.safe_names import name_problem
 from milling_twin.orchestrator.calibrate.errors import CalibrationSpecError
+from milling_twin.orchestrator.calibrate.lsq import ALGORITHMS
 from milling_twin.orchestrator.scenario import Ref
 
 __all__ = ["AlignmentSpec", "CalibrationSpec", "OutputSpec", "ParameterSpec", "RunsSpec", "SlotForcesSpec",
@@ -203,6 +207,7 @@ class SolverSpec:
     max_iterations: int = 200
     tolerance: float = 1e-10
     hessian: str = "gauss-newton"
+    algorithm: str = "auto"  # "auto" (the model's own), "ipopt" or "levenberg-marquardt"
     shooting: str = "multiple"
     shooting_interval: int = 100
     noise: str = "estimate"
@@ -364,7 +369,7 @@ def _alignment(ctx: _Ctx, raw: Any) -> AlignmentSpec:
 
 def _solver(ctx: _Ctx, raw: Any, base: Path) -> SolverSpec:
     key = "[solver]"
-    table = ctx.table(raw, key, ("starts", "seed", "max_iterations", "tolerance", "hessian", "shooting",
+    table = ctx.table(raw, key, ("starts", "seed", "max_iterations", "tolerance", "hessian", "algorithm", "shooting",
                                  "shooting_interval", "noise", "derivatives", "fd_method", "fd_step", "workers",
                                  "scheduler"))
     step = ctx.number(table, key, "fd_step", None, positive=True)
@@ -384,6 +389,7 @@ def _solver(ctx: _Ctx, raw: Any, base: Path) -> SolverSpec:
                       max_iterations=ctx.integer(table, key, "max_iterations", 200, 1),
                       tolerance=ctx.number(table, key, "tolerance", 1e-10, positive=True),
                       hessian=ctx.string(table, key, "hessian", "gauss-newton", ("gauss-newton", "exact")),
+                      algorithm=ctx.string(table, key, "algorithm", "auto", ("auto", *ALGORITHMS)),
                       shooting=ctx.string(table, key, "shooting", "multiple", ("multiple", "single")),
                       shooting_interval=ctx.integer(table, key, "shooting_interval", 100, 1),
                       noise=ctx.string(table, key, "noise", "estimate", ("estimate", "sigma")),

@@ -10,11 +10,12 @@ Hessian: ``"gauss-newton"`` passes IPOPT ``lam_f * J^T J`` (J = dr/dx) as the He
 Lagrangian (generalised Gauss-Newton: the curvature of r and of the shooting constraints is
 left out); ``"exact"`` lets casadi differentiate twice.
 
-Algorithm: IPOPT, or, for problems whose residuals are evaluated by simulation (``algorithm =
-"levenberg-marquardt"``: each Jacobian costs one simulation per parameter, see
-:mod:`milling_twin.orchestrator.calibrate.fmu_outputs`), a projected Levenberg-Marquardt method that needs one
-Jacobian per iteration and none for a rejected step: a linear problem converges in one or two
-iterations where the interior-point method takes 15 or more (its barrier parameter must go to zero).
+Algorithm (``[solver].algorithm``, :func:`with_algorithm`): IPOPT, or a projected Levenberg-Marquardt method
+that needs one Jacobian per iteration and none for a rejected step: a linear problem converges in one or two
+iterations where the interior-point method takes 15 or more (its barrier parameter must go to zero). The
+latter is the default where Jacobians are dear: residuals evaluated by simulation (each Jacobian costs one
+simulation per parameter, see :mod:`milling_twin.orchestrator.calibrate.fmu_outputs`) and the slot-forces
+waveform (a force mapped over 1,000 angles).
 Bounds: a parameter at a bound whose gradient points outwards is held there for the step, the others
 take the damped Gauss-Newton step ``(A^T A + lambda diag(A^T A)) dx = -A^T r``, projected on the
 bounds; the step is accepted when the objective decreases (lambda / 10), else lambda * 10. Converged:
@@ -96,7 +97,8 @@ def with_algorithm(problem: LeastSquaresProblem, choice: str) -> LeastSquaresPro
 
 
 class LeastSquaresSolver:
-    """IPOPT built once for a problem; :meth:`solve` runs one start."""
+    """The solver of a problem (its ``algorithm``: IPOPT, built once, or the Levenberg-Marquardt method);
+    :meth:`solve` runs one start."""
 
     def __init__(self, problem: LeastSquaresProblem, *, max_iterations: int = 200, tolerance: float = 1e-10,
                  hessian: str = "gauss-newton", expand: bool = False) -> None:
@@ -128,7 +130,8 @@ class LeastSquaresSolver:
         nlp = {"x": x, "p": p, "f": 0.5 * ca.dot(r, r), "g": problem.constraints}
         options: dict = {"print_time": False, "error_on_fail": False,
                          "ipopt": {"print_level": 0, "sb": "yes", "max_iter": self.max_iterations,
-                                   "tol": self.tolerance, "acceptable_tol": max(self.tolerance * 1e3, 1e-8), "acceptable_iter": 10}}
+                                   "tol": self.tolerance, "acceptable_tol": max(self.tolerance * 1e3, 1e-8),
+                                   "acceptable_iter": 10}}
         if expand:
             options["expand"] = True
         if problem.strict_bounds:

@@ -124,6 +124,11 @@ class LeastSquaresSolver:
         if problem.algorithm == "ipopt":
             self.nlp = self._ipopt(jac, expand)
 
+    @property
+    def name(self) -> str:
+        """The method, as reports name it."""
+        return "IPOPT" if self.problem.algorithm == "ipopt" else "Levenberg-Marquardt"
+
     def _ipopt(self, jac: ca.MX, expand: bool) -> ca.Function:
         problem, hessian = self.problem, self.hessian
         x, p, r = problem.x, problem.p, problem.residual

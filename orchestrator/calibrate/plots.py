@@ -152,7 +152,7 @@ def correlation_png(names: Sequence[str], correlation: np.ndarray) -> bytes:
 
 
 def trace_png(starts: Sequence[StartOutcome], best: int) -> bytes:
-    """Objective over IPOPT iterations for every start (the chosen one bold)."""
+    """Objective over the solver's iterations for every start (the chosen one bold)."""
     fig = MplFigure(figsize=(8, 3.4))
     fig.subplots_adjust(left=0.1, right=0.98, top=0.95, bottom=0.15)
     ax = fig.subplots()
@@ -161,7 +161,7 @@ def trace_png(starts: Sequence[StartOutcome], best: int) -> bytes:
         if obj.size:
             ax.semilogy(np.arange(obj.size), np.maximum(obj, 1e-300), linewidth=2.2 if o.index == best else 0.9,
                         label=f"start {o.index}: {o.status}")
-    ax.set_xlabel("IPOPT iteration")
+    ax.set_xlabel("solver iteration")
     ax.set_ylabel("objective 0.5*|r|^2")
     ax.grid(True, alpha=0.3, which="both")
     if any(o.trace.get("obj") for o in starts):

@@ -91,7 +91,7 @@ def _start_table(result: CalibrationResult) -> Table:
         stage = "second stage" if o is fit.refit else f"start {o.index}"
         rows.append((stage, ", ".join(_f(float(q.display(v)), 4) for q, v in zip(fit.parameters, start)), o.status,
                      o.message, str(o.iterations), _f(o.objective, 6), f"{o.wall_time:.3f}", chosen))
-    return Table("Solver starts", ("start", "start values (display units)", "status", "IPOPT status / cause",
+    return Table("Solver starts", ("start", "start values (display units)", "status", "solver status / cause",
                                    "iterations", "objective", "time [s]", "chosen"), tuple(rows),
                  fit.note or "A failed start is reported with its cause; the run continues with the next start.")
 
@@ -154,7 +154,7 @@ def _figures(result: CalibrationResult) -> list[Figure]:
                           "n/a: a parameter without finite variance (not identifiable or no effect)."))
     best = result.fit.best.index
     figures.append(Figure("Solver trace", trace_png(result.fit.starts, best),
-                          "Objective per IPOPT iteration for every start; the chosen start is bold."))
+                          "Objective per solver iteration for every start; the chosen start is bold."))
     return figures + list(result.figures)
 
 

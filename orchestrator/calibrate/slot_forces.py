@@ -2,7 +2,7 @@
 
 The recordings are read, folded and compared exactly as ``milling_twin.orchestrator.validation.slot_milling``
 does (its functions are reused: ``read_recordings``, ``recorded_waveform``, ``simulate``,
-``compare``). Two fits on the learning feeds, both casadi + IPOPT on the models/ expressions:
+``compare``). Two fits on the learning feeds, both casadi least squares on the models/ expressions:
 
 What is fitted follows the scenario (:func:`fitted_names`): the coefficients of the force instance's
 ``chip_law`` (linear, Kienzle's exponential, power with edge terms), the runout, and, when the scenario has a
@@ -26,7 +26,8 @@ MeasuringChain instance named "chain", its modes (the model of a recording: :mod
    full time series (n samples, the within-bin scatter included). The objective jumps where a
    phase change moves a sample across an edge force switching on (the chip crossing zero), so the
    phases are found by exhaustive search on a 0.1 deg grid (:class:`PhaseSearch`, global over the
-   turn) and the coefficients and runout by IPOPT with the phases fixed, alternating until the
+   turn) and the coefficients and runout by the least-squares solver (Levenberg-Marquardt unless
+   ``[solver].algorithm`` says otherwise) with the phases fixed, alternating until the
    objective stops decreasing. Starts: the regression's coefficients, then drawn ones. With a chain: first
    without it, then the chain's modes from the harmonics with that force (:func:`.slot_model.identify_chain`),
    then everything from there (:func:`fit_slot`). Intervals: :func:`revolution_bootstrap`.
@@ -208,9 +209,9 @@ class PhaseSearch:
 
 
 def alternating(search: PhaseSearch, n_model: int, scale: np.ndarray, rounds: int = 12, stationary: float = 1e-6):
-    """A start's solution strategy: phases by :class:`PhaseSearch`, then IPOPT (Gauss-Newton, at most the
+    """A start's solution strategy: phases by :class:`PhaseSearch`, then the least-squares solver (at most the
     solver's max_iterations) on the model parameters with the phases fixed; repeated while the
-    objective decreases by more than ``stationary`` (relative) per round. A round whose IPOPT result
+    objective decreases by more than ``stationary`` (relative) per round. A round whose solver result
     is worse than its start (a bounce at a discontinuity) is not taken, and ends the start."""
 
     def solve(lsq: LeastSquaresSolver, x0: np.ndarray, p: np.ndarray, index: int) -> StartOutcome:
@@ -231,15 +232,15 @@ def alternating(search: PhaseSearch, n_model: int, scale: np.ndarray, rounds: in
                 return StartOutcome(index, np.asarray(x0), "failed", f"round {k + 1}: {run.message}",
                                     wall_time=time.perf_counter() - t0, iterations=iterations, trace={"obj": trace})
             if run.objective >= objective:
-                converged, why = True, f"round {k + 1} gave no decrease (IPOPT: {run.message})"
+                converged, why = True, f"round {k + 1} gave no decrease ({lsq.name}: {run.message})"
                 break
             decrease = (objective - run.objective) / run.objective if math.isfinite(objective) else math.inf
             x, objective = run.x, run.objective
             if decrease <= stationary:
-                converged, why = True, f"relative decrease {decrease:.2g} in round {k + 1} (IPOPT: {run.message})"
+                converged, why = True, f"relative decrease {decrease:.2g} in round {k + 1} ({lsq.name}: {run.message})"
                 break
         return StartOutcome(index, np.asarray(x0), "converged" if converged else "not converged",
-                            f"phase search + IPOPT, {k + 1} rounds: {why}", x, objective, iterations,
+                            f"phase search + {lsq.name}, {k + 1} rounds: {why}", x, objective, iterations,
                             time.perf_counter() - t0, {"obj": trace})
 
     return solve

@@ -46,14 +46,28 @@ def documented_commands() -> list[tuple[str, int, str]]:
     return found
 
 
-COMMANDS = documented_commands()
-
-
 def _words(command: str) -> list[str]:
     words = shlex.split(command, comments=True)
     while words and re.fullmatch(r"[A-Z_]+=\S*", words[0]):  # VAR=value prefixes
         words = words[1:]
     return words
+
+
+def distinct_commands(found: list[tuple[str, int, str]]) -> list[tuple[str, str]]:
+    """(every place it is shown, command) of each distinct command, in the order of its first place: README and
+    the topic pages show some of the same commands (the calibration of every UMich run in two places), which run
+    once here; a failure names every place."""
+    places: dict[str, list[str]] = {}
+    first: dict[str, str] = {}
+    for doc, line, command in found:
+        key = " ".join(_words(command))
+        places.setdefault(key, []).append(f"{doc}:{line}")
+        first.setdefault(key, command)
+    return [(", ".join(where), first[key]) for key, where in places.items()]
+
+
+COMMANDS = documented_commands()
+DISTINCT_COMMANDS = distinct_commands(COMMANDS)
 
 
 SHARED = REPO_ROOT.parent / "shared"  # the data beside the repository (../shared in the docs' commands)
@@ -93,19 +107,27 @@ def test_the_docs_show_commands() -> None:
     assert any(_words(c)[0] == "make" and "demo" in c for _, _, c in COMMANDS)
 
 
-@pytest.mark.parametrize("doc, line, command", COMMANDS, ids=[f"{d}:{n}" for d, n, _ in COMMANDS])
-def test_documented_command(doc: str, line: int, command: str, tmp_path: Path, fmu_dir: Path) -> None:
+def test_a_command_shown_twice_runs_once_and_names_both_places() -> None:
+    found = [("README.md", 3, "milling-twin run a.toml"), ("docs/x.md", 7, "milling-twin  run a.toml  # again"),
+             ("docs/x.md", 9, "milling-twin run b.toml")]
+    assert distinct_commands(found) == [("README.md:3, docs/x.md:7", "milling-twin run a.toml"),
+                                        ("docs/x.md:9", "milling-twin run b.toml")]
+
+
+@pytest.mark.parametrize("where, command", DISTINCT_COMMANDS, ids=[w.split(",")[0] for w, _ in DISTINCT_COMMANDS])
+def test_documented_command(where: str, command: str, tmp_path: Path, fmu_dir: Path) -> None:
+    """Each distinct command once (`where`: every place the docs show it)."""
     words = _words(command)
     program = Path(words[0]).name
     if program == "make":
         targets = [w for w in words[1:] if not w.startswith("-") and "=" not in w]
         proc = subprocess.run(["make", "-n", *targets], cwd=REPO_ROOT, capture_output=True, text=True, timeout=60)
-        assert proc.returncode == 0, f"{doc}:{line}: {command}: {proc.stderr}"
+        assert proc.returncode == 0, f"{where}: {command}: {proc.stderr}"
         return
     if program in ("python", "python3") and words[1:3] == ["-m", "milling_twin"]:
         words, program = ["milling-twin", *words[3:]], "milling-twin"
     if program != "milling-twin":
-        assert program in EXTERNAL, f"{doc}:{line}: {command!r}: a command of {program!r} is not covered; " \
+        assert program in EXTERNAL, f"{where}: {command!r}: a command of {program!r} is not covered; " \
                                     "make it a milling-twin or make command, or list the program in EXTERNAL"
         return
     arguments = words[1:]
@@ -113,16 +135,16 @@ def test_documented_command(doc: str, line: int, command: str, tmp_path: Path, f
         build_parser().parse_args(arguments)
     except SystemExit as exc:
         if exc.code != 0:  # --help and --version exit 0
-            pytest.fail(f"{doc}:{line}: {command!r} does not parse (exit {exc.code})")
+            pytest.fail(f"{where}: {command!r} does not parse (exit {exc.code})")
     subcommand = next((w for w in arguments if not w.startswith("-")), arguments[0] if arguments else "")
     if subcommand not in RUN or "--help" in arguments:
         return
     if "../shared" in command and not SHARED.is_dir():
-        pytest.skip(f"{doc}:{line}: reads the data beside the repository, and {SHARED} does not exist")
+        pytest.skip(f"{where}: reads the data beside the repository, and {SHARED} does not exist")
     folder, env = _workspace(tmp_path, fmu_dir)  # run it as written
     if "--parameter-set" in arguments:  # written by the calibration the docs show before it
         subprocess.run([sys.executable, "-m", "milling_twin", "calibrate", "scenarios/calibration/umich_power.toml",
                         "--no-progress"], cwd=folder, env=env, capture_output=True, timeout=600, check=True)
     proc = subprocess.run([sys.executable, "-m", "milling_twin", *arguments], cwd=folder, env=env,
                           capture_output=True, text=True, timeout=600)
-    assert proc.returncode == 0, f"{doc}:{line}: {command}\n{proc.stdout[-2000:]}\n{proc.stderr[-2000:]}"
+    assert proc.returncode == 0, f"{where}: {command}\n{proc.stdout[-2000:]}\n{proc.stderr[-2000:]}"

@@ -9,7 +9,7 @@ JOBS ?= 2
 # halves its time. `pytest tests/x.py` by hand stays one process. PYTEST_PARALLEL= runs `make test` serially.
 PYTEST_PARALLEL ?= -n $(JOBS)
 
-.PHONY: setup configure fmus build demo test test-sanitize clean fuzz fuzz-tools wheel release
+.PHONY: setup configure fmus build demo test test-sanitize clean fuzz test-tools wheel release
 
 # Reinstalled only when the dependencies change: pyproject.toml's ranges, installed at constraints.txt's exact versions
 # (the same set on every machine and in CI; docs/packaging.md).
@@ -104,14 +104,27 @@ LICENSE_FILE ?= LICENSE
 release: fmus
 	$(VENV_PYTHON) -m buildtools.release --fmus $(WHEEL_FMUS) --licence $(LICENSE_FILE) --out dist
 
-# clang for the short libFuzzer runs of tests/test_fuzz.py: installed when missing and we are root
-# (CI); otherwise that run is skipped with its reason and the corpus replay in ctest still runs.
-fuzz-tools:
-	@command -v clang >/dev/null 2>&1 || { [ "$$(id -u)" = 0 ] && command -v apt-get >/dev/null 2>&1 && \
-	  (apt-get update -qq && DEBIAN_FRONTEND=noninteractive apt-get install -y -qq clang >/dev/null) || \
-	  echo "clang not installed: the short libFuzzer run is skipped (the corpus replay still runs)"; }
+# Debian packages that some tests use, installed when missing and we are root with apt-get (CI); otherwise those
+# tests are skipped with their reason. A failed install (no network, no disk) is said, and the tests that need the
+# package skip:
+# - clang, with its recommends (libFuzzer's runtime is one), for the short libFuzzer runs of tests/test_fuzz.py
+#   (the corpus replay in ctest runs without it);
+# - wine64, without recommends (~100 MB downloaded, ~700 MB installed, its prefix ~700 MB more at the first run),
+#   for the Windows FMU binaries simulated under wine against the Linux ones (tests/test_cross_platform.py).
+APT_INSTALL := DEBIAN_FRONTEND=noninteractive apt-get install -y -qq
+test-tools:
+	@need_clang=; need_wine=; \
+	  command -v clang >/dev/null 2>&1 || need_clang=1; \
+	  { command -v wine64 || command -v wine || ls /usr/lib/wine/wine64; } >/dev/null 2>&1 || need_wine=1; \
+	  [ -z "$$need_clang$$need_wine" ] && exit 0; \
+	  if [ "$$(id -u)" != 0 ] || ! command -v apt-get >/dev/null 2>&1 || ! apt-get update -qq; then \
+	    echo "not root with apt-get: clang/wine64 not installed (the tests that need them are skipped)"; exit 0; fi; \
+	  [ -z "$$need_clang" ] || $(APT_INSTALL) clang >/dev/null || \
+	    echo "clang not installed: the short libFuzzer run is skipped (the corpus replay still runs)"; \
+	  [ -z "$$need_wine" ] || $(APT_INSTALL) --no-install-recommends wine64 >/dev/null || \
+	    echo "wine64 not installed: the Windows binaries' test under wine is skipped"
 
-test: build $(VENV)/.installed-train fuzz-tools
+test: build $(VENV)/.installed-train test-tools
 	cd $(BUILD) && ctest --output-on-failure --parallel $(JOBS)
 	MILLING_TWIN_FMU_DIR=$(abspath $(BUILD))/fmus $(VENV_PYTHON) -m pytest $(PYTEST_PARALLEL)
 	$(MAKE) test-sanitize

@@ -19,7 +19,8 @@ from milling_twin.models.interpolator.parser import Tool
 from milling_twin.models.stability import Mode
 from milling_twin.orchestrator.master import run
 from milling_twin.orchestrator.part import chatter
-from milling_twin.orchestrator.part.blocks import Signals, block_spans, block_table, write_block_table
+from milling_twin.orchestrator.part.blocks import (PLUNGE_SLOPE, Signals, block_spans, block_table, plunge_note,
+                                                   write_block_table)
 from milling_twin.orchestrator.part.model import Material, Part, Stock
 from milling_twin.orchestrator.part.report import write_process_report
 from milling_twin.orchestrator.results import load_results
@@ -98,10 +99,26 @@ def test_block_table_on_a_synthetic_frame(tmp_path: Path) -> None:
     assert csv["force_max [N]"].tolist() == pytest.approx([20.0, 50.0, 0.0])
     assert csv["in_cut_fraction"].tolist() == pytest.approx([2 / 3, 0.5, 0.0])
     assert csv["chatter"].tolist() == [False] * 3                     # no unit in the header of a flag
+    assert csv["plunge"].tolist() == [False] * 3                      # no descents given: no plunge
     parquet = pq.read_table(tmp_path / "b.parquet")
     field = parquet.schema.field("feed_mean")
     assert field.metadata[b"unit"] == b"m/s" and field.metadata[b"display_unit"] == b"mm/min"
     assert parquet.column("feed_mean").to_pylist() == pytest.approx([0.04 / 3, 0.03, 0.0])
+
+
+def test_a_block_is_a_plunge_when_its_line_descends_steeply_and_it_removes_material() -> None:
+    signals = Signals(_frame())
+    spans = block_spans(signals["interp.line_number"])
+    # line 3 steep: its first block removes material, its second (after line 5) none; line 5 is just not steep
+    table = block_table(signals, spans, {3: 0.01, 5: 0.01}, {3: 1.0, 5: PLUNGE_SLOPE})
+    assert table["plunge"].tolist() == [True, False, False]
+    assert plunge_note(table) == [
+        "plunging or steeply ramping while cutting (descending more than 0.25 per length of path), line 3: the "
+        "force models have flank edges only, so the end cutting is not in these blocks' force, torque, cutting "
+        "power, deflection and chatter (their MRR and removed volume are the Workpiece's)"]
+    table.loc[:, "plunge"] = True
+    assert "lines 3, 5: " in plunge_note(table)[0]     # each line once, in the order of the run
+    assert plunge_note(table.iloc[:0]) == []
 
 
 def test_blocks_of_a_line_executed_twice_and_no_line_zero() -> None:
@@ -256,6 +273,8 @@ def test_process_report_of_a_part_run(part_run: tuple[Part, pd.DataFrame, Path, 
     assert corners.max(axis=0).tolist() == pytest.approx([50.0, 30.0, 0.0], abs=1e-4)
     assert report.cutting_time < report.machining_time
     assert report.json.is_file() and report.blocks_csv.is_file()
+    # its G1 Z-2 lines plunge beside the stock, removing nothing: no plunge block, no plunge note
+    assert not table["plunge"].any() and "plunging" not in text
 
 
 def test_process_report_without_power_or_z_map(part_run: tuple[Part, pd.DataFrame, Path, Path],

@@ -34,6 +34,22 @@ def test_run_writes_the_surface_and_the_process_report(tmp_path: Path, fmu_dir: 
     assert heights.shape == (y.size, x.size) and heights.min() < heights.max()   # the slot is in it
 
 
+def test_a_plunge_into_the_stock_is_marked_and_named_in_the_report(tmp_path: Path, fmu_dir: Path) -> None:
+    """The tiny part's slot entered by a plunge at x = 25 mm: that line cuts descending (slope 1), and the run says
+    that its force leaves out the end cutting; the slot after it is no plunge."""
+    program = PROGRAM.replace("G0 X-10 Y10 Z5", "G0 X25 Y10 Z5")
+    part = write_part(tmp_path / "part", program=program)
+    proc = subprocess.run([sys.executable, "-m", "milling_twin", "run", str(part), "--fmu-dir", str(fmu_dir),
+                           "--out", str(tmp_path / "runs"), "--no-progress"], capture_output=True, text=True,
+                          timeout=600)
+    assert proc.returncode == 0, proc.stderr[-3000:]
+    blocks = pd.read_csv(tmp_path / "runs" / "tiny_part" / "blocks.csv").set_index("line")
+    assert blocks.loc[5, "plunge"] and blocks.loc[5, "removed_volume [cm3]"] > 0.1   # pi 5^2 x 2 mm: 0.157 cm3
+    assert not blocks.loc[6, "plunge"] and not blocks.loc[4, "plunge"]
+    assert ("part warning: plunging or steeply ramping while cutting (descending more than 0.25 per length of "
+            "path), line 5: the force models have flank edges only") in proc.stdout + proc.stderr
+
+
 def test_variable_step_agrees_with_the_all_fine_run(tmp_path: Path, fmu_dir: Path) -> None:
     """The slot of the tiny part: in material the force, torque and deflection of the variable-step run equal the
     all-fine run's to far below 1 % of their RMS; the Workpiece's outputs are identical; fewer doSteps."""

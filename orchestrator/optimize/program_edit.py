@@ -22,9 +22,9 @@ from collections.abc import Mapping
 from dataclasses import dataclass, field, fields
 from pathlib import Path
 
-from milling_twin.models.interpolator.parser import (DIALECT_SINUMERIK, DIALECTS, MOVE_ARC, MOVE_DWELL, MOVE_LINE,
-                                                     MOVE_RAPID, Move,
+from milling_twin.models.interpolator.parser import (DIALECT_SINUMERIK, DIALECTS, MOVE_DWELL, MOVE_RAPID, Move,
                                                      Program, ProgramError, word_spans)
+from milling_twin.orchestrator.part.blocks import descent_slopes, feed_lines
 
 __all__ = ["FEED_DIGITS", "ProgramEditError", "EditedProgram", "descent_slopes", "feed_lines", "rewrite_feeds",
            "format_feed"]
@@ -103,33 +103,6 @@ def _words(raw: str, file: str, line: int, sinumerik: bool, letter: str = "F") -
     except ProgramError as exc:
         raise ProgramEditError(str(exc)) from None
     return [_Word(a, b, value, text) for word, value, text, a, b in words if word == letter]
-
-
-def feed_lines(program: Program) -> dict[int, list[Move]]:
-    """The feed moves of each program line (lines, arcs, NURBS and a cycle's feed moves; not rapids or dwells)."""
-    out: dict[int, list[Move]] = {}
-    for move in program.moves:
-        if move.kind not in (MOVE_RAPID, MOVE_DWELL):
-            out.setdefault(move.line, []).append(move)
-    return out
-
-
-def descent_slopes(program: Program) -> dict[int, float]:
-    """Each feed-move line's steepest descent: how much the tool goes down per length of path (1: a plunge along
-    -Z, 0: level or rising; a helical ramp its pitch over its arc length; NURBS blocks 0, not measured)."""
-    from milling_twin.models.interpolator.path import ArcShape
-
-    slopes: dict[int, float] = {}
-    for line, moves in feed_lines(program).items():
-        steepest = 0.0
-        for move in moves:
-            drop = move.start[2] - move.end[2]
-            if drop <= 0.0 or move.kind not in (MOVE_LINE, MOVE_ARC):
-                continue
-            length = math.dist(move.start, move.end) if move.kind == MOVE_LINE else ArcShape(move).length
-            steepest = max(steepest, drop / length if length > 0.0 else 0.0)
-        slopes[line] = steepest
-    return slopes
 
 
 def _check_in_order(program: Program, file: str, lines: list[str]) -> None:

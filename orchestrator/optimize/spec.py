@@ -35,6 +35,7 @@ from collections.abc import Mapping
 from dataclasses import dataclass, field, replace
 from typing import Any
 
+from milling_twin.orchestrator.part.blocks import PLUNGE_SLOPE
 from milling_twin.orchestrator.part.spec import _factor, _value_unit, quantity
 from milling_twin.orchestrator.toml_access import TomlAccess
 
@@ -74,7 +75,7 @@ class OptimizeSpec:
     max_iterations: int = 6
     tolerance: float = 0.01
     air_moves: str = "fastest"
-    plunge_slope: float = 0.25      # descent per path length (0.25: 14 deg) from which a cutting line keeps its feed
+    plunge_slope: float = PLUNGE_SLOPE  # descent per path length (0.25: 14 deg) from which a cutting line keeps feed
     speed_range: tuple[float, float] = (0.7, 1.3)   # a chattering tool's speeds allowed, x the programmed speed
     stability_margin: float = 0.25  # the chosen speed's stability limit: at least (1 + this) x the deepest cut
     speed_from: str = "simulated"   # stable in the tool's simulated map, or by the zero-order limit
@@ -117,7 +118,7 @@ def read_optimize(ctx: TomlAccess, raw: Any) -> OptimizeSpec:
     if tolerance >= 0.5:
         ctx.fail("[optimize].tolerance", f"expected a share below 0.5 (0.01 is 1 %), got {tolerance!r}")
     air = ctx.string(table, "[optimize]", "air_moves", "fastest", AIR_MOVES)
-    plunge = ctx.number(table, "[optimize]", "plunge_slope", 0.25, positive=True)
+    plunge = ctx.number(table, "[optimize]", "plunge_slope", PLUNGE_SLOPE, positive=True)
     speed_range = table.get("speed_range", [0.7, 1.3])
     if not (isinstance(speed_range, list) and len(speed_range) == 2 and all(
             isinstance(x, (int, float)) and not isinstance(x, bool) and math.isfinite(x) for x in speed_range)

@@ -10,7 +10,10 @@ subprogram called twice) gives two rows. Statistics over the block's samples ``i
   samples, of the magnitude for signed quantities (``force_x_max`` = max |Fx|);
 - ``removed_volume`` = removed_volume[i1-1] - removed_volume[i0-1] (0 before the first sample): the blocks
   add up to the run's last removed_volume exactly;
-- ``deflection_max`` = max of the resultant tip displacement sqrt(dx^2 + dy^2).
+- ``deflection_max`` = max of the resultant tip displacement sqrt(dx^2 + dy^2);
+- ``plunge``: the block removes material and its line descends more steeply than :data:`PLUNGE_SLOPE` (depth per
+  length of path, :func:`descent_slopes`): a plunge, a drilling cycle's feed or a steep ramp, whose end cutting
+  the force models (flank edges only) leave out.
 
 Values are SI in the table (:func:`block_table`) and the Parquet file (units in each field's metadata, as the
 run's chunks: ``b"unit"``, ``b"display_unit"``); the CSV has the display units in its headers
@@ -22,6 +25,7 @@ import math
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 import numpy as np
 import pandas as pd
@@ -29,8 +33,15 @@ import pandas as pd
 from milling_twin.models.units import conversion_factor
 from milling_twin.orchestrator.part.model import FORCE, INTERPOLATOR, POWER, VIBRATION, WORKPIECE, Part
 
-__all__ = ["BlockColumn", "COLUMNS", "Signals", "Spans", "block_spans", "block_table", "programmed_feeds",
-           "write_block_table"]
+if TYPE_CHECKING:
+    from milling_twin.models.interpolator.parser import Move, Program
+
+__all__ = ["BlockColumn", "COLUMNS", "PLUNGE_SLOPE", "ProgramLines", "Signals", "Spans", "block_spans", "block_table",
+           "descent_slopes", "feed_lines", "plunge_note", "program_lines", "write_block_table"]
+
+# Descent per length of path (0.25: 14 deg) from which a line that cuts is a plunge or a steep ramp: CuttingForce and
+# ForceNet model the flank edges only, so what the end of the tool cuts there is not in their force.
+PLUNGE_SLOPE = 0.25
 
 
 @dataclass(frozen=True)
@@ -92,6 +103,8 @@ COLUMNS: tuple[BlockColumn, ...] = (
     _c("sle_max", "m", "um", "Largest |surface location error|"),
     _c("analytic_volume", "m3", "cm3", "Width x length x depth of the steady part of a straight cut at constant depth"),
     _c("volume_ratio", "1", "1", "Volume removed over the same samples as analytic_volume / analytic_volume"),
+    _c("plunge", "bool", "bool", "Removes material descending more steeply than PLUNGE_SLOPE: its end cutting is "
+                                 "not in the force, torque, cutting power, deflection and chatter"),
 )
 BY_NAME = {c.name: c for c in COLUMNS}
 INT_COLUMNS = ("block", "line", "tool")
@@ -166,30 +179,80 @@ def block_spans(line_number: np.ndarray) -> Spans:
     return Spans(starts[keep], stops[keep], line[starts[keep]].astype(np.int64))
 
 
-def programmed_feeds(part: Part) -> tuple[dict[int, float], str | None]:
-    """Line -> programmed feed (m/s; 0 for a line of rapids only) from the part program as the Interpolator reads
-    it; (``{}``, the reason) when it cannot be read."""
+def feed_lines(program: Program) -> dict[int, list[Move]]:
+    """The feed moves of each program line (lines, arcs, NURBS and a cycle's feed moves; not rapids or dwells)."""
+    from milling_twin.models.interpolator.parser import MOVE_DWELL, MOVE_RAPID
+
+    out: dict[int, list[Move]] = {}
+    for move in program.moves:
+        if move.kind not in (MOVE_RAPID, MOVE_DWELL):
+            out.setdefault(move.line, []).append(move)
+    return out
+
+
+def descent_slopes(program: Program) -> dict[int, float]:
+    """Each feed-move line's steepest descent: how much the tool goes down per length of path (1: a plunge along
+    -Z, 0: level or rising; a helical ramp its pitch over its arc length; NURBS blocks 0, not measured)."""
+    from milling_twin.models.interpolator.parser import MOVE_ARC, MOVE_LINE
+    from milling_twin.models.interpolator.path import ArcShape
+
+    slopes: dict[int, float] = {}
+    for line, moves in feed_lines(program).items():
+        steepest = 0.0
+        for move in moves:
+            drop = move.start[2] - move.end[2]
+            if drop <= 0.0 or move.kind not in (MOVE_LINE, MOVE_ARC):
+                continue
+            length = math.dist(move.start, move.end) if move.kind == MOVE_LINE else ArcShape(move).length
+            steepest = max(steepest, drop / length if length > 0.0 else 0.0)
+        slopes[line] = steepest
+    return slopes
+
+
+@dataclass(frozen=True)
+class ProgramLines:
+    """What the per-block table takes from the part program, per line, as the Interpolator reads it."""
+    feeds: dict[int, float]     # programmed feed (m/s; 0 for a line of rapids only)
+    descents: dict[int, float]  # steepest descent of its feed moves per length of path (:func:`descent_slopes`)
+
+
+def program_lines(part: Part) -> tuple[ProgramLines, str | None]:
+    """The part program's :class:`ProgramLines`; empty ones and the reason when it cannot be read."""
     from milling_twin.models.interpolator.parser import MOVE_RAPID
     from milling_twin.orchestrator.part.checks import parse
 
     try:
         program = parse(part.program, part.dialect, part.tools, part.machine)
     except (OSError, ValueError) as exc:
-        return {}, f"{part.program}: programmed feeds not read ({exc})"
+        return ProgramLines({}, {}), f"{part.program}: programmed feeds not read ({exc})"
     feeds: dict[int, float] = {}
     for move in program.moves:
         feed = 0.0 if move.kind == MOVE_RAPID else float(move.feed)
         feeds[move.line] = max(feeds.get(move.line, 0.0), feed)
-    return feeds, None
+    return ProgramLines(feeds, descent_slopes(program)), None
+
+
+def plunge_note(table: pd.DataFrame) -> list[str]:
+    """The report's note on the blocks that ``plunge`` marks (none: no note)."""
+    lines = list(dict.fromkeys(int(line) for line in table.loc[table["plunge"].astype(bool), "line"]))
+    if not lines:
+        return []
+    shown = ", ".join(str(line) for line in lines[:12]) + (f" and {len(lines) - 12} more" if len(lines) > 12 else "")
+    return [f"plunging or steeply ramping while cutting (descending more than {PLUNGE_SLOPE:g} per length of path), "
+            f"line{'s' if len(lines) > 1 else ''} {shown}: the force models have flank edges only, so the end "
+            "cutting is not in these blocks' force, torque, cutting power, deflection and chatter (their MRR and "
+            "removed volume are the Workpiece's)"]
 
 
 def _sums(values: np.ndarray, cuts: np.ndarray) -> np.ndarray:
     return np.add.reduceat(values, cuts) if values.size else np.zeros(0)
 
 
-def block_table(signals: Signals, spans: Spans, feeds: Mapping[int, float] | None = None) -> pd.DataFrame:
-    """The statistics of :data:`COLUMNS` up to ``in_cut_fraction`` per block, SI (the later columns are NaN
-    here: the chatter indicator and the surface fill them)."""
+def block_table(signals: Signals, spans: Spans, feeds: Mapping[int, float] | None = None,
+                descents: Mapping[int, float] | None = None) -> pd.DataFrame:
+    """The statistics of :data:`COLUMNS` per block, SI: up to ``in_cut_fraction``, and ``plunge`` from ``descents``
+    (line -> :func:`descent_slopes`; none: no plunge); the chatter and surface columns are NaN here (the chatter
+    indicator and the surface fill them)."""
     n_blocks = len(spans)
     t = signals.time
     out: dict[str, np.ndarray] = {"block": np.arange(n_blocks), "line": spans.lines}
@@ -255,6 +318,9 @@ def block_table(signals: Signals, spans: Spans, feeds: Mapping[int, float] | Non
     out["axial_depth_max"] = largest(signals[f"{WORKPIECE}.axial_depth"])
     out["radial_depth_max"] = largest(signals[f"{WORKPIECE}.radial_depth"])
     out["in_cut_fraction"] = cut_count / count
+    descents = descents or {}
+    steep = np.array([descents.get(int(line), 0.0) > PLUNGE_SLOPE for line in spans.lines], dtype=bool)
+    out["plunge"] = steep & (out["removed_volume"] > 0.0)
     table = pd.DataFrame({c.name: out.get(c.name, np.full(n_blocks, np.nan)) for c in COLUMNS})
     table["chatter"] = False
     return table

@@ -25,7 +25,8 @@ from milling_twin.models.stability import stability_lobes
 from milling_twin.models.units import conversion_factor
 from milling_twin.orchestrator.part import chatter, plots
 from milling_twin.orchestrator.part.blocks import (BY_NAME, COLUMNS, BlockColumn, Signals, Spans, block_spans,
-                                                   block_table, programmed_feeds, write_block_table)
+                                                   block_table, program_lines, plunge_note,
+                                                   write_block_table)
 from milling_twin.orchestrator.part.model import FORCE, INTERPOLATOR, POWER, WORKPIECE, CutTool, Part
 from milling_twin.orchestrator.part.surface import (ZMapGrid, analytic_volumes, load_zmap, surface_location_errors,
                                                     write_stl)
@@ -41,7 +42,7 @@ STL_MAX_CELLS = 2_000_000  # a larger Z-map gets no STL (200 MB, about 4 s to wr
 HTML_COLUMNS = ("block", "line", "start_time", "duration", "feed_programmed", "feed_mean", "spindle_speed", "tool",
                 "mrr_max", "removed_volume", "force_max", "torque_max", "spindle_power_max", "cutting_power_max",
                 "deflection_max", "axial_depth_max", "radial_depth_max", "in_cut_fraction", "chatter_indicator",
-                "chatter_growth", "sle_mean", "sle_max", "volume_ratio")
+                "chatter_growth", "sle_mean", "sle_max", "volume_ratio", "plunge")
 
 
 @dataclass(frozen=True)
@@ -230,11 +231,12 @@ def write_process_report(part: Part, frame: pd.DataFrame, run_dir: Path, *, zmap
     if not signals.has(f"{INTERPOLATOR}.line_number"):
         notes.append(f"column {INTERPOLATOR}.line_number not recorded: no per-block table")
     spans = block_spans(signals[f"{INTERPOLATOR}.line_number"])
-    feeds, reason = programmed_feeds(part)
+    lines, reason = program_lines(part)
     if reason:
         notes.append(reason)
-    table = block_table(signals, spans, feeds)
-    notes.extend(rapid_cuts(signals, spans, table, feeds))
+    table = block_table(signals, spans, lines.feeds, lines.descents)
+    notes.extend(rapid_cuts(signals, spans, table, lines.feeds))
+    notes.extend(plunge_note(table))
     lap("blocks")
 
     # each block's tool: its flutes (tooth passing), diameter (analytic volumes), modes (lobes)
@@ -365,7 +367,7 @@ def write_process_report(part: Part, frame: pd.DataFrame, run_dir: Path, *, zmap
         lengths = {c.tool.number: c.length for c in cutting}
         number = np.nan_to_num(signals[f"{INTERPOLATOR}.tool_number"]).astype(np.int64)
         z_mm = z_mm - np.array([lengths.get(int(n), 0.0) for n in number]) * 1e3
-    rapid = rapid_samples(signals, feeds)
+    rapid = rapid_samples(signals, lines.feeds)
     if signals.has(f"{INTERPOLATOR}.x") and signals.n > 1:
         box = [(o * 1e3, (o + s) * 1e3) for o, s in zip(part.stock.origin, part.stock.size)]
         figures.append(_img(plots.toolpath_png(x_mm, y_mm, z_mm, resultant, rapid, "resultant force [N]",

@@ -57,13 +57,10 @@ def distinct_commands(found: list[tuple[str, int, str]]) -> list[tuple[str, str]
     """(every place it is shown, command) of each distinct command, in the order of its first place: README and
     the topic pages show some of the same commands (the calibration of every UMich run in two places), which run
     once here; a failure names every place."""
-    places: dict[str, list[str]] = {}
-    first: dict[str, str] = {}
+    shown: dict[str, tuple[str, list[str]]] = {}  # by its words: (the command as first written, its places)
     for doc, line, command in found:
-        key = " ".join(_words(command))
-        places.setdefault(key, []).append(f"{doc}:{line}")
-        first.setdefault(key, command)
-    return [(", ".join(where), first[key]) for key, where in places.items()]
+        shown.setdefault(" ".join(_words(command)), (command, []))[1].append(f"{doc}:{line}")
+    return [(", ".join(places), command) for command, places in shown.values()]
 
 
 COMMANDS = documented_commands()

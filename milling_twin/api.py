@@ -223,6 +223,9 @@ def sweep(study: str | Path, *, fmu_dir: str | Path | None = None, out: str | Pa
     None an embedded dask cluster sized to the machine, N local worker processes, 0 serially in this process;
     ``scheduler``: an existing dask cluster (address or scheduler file). ``resume`` skips the cases already ok.
     Raises ``StudyError`` (naming the file and key) for an invalid study; a failing case is a summary row."""
+    from milling_twin.orchestrator.study.executor import start_fork_server
+
+    start_fork_server(workers, scheduler)  # its workers' imports on another core while this process imports its own
     from milling_twin.orchestrator.study.run import sweep as run_study
     from milling_twin.orchestrator.study.spec import load_study
 

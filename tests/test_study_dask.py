@@ -82,9 +82,8 @@ def cluster(tmp_path: Path) -> Iterator[Path]:
                                       cwd=tmp_path, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL))
         yield file
     finally:
-        for proc in reversed(procs):
+        for proc in reversed(procs):  # the worker first, while its scheduler is there to hear it close
             proc.terminate()
-        for proc in procs:
             try:
                 proc.wait(timeout=20)
             except subprocess.TimeoutExpired:
@@ -124,6 +123,17 @@ def _worker_settings() -> tuple[str | None, bool]:
     return os.environ.get("MALLOC_TRIM_THRESHOLD_"), dask.config.get("distributed.worker.profile.enabled")
 
 
+def _worker_start() -> tuple[str, int, int]:
+    """How this worker started: its parent's command line, its OS threads and its Python threads."""
+    import os
+    import threading
+
+    import psutil
+
+    return " ".join(psutil.Process(os.getppid()).cmdline()), len(os.listdir("/proc/self/task")), \
+        threading.active_count()
+
+
 def test_the_embedded_cluster_s_workers_are_set_up_for_short_cases(monkeypatch: pytest.MonkeyPatch) -> None:
     import dask
 
@@ -132,6 +142,10 @@ def test_the_embedded_cluster_s_workers_are_set_up_for_short_cases(monkeypatch: 
     monkeypatch.delenv("MALLOC_TRIM_THRESHOLD_", raising=False)
     with open_executor(workers=1) as executor:
         assert executor.submit(_worker_settings).result() == (None, False)  # glibc's own mmap threshold, no profiler
+        if sys.platform == "linux":
+            parent, os_threads, python_threads = executor.submit(_worker_start).result()
+            assert "multiprocessing.forkserver" in parent  # forked from the fork server, which imported dask once
+            assert os_threads == python_threads  # no BLAS thread pool: the server started with one BLAS thread
     import os
 
     assert "MALLOC_TRIM_THRESHOLD_" not in os.environ  # the nanny did not set it in this process either

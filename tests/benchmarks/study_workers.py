@@ -2,6 +2,7 @@
 
     .venv/bin/python tests/benchmarks/study_workers.py [STUDY] [--workers 2] [--repeats 2] [--stop-time S]
                                                        [--fmu-dir build/fmus] [--baseline] [--ceiling]
+                                                       [--command]
 
 Per repeat and executor: the sweep's wall time (cluster start and close included), the sum of the cases' own wall
 times (on their workers), and the ratio serial / parallel. ``--baseline`` adds, in each repeat, the same workers as
@@ -11,7 +12,9 @@ close, and the round trip of 200 trivial tasks through its executor (s per task)
 machine allows without any engine: the study's cases (run_case, as a worker runs them) in one spawned process, then
 in N at once, each all of them, timed after a warm-up case and a barrier; N x (one's time) / (the slowest of N's)
 is the throughput ratio that no executor can beat here (shared caches, memory bandwidth and the disk's fsyncs
-bound it below N). The load average is printed before and after: on a shared machine other processes take cores
+bound it below N). ``--command`` adds, in each repeat, the whole ``milling-twin sweep STUDY --workers 0`` and
+``--workers N`` commands as a user runs them, each a new process (interpreter start, imports, the cluster's start
+from nothing: its fork server's imports included), timed from outside. The load average is printed before and after: on a shared machine other processes take cores
 too.
 """
 from __future__ import annotations
@@ -20,6 +23,8 @@ import argparse
 import contextlib
 import multiprocessing
 import os
+import subprocess
+import sys
 import tempfile
 import time
 from concurrent.futures import wait
@@ -49,6 +54,16 @@ def timed_cases(warm_up: CaseTask, tasks: list[CaseTask], barrier, times) -> Non
     for task in tasks:
         run_case(task)
     times.put(time.perf_counter() - t0)
+
+
+def command_seconds(study_path: Path, workers: int, out: Path, fmu_dir: Path) -> float:
+    """The wall time of ``milling-twin sweep`` in a new process (its output is kept beside ``out``)."""
+    argv = [sys.executable, "-m", "milling_twin", "sweep", str(study_path), "--workers", str(workers),
+            "--out", str(out), "--fmu-dir", str(fmu_dir), "--no-progress"]
+    t0 = time.perf_counter()
+    with open(out.with_suffix(".log"), "w") as log:
+        subprocess.run(argv, check=True, stdout=log, stderr=subprocess.STDOUT)
+    return time.perf_counter() - t0
 
 
 def cases_in_processes(study, folder: Path, processes: int) -> float:
@@ -102,7 +117,11 @@ def main() -> None:
     parser.add_argument("--baseline", action="store_true", help="also one case per task with dask's worker settings")
     parser.add_argument("--ceiling", action="store_true",
                         help="also the engine-free ceiling: the cases in 1 and in N processes at once")
+    parser.add_argument("--command", action="store_true",
+                        help="also the whole `milling-twin sweep` command, serial and on N workers, new processes")
     args = parser.parse_args()
+    if args.command and args.stop_time is not None:
+        parser.error("--command runs the study file as it is: without --stop-time")
     study = load_study(args.study, args.fmu_dir)
     if args.stop_time is not None:
         study = replace(study, stop_time=args.stop_time)
@@ -125,6 +144,11 @@ def main() -> None:
                       f"{phase_text(result.phases)})")
             print(f"repeat {repeat + 1}: " + ", ".join(f"serial / {label} = {walls['serial'] / wall:.2f}"
                                                        for label, wall in walls.items() if label != "serial"))
+            if args.command:
+                seconds = {n: command_seconds(args.study.resolve(), n, Path(folder) / f"command-{repeat}-{n}",
+                                              args.fmu_dir.resolve()) for n in (0, args.workers)}
+                print(f"repeat {repeat + 1}, the command: --workers 0 {seconds[0]:.2f} s, --workers {args.workers} "
+                      f"{seconds[args.workers]:.2f} s: {seconds[0] / seconds[args.workers]:.2f}x")
             if args.ceiling:
                 where = Path(folder) / f"ceiling-{repeat}"
                 one = cases_in_processes(study, where / "one", 1)

@@ -153,6 +153,21 @@ def test_the_embedded_cluster_s_workers_are_set_up_for_short_cases(monkeypatch: 
     assert dask.config.get("distributed.nanny.pre-spawn-environ")["MALLOC_TRIM_THRESHOLD_"] == 65536
 
 
+def _environ(name: str) -> str | None:
+    import os
+
+    return os.environ.get(name)
+
+
+def test_workers_have_the_environment_of_the_moment_their_cluster_opens(monkeypatch: pytest.MonkeyPatch) -> None:
+    from milling_twin.orchestrator.study.executor import open_executor, start_fork_server
+
+    start_fork_server()  # running before the variable is set, as in a process that ran a study before
+    monkeypatch.setenv("MILLING_TWIN_STUDY_TEST", "set after the fork server started")
+    with open_executor(workers=1) as executor:
+        assert executor.submit(_environ, "MILLING_TWIN_STUDY_TEST").result() == "set after the fork server started"
+
+
 def test_a_killed_worker_loses_no_case_and_its_case_runs_again(tmp_path: Path, fmu_dir: Path) -> None:
     study = load_study(kill_study(tmp_path, "[1e-5, 2e-5, 4e-5]", -1.0), fmu_dir)
     result = sweep(study, tmp_path / "out", workers=2, progress=False)

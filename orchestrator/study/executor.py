@@ -131,8 +131,10 @@ def _client_for(workers: int | None, scheduler: str | None):  # -> (Client, Loca
     if start_fork_server(workers, scheduler):  # dask's own preload list for it is then not used
         config["distributed.worker.multiprocessing-method"] = FORKSERVER
     with dask.config.set(config):  # the nannies keep the config they start with (restarts spawn: dask's default)
+        # env: a forked worker has the fork server's environment, from when it started; the nanny sets this
+        # process's present one in it (a spawned worker inherits it), e.g. MILLING_TWIN_FMU_CACHE set since
         cluster = LocalCluster(n_workers=n, threads_per_worker=1, processes=True, dashboard_address=":0",
-                               silence_logs=logging.ERROR)
+                               silence_logs=logging.ERROR, env=dict(os.environ))
     try:
         return Client(cluster), cluster
     except BaseException:

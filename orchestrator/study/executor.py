@@ -45,11 +45,14 @@ LOCAL_WORKER_CONFIG = {"distributed.nanny.pre-spawn-environ.MALLOC_TRIM_THRESHOL
 # of spawned: the server imports dask and the modules a case needs once, each worker starts as a copy of it. On the
 # stability map (docs/studies.md#measured) that spares each worker the ~1.2 s of CPU of its own imports, which it
 # otherwise spends on a core the other worker's cases need, and the cluster closes in 0.04 s instead of 0.3 s.
-# Later clusters of the same process fork from the same server. BLAS threads are fixed when numpy is imported, so
-# the server starts with one thread each, as dask's nanny gives a spawned worker (its pre-spawn environment).
+# Later clusters of the same process fork from the same server. BLAS threads are fixed when numpy is imported and
+# the hash seed when the interpreter starts, so the server starts with what dask's nanny gives a spawned worker
+# before it starts (its pre-spawn environment): one BLAS thread, and dask's hash seed, which keeps hashing the same
+# in a worker the nanny restarts (spawned) as in the forked ones.
 WORKER_MODULES = ("distributed", "milling_twin.api", "milling_twin.orchestrator.study.run",
                   "milling_twin.orchestrator.study.stability_map")
-WORKER_ENVIRON = {"OMP_NUM_THREADS": "1", "MKL_NUM_THREADS": "1", "OPENBLAS_NUM_THREADS": "1"}
+WORKER_ENVIRON = {"OMP_NUM_THREADS": "1", "MKL_NUM_THREADS": "1", "OPENBLAS_NUM_THREADS": "1",
+                  "PYTHONHASHSEED": "6640"}
 FORKSERVER = "forkserver"
 
 

@@ -14,8 +14,8 @@ in N at once, each all of them, timed after a warm-up case and a barrier; N x (o
 is the throughput ratio that no executor can beat here (shared caches, memory bandwidth and the disk's fsyncs
 bound it below N). ``--command`` adds, in each repeat, the whole ``milling-twin sweep STUDY --workers 0`` and
 ``--workers N`` commands as a user runs them, each a new process (interpreter start, imports, the cluster's start
-from nothing: its fork server's imports included), timed from outside. The load average is printed before and after: on a shared machine other processes take cores
-too.
+from nothing: its fork server's imports included), timed from outside. The load average is printed before and
+after: on a shared machine other processes take cores too.
 """
 from __future__ import annotations
 

@@ -5,7 +5,8 @@
 - ``workers=None, scheduler=None``: an embedded ``dask.distributed`` ``LocalCluster`` sized to the machine (one worker
   process per usable core, one thread each: FMUs run in worker processes, so an FMU that crashes kills only its
   worker and dask reschedules its tasks elsewhere), the dashboard on a free port, quiet logs, and its workers
-  configured for many short cases (:data:`LOCAL_WORKER_CONFIG`);
+  configured for many short cases (:data:`LOCAL_WORKER_CONFIG`) and forked from a fork server that imported their
+  modules once, where the platform forks (:func:`start_fork_server`);
 - ``workers=N`` (N >= 1): the same with N local worker processes;
 - ``workers=0``: :class:`SerialExecutor`, everything in this process in submission order (debugging, tests and the
   bit-identical reference of a parallel run);

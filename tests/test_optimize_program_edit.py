@@ -13,8 +13,8 @@ import pytest
 from milling_twin.models.interpolator.definition import default_parameters
 from milling_twin.models.interpolator.parser import DIALECTS, Tool, parse_program
 from milling_twin.models.interpolator.tool_table import read_tool_table
-from milling_twin.orchestrator.optimize.program_edit import (ProgramEditError, feed_lines, format_feed,
-                                                             rewrite_feeds)
+from milling_twin.orchestrator.optimize.program_edit import ProgramEditError, format_feed, rewrite_feeds
+from milling_twin.orchestrator.part.blocks import feed_lines
 
 REPO = Path(__file__).resolve().parents[1]
 TOOLS = (Tool(1, 0.01, flutes=3), Tool(2, 0.006, flutes=2))

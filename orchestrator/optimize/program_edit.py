@@ -24,10 +24,9 @@ from pathlib import Path
 
 from milling_twin.models.interpolator.parser import (DIALECT_SINUMERIK, DIALECTS, MOVE_DWELL, MOVE_RAPID, Move,
                                                      Program, ProgramError, word_spans)
-from milling_twin.orchestrator.part.blocks import descent_slopes, feed_lines
+from milling_twin.orchestrator.part.blocks import feed_lines
 
-__all__ = ["FEED_DIGITS", "ProgramEditError", "EditedProgram", "descent_slopes", "feed_lines", "rewrite_feeds",
-           "format_feed"]
+__all__ = ["FEED_DIGITS", "ProgramEditError", "EditedProgram", "rewrite_feeds", "format_feed"]
 
 FEED_DIGITS = 4            # significant digits at least of a written F value
 # Sinumerik: an F address (not part of a longer name: FGROUP, FFWON, AFIS), and its numeric forms F1000, F=1000.5

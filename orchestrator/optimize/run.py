@@ -45,6 +45,7 @@ from milling_twin.orchestrator.optimize.sub_blocks import (SplitProgram, SubBloc
 from milling_twin.orchestrator.optimize.spec import OptimizeSpec, read_optimize
 from milling_twin.orchestrator.master import SimulationError
 from milling_twin.orchestrator.part import checks
+from milling_twin.orchestrator.part.blocks import descent_slopes, feed_lines
 from milling_twin.orchestrator.scenario import ScenarioError, _Ctx
 
 __all__ = ["Iteration", "OptimizeError", "OptimizeResult", "optimize"]
@@ -191,9 +192,9 @@ class _Base:
     def of(cls, text: str, parse: Callable[[str], Program], plunge_slope: float,
            split: SplitProgram | None = None) -> "_Base":
         program = parse(text)
-        moving = program_edit.feed_lines(program)
+        moving = feed_lines(program)
         feeds = {line: max(m.feed for m in moves) for line, moves in moving.items()}
-        steep = frozenset(line for line, slope in program_edit.descent_slopes(program).items() if slope > plunge_slope)
+        steep = frozenset(line for line, slope in descent_slopes(program).items() if slope > plunge_slope)
         return cls(text, feeds, steep, {line: moves[0].tool for line, moves in moving.items()}, split)
 
     def origin(self, line: int) -> int:

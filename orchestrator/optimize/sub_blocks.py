@@ -31,8 +31,8 @@ import pandas as pd
 from milling_twin.models.interpolator.parser import (COMP_OFF, DIALECT_SINUMERIK, DIALECTS, MOVE_LINE, Move,
                                                      Program, ProgramError, word_spans)
 from milling_twin.orchestrator.optimize.program_edit import (ProgramEditError, _check_in_order, _KEPT,
-                                                             _split_code_comment, feed_lines, written_in_lower_case)
-from milling_twin.orchestrator.part.blocks import Signals
+                                                             _split_code_comment, written_in_lower_case)
+from milling_twin.orchestrator.part.blocks import Signals, feed_lines
 from milling_twin.orchestrator.part.model import FORCE, INTERPOLATOR
 
 __all__ = ["LEVEL_RATIO", "MARGIN", "MAX_PARTS", "ON_LINE", "LineProfile", "SubBlockPlan", "SplitProgram",

@@ -18,7 +18,7 @@ import ctypes
 import functools
 import math
 import threading
-from collections.abc import Callable, Iterator
+from collections.abc import Callable, Iterable, Iterator
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -32,6 +32,19 @@ class Mode:
     frequency: float
     damping: float
     stiffness: float
+
+
+def ring_down_time(modes: Iterable[Mode], fraction: float) -> float:
+    """The time (s) in which the free response of ``modes`` falls to ``fraction`` of its amplitude: that of the
+    slowest envelope exp(-sigma t), sigma = zeta omega for an underdamped mode, omega (zeta - sqrt(zeta^2 - 1))
+    for an overdamped one; inf if a mode has no damping, 0 for no modes."""
+    slowest = math.inf
+    for m in modes:
+        omega, zeta = 2.0 * math.pi * m.frequency, m.damping
+        slowest = min(slowest, zeta * omega if zeta <= 1.0 else omega * (zeta - math.sqrt(zeta * zeta - 1.0)))
+    if slowest == math.inf:
+        return 0.0
+    return math.log(1.0 / fraction) / slowest if slowest > 0.0 else math.inf
 
 
 def frf(modes: tuple[Mode, ...], omega: np.ndarray) -> np.ndarray:

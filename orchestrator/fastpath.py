@@ -21,7 +21,7 @@ call, so the two paths give bit-identical results:
   them to the results in one block per chunk.
 * The variable communication step (``[stepping]``): the plan holds the conditions (the address of each gate
   output with its threshold and sense), each instance's ``variable`` flag, and the coarse intervals' state
-  (current interval fine or coarse, whether a condition held at the latest evaluation, the counts), which
+  (current interval fine or coarse, how many evaluations stay fine because a condition held, the counts), which
   ``stp_run`` carries from one chunk to the next, so a chunk may end anywhere inside an interval.
 * Parameter changes at events (``[[on_change]]``): the plan holds each entry's watched output (the address of its
   Int32 or Boolean element, read after every step of its instance, since it is among the outputs read there),
@@ -67,7 +67,7 @@ LIBRARY_ENV = "MILLING_TWIN_STEPPER"
 # the stepper library's file on this system, as CMake and fmus/cross/build_all_platforms.py name it
 LIBRARY_NAMES = {"win32": "milling_stepper.dll", "darwin": "libmilling_stepper.dylib"}
 LIBRARY_NAME = LIBRARY_NAMES.get(sys.platform, "libmilling_stepper.so")
-ABI_VERSION = 6
+ABI_VERSION = 7
 CHUNK_SECONDS = 0.1  # wall time a chunk should take: the Ctrl-C latency and progress-bar period
 FIRST_CHUNK_TICKS = 256
 MAX_CHUNK_TICKS = 1 << 18  # bounds a chunk where ticks cost next to nothing (and rows are rare)
@@ -133,8 +133,8 @@ class _Plan(ctypes.Structure):
                 ("columns", ctypes.POINTER(_Column)), ("should_stop", STOP_CALLBACK),
                 ("recorded_time", _vp), ("recorded_samples", _i64), ("recorded_tolerance", _f64),
                 ("gates", ctypes.POINTER(_Gate)), ("n_gates", _i64), ("ticks_per_interval", _i64),
-                ("first_variable", _i64), ("fine_intervals", _i64), ("coarse_intervals", _i64),
-                ("variable_steps", _i64), ("fine", _i32), ("held", _i32),
+                ("first_variable", _i64), ("hold_intervals", _i64), ("fine_intervals", _i64),
+                ("coarse_intervals", _i64), ("variable_steps", _i64), ("hold_left", _i64), ("fine", _i32),
                 ("watches", ctypes.POINTER(_Watch)), ("n_watches", _i64)]
 
 
@@ -360,6 +360,7 @@ class Stepper:
             self._keep.append(gates)
             self._plan.gates, self._plan.n_gates = gates, len(gates)
             self._plan.ticks_per_interval = stepping.ticks_per_interval
+            self._plan.hold_intervals = stepping.hold_intervals
             self._plan.first_variable = next(i for i, s in enumerate(self.slaves) if s.name in variable)
         watched = getattr(scenario, "on_change", ())  # [[on_change]] (test doubles of a scenario may lack it)
         self._watches = (_Watch * max(1, len(watched)))()

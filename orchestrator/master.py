@@ -32,9 +32,10 @@ Semantics of :func:`run` (``base`` = the scenario's base step, ``t_k = start + k
   other instances before it, among them every gate instance, which steps at exactly ``coarse_step`` and so has
   already stepped to ``t_min((c+1)M, N)``: Gauss-Seidel), the master evaluates the ``fine_when`` conditions on
   the gate outputs as last read (Real: ``value > threshold`` or ``value < threshold`` in the output's unit;
-  Boolean: ``value == is``). The interval is fine if a condition holds now or held at the previous interval's
-  evaluation (before the first interval none held): the condition now speaks of the interval's end, the
-  previous one of its start, so the interval in which the tool enters or leaves material is fine. Every
+  Boolean: ``value == is``). The interval is fine if a condition holds now or held at one of the ``H =
+  hold_intervals`` evaluations before it (default 1: the previous one; before the first interval none held):
+  the condition now speaks of the interval's end, the previous one of its start, so the interval in which the
+  tool enters or leaves material is fine, and with ``H > 1`` the ``H - 1`` intervals after it too. Every
   interval counts as fine or coarse once, when evaluated. In a fine interval the variable instances step on
   their own step size, as without ``[stepping]``. In a coarse interval each variable instance is due once, at
   ``cM``, and makes one ``doStep(t_cM, t_min((c+1)M, N) - t_cM)``, its inputs set at that tick as above;
@@ -434,13 +435,14 @@ def _stepping_settings(scenario: Scenario) -> dict[str, Any]:
     return {"coarse_step": st.coarse_step, "ticks_per_interval": st.ticks_per_interval,
             "variable": list(st.variable),
             "fine_when": [{"output": str(g.output), g.sense: bool(g.threshold) if g.sense == "is" else g.threshold}
-                          for g in st.fine_when]}
+                          for g in st.fine_when],
+            "hold_intervals": st.hold_intervals}
 
 
 class _Intervals:
     """The variable communication step's state from tick to tick on the Python path (the fast path keeps the
-    same in its plan): whether the current coarse interval is fine, whether a condition held at the latest
-    evaluation, the counts, and the doSteps of the variable instances."""
+    same in its plan): whether the current coarse interval is fine, how many evaluations after the latest one
+    stay fine because a condition held (``hold_left``), the counts, and the doSteps of the variable instances."""
 
     def __init__(self, scenario: Scenario, slaves: dict[str, _Slave]) -> None:
         st = scenario.stepping
@@ -448,12 +450,14 @@ class _Intervals:
         self.m = st.ticks_per_interval
         self.first = slaves[st.variable[0]]  # variable names are in execution order
         self.gates = [(slaves[g.output.instance].column(g.output.variable), g) for g in st.fine_when]
-        self.fine, self.held = True, False
+        self.hold = st.hold_intervals
+        self.fine, self.hold_left = True, 0
         self.fine_count = self.coarse_count = self.steps = 0
 
     def evaluate(self) -> None:
         now = any(g.holds(buf[j]) for (buf, j), g in self.gates)
-        self.fine, self.held = now or self.held, now
+        self.fine = now or self.hold_left > 0
+        self.hold_left = self.hold if now else max(self.hold_left - 1, 0)
         if self.fine:
             self.fine_count += 1
         else:

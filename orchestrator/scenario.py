@@ -74,6 +74,8 @@ Format (all times in seconds; paths are relative to the scenario file's folder):
       { output = "workpiece.axial_depth", above = 0.0 },                        # Real: above / below a threshold
       { output = "workpiece.clearance", below = { value = 2.0, unit = "mm" } }, # (its unit, or { value, unit })
     ]                           # Boolean: { output = "...", is = true }
+    hold = { value = 30, unit = "ms" }  # optional: intervals stay fine this long after a condition last held
+                                        # (rounded up to whole coarse intervals; default and least: one)
 
     [[on_change]]               # optional, repeatable: set tunable parameters when an output changes
     output = "interp.tool_number"   # an Int32 or Boolean output (of an instance that is not variable)
@@ -121,7 +123,8 @@ a coarse interval hold the outputs of the step covering them). ``fine_when`` lis
 on a Real/Float64 output (``above`` or ``below``, strict, a number in the output's unit or ``{ value, unit }`` of
 the same dimension) or a Boolean output (``is = true`` or ``false``) of an instance that steps at exactly
 ``coarse_step`` and precedes every variable instance in the execution order (so the condition reads the value at
-the coarse interval's end).
+the coarse interval's end). ``hold`` (s, or ``{ value, unit }``; default ``coarse_step``) is at least
+``coarse_step``; it is rounded up to whole coarse intervals.
 
 ``[[on_change]]`` (when it fires: ``orchestrator/master.py``): ``output`` an Int32 or Boolean output of an
 instance that is not a ``[stepping]`` variable instance (it must keep its own step grid); ``equals`` a whole
@@ -290,12 +293,15 @@ class FineWhen:
 @dataclass(frozen=True)
 class Stepping:
     """``[stepping]``: coarse intervals of ``ticks_per_interval`` base steps (``coarse_step``), in which the
-    ``variable`` instances (execution order) make one step unless a ``fine_when`` condition holds."""
+    ``variable`` instances (execution order) make one step unless a ``fine_when`` condition holds now or held at
+    one of the ``hold_intervals`` evaluations before (1: the previous one, so the interval the tool leaves
+    material in is fine)."""
 
     coarse_step: float
     ticks_per_interval: int
     variable: tuple[str, ...]
     fine_when: tuple[FineWhen, ...]
+    hold_intervals: int = 1
 
 
 @dataclass(frozen=True)
@@ -934,11 +940,12 @@ def _stepping(ctx: _Ctx, table: Any, order: Sequence[FmuInstance], base: float,
               model_descriptions: Mapping[str, Any]) -> Stepping:
     """``[stepping]``, checked against the instances (in execution order) and the base step."""
     key = "[stepping]"
-    ctx.table(table, key, ("coarse_step", "variable", "fine_when"))
+    ctx.table(table, key, ("coarse_step", "variable", "fine_when", "hold"))
     coarse = ctx.number(table, key, "coarse_step", positive=True)
     ticks = round(coarse / base)
     if ticks < 1 or abs(coarse / base - ticks) > 1e-6 * ticks:
         ctx.fail(f"{key}.coarse_step", f"{coarse!r} s is not an integer multiple of the base step {base!r} s")
+    hold_intervals = _hold_intervals(ctx, table, key, coarse)
     by_name = {inst.name: inst for inst in order}
     position = {inst.name: i for i, inst in enumerate(order)}
     names = table.get("variable")
@@ -999,7 +1006,31 @@ def _stepping(ctx: _Ctx, table: Any, order: Sequence[FmuInstance], base: float,
         except UnitError as exc:
             ctx.fail(f"{k}.{sense}", f"unit {unit!r} does not fit {ref} ({var.unit or 'no unit'}): {exc}")
         gates.append(FineWhen(ref, sense, threshold))
-    return Stepping(coarse, ticks, tuple(sorted(names, key=position.__getitem__)), tuple(gates))
+    return Stepping(coarse, ticks, tuple(sorted(names, key=position.__getitem__)), tuple(gates), hold_intervals)
+
+
+def _hold_intervals(ctx: _Ctx, table: Mapping[str, Any], key: str, coarse: float) -> int:
+    """``[stepping].hold`` in whole coarse intervals, rounded up (1 without it)."""
+    if "hold" not in table:
+        return 1
+    k, raw, unit = f"{key}.hold", table["hold"], None
+    if isinstance(raw, dict):
+        ctx.table(raw, k, ("value", "unit"))
+        unit = ctx.string(raw, k, "unit")
+        raw = raw.get("value")
+    if isinstance(raw, bool) or not isinstance(raw, (int, float)) or not math.isfinite(raw):
+        ctx.fail(k, f"expected a finite number of seconds or {{ value, unit }}, got {table['hold']!r}")
+    try:
+        hold = float(raw) * (1.0 if unit is None else _factor(unit, "s"))
+    except UnitError as exc:
+        ctx.fail(k, f"unit {unit!r} is not a time: {exc}")
+    if hold < coarse * (1.0 - 1e-9):
+        ctx.fail(k, f"{hold!r} s is shorter than coarse_step {coarse!r} s: the interval in which a condition "
+                    "stops holding (the tool leaves material) must be fine")
+    intervals = max(1, math.ceil(hold / coarse * (1.0 - 1e-9)))
+    if intervals > 2**31 - 1:
+        ctx.fail(k, f"{hold!r} s is {intervals} coarse intervals, more than 2^31 - 1")
+    return intervals
 
 
 def _on_change(ctx: _Ctx, doc: dict, instances: Mapping[str, FmuInstance],

@@ -2,6 +2,7 @@
 and every mistake named by file and key."""
 from __future__ import annotations
 
+import dataclasses
 import math
 import re
 import tomllib
@@ -166,11 +167,44 @@ def test_the_expansion_uses_optional_variables_only_where_the_fmus_have_them(tmp
     assert doc["outputs"]["record"] == ["interp.x", "workpiece.axial_depth", "workpiece.mrr", "force.Fx",
                                         "power.P_total"]
     full = {"workpiece": {"clearance", "clearance_range"}, "power": {"cutting_power", "cutting_power_from_force"}}
-    doc = explicit_scenario(part, {**{k: dict.fromkeys(v) for k, v in names.items()},
-                                   **{k: dict.fromkeys(v) for k, v in full.items()}}, {"name": "p"})
+    variables = {**{k: dict.fromkeys(v) for k, v in names.items()}, **{k: dict.fromkeys(v) for k, v in full.items()}}
+    doc = explicit_scenario(part, variables, {"name": "p"})
+    assert doc["stepping"]["fine_when"] == [{"output": "workpiece.axial_depth", "above": 0.0}]  # no lookahead
+    assert doc["fmus"]["workpiece"]["parameters"]["clearance_range"] == pytest.approx(0.003)   # recorded only
+    assert {"from": "force.power", "to": "power.cutting_power"} in doc["connections"]
+    doc = explicit_scenario(dataclasses.replace(part, lookahead=0.002), variables, {"name": "p"})
     assert doc["stepping"]["fine_when"][1] == {"output": "workpiece.clearance", "below": 0.002}
     assert doc["fmus"]["workpiece"]["parameters"]["clearance_range"] == pytest.approx(0.003)
-    assert {"from": "force.power", "to": "power.cutting_power"} in doc["connections"]
+
+
+# The slowest of MODES rings down: 1300 Hz at 2 % damping, its envelope exp(-0.02 2 pi 1300 t) down to 1e-6
+RING_DOWN_MODES = math.log(1e6) / (0.02 * 2 * math.pi * 1300)   # 84.6 ms
+
+
+@pytest.mark.parametrize("edits, hold", [
+    ((), RING_DOWN_MODES),
+    ((("[part.tool_modes]", "[part.stepping]\nhold = { value = 20, unit = \"ms\" }\n[part.tool_modes]"),), 0.02),
+    ((("[part.tool_modes]", "[part.stepping]\nlookahead = { value = 2, unit = \"mm\" }\n[part.tool_modes]"),),
+     RING_DOWN_MODES),
+    # an override of the expanded modes: the x mode, 1200 Hz, now at 1 % damping, is the slowest
+    ((("[part.tool_modes]", "[fmus.vibration.parameters]\ndamping_x1 = 0.01\n[part.tool_modes]"),),
+     math.log(1e6) / (0.01 * 2 * math.pi * 1200)),
+])
+def test_force_and_vibration_stay_fine_until_the_tool_has_rung_down(tmp_path: Path, fmu_dir: Path, edits,
+                                                                   hold) -> None:
+    """After the tool leaves material, [stepping].hold keeps force and vibration at the fine step until the
+    slowest mode of the tool has rung down to 1e-6 of its amplitude (or as long as [part.stepping].hold says);
+    a lookahead adds the clearance condition."""
+    path = write_part(tmp_path, *edits)
+    stepping = load_scenario(path, fmu_dir).stepping
+    assert stepping.hold_intervals == math.ceil(hold / 1e-3 - 1e-9)
+    out = tmp_path / "explicit.toml"
+    assert main(["expand", str(path), "-o", str(out), "--fmu-dir", str(fmu_dir)]) == 0
+    doc = tomllib.loads(out.read_text())
+    assert doc["stepping"]["hold"] == pytest.approx(hold, rel=1e-12)
+    lookahead = any("lookahead" in new for _, new in edits)
+    assert [c["output"] for c in doc["stepping"]["fine_when"]] == \
+        ["workpiece.axial_depth"] + (["workpiece.clearance"] if lookahead else [])
 
 
 SPEC_ERRORS = [  # (id, edits of the part file, key, what the message says)

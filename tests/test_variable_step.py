@@ -175,7 +175,7 @@ def test_a_condition_that_never_holds_leaves_every_interval_coarse(fmu_dir, tmp_
     info = read_run_info(result.run_dir)["stepping"]["variable_step"]
     assert info == {"coarse_step": 0.001, "ticks_per_interval": M, "variable": ["force", "vibration"],
                     "fine_when": [{"output": "workpiece.axial_depth", "above": 1.0}],
-                    "fine_intervals": 0, "coarse_intervals": intervals}
+                    "hold_intervals": 1, "fine_intervals": 0, "coarse_intervals": intervals}
 
 
 def test_should_stop_inside_a_coarse_interval_same_on_both_paths(fmu_dir, tmp_path):
@@ -192,16 +192,47 @@ def test_should_stop_inside_a_coarse_interval_same_on_both_paths(fmu_dir, tmp_pa
     assert rf.fmu_steps == 2 * 31 + 2 * 31  # interp, workpiece, force, vibration: one step each per interval
 
 
-def test_the_interval_after_the_condition_stops_holding_is_fine(runs, fmu_dir, tmp_path):
+@pytest.mark.parametrize("hold, after", [("", 1), ("hold = 5e-3\n", 5), ('hold = { value = 4.2, unit = "ms" }\n', 5),
+                                         ("hold = 1e-3\n", 1)])
+def test_the_intervals_after_the_condition_stops_holding_are_fine(runs, fmu_dir, tmp_path, hold, after):
     """``interp.x below -13 mm`` holds at the end of the intervals while the tool is further back; the first
-    interval at whose end it no longer holds is fine too (it held at its start), the rest coarse."""
+    interval at whose end it no longer holds is fine too (it held at its start), and with ``hold`` the intervals
+    up to that long after it (rounded up to whole intervals), the rest coarse."""
     x = runs["fine"]["python"][1]["interp.x"].to_numpy()[10::10]  # at the end of each interval
     held = int(np.sum(x < -0.013))
     assert 10 < held < INTERVALS - 10 and np.all(np.diff(x) >= 0)
-    stepping = table('output = "interp.x", below = { value = -13.0, unit = "mm" }')
+    stepping = table('output = "interp.x", below = { value = -13.0, unit = "mm" }') + hold
+    scenario = load_scenario(write(tmp_path, stepping), fmu_dir)
+    assert scenario.stepping.hold_intervals == after
+    both = run_both(scenario, tmp_path / "runs")
+    assert_identical(both)
+    fine = held + after
+    assert (both["fast"][0].fine_intervals, both["fast"][0].coarse_intervals) == (fine, INTERVALS - fine)
+    angle = both["python"][1]["force.spindle_angle"].to_numpy()
+    assert len(set(angle[10 * (fine - 1) + 1:10 * fine + 1])) == 10  # the last fine interval: a value a row
+    assert len(set(angle[10 * fine + 1:10 * fine + 11])) == 1  # the first coarse one: one step
+
+
+@pytest.mark.parametrize("gap", [2, 5])
+def test_a_hold_restarts_when_the_condition_holds_again(runs, fmu_dir, tmp_path, monkeypatch, gap):
+    """``interp.x`` below -13 mm, or above a threshold ``gap`` intervals further on, with a hold of 3 intervals:
+    interval c is fine when a condition held at one of the evaluations c-3..c, so a gap of 2 stays fine
+    throughout and a gap of 5 has 2 coarse intervals; the fast path cut into chunks of 37 ticks carries the
+    hold's count across and gives the Python loop's rows and counts bit for bit."""
+    x = runs["fine"]["python"][1]["interp.x"].to_numpy()[10::10]  # at the end of each interval
+    first = int(np.argmax(x >= -0.013))
+    assert np.all(np.diff(x[first - 1:first + gap + 1]) > 0)
+    threshold = float(0.5 * (x[first + gap - 1] + x[first + gap]))  # m: false at the gap's intervals, true after
+    holds = (x < -0.013) | (x > threshold)
+    expected = sum(bool(holds[max(0, c - 3):c + 1].any()) for c in range(INTERVALS))
+    assert expected == INTERVALS - max(0, gap - 3)
+    stepping = table('output = "interp.x", below = { value = -13.0, unit = "mm" }',
+                     f'output = "interp.x", above = {threshold!r}') + "hold = 3e-3\n"
+    monkeypatch.setattr(fastpath, "FIRST_CHUNK_TICKS", 37)
+    monkeypatch.setattr(fastpath.Stepper, "max_ticks", lambda self: 37)
     both = run_both(load_scenario(write(tmp_path, stepping), fmu_dir), tmp_path / "runs")
     assert_identical(both)
-    assert (both["fast"][0].fine_intervals, both["fast"][0].coarse_intervals) == (held + 1, INTERVALS - held - 1)
+    assert (both["fast"][0].fine_intervals, both["fast"][0].coarse_intervals) == (expected, INTERVALS - expected)
 
 
 @pytest.mark.parametrize("fmi, value", [(3, "true"), (2, "false")])
@@ -262,6 +293,13 @@ BAD = {
                                   "[stepping].fine_when[0].above", "interp.spindle_on is Boolean: give is = true"),
     "two senses": ("above = 0.0", "above = 0.0, below = 1.0", "[stepping].fine_when[0]",
                    "give exactly one of above, below (Real outputs) and is (Boolean outputs), got above, below"),
+    "hold shorter than the coarse step": ("coarse_step = 1e-3", "coarse_step = 1e-3\nhold = 5e-4",
+                                          "[stepping].hold", "0.0005 s is shorter than coarse_step 0.001 s: the "
+                                                             "interval in which a condition stops holding"),
+    "hold not a time": ("coarse_step = 1e-3", 'coarse_step = 1e-3\nhold = { value = 3, unit = "mm" }',
+                        "[stepping].hold", "unit 'mm' is not a time"),
+    "hold not a number": ("coarse_step = 1e-3", 'coarse_step = 1e-3\nhold = "long"', "[stepping].hold",
+                          "expected a finite number of seconds or { value, unit }, got 'long'"),
 }
 
 

@@ -62,15 +62,16 @@ static int gate_holds(const stp_gate *g) {
                                  : *(const double *)g->source < g->threshold;
 }
 
-/* The start of a coarse interval: fine if a gate holds now or held at the previous evaluation. */
+/* The start of a coarse interval: fine if a gate holds now or held at one of the hold_intervals evaluations
+ * before (_Intervals.evaluate of orchestrator/master.py). */
 static void evaluate_gates(stp_plan *plan) {
     int64_t i;
     int now = 0;
     for (i = 0; i < plan->n_gates && !now; ++i) {
         now = gate_holds(&plan->gates[i]);
     }
-    plan->fine = now || plan->held;
-    plan->held = now;
+    plan->fine = now || plan->hold_left > 0;
+    plan->hold_left = now ? plan->hold_intervals : (plan->hold_left > 0 ? plan->hold_left - 1 : 0);
     if (plan->fine) {
         ++plan->fine_intervals;
     } else {

@@ -25,7 +25,7 @@
 #include "fmi2FunctionTypes.h"
 #include "fmi3FunctionTypes.h"
 
-#define STP_ABI_VERSION 6
+#define STP_ABI_VERSION 7
 
 #if defined(_WIN32)
 #define STP_EXPORT __declspec(dllexport)
@@ -185,17 +185,19 @@ typedef struct {
     double recorded_tolerance;
     /* The variable communication step ([stepping]; n_gates 0: none, nothing below is used). At each tick
      * k % ticks_per_interval == 0, before instance first_variable, the gates are evaluated: the interval
-     * [k, k + ticks_per_interval) is fine if one holds now or held at the previous evaluation. */
+     * [k, k + ticks_per_interval) is fine if one holds now or held at one of the hold_intervals evaluations
+     * before. */
     const stp_gate *gates;
     int64_t n_gates;
     int64_t ticks_per_interval; /* M = coarse_step / base */
     int64_t first_variable;     /* index of the first variable instance in execution order */
-    /* State carried from call to call (start with fine = 1, held = 0, counts 0); stp_run updates it. */
+    int64_t hold_intervals;     /* H >= 1 ([stepping].hold in coarse intervals) */
+    /* State carried from call to call (start with fine = 1, hold_left = 0, counts 0); stp_run updates it. */
     int64_t fine_intervals;     /* intervals evaluated fine */
     int64_t coarse_intervals;   /* intervals evaluated coarse */
     int64_t variable_steps;     /* doSteps of the variable instances */
+    int64_t hold_left;          /* evaluations still fine after the latest because a condition held */
     int32_t fine;               /* the current interval is fine */
-    int32_t held;               /* a condition held at the latest evaluation */
     /* [[on_change]] (n_watches 0: none). At a tick's start the due watches are checked: when one fires, stp_run
      * returns STP_EVENT at that tick, the watches unchanged; else each due watch remembers its value. */
     stp_watch *watches;

@@ -19,6 +19,7 @@ from typing import Any
 
 import tomli_w
 
+from milling_twin.models.stability import Mode, ring_down_time
 from milling_twin.orchestrator.gcode.program_summary import summarize
 from milling_twin.orchestrator.part.model import (FORCE, INTERPOLATOR, POWER, VIBRATION, WORKPIECE, CutTool,
                                                    Part)
@@ -34,6 +35,11 @@ BESIDE_PART = ("scenario", "part", "fmus", "recorded", "inputs", "outputs", "com
 DEFAULT_OUTPUT_INTERVAL = 1e-4      # s
 STOP_MARGIN = 0.05                  # s after the program's machining time
 CLEARANCE_MARGIN = 1.5              # the Workpiece looks for material this many lookaheads around the tool
+CLEARANCE_RANGE = 3e-3              # m: how far it looks without a lookahead (the recorded clearance)
+# The tool's vibration left, relative to its amplitude on leaving material, when force and vibration go back to
+# the coarse step: then a cut entered again soon after sees a regenerative chip and a vibration that differ from
+# the all-fine run's by this much of it at most (the free response itself is exact at any step)
+RING_DOWN = 1e-6
 RECORD = {
     INTERPOLATOR: ("x", "y", "z", "x_program", "y_program", "z_program", "feed", "spindle_speed", "line_number",
                    "tool_number"),
@@ -94,6 +100,10 @@ def expand_document(ctx: TomlAccess, doc: dict[str, Any], fmu_dir: Path) -> tupl
                 name = exc.key.rpartition(".")[2]
                 ctx.fail(_origin(inst, name), f"{exc.detail} (as {exc.key} of the expanded scenario)")
     _overrides(ctx, explicit, doc.get("fmus", {}))
+    if part.hold is None and doc.get("fmus", {}).get(VIBRATION):  # the modes as overridden ring down in their time
+        vibration = _parameters(ctx, VIBRATION, explicit["fmus"][VIBRATION]["parameters"], variables[VIBRATION],
+                                "ToolVibration")
+        explicit["stepping"]["hold"] = _hold(explicit, vibration, part.coarse_step)
     return explicit, part
 
 
@@ -136,7 +146,7 @@ def explicit_scenario(part: Part, variables: Mapping[str, Mapping[str, Variable]
         "resolution": part.stock.resolution, **_workpiece_tool(cutting[0], several),
         "flute_count": tool.flutes, "helix_angle": tool.helix}
     if "clearance_range" in has[WORKPIECE]:
-        workpiece["clearance_range"] = CLEARANCE_MARGIN * part.lookahead
+        workpiece["clearance_range"] = CLEARANCE_MARGIN * part.lookahead if part.lookahead > 0 else CLEARANCE_RANGE
     fastest = max(part.machine.get("rapid_feed", 0.0), part.machine.get("max_feed", 0.0))
     if fastest * 1.5 > 2.0:  # the Workpiece's default max_tool_speed (2 m/s) refuses faster jumps
         workpiece["max_tool_speed"] = 1.5 * fastest
@@ -176,7 +186,7 @@ def explicit_scenario(part: Part, variables: Mapping[str, Mapping[str, Variable]
                      "delay": True} for axis in "xy"]  # the tool's vibration comes back one fine step late
 
     fine_when: list[dict[str, Any]] = [{"output": f"{WORKPIECE}.axial_depth", "above": 0.0}]
-    if "clearance" in has[WORKPIECE]:
+    if part.lookahead > 0 and "clearance" in has[WORKPIECE]:
         fine_when.append({"output": f"{WORKPIECE}.clearance", "below": part.lookahead})
     doc: dict[str, Any] = {"scenario": dict(scenario), "fmus": fmus, "connections": connections,
                            "stepping": {"coarse_step": part.coarse_step, "variable": [FORCE, VIBRATION],
@@ -186,6 +196,7 @@ def explicit_scenario(part: Part, variables: Mapping[str, Mapping[str, Variable]
             **{f"{WORKPIECE}.{k}": v for k, v in _workpiece_tool(c, True).items()},
             **{f"{FORCE}.{k}": v for k, v in force_tool_parameters(c).items()},
             **{f"{VIBRATION}.{k}": v for k, v in vibration_parameters(c).items()}}} for c in cutting]
+    doc["stepping"]["hold"] = part.hold if part.hold is not None else _hold(doc, vibration, part.coarse_step)
     for name in ("recorded", "inputs", "compare", "alignment"):
         if name in beside:
             doc[name] = copy.deepcopy(beside[name])
@@ -203,6 +214,18 @@ def _workpiece_tool(c: CutTool, with_length: bool) -> dict[str, Any]:
 def force_tool_parameters(c: CutTool) -> dict[str, Any]:
     """The force model's parameters of one tool (its geometry; the material's coefficients are the part's)."""
     return {"n_flutes": c.tool.flutes, "tool_diameter": c.tool.diameter, "helix_angle": c.tool.helix}
+
+
+def _hold(doc: Mapping[str, Any], vibration: Mapping[str, Any], coarse_step: float) -> float:
+    """``[stepping].hold`` (s): the time in which the slowest mode of any tool rings down to RING_DOWN of its
+    amplitude (``vibration``: ToolVibration's parameters, SI; each tool change's in ``doc["on_change"]``), at
+    least one coarse step."""
+    prefix = f"{VIBRATION}."
+    sets = [dict(vibration)] + [{**vibration, **{k[len(prefix):]: v for k, v in entry["set"].items()
+                                                  if k.startswith(prefix)}} for entry in doc.get("on_change", ())]
+    modes = [Mode(float(p[f"frequency_{axis}{i}"]), float(p[f"damping_{axis}{i}"]), float(p[f"stiffness_{axis}{i}"]))
+             for p in sets for axis in "xy" for i in range(1, int(p.get(f"n_modes_{axis}", 0)) + 1)]
+    return max(coarse_step, ring_down_time(modes, RING_DOWN))
 
 
 def vibration_parameters(c: CutTool) -> dict[str, Any]:

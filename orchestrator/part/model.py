@@ -66,7 +66,8 @@ class Part:
     cutting_power: str = "force"         # "force": torque x omega of the force model; "mrr": the MRR term
     fine_step: float = 1e-5              # s: force and vibration in and near material
     coarse_step: float = 1e-3            # s: the interpolation period, also force and vibration in air
-    lookahead: float = 2e-3              # m: step finely this close to material (the Workpiece's clearance)
+    lookahead: float = 0.0               # m: also step finely this close to material (the Workpiece's clearance; 0: no)
+    hold: float | None = None            # s: step finely this long after material (None: the modes' ring-down)
     machine: dict[str, float] = field(default_factory=dict)   # Interpolator parameters (limits, start), SI
     spindle: dict[str, float] = field(default_factory=dict)   # SpindlePower parameters, SI
     feed_override: float = 1.0           # the Interpolator's feed override (1: 100 %)

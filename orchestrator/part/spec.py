@@ -31,7 +31,6 @@ FORCE_MODELS = ("CuttingForce", "ForceNet")
 CUTTING_POWER = ("force", "mrr")
 MAX_MODES = 4                       # ToolVibration: up to 4 modes per direction
 DEFAULT_FINE_STEP = 1e-5            # s
-DEFAULT_LOOKAHEAD = 2e-3            # m
 FORCENET_MATERIAL = "Al7075-T6"     # ForceNet learned the mechanistic model with these coefficients
 _log = logging.getLogger("milling_twin.part")
 # Set by [part] itself, not by [part.machine] / [part.spindle]
@@ -178,7 +177,8 @@ def read_part(ctx: TomlAccess, raw: Any, variables: Mapping[str, Mapping[str, Va
     modes_table = ctx.table(table.get("tool_modes"), "[part.tool_modes]",
                             ("x", "y", *(f"T{t.number}" for t in tools)))
 
-    step_table = ctx.table(table.get("stepping", {}), "[part.stepping]", ("fine_step", "coarse_step", "lookahead"))
+    step_table = ctx.table(table.get("stepping", {}), "[part.stepping]",
+                           ("fine_step", "coarse_step", "lookahead", "hold"))
     period = float(machine.get("period", default_parameters()["period"]))
     coarse = quantity(ctx, step_table, "[part.stepping]", "coarse_step", "s", period, positive=True)
     if "period" in machine and abs(coarse - period) > 1e-12:
@@ -191,7 +191,11 @@ def read_part(ctx: TomlAccess, raw: Any, variables: Mapping[str, Mapping[str, Va
     if abs(coarse / fine - round(coarse / fine)) > 1e-6 * coarse / fine:
         ctx.fail("[part.stepping].fine_step", f"{fine!r} s does not divide coarse_step {coarse!r} s a whole number "
                                               f"of times")
-    lookahead = quantity(ctx, step_table, "[part.stepping]", "lookahead", "m", DEFAULT_LOOKAHEAD, positive=True)
+    lookahead = quantity(ctx, step_table, "[part.stepping]", "lookahead", "m", 0.0, positive="lookahead" in step_table)
+    hold = quantity(ctx, step_table, "[part.stepping]", "hold", "s", None)
+    if hold is not None and hold < coarse * (1.0 - 1e-9):
+        ctx.fail("[part.stepping].hold", f"{hold!r} s is shorter than coarse_step {coarse!r} s: the interval in "
+                                         f"which the tool leaves material must be stepped finely")
 
     try:
         parsed = checks.parse(program, dialect, tools, machine)
@@ -227,7 +231,8 @@ def read_part(ctx: TomlAccess, raw: Any, variables: Mapping[str, Mapping[str, Va
         _log.warning("%s", warnings[-1])
     return Part(program=program, dialect=dialect, tool_table=tool_table, tool=first.tool, stock=stock,
                 material=material, modes_x=first.modes_x, modes_y=first.modes_y, force_model=force_model,
-                cutting_power=cutting_power, fine_step=fine, coarse_step=coarse, lookahead=lookahead, machine=machine,
+                cutting_power=cutting_power, fine_step=fine, coarse_step=coarse, lookahead=lookahead, hold=hold,
+                machine=machine,
                 spindle=spindle, feed_override=feed_override, flute_length=first.flute_length,
                 program_zero=(zeros[0][0], zeros[0][1], base), warnings=tuple(warnings), tools=tuple(tools),
                 tool_length=first.length, later_tools=tuple(cut_tools[1:]))

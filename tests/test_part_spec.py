@@ -265,6 +265,9 @@ SPEC_ERRORS = [  # (id, edits of the part file, key, what the message says)
      "that Interpolator allows for 'feed_override' (as [fmus.interp].inputs.feed_override of the expanded scenario)"),
     ("lookahead", [("[part.tool_modes]", "[part.stepping]\nlookahead = { value = -2, unit = \"mm\" }\n"
                                           "[part.tool_modes]")], "[part.stepping].lookahead", "must be > 0"),
+    ("hold", [("[part.tool_modes]", "[part.stepping]\nhold = { value = 0.2, unit = \"ms\" }\n[part.tool_modes]")],
+     "[part.stepping].hold", "0.0002 s is shorter than coarse_step 0.001 s: the interval in which the tool leaves "
+                             "material must be stepped finely"),
     ("override-unknown-instance", [("[part.tool_modes]", "[fmus.mrr.parameters]\nc2 = 1\n[part.tool_modes]")],
      "[fmus.mrr]", "beside [part], [fmus] only overrides parameters of the part's instances interp, workpiece, "
                    "force, vibration, power; 'mrr' is not one of them"),

@@ -30,11 +30,14 @@ def _short(name: str, stop: float, fmu_dir: Path) -> Scenario:
 
 
 def _round_trip(scenario: Scenario, archive: Path) -> tuple[object, object]:
-    """The scenario's frame and the frame of its SSP export run again."""
+    """The scenario's frame and the frame of its SSP export run again (its [stepping], the hold among it, read
+    back as it was)."""
     export_ssp(scenario, archive)
     direct = mt.simulate(scenario).frame
     with opened(archive) as path:
-        again = mt.simulate(mt.load_scenario(path)).frame
+        loaded = mt.load_scenario(path)
+        assert loaded.stepping == scenario.stepping
+        again = mt.simulate(loaded).frame
     return direct, again
 
 

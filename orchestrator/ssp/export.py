@@ -134,6 +134,8 @@ def _scenario_toml(scenario: Scenario, archive: _Archive) -> tuple[str, list[str
                            "fine_when": [{"output": str(f.output),
                                           f.sense: (f.threshold != 0.0) if f.sense == "is" else f.threshold}
                                          for f in st.fine_when]}
+        if st.hold_intervals > 1:
+            doc["stepping"]["hold"] = st.hold_intervals * st.coarse_step  # read back as as many intervals
         warnings.append(f"[stepping]: the engagement-driven variable step ({', '.join(st.variable)} take one "
                         f"{st.coarse_step:g} s step in air) has no SSP 1.0 form; an SSP importer steps them at "
                         "their own step size throughout")

@@ -2,6 +2,7 @@
 
     .venv/bin/python tests/benchmarks/whole_part.py [--fmu-dir build/fmus] [--out runs/benchmarks/whole_part]
         [--parts scenarios/al_bracket.toml scenarios/umich_part.toml scenarios/al_plate.toml] [--repeat 3]
+        [--generated SEED ...]   # and parts of random programs (generated_parts.py)
 
 Per part, in one process and one after the other (ratios of runs made minutes apart on the same machine):
 
@@ -11,7 +12,13 @@ Per part, in one process and one after the other (ratios of runs made minutes ap
   real-time factor of the variable run (simulated machining time / wall time of the loop, and / wall time of the
   whole command: set-up, loop, writing, comparisons and the process report);
 - in material (rows with ``workpiece.axial_depth`` > 0 in the all-fine run): the RMS difference of Fx, Fy, torque
-  and the tip deflection x and y between the two runs, relative to the all-fine run's RMS of each;
+  and the tip deflection x and y between the two runs, relative to the all-fine run's RMS of each, over the rows
+  of the stretches in material that hold no chattering block (the all-fine run's process report) and over all
+  in-cut rows. A chattering cut is unstable: rounding differences (those of a 1 ms step against a hundred 10 us
+  ones of the same exact discretization) grow in it as the chatter does, so its time series part; there, per
+  chattering block, the runs' chatter flags and the relative differences of the block's mean and maximum force
+  and maximum deflection; and, as the yardstick, the same figures of the all-fine run against itself with the
+  tool's first x stiffness changed by 1e-13 of it (run only for a part with chattering blocks);
 - the machining time (the last row at which the Interpolator's position changes) of both, the removed volume
   (the Workpiece's ``removed_volume`` at the end) of both, and against stock - final Z-map volume;
 - per straight cut at constant depth, the volume removed over its steady part against width x length x depth
@@ -26,13 +33,16 @@ import dataclasses
 import json
 import time
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 import pandas as pd
 
 import milling_twin
+from generated_parts import write_generated_part
 from milling_twin.api import default_fmu_dir
 from milling_twin.orchestrator.part.model import FORCE, INTERPOLATOR, VIBRATION, WORKPIECE
+from milling_twin.orchestrator.scenario import Scenario
 
 REPO = Path(__file__).resolve().parents[2]
 PARTS = (REPO / "scenarios" / "al_bracket.toml", REPO / "scenarios" / "umich_part.toml",
@@ -68,18 +78,21 @@ def measure(path: Path, fmu_dir: Path, out: Path, repeat: int) -> dict:
     a, b = var.frame, fine.frame
     assert np.array_equal(a["time"].to_numpy(), b["time"].to_numpy())
     cut = b[f"{WORKPIECE}.axial_depth"].to_numpy() > 0.0
-    differences = {}
-    for column in COMPARED:
-        x, y = a[column].to_numpy()[cut], b[column].to_numpy()[cut]
-        rms = float(np.sqrt(np.mean(y ** 2)))
-        differences[column] = float(np.sqrt(np.mean((x - y) ** 2))) / rms if rms > 0 else 0.0
+    var_blocks, fine_blocks = _blocks(var.run.run_dir), _blocks(fine.run.run_dir)
+    chattering = fine_blocks.loc[fine_blocks["chatter"].astype(bool), "line"].to_numpy() \
+        if "chatter" in fine_blocks else np.zeros(0)
+    stable_cut = _stable_rows(cut, np.isin(b[f"{INTERPOLATOR}.line_number"].to_numpy(), chattering))
+    differences = _rms_differences(a, b, stable_cut)
+    differences_all = _rms_differences(a, b, cut)
+    chatter = _chatter_agreement(var_blocks, fine_blocks)
     t_var, t_fine = machining_time(a), machining_time(b)
     v_var = float(a[f"{WORKPIECE}.removed_volume"].iloc[-1])
     v_fine = float(b[f"{WORKPIECE}.removed_volume"].iloc[-1])
     process = var.process_report
     ratios = _volume_ratios(var.run.run_dir)
     return {
-        "part": path.name, "simulated_time": var.run.end_time, "rows": var.run.rows,
+        "part": path.name if path.name != "part.toml" else path.parent.name,
+        "simulated_time": var.run.end_time, "rows": var.run.rows,
         "fine_intervals": var.run.fine_intervals, "coarse_intervals": var.run.coarse_intervals,
         "in_material_fraction": float(np.mean(cut)),
         "repeat": repeat, "loop_wall_times": loops, "command_wall_times": walls,
@@ -90,7 +103,11 @@ def measure(path: Path, fmu_dir: Path, out: Path, repeat: int) -> dict:
         "speedup_command": fine_wall / var_wall,
         "real_time_factor_loop": t_var / var_loop,
         "real_time_factor_command": t_var / var_wall,
-        "rms_difference_in_material": differences,
+        "rms_difference_in_material": differences,            # in-cut stretches holding no chattering block
+        "in_material_stable_fraction": float(np.mean(stable_cut)),
+        "rms_difference_in_material_all": differences_all,    # every in-cut row, chattering blocks too
+        "chattering_blocks": chatter,
+        "perturbed_all_fine": _perturbed(runs["all_fine"], cases[1][1], out) if chatter["count"] else None,
         "machining_time": {"variable": t_var, "all_fine": t_fine},
         "removed_volume": {"variable": v_var, "all_fine": v_fine,
                            "relative_difference": abs(v_var - v_fine) / v_fine if v_fine else 0.0,
@@ -103,11 +120,82 @@ def measure(path: Path, fmu_dir: Path, out: Path, repeat: int) -> dict:
     }
 
 
+PERTURBATION = 1e-13  # relative, of the all-fine run's stiffness_x1: the yardstick of rounding in chatter
+
+
+def _perturbed(fine: Any, scenario: Scenario, out: Path) -> dict:
+    """The all-fine run against itself with stiffness_x1 of the vibration times 1 + PERTURBATION: the RMS
+    differences (in-cut stretches without chatter, all in-cut rows) and the chattering blocks' agreement."""
+    def changed(inst: Any) -> Any:
+        if inst.name != VIBRATION:
+            return inst
+        return dataclasses.replace(inst, parameters={**inst.parameters, "stiffness_x1": inst.parameters[
+            "stiffness_x1"] * (1.0 + PERTURBATION)})
+
+    case = dataclasses.replace(scenario, name=f"{scenario.name}_perturbed",
+                               instances=tuple(changed(inst) for inst in scenario.instances))
+    res = milling_twin.simulate(case, out=out, stepping="fast")
+    a, b = res.frame, fine.frame
+    cut = b[f"{WORKPIECE}.axial_depth"].to_numpy() > 0.0
+    blocks = _blocks(fine.run.run_dir)
+    chattering = np.isin(b[f"{INTERPOLATOR}.line_number"].to_numpy(),
+                         blocks.loc[blocks["chatter"].astype(bool), "line"].to_numpy())
+    return {"relative_change": PERTURBATION,
+            "rms_difference_in_material": _rms_differences(a, b, _stable_rows(cut, chattering)),
+            "rms_difference_in_material_all": _rms_differences(a, b, cut),
+            "chattering_blocks": _chatter_agreement(_blocks(res.run.run_dir), blocks)}
+
+
+def _blocks(run_dir: Path) -> pd.DataFrame:
+    """The process report's block table of a run (empty without one)."""
+    path = run_dir / "blocks.parquet"
+    return pd.read_parquet(path) if path.is_file() else pd.DataFrame()
+
+
 def _volume_ratios(run_dir: Path) -> np.ndarray:
     """The process report's removed / analytic volume of the straight cuts at constant depth."""
-    path = run_dir / "blocks.parquet"
-    blocks = pd.read_parquet(path) if path.is_file() else pd.DataFrame()
+    blocks = _blocks(run_dir)
     return blocks["volume_ratio"].dropna().to_numpy() if "volume_ratio" in blocks else np.zeros(0)
+
+
+def _stable_rows(cut: np.ndarray, chattering: np.ndarray) -> np.ndarray:
+    """The in-cut rows of the stretches in material (runs of consecutive ``cut`` rows) that hold no row of a
+    chattering block: the chatter of a slot goes on into the retract that leaves it."""
+    starts = np.flatnonzero(cut & ~np.concatenate(([False], cut[:-1])))
+    stretch = np.cumsum(np.isin(np.arange(cut.size), starts)) * cut  # 1, 2, ... per stretch, 0 in air
+    bad = np.unique(stretch[cut & chattering])
+    return cut & ~np.isin(stretch, bad)
+
+
+def _rms_differences(a: pd.DataFrame, b: pd.DataFrame, rows: np.ndarray) -> dict[str, float | None]:
+    """RMS of a - b over ``rows`` relative to b's RMS there, per compared column (None without rows)."""
+    out: dict[str, float | None] = {}
+    for column in COMPARED:
+        x, y = a[column].to_numpy()[rows], b[column].to_numpy()[rows]
+        rms = float(np.sqrt(np.mean(y ** 2))) if y.size else 0.0
+        out[column] = float(np.sqrt(np.mean((x - y) ** 2))) / rms if rms > 0 else (0.0 if y.size else None)
+    return out
+
+
+BLOCK_FIGURES = ("force_mean", "force_max", "deflection_max")  # N, N, m (blocks.parquet: SI)
+
+
+def _chatter_agreement(var_blocks: pd.DataFrame, fine_blocks: pd.DataFrame) -> dict:
+    """The blocks that chatter in the all-fine run: how many, in how many the variable run flags chatter too, and
+    the largest relative difference of each of BLOCK_FIGURES between the runs over them."""
+    if "chatter" not in fine_blocks or len(var_blocks) != len(fine_blocks):
+        return {"count": 0}
+    flagged = fine_blocks["chatter"].astype(bool).to_numpy()
+    out: dict = {"count": int(flagged.sum()), "lines": fine_blocks["line"].to_numpy()[flagged].tolist(),
+                 "flagged_in_both": int((flagged & var_blocks["chatter"].astype(bool).to_numpy()).sum())}
+    for column in BLOCK_FIGURES:
+        x, y = var_blocks[column].to_numpy()[flagged], fine_blocks[column].to_numpy()[flagged]
+        out[column] = float(np.max(np.abs(x - y) / np.abs(y))) if flagged.any() else None
+    return out
+
+
+def _percent(value: float | None) -> str:
+    return "n/a" if value is None else f"{100 * value:.3g} %"
 
 
 def main() -> None:
@@ -116,9 +204,12 @@ def main() -> None:
     parser.add_argument("--out", type=Path, default=Path("runs/benchmarks/whole_part"))
     parser.add_argument("--parts", type=Path, nargs="+", default=list(PARTS))
     parser.add_argument("--repeat", type=int, default=3, help="runs of each, alternating; the fastest counts")
+    parser.add_argument("--generated", type=int, nargs="*", default=[], metavar="SEED",
+                        help="also parts of random programs with these seeds (tests/benchmarks/generated_parts.py)")
     args = parser.parse_args()
     args.out.mkdir(parents=True, exist_ok=True)
-    results = [measure(path, args.fmu_dir, args.out, args.repeat) for path in args.parts]
+    parts = list(args.parts) + [write_generated_part(args.out / "programs", seed) for seed in args.generated]
+    results = [measure(path, args.fmu_dir, args.out, args.repeat) for path in parts]
     for r in results:
         d = r["rms_difference_in_material"]
         print(f"{r['part']}: {r['simulated_time']:.1f} s simulated, in material {100 * r['in_material_fraction']:.1f} %"
@@ -129,7 +220,24 @@ def main() -> None:
               f"{r['speedup_command']:.2f}x; doSteps {r['fmu_steps']['variable']} vs {r['fmu_steps']['all_fine']}")
         print(f"  real-time factor (variable): {r['real_time_factor_loop']:.2f} (loop), "
               f"{r['real_time_factor_command']:.2f} (whole command)")
-        print("  RMS difference in material / RMS: " + ", ".join(f"{k} {100 * v:.3g} %" for k, v in d.items()))
+        print(f"  RMS difference in material / RMS, stretches in material without chatter "
+              f"({100 * r['in_material_stable_fraction']:.1f} % of the rows): " + ", ".join(f"{k} {_percent(v)}" for k, v in d.items()))
+        c = r["chattering_blocks"]
+        if c["count"]:
+            print(f"  chattering blocks (lines {', '.join(map(str, c['lines']))}): flagged in both runs "
+                  f"{c['flagged_in_both']} of {c['count']}; largest relative difference "
+                  + ", ".join(f"{k} {100 * c[k]:.3g} %" for k in BLOCK_FIGURES)
+                  + "; RMS difference of all in-cut rows / RMS: "
+                  + ", ".join(f"{k} {_percent(v)}" for k, v in r["rms_difference_in_material_all"].items()))
+            p = r["perturbed_all_fine"]
+            pc = p["chattering_blocks"]
+            print(f"  yardstick, the all-fine run against itself with stiffness_x1 x (1 + {p['relative_change']:g}): "
+                  f"chatter flagged in both {pc['flagged_in_both']} of {pc['count']}; largest relative difference "
+                  + ", ".join(f"{k} {100 * pc[k]:.3g} %" for k in BLOCK_FIGURES)
+                  + "; RMS difference of all in-cut rows / RMS: "
+                  + ", ".join(f"{k} {_percent(v)}" for k, v in p["rms_difference_in_material_all"].items())
+                  + "; without chatter: "
+                  + ", ".join(f"{k} {_percent(v)}" for k, v in p["rms_difference_in_material"].items()))
         m, v = r["machining_time"], r["removed_volume"]
         zmap = v["stock_minus_zmap"]
         print(f"  machining time {m['variable']:.4f} s vs {m['all_fine']:.4f} s; removed volume "

@@ -74,6 +74,38 @@ def test_exact_discretization_does_not_depend_on_the_step_size(fmu: Path) -> Non
     assert np.max(np.abs(coarse - fine[9::10])) < 1e-11 * scale
 
 
+def ring_down(fmu: Path, step: float, steps: int) -> np.ndarray:
+    """Tip displacement and velocity x after each of ``steps`` free steps of ``step``, after a 5 ms push of F at
+    10 us on a 2800 Hz, 3 % mode (1.25e-5 m static)."""
+    rows = []
+    with Slave(require_fmu(fmu)) as slave:
+        slave.instantiate()
+        slave.initialize({"n_modes_x": 1, "n_modes_y": 1, "frequency_x1": 2800.0, "damping_x1": 0.03,
+                          "stiffness_x1": 2e7})
+        slave.set({"force_x": F, "force_y": 0.0})
+        for _ in range(500):
+            assert slave.step(1e-5) == OK
+        slave.set({"force_x": 0.0})
+        for _ in range(steps):
+            assert slave.step(step) == OK
+            rows.append(slave.get(["tip_displacement_x", "tip_velocity_x"]))
+    return np.array(rows)
+
+
+@pytest.mark.parametrize("fmu", FMUS, ids=fmu_id)
+def test_a_free_response_comes_to_rest_exactly_whatever_the_step(fmu: Path) -> None:
+    """Rung down, the tool is exactly at rest (REST of models/vibration.py: 1e-30 m), stepped at 10 us or at 1 ms,
+    not in subnormal numbers that differ between the two; it rests only from about 1e-30 m on, and stays."""
+    fine, coarse = ring_down(fmu, 1e-5, 20_000), ring_down(fmu, 1e-3, 200)  # 200 ms each
+    assert np.all(fine[-1] == 0.0) and np.all(coarse[-1] == 0.0)
+    for response in (fine, coarse):
+        resting = np.all(response == 0.0, axis=1)
+        first = int(np.argmax(resting))
+        assert first > 0 and np.all(resting[first:])          # once at rest, it stays
+        assert 0.0 < np.abs(response[first - 1, 0]) < 1e-28     # the step before: still ringing, near 1e-30 m
+    assert np.abs(fine[4_999, 0]) > 1e-20  # after 50 ms: 1.25e-5 m x exp(-528 / s x 0.05 s) ~ 4e-17 m, not at rest
+
+
 @pytest.mark.parametrize("fmu", FMUS, ids=fmu_id)
 def test_sensor_is_the_mode_shape_weighted_sum_and_acceleration_obeys_the_modal_equation(fmu: Path) -> None:
     parameters = {"n_modes_x": 2, "n_modes_y": 0, "shape_sensor_x1": 0.3, "shape_sensor_x2": -0.5,

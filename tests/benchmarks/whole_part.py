@@ -202,7 +202,7 @@ def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     parser.add_argument("--fmu-dir", type=Path, default=default_fmu_dir())
     parser.add_argument("--out", type=Path, default=Path("runs/benchmarks/whole_part"))
-    parser.add_argument("--parts", type=Path, nargs="+", default=list(PARTS))
+    parser.add_argument("--parts", type=Path, nargs="*", default=list(PARTS), help="none: the generated ones only")
     parser.add_argument("--repeat", type=int, default=3, help="runs of each, alternating; the fastest counts")
     parser.add_argument("--generated", type=int, nargs="*", default=[], metavar="SEED",
                         help="also parts of random programs with these seeds (tests/benchmarks/generated_parts.py)")

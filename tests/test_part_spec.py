@@ -186,7 +186,9 @@ RING_DOWN_MODES = math.log(1e6) / (0.02 * 2 * math.pi * 1300)   # 84.6 ms
     ((("[part.tool_modes]", "[part.stepping]\nhold = { value = 20, unit = \"ms\" }\n[part.tool_modes]"),), 0.02),
     ((("[part.tool_modes]", "[part.stepping]\nlookahead = { value = 2, unit = \"mm\" }\n[part.tool_modes]"),),
      RING_DOWN_MODES),
-    # an override of the expanded modes: the x mode, 1200 Hz, now at 1 % damping, is the slowest
+    # an override of the expanded modes: the x mode, 1200 Hz, now at 1 % damping, is the slowest; a second x mode
+    ((("[part.tool_modes]", "[fmus.vibration.parameters]\nn_modes_x = 2\nfrequency_x2 = 2000.0\ndamping_x2 = 0.05\n"
+                            "stiffness_x2 = 5e7\n[part.tool_modes]"),), RING_DOWN_MODES),
     ((("[part.tool_modes]", "[fmus.vibration.parameters]\ndamping_x1 = 0.01\n[part.tool_modes]"),),
      math.log(1e6) / (0.01 * 2 * math.pi * 1200)),
 ])
@@ -265,6 +267,9 @@ SPEC_ERRORS = [  # (id, edits of the part file, key, what the message says)
      "that Interpolator allows for 'feed_override' (as [fmus.interp].inputs.feed_override of the expanded scenario)"),
     ("lookahead", [("[part.tool_modes]", "[part.stepping]\nlookahead = { value = -2, unit = \"mm\" }\n"
                                           "[part.tool_modes]")], "[part.stepping].lookahead", "must be > 0"),
+    ("hold-of-an-unknown-mode", [("[part.tool_modes]", "[fmus.vibration.parameters]\nn_modes_x = 2\n[part.tool_modes]")],
+     "[fmus.vibration].parameters", "a mode is switched on without its frequency_x2: give it, or "
+                                    "[part.stepping].hold (the hold is the modes' ring-down)"),
     ("hold", [("[part.tool_modes]", "[part.stepping]\nhold = { value = 0.2, unit = \"ms\" }\n[part.tool_modes]")],
      "[part.stepping].hold", "0.0002 s is shorter than coarse_step 0.001 s: the interval in which the tool leaves "
                              "material must be stepped finely"),

@@ -103,7 +103,11 @@ def expand_document(ctx: TomlAccess, doc: dict[str, Any], fmu_dir: Path) -> tupl
     if part.hold is None and doc.get("fmus", {}).get(VIBRATION):  # the modes as overridden ring down in their time
         vibration = _parameters(ctx, VIBRATION, explicit["fmus"][VIBRATION]["parameters"], variables[VIBRATION],
                                 "ToolVibration")
-        explicit["stepping"]["hold"] = _hold(explicit, vibration, part.coarse_step)
+        try:
+            explicit["stepping"]["hold"] = _hold(explicit, vibration, part.coarse_step)
+        except KeyError as exc:
+            ctx.fail(f"[fmus.{VIBRATION}].parameters", f"a mode is switched on without its {exc.args[0]}: give it, "
+                                                      f"or [part.stepping].hold (the hold is the modes' ring-down)")
     return explicit, part
 
 

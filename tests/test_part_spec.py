@@ -362,3 +362,16 @@ def test_cutting_power_from_the_force_needs_an_fmu_that_takes_it(tmp_path: Path,
                                f"or use cutting_power = \"mrr\"")
     mrr = write_part(tmp_path / "mrr", ("material = ", 'cutting_power = "mrr"\nmaterial = '))
     assert not any(str(c.target) == "power.cutting_power" for c in load_scenario(mrr, old).connections)
+
+
+@pytest.mark.parametrize("seed", range(1, 11))
+def test_random_programs_of_the_benchmark_expand_as_whole_parts(tmp_path: Path, fmu_dir: Path, seed: int) -> None:
+    """The seeded random programs of tests/benchmarks/generated_parts.py (the whole-part benchmark's --generated)
+    pass the checks before the run and expand, with the bracket's tool, the ring-down hold and the program's
+    machining time."""
+    from benchmarks.generated_parts import write_generated_part
+
+    scenario = load_scenario(write_generated_part(tmp_path, seed), fmu_dir)
+    assert scenario.name == f"generated_{seed}" and scenario.part.tool.diameter == pytest.approx(0.01)
+    assert scenario.stepping.hold_intervals == math.ceil(math.log(1e6) / (0.03 * 2 * math.pi * 2800) / 1e-3)
+    assert 10.0 < scenario.part.machining_time < 120.0

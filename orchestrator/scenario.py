@@ -1009,6 +1009,11 @@ def _stepping(ctx: _Ctx, table: Any, order: Sequence[FmuInstance], base: float,
     return Stepping(coarse, ticks, tuple(sorted(names, key=position.__getitem__)), tuple(gates), hold_intervals)
 
 
+def hold_intervals(hold: float, coarse_step: float) -> int:
+    """A ``[stepping].hold`` of ``hold`` s in coarse intervals of ``coarse_step`` s: rounded up, at least 1."""
+    return max(1, math.ceil(hold / coarse_step * (1.0 - 1e-9)))
+
+
 def _hold_intervals(ctx: _Ctx, table: Mapping[str, Any], key: str, coarse: float) -> int:
     """``[stepping].hold`` in whole coarse intervals, rounded up (1 without it)."""
     if "hold" not in table:
@@ -1027,7 +1032,7 @@ def _hold_intervals(ctx: _Ctx, table: Mapping[str, Any], key: str, coarse: float
     if hold < coarse * (1.0 - 1e-9):
         ctx.fail(k, f"{hold!r} s is shorter than coarse_step {coarse!r} s: the interval in which a condition "
                     "stops holding (the tool leaves material) must be fine")
-    intervals = max(1, math.ceil(hold / coarse * (1.0 - 1e-9)))
+    intervals = hold_intervals(hold, coarse)
     if intervals > 2**31 - 1:
         ctx.fail(k, f"{hold!r} s is {intervals} coarse intervals, more than 2^31 - 1")
     return intervals
@@ -1121,4 +1126,23 @@ def with_values(scenario: Scenario, values: Mapping[str | Ref, Any], *, name: st
         ctx.fail("with_values(name)", f"{name!r}: use letters, digits, '_', '-' and '.' only")
     if name is not None:
         _check_run_name(ctx, "with_values(name)", name)
-    return replace(scenario, instances=tuple(instances), name=name or scenario.name)
+    changed = replace(scenario, instances=tuple(instances), name=name or scenario.name)
+    try:
+        return _part_hold(changed) if scenario.part is not None and grouped else changed
+    except KeyError as exc:
+        ctx.fail("with_values", f"a mode of the tool is switched on without its {exc.args[0]}: give it too (the "
+                                f"part's variable step holds the fine step until the modes ring down)")
+
+
+def _part_hold(scenario: Scenario) -> Scenario:
+    """A whole part's scenario with its ``[stepping].hold`` the ring-down of its tool's modes as they are now
+    (values changed after the expansion), unless ``[part.stepping].hold`` fixed it."""
+    from milling_twin.orchestrator.part.expand import ring_down_hold  # part.expand imports this module
+    from milling_twin.orchestrator.part.model import VIBRATION
+
+    st, part = scenario.stepping, scenario.part
+    if st is None or part is None or part.hold is not None or VIBRATION not in scenario.execution_order:
+        return scenario
+    changes = [{str(ref): value for ref, value in entry.values} for entry in scenario.on_change]
+    hold = ring_down_hold(scenario.instance(VIBRATION).parameters, changes, st.coarse_step)
+    return replace(scenario, stepping=replace(st, hold_intervals=hold_intervals(hold, st.coarse_step)))

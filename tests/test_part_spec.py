@@ -16,7 +16,7 @@ from milling_twin.cli import main
 from milling_twin.models.cutting_force import AL7075_CARBIDE
 from milling_twin.models.materials import MATERIALS
 from milling_twin.orchestrator.part.expand import explicit_scenario
-from milling_twin.orchestrator.scenario import Ref, ScenarioError, load_scenario
+from milling_twin.orchestrator.scenario import Ref, ScenarioError, load_scenario, with_values
 
 
 def _links(scenario) -> set[tuple[str, str, bool]]:
@@ -375,3 +375,20 @@ def test_random_programs_of_the_benchmark_expand_as_whole_parts(tmp_path: Path, 
     assert scenario.name == f"generated_{seed}" and scenario.part.tool.diameter == pytest.approx(0.01)
     assert scenario.stepping.hold_intervals == math.ceil(math.log(1e6) / (0.03 * 2 * math.pi * 2800) / 1e-3)
     assert 10.0 < scenario.part.machining_time < 120.0
+
+
+def test_values_changed_after_the_expansion_move_the_ring_down_hold(tmp_path: Path, fmu_dir: Path) -> None:
+    """``with_values`` (``--set``, a study's cases) on a whole part: a lower damping rings down longer, so the hold
+    follows the modes as they are now; a hold the part file fixes stays; a mode switched on without its values is
+    an error naming the missing one."""
+    scenario = load_scenario(write_part(tmp_path / "a"), fmu_dir)
+    assert scenario.stepping.hold_intervals == math.ceil(RING_DOWN_MODES / 1e-3 - 1e-9)
+    lower = with_values(scenario, {"vibration.damping_y1": 0.005})
+    assert lower.stepping.hold_intervals == math.ceil(math.log(1e6) / (0.005 * 2 * math.pi * 1300) / 1e-3 - 1e-9)
+    assert with_values(scenario, {"force.Ktc": 7e8}).stepping == scenario.stepping
+    fixed = load_scenario(write_part(tmp_path / "b", ("[part.tool_modes]", "[part.stepping]\nhold = 0.02\n"
+                                                                            "[part.tool_modes]")), fmu_dir)
+    assert with_values(fixed, {"vibration.damping_y1": 0.005}).stepping.hold_intervals == 20
+    with pytest.raises(ScenarioError) as info:
+        with_values(scenario, {"vibration.n_modes_x": 2})
+    assert "a mode of the tool is switched on without its frequency_x2" in info.value.detail

@@ -12,7 +12,7 @@ import argparse
 import copy
 import os
 import sys
-from collections.abc import Mapping
+from collections.abc import Mapping, Sequence
 from dataclasses import replace
 from pathlib import Path
 from typing import Any
@@ -221,12 +221,17 @@ def force_tool_parameters(c: CutTool) -> dict[str, Any]:
 
 
 def _hold(doc: Mapping[str, Any], vibration: Mapping[str, Any], coarse_step: float) -> float:
+    """``[stepping].hold`` (s) of the explicit scenario ``doc`` (its tool changes in ``doc["on_change"]``)."""
+    return ring_down_hold(vibration, [entry["set"] for entry in doc.get("on_change", ())], coarse_step)
+
+
+def ring_down_hold(vibration: Mapping[str, Any], changes: Sequence[Mapping[str, Any]], coarse_step: float) -> float:
     """``[stepping].hold`` (s): the time in which the slowest mode of any tool rings down to RING_DOWN of its
-    amplitude (``vibration``: ToolVibration's parameters, SI; each tool change's in ``doc["on_change"]``), at
-    least one coarse step."""
+    amplitude (``vibration``: ToolVibration's parameters, SI; ``changes``: each tool change's values, keyed
+    ``"vibration.<name>"``), at least one coarse step. A KeyError names a mode's value that neither gives."""
     prefix = f"{VIBRATION}."
-    sets = [dict(vibration)] + [{**vibration, **{k[len(prefix):]: v for k, v in entry["set"].items()
-                                                  if k.startswith(prefix)}} for entry in doc.get("on_change", ())]
+    sets = [dict(vibration)] + [{**vibration, **{k[len(prefix):]: v for k, v in change.items()
+                                                  if k.startswith(prefix)}} for change in changes]
     modes = [Mode(float(p[f"frequency_{axis}{i}"]), float(p[f"damping_{axis}{i}"]), float(p[f"stiffness_{axis}{i}"]))
              for p in sets for axis in "xy" for i in range(1, int(p.get(f"n_modes_{axis}", 0)) + 1)]
     return max(coarse_step, ring_down_time(modes, RING_DOWN))

@@ -78,13 +78,8 @@ def measure(path: Path, fmu_dir: Path, out: Path, repeat: int) -> dict:
     a, b = var.frame, fine.frame
     assert np.array_equal(a["time"].to_numpy(), b["time"].to_numpy())
     cut = b[f"{WORKPIECE}.axial_depth"].to_numpy() > 0.0
-    var_blocks, fine_blocks = _blocks(var.run.run_dir), _blocks(fine.run.run_dir)
-    chattering = fine_blocks.loc[fine_blocks["chatter"].astype(bool), "line"].to_numpy() \
-        if "chatter" in fine_blocks else np.zeros(0)
-    stable_cut = _stable_rows(cut, np.isin(b[f"{INTERPOLATOR}.line_number"].to_numpy(), chattering))
-    differences = _rms_differences(a, b, stable_cut)
-    differences_all = _rms_differences(a, b, cut)
-    chatter = _chatter_agreement(var_blocks, fine_blocks)
+    fine_blocks = _blocks(fine.run.run_dir)
+    agreement = _agreement(var, fine, fine_blocks)
     t_var, t_fine = machining_time(a), machining_time(b)
     v_var = float(a[f"{WORKPIECE}.removed_volume"].iloc[-1])
     v_fine = float(b[f"{WORKPIECE}.removed_volume"].iloc[-1])
@@ -103,11 +98,9 @@ def measure(path: Path, fmu_dir: Path, out: Path, repeat: int) -> dict:
         "speedup_command": fine_wall / var_wall,
         "real_time_factor_loop": t_var / var_loop,
         "real_time_factor_command": t_var / var_wall,
-        "rms_difference_in_material": differences,            # in-cut stretches holding no chattering block
-        "in_material_stable_fraction": float(np.mean(stable_cut)),
-        "rms_difference_in_material_all": differences_all,    # every in-cut row, chattering blocks too
-        "chattering_blocks": chatter,
-        "perturbed_all_fine": _perturbed(runs["all_fine"], cases[1][1], out) if chatter["count"] else None,
+        **agreement,
+        "perturbed_all_fine": _perturbed(fine, fine_blocks, cases[1][1], out)
+        if agreement["chattering_blocks"]["count"] else None,
         "machining_time": {"variable": t_var, "all_fine": t_fine},
         "removed_volume": {"variable": v_var, "all_fine": v_fine,
                            "relative_difference": abs(v_var - v_fine) / v_fine if v_fine else 0.0,
@@ -123,9 +116,24 @@ def measure(path: Path, fmu_dir: Path, out: Path, repeat: int) -> dict:
 PERTURBATION = 1e-13  # relative, of the all-fine run's stiffness_x1: the yardstick of rounding in chatter
 
 
-def _perturbed(fine: Any, scenario: Scenario, out: Path) -> dict:
-    """The all-fine run against itself with stiffness_x1 of the vibration times 1 + PERTURBATION: the RMS
-    differences (in-cut stretches without chatter, all in-cut rows) and the chattering blocks' agreement."""
+def _agreement(run: Any, reference: Any, reference_blocks: pd.DataFrame) -> dict:
+    """``run`` against ``reference`` (two results of the same part): the RMS differences over the in-cut
+    stretches holding no chattering block of the reference and over every in-cut row, the share of rows in those
+    stretches, and the chattering blocks' agreement."""
+    a, b = run.frame, reference.frame
+    cut = b[f"{WORKPIECE}.axial_depth"].to_numpy() > 0.0
+    chattering = reference_blocks.loc[reference_blocks["chatter"].astype(bool), "line"].to_numpy() \
+        if "chatter" in reference_blocks else np.zeros(0)
+    stable_cut = _stable_rows(cut, np.isin(b[f"{INTERPOLATOR}.line_number"].to_numpy(), chattering))
+    return {"rms_difference_in_material": _rms_differences(a, b, stable_cut),
+            "in_material_stable_fraction": float(np.mean(stable_cut)),
+            "rms_difference_in_material_all": _rms_differences(a, b, cut),
+            "chattering_blocks": _chatter_agreement(_blocks(run.run.run_dir), reference_blocks)}
+
+
+def _perturbed(fine: Any, fine_blocks: pd.DataFrame, scenario: Scenario, out: Path) -> dict:
+    """The all-fine run ``fine`` of ``scenario`` against itself with stiffness_x1 of the vibration times
+    1 + PERTURBATION (:func:`_agreement`)."""
     def changed(inst: Any) -> Any:
         if inst.name != VIBRATION:
             return inst
@@ -135,15 +143,7 @@ def _perturbed(fine: Any, scenario: Scenario, out: Path) -> dict:
     case = dataclasses.replace(scenario, name=f"{scenario.name}_perturbed",
                                instances=tuple(changed(inst) for inst in scenario.instances))
     res = milling_twin.simulate(case, out=out, stepping="fast")
-    a, b = res.frame, fine.frame
-    cut = b[f"{WORKPIECE}.axial_depth"].to_numpy() > 0.0
-    blocks = _blocks(fine.run.run_dir)
-    chattering = np.isin(b[f"{INTERPOLATOR}.line_number"].to_numpy(),
-                         blocks.loc[blocks["chatter"].astype(bool), "line"].to_numpy())
-    return {"relative_change": PERTURBATION,
-            "rms_difference_in_material": _rms_differences(a, b, _stable_rows(cut, chattering)),
-            "rms_difference_in_material_all": _rms_differences(a, b, cut),
-            "chattering_blocks": _chatter_agreement(_blocks(res.run.run_dir), blocks)}
+    return {"relative_change": PERTURBATION, **_agreement(res, fine, fine_blocks)}
 
 
 def _blocks(run_dir: Path) -> pd.DataFrame:

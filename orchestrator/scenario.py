@@ -994,19 +994,26 @@ def _stepping(ctx: _Ctx, table: Any, order: Sequence[FmuInstance], base: float,
             continue
         if sense == "is":
             ctx.fail(f"{k}.is", f"{ref} is Real: give above or below a threshold")
-        unit = None
-        if isinstance(raw, dict):
-            ctx.table(raw, f"{k}.{sense}", ("value", "unit"))
-            unit = ctx.string(raw, f"{k}.{sense}", "unit")
-            raw = raw.get("value")
-        if isinstance(raw, bool) or not isinstance(raw, (int, float)) or not math.isfinite(raw):
-            ctx.fail(f"{k}.{sense}", f"expected a finite number or {{ value, unit }}, got {raw!r}")
+        raw, unit = _number_and_unit(ctx, f"{k}.{sense}", raw, "a finite number")
         try:
             threshold = float(raw) * (1.0 if unit is None else _factor(unit, var.unit))
         except UnitError as exc:
             ctx.fail(f"{k}.{sense}", f"unit {unit!r} does not fit {ref} ({var.unit or 'no unit'}): {exc}")
         gates.append(FineWhen(ref, sense, threshold))
     return Stepping(coarse, ticks, tuple(sorted(names, key=position.__getitem__)), tuple(gates), hold_intervals)
+
+
+def _number_and_unit(ctx: _Ctx, key: str, raw: Any, expected: str) -> tuple[float, str | None]:
+    """A number as written, or ``{ value, unit }``: (the finite number, its unit or None); else an error at ``key``
+    saying it expected ``expected`` and what it got (the value itself when written in a table)."""
+    unit = None
+    if isinstance(raw, dict):
+        ctx.table(raw, key, ("value", "unit"))
+        unit = ctx.string(raw, key, "unit")
+        raw = raw.get("value")
+    if isinstance(raw, bool) or not isinstance(raw, (int, float)) or not math.isfinite(raw):
+        ctx.fail(key, f"expected {expected} or {{ value, unit }}, got {raw!r}")
+    return float(raw), unit
 
 
 def hold_intervals(hold: float, coarse_step: float) -> int:
@@ -1018,13 +1025,8 @@ def _hold_intervals(ctx: _Ctx, table: Mapping[str, Any], key: str, coarse: float
     """``[stepping].hold`` in whole coarse intervals, rounded up (1 without it)."""
     if "hold" not in table:
         return 1
-    k, raw, unit = f"{key}.hold", table["hold"], None
-    if isinstance(raw, dict):
-        ctx.table(raw, k, ("value", "unit"))
-        unit = ctx.string(raw, k, "unit")
-        raw = raw.get("value")
-    if isinstance(raw, bool) or not isinstance(raw, (int, float)) or not math.isfinite(raw):
-        ctx.fail(k, f"expected a finite number of seconds or {{ value, unit }}, got {table['hold']!r}")
+    k = f"{key}.hold"
+    raw, unit = _number_and_unit(ctx, k, table["hold"], "a finite number of seconds")
     try:
         hold = float(raw) * (1.0 if unit is None else _factor(unit, "s"))
     except UnitError as exc:

@@ -232,7 +232,8 @@ def test_the_map_s_limits_prepared_before_the_cases_are_all_it_needs(tmp_path: P
     study = load_study(path, fmu_dir())
     before = CountingExecutor()
     started = sm.prepare_map(study, study.post_config, before)
-    assert before.submitted == len(started) == 2 + 4  # two speeds, four curve points
+    assert len(started) == 2 + 4  # two speeds, four curve points
+    assert before.submitted == math.ceil(len(started) / sm.SD_PER_TASK)  # several limits per task
     after = CountingExecutor()
     sm.stability_map(result.summary, study.base, tmp_path, study.post_config, echo=False, executor=after,
                      started=started)
@@ -269,6 +270,24 @@ def test_the_sd_limits_through_an_executor_are_the_serial_ones_in_order() -> Non
     assert np.array_equal(sm.sd_limits(tool, speeds, counting, started), parallel) and counting.submitted == 1
     assert parallel[0] == semi_discretization_limit(tool.modes_x, tool.modes_y, tool.ktc, tool.krc, tool.n_flutes,
                                                     6000.0, tool.entry, tool.exit)
+
+
+def test_a_failed_or_cancelled_task_of_sd_limits_reaches_each_of_its_speeds() -> None:
+    """The limits go to the workers several per task; every speed's future carries its task's outcome."""
+    from concurrent.futures import CancelledError, Future
+
+    task: Future = Future()
+    futures = sm._per_speed(task, (6000.0, 7000.0))
+    task.set_exception(ValueError("semi-discretization: mode 1 in x"))
+    for future in futures.values():
+        with pytest.raises(ValueError, match="mode 1 in x"):
+            future.result()
+    task = Future()
+    futures = sm._per_speed(task, (6000.0, 7000.0))
+    task.cancel()
+    assert all(f.cancelled() for f in futures.values())
+    with pytest.raises(CancelledError):
+        futures[7000.0].result()
 
 
 def test_the_committed_map_s_depth_grid_brackets_the_sd_onset_at_every_speed() -> None:

@@ -51,7 +51,7 @@ LOCAL_WORKER_CONFIG = {"distributed.nanny.pre-spawn-environ.MALLOC_TRIM_THRESHOL
 # before it starts (its pre-spawn environment): one BLAS thread, and dask's hash seed, which keeps hashing the same
 # in a worker the nanny restarts (spawned) as in the forked ones.
 WORKER_MODULES = ("distributed", "milling_twin.api", "milling_twin.orchestrator.study.run",
-                  "milling_twin.orchestrator.study.stability_map")
+                  "milling_twin.orchestrator.study.stability_map", "scipy.interpolate")  # the last: its reductions
 WORKER_ENVIRON = {"OMP_NUM_THREADS": "1", "MKL_NUM_THREADS": "1", "OPENBLAS_NUM_THREADS": "1",
                   "PYTHONHASHSEED": "6640"}
 FORKSERVER = "forkserver"

@@ -45,7 +45,6 @@ from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
 import numpy as np
-from scipy.interpolate import CubicSpline
 
 from milling_twin.models.stability import semi_discretization_limit, stability_lobes
 from milling_twin.orchestrator import atomic_files
@@ -83,6 +82,8 @@ def dynamic_chip_rms(scenario: Scenario, frame: pd.DataFrame,
     spline's: a linear one leaves about (omega h)^2 / 8 of the forced response in e where tau is no multiple of
     the output step h (3e-4 of it at 850 Hz and 10 us, as large as a decayed free vibration), so the growth
     of a stable cut levelled off at 1 and crossed it by chance (25500 rpm on the 922 Hz tool)."""
+    from scipy.interpolate import CubicSpline  # here: the command's process needs it only when it runs cases itself
+
     force = scenario.instance("force")
     tau = 2 * math.pi / (int(force.parameters.get("n_flutes", 2)) * force.inputs["spindle_speed"])
     t = frame["time"].to_numpy(float)
@@ -116,6 +117,8 @@ LIMIT_CYCLE_CHIP = 0.5
 
 def feed_per_tooth(scenario: Scenario) -> float:
     """The force instance's feed per tooth [m]: its feed velocity (x, y) over the tooth passing frequency."""
+    from scipy.interpolate import CubicSpline  # here: the command's process needs it only when it runs cases itself
+
     force = scenario.instance("force")
     tau = 2 * math.pi / (int(force.parameters.get("n_flutes", 2)) * force.inputs["spindle_speed"])
     return math.hypot(float(force.inputs.get("feed_velocity_x", 0.0)),
@@ -203,13 +206,45 @@ def _sd_arguments(tool: ToolAndCut, speed_rpm: float) -> tuple[Any, ...]:
     return (tool.modes_x, tool.modes_y, tool.ktc, tool.krc, tool.n_flutes, float(speed_rpm), tool.entry, tool.exit)
 
 
+SD_PER_TASK = 5  # limits per task: tens of ms each, so that a task is a few tenths of a second, like the cases'
+
+
 def submit_sd_limits(tool: ToolAndCut, speeds_rpm: Sequence[float], executor: Executor,
                      background: bool = False) -> dict[float, Future[float]]:
-    """The semi-discretization onsets [m] at ``speeds_rpm`` as futures by speed, one task per speed on ``executor``;
-    ``background``: behind every other task submitted (:func:`submit_in_background`)."""
+    """The semi-discretization onsets [m] at ``speeds_rpm`` as futures by speed, :data:`SD_PER_TASK` speeds per task
+    on ``executor`` (each task costs a cluster's scheduler and client a few ms of CPU on the cores the workers use:
+    the map's 140 limits one per task took about 0.5 s of it); ``background``: behind every other task submitted
+    (:func:`submit_in_background`)."""
     submit = partial(submit_in_background, executor) if background else executor.submit
-    return {n: submit(semi_discretization_limit, *_sd_arguments(tool, n))
-            for n in dict.fromkeys(map(float, speeds_rpm))}
+    speeds = list(dict.fromkeys(map(float, speeds_rpm)))
+    futures: dict[float, Future[float]] = {}
+    for start in range(0, len(speeds), SD_PER_TASK):
+        group = tuple(speeds[start:start + SD_PER_TASK])
+        futures.update(_per_speed(submit(_sd_group, tool, group), group))
+    return futures
+
+
+def _sd_group(tool: ToolAndCut, speeds_rpm: tuple[float, ...]) -> list[float]:
+    return [semi_discretization_limit(*_sd_arguments(tool, n)) for n in speeds_rpm]
+
+
+def _per_speed(task: Future[list[float]], speeds_rpm: tuple[float, ...]) -> dict[float, Future[float]]:
+    """One future per speed of a task computing several: each resolves with its limit (or the task's exception)."""
+    futures = {n: Future() for n in speeds_rpm}
+
+    def resolve(done: Future[list[float]]) -> None:
+        if done.cancelled():
+            for future in futures.values():
+                future.cancel()
+            return
+        error = done.exception()
+        for k, future in enumerate(futures.values()):
+            if error is not None:
+                future.set_exception(error)
+            else:
+                future.set_result(done.result()[k])
+    task.add_done_callback(resolve)
+    return futures
 
 
 def sd_limits(tool: ToolAndCut, speeds_rpm: Sequence[float], executor: Executor | None = None,

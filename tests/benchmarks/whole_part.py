@@ -24,7 +24,8 @@ Per part, in one process and one after the other (ratios of runs made minutes ap
 - per straight cut at constant depth, the volume removed over its steady part against width x length x depth
   (the process report's ``volume_ratio``): count, mean, min, max.
 
-Printed as a table; every figure in ``OUT/whole_part.json``.
+Printed as a table; every figure in ``OUT/whole_part.json``. A part whose run fails (an FMU error: chatter grown out
+of the force model's input range, say) is reported with its message, and the others are measured.
 """
 from __future__ import annotations
 
@@ -194,6 +195,16 @@ def _chatter_agreement(var_blocks: pd.DataFrame, fine_blocks: pd.DataFrame) -> d
     return out
 
 
+def _measured_or_failed(path: Path, fmu_dir: Path, out: Path, repeat: int) -> dict:
+    """:func:`measure`, or the part's failure (a run that ends in an FMU error, say) so that the others are measured
+    too: a benchmark over many random programs reports each one."""
+    try:
+        return measure(path, fmu_dir, out, repeat)
+    except Exception as exc:  # noqa: BLE001 - recorded in the table and the JSON, the next part runs
+        name = path.name if path.name != "part.toml" else path.parent.name
+        return {"part": name, "failed": f"{type(exc).__name__}: {exc}"}
+
+
 def _percent(value: float | None) -> str:
     return "n/a" if value is None else f"{100 * value:.3g} %"
 
@@ -209,8 +220,11 @@ def main() -> None:
     args = parser.parse_args()
     args.out.mkdir(parents=True, exist_ok=True)
     parts = list(args.parts) + [write_generated_part(args.out / "programs", seed) for seed in args.generated]
-    results = [measure(path, args.fmu_dir, args.out, args.repeat) for path in parts]
+    results = [_measured_or_failed(path, args.fmu_dir, args.out, args.repeat) for path in parts]
     for r in results:
+        if "failed" in r:
+            print(f"{r['part']}: FAILED: {r['failed']}")
+            continue
         d = r["rms_difference_in_material"]
         print(f"{r['part']}: {r['simulated_time']:.1f} s simulated, in material {100 * r['in_material_fraction']:.1f} %"
               f" of the rows, {r['fine_intervals']} of {r['fine_intervals'] + r['coarse_intervals']} intervals fine")

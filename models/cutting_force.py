@@ -23,8 +23,15 @@ Conventions (Altintas, *Manufacturing Automation*, 2nd ed., Cambridge University
   is the innermost one the flutes before it left, so a flute the runout holds back by more than the
   feed cuts nothing and the next one cuts both feeds; without runout the minimum is ``static``) and
   ``dx, dy`` the tool displacement now minus one tooth period ago (regeneration: the surface the
-  previous flute left; one delay only, also where the runout makes an earlier flute's surface the
-  one cut).
+  previous flute left).
+* Multiple regeneration (``regeneration_passes = P > 1``): ``h = min(h above, min over k = 2..P of
+  (k*max(static, 0) + r_j - r_(j-k) + dx_k*sin(phi) + dy_k*cos(phi)))`` with ``dx_k, dy_k`` the displacement
+  now minus k tooth periods ago: where chatter has thrown the flutes before out of the cut, the surface in
+  front of this one is the innermost of those the last P flutes left (Tlusty; Altintas 2012, ch. 3.6),
+  not the one the previous flute would have left had it cut. With one delay only (P = 1, the default:
+  the delay equation of the stability theory) the chip of a flute after one that left the cut counts
+  material that is not there, and strong chatter grows without bound; with P > 1 it settles into a
+  limit cycle. In a stable cut the vibration repeats every tooth period and P changes nothing.
 * Element forces on the tool over a slice of height dz, only where h > 0 inside the window:
   ``dFt = Ktc*h*dz + Kte*dz``, ``dFr = Krc*h*dz + Kre*dz``, ``dFa = Kac*h*dz + Kae*dz``, projected
   ``dFx = -dFt*cos(phi) - dFr*sin(phi)``, ``dFy = dFt*sin(phi) - dFr*cos(phi)``, ``dFz = dFa``.
@@ -55,6 +62,7 @@ from milling_twin.models.step_clock import StepClock
 
 AXIAL_SLICES = 16
 MAX_FLUTES = 6
+MAX_PASSES = 4  # regeneration_passes at most (<= MAX_FLUTES: the runout terms r_j - r_(j-k) are defined up to it)
 OMEGA_MIN = 1.0  # rad/s (9.5 rpm): below it the spindle counts as stopped
 TWO_PI = 2.0 * math.pi
 # The chip-thickness laws (parameter chip_law, see element_force) and the reference chip thickness of laws 2 and 3.
@@ -121,6 +129,9 @@ def equations(v: Mapping[str, ca.SX]) -> dict[str, ca.SX]:
     width = _wrap(v["exit_angle"] - v["entry_angle"])
     dx = v["displacement_x"] - v["delayed_displacement_x"]
     dy = v["displacement_y"] - v["delayed_displacement_y"]
+    # multiple regeneration: the displacement now minus k tooth periods ago, k = 2..MAX_PASSES
+    earlier = {k: (v["displacement_x"] - v[f"delayed_displacement_x_{k}"],
+                   v["displacement_y"] - v[f"delayed_displacement_y_{k}"]) for k in range(2, MAX_PASSES + 1)}
     pitch = TWO_PI / v["n_flutes"]
     # sin/cos of the MAX_FLUTES*AXIAL_SLICES edge angles by rotations (angle-addition formulas), from
     # those of the lowest slice of flute 0, of the helix lag between slices and of the flute pitches:
@@ -151,7 +162,13 @@ def equations(v: Mapping[str, ca.SX]) -> dict[str, ca.SX]:
             else:
                 s = slice_sin[k] * pitch_cos + slice_cos[k] * pitch_sin
                 c = slice_cos[k] * pitch_cos - slice_sin[k] * pitch_sin
-            h = _runout_chip(v["n_flutes"], period * (vx * s + vy * c), runout) + dx * s + dy * c
+            static = period * (vx * s + vy * c)
+            h = _runout_chip(v["n_flutes"], static, runout) + dx * s + dy * c
+            # the surfaces k = 2.. periods back (model.c gives k > regeneration_passes the delay of k = 1, which
+            # makes them no thinner than h: the same terms, or larger by (k - n_flutes)*static >= 0)
+            advance = ca.fmax(static, 0)
+            for k, (dxk, dyk) in earlier.items():
+                h = ca.fmin(h, k * advance + runout[k] + dxk * s + dyk * c)
             engaged = _wrap(phi + feed_angle - v["entry_angle"]) < width
             cutting = ca.logic_and(ca.logic_and(active, turning), ca.logic_and(engaged, h > 0))
             ft, fr, fa = (ca.if_else(cutting, element_force(v, h, direction) * dz, 0) for direction in "tra")
@@ -176,6 +193,12 @@ def _deg(x: float) -> float:
     return math.radians(x)
 
 
+# the native states model.c fills from the displacement history, (name, axis, tooth periods ago), k = 1..MAX_PASSES
+DELAYED = tuple((f"delayed_displacement_{axis}" + ("" if k == 1 else f"_{k}"), axis, k)
+                for k in range(1, MAX_PASSES + 1) for axis in "xy")
+DELAYED_STATES = tuple(name for name, _, _ in DELAYED)
+
+
 CUTTING_FORCE = ModelDefinition(
     identifier="CuttingForce",
     description="Mechanistic milling force of a flat end mill: edge-force model, helix, runout, regenerative chip",
@@ -183,20 +206,23 @@ CUTTING_FORCE = ModelDefinition(
     default_stop_time=0.1,
     equations=equations,
     update=update,
-    native_states=("delayed_displacement_x", "delayed_displacement_y"),
-    # model.c interpolates the history one period T = 2 pi/(N omega) before the current displacement's sample (the
+    native_states=DELAYED_STATES,
+    # model.c interpolates the history k periods T = 2 pi/(N omega) before the current displacement's sample (the
     # newest sample when the inputs equal it, else now: DisplacementHistory); before the first step there is no
     # history and the delayed displacement is the current one
-    native_dependencies=(("delayed_displacement_x", ("n_flutes", "spindle_speed", "displacement_x")),
-                         ("delayed_displacement_y", ("n_flutes", "spindle_speed", "displacement_y"))),
-    native_initial_states=(("delayed_displacement_x", "displacement_x"), ("delayed_displacement_y", "displacement_y")),
+    native_dependencies=tuple((name, ("n_flutes", "spindle_speed", f"displacement_{axis}"))
+                              for name, axis, _ in DELAYED),
+    native_initial_states=tuple((name, f"displacement_{axis}") for name, axis, _ in DELAYED),
     specialize_on="n_flutes",  # C code per flute count: absent flutes cost nothing
     specialize_fixed=(("chip_law", CHIP_LAW_LINEAR),),  # ... for the linear law (no powers); the others run generic
-    constants=(("OMEGA_MIN", OMEGA_MIN), ("TWO_PI", TWO_PI)),  # model.c: model_constants.h
+    constants=(("OMEGA_MIN", OMEGA_MIN), ("TWO_PI", TWO_PI), ("MAX_PASSES", MAX_PASSES)),  # model.c
     states=(
         State("angle", "Spindle angle: flute 0 at the tool tip, clockwise from +y", unit="rad"),
         State("delayed_displacement_x", "Tool displacement in x one tooth period ago (model.c)", unit="m"),
         State("delayed_displacement_y", "Tool displacement in y one tooth period ago (model.c)", unit="m"),
+        *(State(f"delayed_displacement_{axis}_{k}",
+                f"Tool displacement in {axis} {k} tooth periods ago (model.c; regeneration_passes >= {k})", unit="m")
+          for k in range(2, MAX_PASSES + 1) for axis in "xy"),
     ),
     variables=(
         Variable("chip_law", "Int32", "parameter",
@@ -237,8 +263,14 @@ CUTTING_FORCE = ModelDefinition(
         Variable("start_angle", "Float64", "parameter",
                  "Angle of flute 0 at the tool tip when the spindle angle state is 0 (the spindle phase at the "
                  "start, clockwise from +y)", unit="rad", display_unit="deg", start=0.0, min=-TWO_PI, max=TWO_PI),
+        Variable("regeneration_passes", "Int32", "parameter",
+                 "Tooth periods the regenerative chip looks back: 1 the delay equation of the stability theory; "
+                 f"2 .. {MAX_PASSES}: the surface is the innermost the last flutes left, so that chatter settles "
+                 "into a limit cycle where flutes leave the cut",
+                 start=1, min=1, max=MAX_PASSES, variability="fixed"),
         Variable("history_size", "Int32", "parameter",
-                 "Samples of displacement history kept for the regenerative chip (must span one tooth period)",
+                 "Samples of displacement history kept for the regenerative chip (must span regeneration_passes "
+                 "tooth periods)",
                  start=16384, min=16, max=1048576, variability="fixed"),
         Variable("spindle_speed", "Float64", "input", "Spindle speed (clockwise seen from the spindle, M3)",
                  unit="rad/s", display_unit="rpm", start=0.0, min=0.0, max=1e4),
@@ -404,11 +436,13 @@ class DisplacementHistory:
         w = (td - t0) / (t1 - t0)
         return x0 + w * (x1 - x0), y0 + w * (y1 - y0)
 
-    def record(self, time: float, step_size: float, x: float, y: float, period: float, cutting: bool) -> None:
-        """Stores the sample; raises HistoryTooShort when the full ring does not reach one period back."""
+    def record(self, time: float, step_size: float, x: float, y: float, period: float, cutting: bool,
+               periods: int = 1) -> None:
+        """Stores the sample; raises HistoryTooShort when the full ring does not reach ``periods`` periods back."""
         self.samples.append((time, x, y))
-        if len(self.samples) == self.samples.maxlen and cutting and self.samples[0][0] > time - period:
-            raise HistoryTooShort(f"history of {len(self.samples)} samples does not reach one tooth period back")
+        if len(self.samples) == self.samples.maxlen and cutting and self.samples[0][0] > time - periods * period:
+            raise HistoryTooShort(f"history of {len(self.samples)} samples does not reach {periods} tooth "
+                                  "period(s) back")
 
 
 def tooth_period(values: Mapping[str, float]) -> float:
@@ -436,14 +470,25 @@ class ForceReference:
     def tooth_period(self) -> float:
         return tooth_period(self.values)
 
-    def delayed(self) -> tuple[float, float]:
-        return self.history.delayed(self.start_time + self.clock.seconds(), self.tooth_period(),
+    def passes(self) -> int:
+        return int(self.values["regeneration_passes"])
+
+    def delayed(self, periods: int = 1) -> tuple[float, float]:
+        return self.history.delayed(self.start_time + self.clock.seconds(), periods * self.tooth_period(),
                                     self.values["displacement_x"], self.values["displacement_y"])
 
+    def delayed_states(self) -> dict[str, float]:
+        """The native states as model.c fills them: k = 1 .. regeneration_passes periods ago, the others as k = 1."""
+        states = {}
+        for name, axis, k in DELAYED:
+            if axis == "x":
+                dx, dy = self.delayed(k) if k <= self.passes() else (states["delayed_displacement_x"],
+                                                                    states["delayed_displacement_y"])
+            states[name] = dx if axis == "x" else dy
+        return states
+
     def outputs(self) -> np.ndarray:
-        dx, dy = self.delayed()
-        result = self.model.evaluate(**self.values, angle=self.angle,
-                                     delayed_displacement_x=dx, delayed_displacement_y=dy)
+        result = self.model.evaluate(**self.values, angle=self.angle, **self.delayed_states())
         return np.array([float(result[v.name]) for v in self.model.of("output")])
 
     def step(self, h: float) -> np.ndarray:
@@ -451,9 +496,8 @@ class ForceReference:
         start = self.start_time + self.clock.seconds()
         taken = self.clock.advance(self.time, h)
         self.history.record(start, taken, v["displacement_x"], v["displacement_y"], self.tooth_period(),
-                            v["spindle_speed"] >= OMEGA_MIN and v["axial_depth"] > 0)
-        new = self.model.step(taken, **v, angle=self.angle, delayed_displacement_x=0.0,
-                              delayed_displacement_y=0.0)
+                            v["spindle_speed"] >= OMEGA_MIN and v["axial_depth"] > 0, self.passes())
+        new = self.model.step(taken, **v, angle=self.angle, **dict.fromkeys(DELAYED_STATES, 0.0))
         self.angle = float(new["angle"])
         self.time = self.time + h
         return self.outputs()
@@ -474,8 +518,7 @@ def initial_native_states(values: Mapping[str, float | np.ndarray]) -> dict[str,
     """The native states before any step: no history yet, so the delayed displacement is the
     current one (no regeneration)."""
     defaults = CUTTING_FORCE.defaults()
-    return {"delayed_displacement_x": values.get("displacement_x", defaults["displacement_x"]),
-            "delayed_displacement_y": values.get("displacement_y", defaults["displacement_y"])}
+    return {name: values.get(f"displacement_{axis}", defaults[f"displacement_{axis}"]) for name, axis, _ in DELAYED}
 
 
 def initial_outputs(values: Mapping[str, float | np.ndarray]) -> np.ndarray:

@@ -20,7 +20,7 @@ import pytest
 from fmu_helpers import Slave, all_fmus, fmu_id, model_of, random_arguments, require_fmu, row, split_fmu_name
 
 FMUS = all_fmus()
-POINTS = 4  # operating points per FMU (random, within the variables' ranges, every Boolean value among them)
+POINTS = 6  # operating points per FMU (random, within the variables' ranges, every Boolean value among them)
 STEPS = 20  # steps before the communication point looked at
 
 

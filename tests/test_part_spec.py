@@ -44,6 +44,7 @@ def test_a_minimal_part_expands_to_the_five_instances(tmp_path: Path, fmu_dir: P
     force = scenario.instance("force").parameters
     assert force["n_flutes"] == 3 and force["tool_diameter"] == pytest.approx(0.01)
     assert {k: force[k] for k in AL7075_CARBIDE} == pytest.approx(AL7075_CARBIDE)
+    assert force["regeneration_passes"] == 4  # chatter in a cut settles into a limit cycle
     vib = scenario.instance("vibration").parameters
     assert (vib["n_modes_x"], vib["n_modes_y"]) == (1, 2)
     assert vib["stiffness_y1"] == pytest.approx(3e7) and vib["frequency_y2"] == 3000.0
@@ -163,6 +164,7 @@ def test_the_expansion_uses_optional_variables_only_where_the_fmus_have_them(tmp
     assert doc["stepping"]["fine_when"] == [{"output": "workpiece.axial_depth", "above": 0.0}]
     assert "clearance_range" not in doc["fmus"]["workpiece"]["parameters"]
     assert "cutting_power_from_force" not in doc["fmus"]["power"]["parameters"]
+    assert "regeneration_passes" not in doc["fmus"]["force"]["parameters"]
     assert not any(c["to"] in ("power.cutting_power", "power.spindle_speed_command") for c in doc["connections"])
     assert doc["outputs"]["record"] == ["interp.x", "workpiece.axial_depth", "workpiece.mrr", "force.Fx",
                                         "power.P_total"]

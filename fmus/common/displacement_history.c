@@ -2,6 +2,7 @@
 #include "displacement_history.h"
 
 #include <math.h>
+#include <stdio.h>
 #include <stdlib.h>
 #include <string.h>
 
@@ -34,7 +35,7 @@ static int resize(FmuInstance *instance, DisplacementHistory *h, size_t capacity
     h->capacity = capacity;
     h->count = count;
     h->next = count % capacity;
-    h->hint = 0;
+    memset(h->hint, 0, sizeof h->hint);
     return 0;
 }
 
@@ -47,7 +48,8 @@ int history_start(FmuInstance *instance, DisplacementHistory *h, size_t base, in
 }
 
 int history_record(FmuInstance *instance, DisplacementHistory *h, int32_t history_size, double time, double step_size,
-                   double x, double y, double period, bool cutting, int32_t n_flutes, double spindle_speed) {
+                   double x, double y, double period, int32_t periods, bool cutting, int32_t n_flutes,
+                   double spindle_speed) {
     const size_t limit = (size_t)history_size;
     double *slot;
     if (h->count == h->capacity && h->capacity < limit &&
@@ -60,15 +62,20 @@ int history_record(FmuInstance *instance, DisplacementHistory *h, int32_t histor
     h->next = (h->next + 1) % h->capacity;
     if (h->count < h->capacity) h->count++;
     if (h->count == limit && cutting) {
-        /* the outputs after this step take its start as the newest sample: they need one period before it */
-        const double oldest = sample(instance, h, 0)[0];
-        if (oldest > time - period) {
+        /* the outputs after this step take its start as the newest sample: they need `periods` periods before it */
+        const double oldest = sample(instance, h, 0)[0], span = periods * period;
+        if (oldest > time - span) {
+            char needed[96];
+            if (periods == 1)
+                snprintf(needed, sizeof needed, "one tooth period");
+            else
+                snprintf(needed, sizeof needed, "%d tooth periods (regeneration_passes) of", (int)periods);
             fmu_log(instance, FMU_ERROR, "logStatusError",
                     "doStep: t = %g s: the displacement history (history_size = %d samples, %g s at this step size) "
-                    "is shorter than one tooth period 2*pi/(n_flutes*spindle_speed) = %g s (n_flutes = %d, "
-                    "spindle_speed = %g rad/s); set history_size to at least %.0f or use larger steps",
-                    time, (int)history_size, time - oldest, period, (int)n_flutes, spindle_speed,
-                    ceil(period / step_size) + 2.0);
+                    "is shorter than %s 2*pi/(n_flutes*spindle_speed) = %g s (n_flutes = %d, spindle_speed = %g "
+                    "rad/s); set history_size to at least %.0f or use larger steps",
+                    time, (int)history_size, time - oldest, needed, period, (int)n_flutes, spindle_speed,
+                    ceil(span / step_size) + 2.0);
             return -1;
         }
     }
@@ -84,16 +91,16 @@ static bool brackets(const FmuInstance *instance, const DisplacementHistory *h, 
 /* The sample found is remembered: one step later it is mostly the same or the one before (the ring dropped its
  * oldest sample), checked before a bisection; the sample times increase strictly, so the answer is the
  * bisection's. */
-void history_delayed(const FmuInstance *instance, DisplacementHistory *h, double time, double period, double x,
-                     double y, double *delayed_x, double *delayed_y) {
-    size_t n = h->count, lo = 0, hi = n, hint = h->hint;
+void history_delayed(const FmuInstance *instance, DisplacementHistory *h, int which, double time, double delay,
+                     double x, double y, double *delayed_x, double *delayed_y) {
+    size_t n = h->count, lo = 0, hi = n, hint = h->hint[which];
     /* the current inputs are the newest sample when they equal it (the outputs after a step: the inputs its start
      * recorded), else a sample at `time` (inputs set since): either way the current and the delayed displacement
      * are one period apart, as in the delay equation (at `time` - period the chip would regenerate over one step
      * less than a period, which moved the simulated onset of chatter by up to 7 % at 10 us steps) */
     const double *newest = n > 0 ? sample(instance, h, n - 1) : NULL;
     const double now = newest != NULL && newest[1] == x && newest[2] == y ? newest[0] : time;
-    const double td = now - period;
+    const double td = now - delay;
     const double current[SAMPLE_SIZE] = {now, x, y};
     const double *a = n > 0 ? sample(instance, h, 0) : current, *b;
     double w;
@@ -118,7 +125,7 @@ void history_delayed(const FmuInstance *instance, DisplacementHistory *h, double
                 hi = mid;
         }
     }
-    h->hint = lo;
+    h->hint[which] = lo;
     a = sample(instance, h, lo);
     b = lo + 1 < n ? sample(instance, h, lo + 1) : current;
     w = (td - a[0]) / (b[0] - a[0]);

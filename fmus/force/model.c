@@ -3,14 +3,19 @@
  * express, the displacement history behind the regenerative chip thickness (fmus/common/
  * displacement_history.c, shared with ForceNet): each doStep records the displacement inputs in a ring
  * in the instance heap, and before the outputs are computed the displacement one tooth period
- * T = 2*pi/(N*omega) ago is interpolated and written to the native states delayed_displacement_x/y.
+ * T = 2*pi/(N*omega) ago is interpolated and written to the native states delayed_displacement_x/y (and k
+ * periods ago to delayed_displacement_x/y_k, k = 2 .. regeneration_passes: multiple regeneration).
  *
  * ForceReference in models/cutting_force.py is the same algorithm in Python; the tests hold the
  * two equal to 1e-12. */
 #include <math.h>
 #include "cutting_state.h"
 #include "fmu_instance.h"
-#include "model_constants.h" /* OMEGA_MIN, TWO_PI: generated from models/cutting_force.py */
+#include "model_constants.h" /* OMEGA_MIN, TWO_PI, MAX_PASSES: generated from models/cutting_force.py */
+
+#if MAX_PASSES != HISTORY_DELAYS
+#error "regeneration_passes reaches MAX_PASSES tooth periods back: the history needs as many search hints"
+#endif
 
 static double tooth_period(const ModelVariables *v) {
     return TWO_PI / ((double)v->n_flutes * fmax(v->spindle_speed, OMEGA_MIN));
@@ -36,8 +41,8 @@ FmuStatus model_do_step(FmuInstance *instance, double time, double step_size) {
     const double start = clock_time(instance), h = step_clock_advance(&clock, time, step_size);
     FmuStatus status;
     if (history_record(instance, &in->history, v->history_size, start, h, v->displacement_x,
-                       v->displacement_y, tooth_period(v), v->spindle_speed >= OMEGA_MIN && v->axial_depth > 0.0,
-                       v->n_flutes, v->spindle_speed) != 0)
+                       v->displacement_y, tooth_period(v), v->regeneration_passes,
+                       v->spindle_speed >= OMEGA_MIN && v->axial_depth > 0.0, v->n_flutes, v->spindle_speed) != 0)
         return FMU_ERROR;
     /* a stopped tool fed into the material would break; the model cuts nothing instead */
     status = warn_feeding_a_stopped_spindle(instance, time, v->spindle_speed, OMEGA_MIN, v->feed_velocity_x,
@@ -50,8 +55,23 @@ FmuStatus model_do_step(FmuInstance *instance, double time, double step_size) {
 
 void model_update_outputs(FmuInstance *instance) {
     ModelVariables *v = &instance->v;
-    history_delayed(instance, &instance->internal.history, clock_time(instance), tooth_period(v), v->displacement_x,
-                    v->displacement_y, &v->states.delayed_displacement_x, &v->states.delayed_displacement_y);
+    /* k tooth periods ago, k = 1 .. regeneration_passes (<= MAX_PASSES: its range) */
+    double *delayed[MAX_PASSES][2] = {
+        {&v->states.delayed_displacement_x, &v->states.delayed_displacement_y},
+        {&v->states.delayed_displacement_x_2, &v->states.delayed_displacement_y_2},
+        {&v->states.delayed_displacement_x_3, &v->states.delayed_displacement_y_3},
+        {&v->states.delayed_displacement_x_4, &v->states.delayed_displacement_y_4}};
+    const double period = tooth_period(v);
+    int k;
+    for (k = 1; k <= MAX_PASSES; k++) {
+        if (k == 1 || k <= v->regeneration_passes) {
+            history_delayed(instance, &instance->internal.history, k - 1, clock_time(instance), k * period,
+                            v->displacement_x, v->displacement_y, delayed[k - 1][0], delayed[k - 1][1]);
+        } else { /* not looked back to: the surface one period back (the equations' extra terms then change nothing) */
+            *delayed[k - 1][0] = *delayed[0][0];
+            *delayed[k - 1][1] = *delayed[0][1];
+        }
+    }
     model_evaluate_equations(v);
 }
 

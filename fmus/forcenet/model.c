@@ -103,7 +103,7 @@ FmuStatus model_do_step(FmuInstance *instance, double time, double step_size) {
     const double start = clock_time(instance), h = step_clock_advance(&clock, time, step_size);
     FmuStatus status;
     if (history_record(instance, &in->history, v->history_size, start, h, v->displacement_x, v->displacement_y,
-                       tooth_period(v), v->spindle_speed >= OMEGA_MIN && v->axial_depth > 0.0, v->n_flutes,
+                       tooth_period(v), 1, v->spindle_speed >= OMEGA_MIN && v->axial_depth > 0.0, v->n_flutes,
                        v->spindle_speed) != 0)
         return FMU_ERROR;
     status = warn_feeding_a_stopped_spindle(instance, time, v->spindle_speed, OMEGA_MIN, v->feed_velocity_x,
@@ -120,8 +120,9 @@ void model_update_outputs(FmuInstance *instance) {
     ForceNetTool tool;
     memset(&tool, 0, sizeof tool);
     /* (before the first step the history is empty: the delayed displacement is the current one) */
-    history_delayed(instance, &instance->internal.history, clock_time(instance), tooth_period(v), v->displacement_x,
-                    v->displacement_y, &v->states.delayed_displacement_x, &v->states.delayed_displacement_y);
+    history_delayed(instance, &instance->internal.history, 0, clock_time(instance), tooth_period(v),
+                    v->displacement_x, v->displacement_y, &v->states.delayed_displacement_x,
+                    &v->states.delayed_displacement_y);
     model_evaluate_equations(v);
     if (instance->internal.loaded) {
         cut.n_flutes = (int)v->n_flutes;

@@ -357,13 +357,24 @@ def generate_source(model: ModelDefinition) -> str:
     equations = _function_body(model, model.function(), outputs_computed)
     specialized = ""
     if model.specialize_on is not None:  # one copy per value, chosen at run time; the generic one otherwise
-        for n in model.specialized_values():
-            specialized += (f"static void evaluate_equations_{n}(ModelVariables *v) {{\n"
-                            f"{_function_body(model, model.function(n), outputs_computed)}\n}}\n\n")
-        cases = "".join(f"    case {n}: evaluate_equations_{n}(v); return;\n" for n in model.specialized_values())
+        # (with specialize_split, two per value: the split parameter below its threshold, suffix "", and at or above)
+        sides = [("", model.split_values()[0]), ("_split", model.split_values()[1])] if model.specialize_split \
+            else [("", None)]
+        switches = {}
+        for suffix, split in sides:
+            for n in model.specialized_values():
+                specialized += (f"static void evaluate_equations_{n}{suffix}(ModelVariables *v) {{\n"
+                                f"{_function_body(model, model.function(n, split), outputs_computed)}\n}}\n\n")
+            cases = "".join(f"    case {n}: evaluate_equations_{n}{suffix}(v); return;\n"
+                            for n in model.specialized_values())
+            switches[suffix] = (f"    switch (v->{model.specialize_on}) {{\n{cases}"
+                                f"    default: evaluate_equations_generic(v); return;\n    }}")
         specialized += (f"static void evaluate_equations_generic(ModelVariables *v) {{\n{equations}\n}}\n\n")
-        equations = (f"    switch (v->{model.specialize_on}) {{\n{cases}"
-                     f"    default: evaluate_equations_generic(v); return;\n    }}")
+        equations = switches[""]
+        if model.specialize_split:
+            name, threshold = model.specialize_split
+            split_switch = switches["_split"].replace("\n    ", "\n        ").replace("    switch", "        switch", 1)
+            equations = f"    if (v->{name} >= {threshold}) {{\n{split_switch}\n    }}\n{equations}"
         if model.specialize_fixed:  # the copies hold only while the fixed parameters have their values
             held = " || ".join(f"v->{name} != {value}" for name, value in model.specialize_fixed)
             equations = f"    if ({held}) {{\n        evaluate_equations_generic(v);\n        return;\n    }}\n{equations}"

@@ -62,7 +62,7 @@ from milling_twin.models.step_clock import StepClock
 
 AXIAL_SLICES = 16
 MAX_FLUTES = 6
-MAX_PASSES = 4  # regeneration_passes at most (<= MAX_FLUTES: the runout terms r_j - r_(j-k) are defined up to it)
+MAX_PASSES = 3  # regeneration_passes at most (<= MAX_FLUTES: the runout terms r_j - r_(j-k) are defined up to it)
 OMEGA_MIN = 1.0  # rad/s (9.5 rpm): below it the spindle counts as stopped
 TWO_PI = 2.0 * math.pi
 # The chip-thickness laws (parameter chip_law, see element_force) and the reference chip thickness of laws 2 and 3.
@@ -129,9 +129,13 @@ def equations(v: Mapping[str, ca.SX]) -> dict[str, ca.SX]:
     width = _wrap(v["exit_angle"] - v["entry_angle"])
     dx = v["displacement_x"] - v["delayed_displacement_x"]
     dy = v["displacement_y"] - v["delayed_displacement_y"]
-    # multiple regeneration: the displacement now minus k tooth periods ago, k = 2..MAX_PASSES
-    earlier = {k: (v["displacement_x"] - v[f"delayed_displacement_x_{k}"],
-                   v["displacement_y"] - v[f"delayed_displacement_y_{k}"]) for k in range(2, MAX_PASSES + 1)}
+    # multiple regeneration: the displacement now minus k tooth periods ago, k = 2..MAX_PASSES; none in the C copies
+    # for one delay (regeneration_passes folded in as 1: specialize_split), which then cost what they did before it
+    passes = v["regeneration_passes"]
+    one_delay = passes.is_constant() and float(passes) < 2
+    earlier = {} if one_delay else {
+        k: (v["displacement_x"] - v[f"delayed_displacement_x_{k}"], v["displacement_y"] - v[f"delayed_displacement_y_{k}"])
+        for k in range(2, MAX_PASSES + 1)}
     pitch = TWO_PI / v["n_flutes"]
     # sin/cos of the MAX_FLUTES*AXIAL_SLICES edge angles by rotations (angle-addition formulas), from
     # those of the lowest slice of flute 0, of the helix lag between slices and of the flute pitches:
@@ -165,10 +169,12 @@ def equations(v: Mapping[str, ca.SX]) -> dict[str, ca.SX]:
             static = period * (vx * s + vy * c)
             h = _runout_chip(v["n_flutes"], static, runout) + dx * s + dy * c
             # the surfaces k = 2.. periods back (model.c gives k > regeneration_passes the delay of k = 1, which
-            # makes them no thinner than h: the same terms, or larger by (k - n_flutes)*static >= 0)
+            # makes them no thinner than h: the same terms, or larger by (k - n_flutes)*static >= 0, so that one
+            # copy serves every regeneration_passes >= 2)
             advance = ca.fmax(static, 0)
             for k, (dxk, dyk) in earlier.items():
-                h = ca.fmin(h, k * advance + runout[k] + dxk * s + dyk * c)
+                thinner = k * advance + runout[k] + dxk * s + dyk * c
+                h = ca.if_else(thinner < h, thinner, h)  # a select, inlined (fmin is a call into libm)
             engaged = _wrap(phi + feed_angle - v["entry_angle"]) < width
             cutting = ca.logic_and(ca.logic_and(active, turning), ca.logic_and(engaged, h > 0))
             ft, fr, fa = (ca.if_else(cutting, element_force(v, h, direction) * dz, 0) for direction in "tra")
@@ -215,6 +221,7 @@ CUTTING_FORCE = ModelDefinition(
     native_initial_states=tuple((name, f"displacement_{axis}") for name, axis, _ in DELAYED),
     specialize_on="n_flutes",  # C code per flute count: absent flutes cost nothing
     specialize_fixed=(("chip_law", CHIP_LAW_LINEAR),),  # ... for the linear law (no powers); the others run generic
+    specialize_split=("regeneration_passes", 2),  # ... each for one delay and for several (model.c: the rest inert)
     constants=(("OMEGA_MIN", OMEGA_MIN), ("TWO_PI", TWO_PI), ("MAX_PASSES", MAX_PASSES)),  # model.c
     states=(
         State("angle", "Spindle angle: flute 0 at the tool tip, clockwise from +y", unit="rad"),

@@ -105,6 +105,13 @@ class ModelDefinition:
     # Further parameters folded in as constants in every specialized copy (name, value), e.g. the chip-thickness law
     # whose default needs no powers: the copy runs only while they hold these values, the generic equations otherwise.
     specialize_fixed: tuple[tuple[str, int], ...] = ()
+    # (name, threshold): a fixed Int32 parameter that splits every specialized copy in two, folded in as its min
+    # (the copy run while it is below threshold) and as its max (at or above), e.g. CuttingForce's
+    # regeneration_passes: one delay, or the thinnest of several surfaces. The equations must compute, with the max
+    # folded in, what every value at or above threshold needs (CuttingForce's model.c makes the delays beyond the
+    # value inert), and the parameter counts as no dependency: it is fixed, and the copies agree in Initialization
+    # Mode (there all delays are the current displacement).
+    specialize_split: tuple[str, int] | None = None
     default_step_size: float = 1e-3
     default_stop_time: float = 10.0
     # Constants the model's C code shares with its Python definition or reference (name, value: an int, a
@@ -137,6 +144,13 @@ class ModelDefinition:
             if self.specialize_on is None or v.type != "Int32" or v.causality != "parameter":
                 raise ValueError(f"{self.identifier}.{name}: specialize_fixed needs specialize_on and an Int32 "
                                  "parameter")
+        if self.specialize_split is not None:
+            name, threshold = self.specialize_split
+            v = self.variable(name)
+            if (self.specialize_on is None or v.type != "Int32" or v.causality != "parameter"
+                    or v.variability != "fixed" or v.min is None or v.max is None or not v.min < threshold <= v.max):
+                raise ValueError(f"{self.identifier}.{name}: specialize_split needs specialize_on and a fixed Int32 "
+                                 "parameter with min < threshold <= max")
         for v in self.variables:
             if not v.shape:
                 continue
@@ -199,16 +213,27 @@ class ModelDefinition:
         v = self.variable(self.specialize_on)
         return range(int(v.min), int(v.max) + 1)
 
-    def function(self, specialized: int | None = None) -> ca.Function:
+    def split_values(self) -> tuple[int, ...]:
+        """The values ``specialize_split``'s parameter is folded in as (its min and its max), none without one."""
+        if self.specialize_split is None:
+            return ()
+        v = self.variable(self.specialize_split[0])
+        return int(v.min), int(v.max)
+
+    def function(self, specialized: int | None = None, split: int | None = None) -> ca.Function:
         """The equations as one casadi Function (arguments -> outputs), scalar in and out;
         ``specialized``: with ``specialize_on`` fixed to this value and the ``specialize_fixed`` parameters to
-        theirs (their arguments are then unused)."""
-        key = "function" if specialized is None else f"function_{specialized}"
+        theirs (their arguments are then unused); ``split``: ``specialize_split``'s parameter too (one of
+        :meth:`split_values`; None: its min)."""
+        if specialized is not None and self.specialize_split is not None and split is None:
+            split = self.split_values()[0]
+        key = "function" if specialized is None else f"function_{specialized}_{split}"
         if key not in self._cache:
             symbols = self._symbols()
             given = symbols if specialized is None else {
                 **symbols, self.specialize_on: ca.SX(float(specialized)),
-                **{name: ca.SX(float(value)) for name, value in self.specialize_fixed}}
+                **{name: ca.SX(float(value)) for name, value in self.specialize_fixed},
+                **({self.specialize_split[0]: ca.SX(float(split))} if self.specialize_split else {})}
             outputs = self.equations(given) if self.equations else {}
             expected = {v.name for v in self.computed_outputs}
             if set(outputs) != expected:
@@ -288,11 +313,13 @@ class ModelDefinition:
         given = {**symbols, **starts, **{s: symbols[a] for s, a in substitutes.items()}}
         # the generic equations (the C code picks the copy by the value of specialize_on: a dependency on it), then
         # the copies the C code runs with specialize_on folded in (what they drop is no dependency)
-        values = [None] + list(self.specialized_values())
+        # (specialize_split's parameter folded in as each of its values: no dependency, see the field)
+        splits = [{}] + [{self.specialize_split[0]: ca.SX(float(x))} for x in self.split_values()]
+        values = [(None, {})] + [(n, split) for n in self.specialized_values() for split in splits[1:] or splits]
         found: dict[str, set[str]] = {v.name: set() for v in self.computed_outputs}
         names = [v.name for v in self.arguments]
-        for value in values:
-            fixed = given if value is None else {**given, self.specialize_on: ca.SX(float(value))}
+        for value, split in values:
+            fixed = given if value is None else {**given, self.specialize_on: ca.SX(float(value)), **split}
             outputs = self.equations(fixed) if self.equations else {}
             function = ca.Function("dependencies", [symbols[n] for n in names],
                                    [outputs[v.name] for v in self.computed_outputs])

@@ -22,7 +22,7 @@
 
 struct FmuInstance;
 
-#define HISTORY_DELAYS 4 /* delays looked up per output (multiple regeneration: 1 .. 4 tooth periods) */
+#define HISTORY_DELAYS 3 /* delays looked up per output (multiple regeneration: 1 .. 3 tooth periods) */
 
 /* The ring's bookkeeping: flat, part of a model's ModelInternal (copied into FMU states). */
 typedef struct {

@@ -59,8 +59,7 @@ void model_update_outputs(FmuInstance *instance) {
     double *delayed[MAX_PASSES][2] = {
         {&v->states.delayed_displacement_x, &v->states.delayed_displacement_y},
         {&v->states.delayed_displacement_x_2, &v->states.delayed_displacement_y_2},
-        {&v->states.delayed_displacement_x_3, &v->states.delayed_displacement_y_3},
-        {&v->states.delayed_displacement_x_4, &v->states.delayed_displacement_y_4}};
+        {&v->states.delayed_displacement_x_3, &v->states.delayed_displacement_y_3}};
     const double period = tooth_period(v);
     int k;
     for (k = 1; k <= MAX_PASSES; k++) {

@@ -41,8 +41,8 @@ CLEARANCE_RANGE = 3e-3              # m: how far it looks without a lookahead (t
 # the all-fine run's by this much of it at most (the free response itself is exact at any step)
 RING_DOWN = 1e-6
 # CuttingForce's regeneration_passes in a part: the chip of a flute after flutes that chatter threw out of the cut is
-# what the last four left (one delay alone lets strong chatter grow without bound; models/cutting_force.py)
-REGENERATION_PASSES = 4
+# the thinnest the last three left (one delay alone lets strong chatter grow without bound; docs/models.md)
+REGENERATION_PASSES = 3
 RECORD = {
     INTERPOLATOR: ("x", "y", "z", "x_program", "y_program", "z_program", "feed", "spindle_speed", "line_number",
                    "tool_number"),

@@ -213,6 +213,15 @@ def test_a_runout_larger_than_the_feed_moves_the_chip_to_the_next_flute(runout_a
 # ---- the C code specialized per flute count (ModelDefinition.specialize_on) ----
 
 
+@pytest.mark.parametrize("split", [("regeneration_passes", 1), ("regeneration_passes", 4), ("Ktc", 2),
+                                   ("n_flutes", 2)])
+def test_a_split_of_the_copies_needs_a_fixed_int_parameter_and_a_threshold_in_its_range(split) -> None:
+    import dataclasses
+
+    with pytest.raises(ValueError, match=f"CuttingForce.{split[0]}: specialize_split needs"):
+        dataclasses.replace(CUTTING_FORCE, specialize_split=split, _cache={})
+
+
 @pytest.mark.parametrize("passes", CUTTING_FORCE.split_values())
 def test_the_equations_specialized_per_flute_count_are_the_generic_ones(passes: int) -> None:
     """One copy per flute count and per side of regeneration_passes (one delay; several, serving every value from 2:

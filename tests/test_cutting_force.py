@@ -276,6 +276,30 @@ SLOT = {"n_flutes": 2, "spindle_speed": OMEGA, "feed_velocity_x": 0.02, "axial_d
 PERIOD = TWO_PI / (2 * OMEGA)  # tooth period, 5 ms
 
 
+def _outputs_replaying_from(fmu: Path, start: dict, points: list[dict], h: float, snapshot: int) -> np.ndarray:
+    """The outputs after each step through ``points`` (initialized with ``start``); the steps from ``snapshot`` on
+    replayed from an FMU state taken there must give them bit for bit."""
+    rows = []
+    with Slave(fmu) as slave:
+        slave.instantiate()
+        slave.initialize(start)
+        for k, point in enumerate(points):
+            if k == snapshot:
+                state = slave.fmu.getFMUState()
+            slave.set(point, include_fixed=False)
+            assert slave.step(h) == OK
+            rows.append(slave.get(OUTPUTS))
+        slave.set_state(state)
+        slave.fmu.freeFMUState(state)
+        replay = []
+        for point in points[snapshot:]:
+            slave.set(point, include_fixed=False)
+            assert slave.step(h) == OK
+            replay.append(slave.get(OUTPUTS))
+    assert np.array_equal(np.array(replay), np.array(rows[snapshot:]))
+    return np.array(rows)
+
+
 def test_history_ring_and_delayed_displacement_equal_the_reference(fmu: Path) -> None:
     """A vibrating tool (x, y sinusoids at 900 Hz) for 800 steps of 10 us through a ring of 600 samples:
     the heap grows (256, 512, 600 samples), the ring wraps while the tooth period (500 samples) stays
@@ -284,26 +308,9 @@ def test_history_ring_and_delayed_displacement_equal_the_reference(fmu: Path) ->
     t = h * np.arange(steps)
     points = [{**SLOT, "history_size": 600, "displacement_x": 2e-5 * math.sin(TWO_PI * 900 * ti),
                "displacement_y": 1e-5 * math.cos(TWO_PI * 900 * ti + 0.3)} for ti in t]
-    rows = []
-    with Slave(fmu) as slave:
-        slave.instantiate()
-        slave.initialize(points[0])
-        for k, point in enumerate(points):
-            if k == 300:
-                state = slave.fmu.getFMUState()
-            slave.set(point, include_fixed=False)
-            assert slave.step(h) == OK
-            rows.append(slave.get(OUTPUTS))
-        slave.set_state(state)
-        slave.fmu.freeFMUState(state)
-        replay = []
-        for point in points[300:]:
-            slave.set(point, include_fixed=False)
-            assert slave.step(h) == OK
-            replay.append(slave.get(OUTPUTS))
-    assert np.array_equal(np.array(replay), np.array(rows[300:]))
+    rows = _outputs_replaying_from(fmu, points[0], points, h, 300)
     expected = reference_trajectory(points, h)
-    assert_close(np.array(rows), expected, what="outputs")
+    assert_close(rows, expected, what="outputs")
     without = reference_trajectory([{**p, "displacement_x": 0.0, "displacement_y": 0.0} for p in points], h)
     assert np.sqrt(np.mean((expected[:, 0] - without[:, 0]) ** 2)) > 0.05 * np.sqrt(np.mean(without[:, 0] ** 2))
 
@@ -392,26 +399,9 @@ def test_multiple_regeneration_equals_the_reference(fmu: Path, passes: int) -> N
     t = h * np.arange(steps)
     points = [{**point, "displacement_x": 6e-5 * math.sin(TWO_PI * 700 * ti),
                "displacement_y": 4e-5 * math.cos(TWO_PI * 700 * ti + 0.3)} for ti in t]
-    rows = []
-    with Slave(fmu) as slave:
-        slave.instantiate()
-        slave.initialize({**points[0], "regeneration_passes": passes})
-        for k, p in enumerate(points):
-            if k == 1500:
-                state = slave.fmu.getFMUState()
-            slave.set(p, include_fixed=False)
-            assert slave.step(h) == OK
-            rows.append(slave.get(OUTPUTS))
-        slave.set_state(state)
-        slave.fmu.freeFMUState(state)
-        replay = []
-        for p in points[1500:]:
-            slave.set(p, include_fixed=False)
-            assert slave.step(h) == OK
-            replay.append(slave.get(OUTPUTS))
-    assert np.array_equal(np.array(replay), np.array(rows[1500:]))
+    rows = _outputs_replaying_from(fmu, {**points[0], "regeneration_passes": passes}, points, h, 1500)
     expected = reference_trajectory([{**p, "regeneration_passes": passes} for p in points], h)
-    assert_close(np.array(rows), expected, what="outputs")
+    assert_close(rows, expected, what="outputs")
     single = reference_trajectory(points, h)
     late = t > passes * 2.5e-3  # once the history reaches P periods back
     assert np.sqrt(np.mean((expected[late, 0] - single[late, 0]) ** 2)) > 0.05 * np.sqrt(np.mean(single[late, 0] ** 2))

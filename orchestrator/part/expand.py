@@ -40,9 +40,6 @@ CLEARANCE_RANGE = 3e-3              # m: how far it looks without a lookahead (t
 # the coarse step: then a cut entered again soon after sees a regenerative chip and a vibration that differ from
 # the all-fine run's by this much of it at most (the free response itself is exact at any step)
 RING_DOWN = 1e-6
-# CuttingForce's regeneration_passes in a part: the chip of a flute after flutes that chatter threw out of the cut is
-# the thinnest the last three left (one delay alone lets strong chatter grow without bound; docs/models.md)
-REGENERATION_PASSES = 3
 RECORD = {
     INTERPOLATOR: ("x", "y", "z", "x_program", "y_program", "z_program", "feed", "spindle_speed", "line_number",
                    "tool_number"),
@@ -160,8 +157,6 @@ def explicit_scenario(part: Part, variables: Mapping[str, Mapping[str, Variable]
     force: dict[str, Any] = force_tool_parameters(cutting[0])
     if part.force_model == "CuttingForce":
         force.update(part.material.coefficients)
-    if "regeneration_passes" in has[FORCE]:  # chatter in a part's cut settles into a limit cycle (models.md)
-        force["regeneration_passes"] = REGENERATION_PASSES
     vibration = vibration_parameters(cutting[0])
     power: dict[str, Any] = dict(part.spindle)
     from_force = part.cutting_power == "force"

@@ -31,7 +31,8 @@ Conventions (Altintas, *Manufacturing Automation*, 2nd ed., Cambridge University
   not the one the previous flute would have left had it cut. With one delay only (P = 1, the default:
   the delay equation of the stability theory) the chip of a flute after one that left the cut counts
   material that is not there, and strong chatter grows without bound; with P > 1 it settles into a
-  limit cycle. In a stable cut the vibration repeats every tooth period and P changes nothing.
+  limit cycle. Where the vibration repeats every tooth period, P changes nothing (docs/models.md: why
+  whole parts still default to 1).
 * Element forces on the tool over a slice of height dz, only where h > 0 inside the window:
   ``dFt = Ktc*h*dz + Kte*dz``, ``dFr = Krc*h*dz + Kre*dz``, ``dFa = Kac*h*dz + Kae*dz``, projected
   ``dFx = -dFt*cos(phi) - dFr*sin(phi)``, ``dFy = dFt*sin(phi) - dFr*cos(phi)``, ``dFz = dFa``.

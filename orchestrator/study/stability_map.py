@@ -117,8 +117,6 @@ LIMIT_CYCLE_CHIP = 0.5
 
 def feed_per_tooth(scenario: Scenario) -> float:
     """The force instance's feed per tooth [m]: its feed velocity (x, y) over the tooth passing frequency."""
-    from scipy.interpolate import CubicSpline  # here: the command's process needs it only when it runs cases itself
-
     force = scenario.instance("force")
     tau = 2 * math.pi / (int(force.parameters.get("n_flutes", 2)) * force.inputs["spindle_speed"])
     return math.hypot(float(force.inputs.get("feed_velocity_x", 0.0)),
@@ -212,8 +210,8 @@ SD_PER_TASK = 5  # limits per task: tens of ms each, so that a task is a few ten
 def submit_sd_limits(tool: ToolAndCut, speeds_rpm: Sequence[float], executor: Executor,
                      background: bool = False) -> dict[float, Future[float]]:
     """The semi-discretization onsets [m] at ``speeds_rpm`` as futures by speed, :data:`SD_PER_TASK` speeds per task
-    on ``executor`` (each task costs a cluster's scheduler and client a few ms of CPU on the cores the workers use:
-    the map's 140 limits one per task took about 0.5 s of it); ``background``: behind every other task submitted
+    on ``executor`` (each task costs a cluster's scheduler and client a few ms of CPU on the cores the workers use,
+    2.3 to 3.6 ms a round trip in docs/studies.md); ``background``: behind every other task submitted
     (:func:`submit_in_background`)."""
     submit = partial(submit_in_background, executor) if background else executor.submit
     speeds = list(dict.fromkeys(map(float, speeds_rpm)))
@@ -256,7 +254,7 @@ def sd_limits(tool: ToolAndCut, speeds_rpm: Sequence[float], executor: Executor 
     values: dict[float, Future[float] | float] = dict(started or {})
     missing = [n for n in dict.fromkeys(speeds) if n not in values]
     if executor is None:
-        values.update({n: semi_discretization_limit(*_sd_arguments(tool, n)) for n in missing})
+        values.update(zip(missing, _sd_group(tool, tuple(missing))))
     else:
         values.update(submit_sd_limits(tool, missing, executor))
     return np.array([v.result() if isinstance(v, Future) else v for v in (values[n] for n in speeds)], dtype=float)

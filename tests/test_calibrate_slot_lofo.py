@@ -18,7 +18,8 @@ from milling_twin.models.measuring_chain import frequency_response, simulate
 from milling_twin.orchestrator.calibrate import load_spec
 from milling_twin.orchestrator.calibrate import slot_forces as sf
 from milling_twin.orchestrator.calibrate.scenario_fit import with_overrides
-from milling_twin.orchestrator.calibrate.slot_lofo import coverage, leave_one_feed_out, summary
+from milling_twin.orchestrator.calibrate.slot_lofo import (bound_table, coverage, leave_one_feed_out,
+                                                            recorded_bound, summary)
 from milling_twin.orchestrator.calibrate.slot_model import OVERSAMPLE
 from milling_twin.orchestrator.scenario import load_scenario
 from test_slot_milling_validation import write_dynoware
@@ -122,6 +123,18 @@ def test_leave_one_feed_out_with_the_right_law_and_chain(setup, data: Path) -> N
     cov = coverage(folds)
     assert set(cov) >= {"force.Ktc", "force.mc_t", "chain.frequency_1"}
     assert np.mean(list(cov.values())) >= 0.6, cov
+
+
+def test_the_report_shows_what_the_recordings_allow(setup, data: Path) -> None:
+    """The feed interpolant beside the models: with three feeds the affine one only, every feed held out once;
+    Kienzle's law is curved in the chip, so the end feeds' means are missed by more than the noise's share."""
+    spec, _ = setup
+    bound = recorded_bound(spec, data, 2)
+    assert list(bound) == [1]
+    assert [f.held_feed for f in bound[1]] == list(FEEDS)
+    assert abs(bound[1][0].mean_error).max() > 0.01  # 400 mm/min extrapolated from 900 and 1400
+    table = bound_table(bound)
+    assert [row[1] for row in table.rows] == ["400 mm/min", "900 mm/min", "1400 mm/min", "mean |error|, mean r2"]
 
 
 def test_a_parameter_the_scenario_does_not_fit_is_refused_naming_its_key(setup) -> None:

@@ -562,7 +562,8 @@ def calibrate_slot_forces(spec: CalibrationSpec, fmu_dir: Path, out_dir: Path, d
                  "correlated (resonance), so they are too narrow (set [slot_forces].bootstrap).")),
     ]
     if cfg.leave_one_out:
-        from milling_twin.orchestrator.calibrate.slot_lofo import leave_one_feed_out, lofo_tables, summary
+        from milling_twin.orchestrator.calibrate.slot_lofo import (bound_table, leave_one_feed_out, lofo_tables,
+                                                                   recorded_bound, summary)
 
         t0 = time.perf_counter()
         folds = leave_one_feed_out(spec, scenario, folder, n_flutes)
@@ -570,6 +571,8 @@ def calibrate_slot_forces(spec: CalibrationSpec, fmu_dir: Path, out_dir: Path, d
         label = LAW_NAMES[result_fit.model.law] + (f" law, chain of {result_fit.model.chain_modes} modes"
                                                    if result_fit.model.chain_modes else " law, no chain")
         tables += lofo_tables(folds, label)
+        bound = recorded_bound(spec, folder, n_flutes)
+        tables.append(bound_table(bound))
     figures = [Figure("Mean forces against the feed per tooth",
                       _means_png(learn, held, regression, waveform, n_flutes, result_fit.model.law),
                       "Recorded per-revolution means (learning filled, held-out open) and the closed-form means of "
@@ -591,5 +594,6 @@ def calibrate_slot_forces(spec: CalibrationSpec, fmu_dir: Path, out_dir: Path, d
                         held_out={"mean_abs_error": {k: v.tolist() for k, v in held_errors.items()},
                                   "r2": {k: v.tolist() for k, v in held_r2.items()}})
     if cfg.leave_one_out:
-        result.extra["leave_one_out"] = {"folds": folds, "summary": summary(folds)}
+        result.extra["leave_one_out"] = {"folds": folds, "summary": summary(folds),
+                                         "recorded_bound": {d: summary(f) for d, f in bound.items()}}
     return result

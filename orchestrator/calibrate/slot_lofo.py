@@ -10,6 +10,10 @@ recording is unknown, a nuisance of every recording), everything else comes from
   ``orchestrator.validation.slot_milling.waveform_scores``);
 * the estimates with their 95 % intervals (the revolution bootstrap of ``[slot_forces].bootstrap``).
 
+Beside the models, what the recordings allow (:mod:`.feed_interpolant`): the same held-out feeds predicted by a
+model-free interpolant of the other feeds' waveforms, a polynomial in the feed at every angle. Degree 1 is the floor
+of every law linear in the chip through any linear measuring chain; degree 2 a law curved in the chip.
+
 Coverage: for every identified model parameter, the share of ordered pairs of folds (i, j), i != j, whose
 estimate i lies inside interval j. When the law and the chain are right and the intervals honest, the folds'
 estimates agree within their intervals (coverage near 1); a misfit that repeats every revolution makes the
@@ -22,10 +26,12 @@ import time
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field, replace
 from pathlib import Path
+from typing import Protocol
 
 import numpy as np
 
 from milling_twin import datasets
+from milling_twin.orchestrator.calibrate.feed_interpolant import InterpolantFold, interpolant_folds
 from milling_twin.orchestrator.calibrate.slot_forces import (PhaseSearch, SlotData, SlotFit, fit_slot, load_slot_data,
                                                             slot_model)
 from milling_twin.orchestrator.calibrate.spec import CalibrationSpec
@@ -33,9 +39,19 @@ from milling_twin.orchestrator.calibrate.result import Table
 from milling_twin.orchestrator.scenario import Scenario
 from milling_twin.orchestrator.validation import slot_milling as sm
 
-__all__ = ["Fold", "coverage", "held_out", "leave_one_feed_out", "lofo_tables"]
+__all__ = ["Fold", "coverage", "held_out", "leave_one_feed_out", "lofo_tables",
+           "recorded_bound", "bound_table"]
 
 AXES = ("Fx", "Fy", "Fz")
+BOUND_DEGREES = (1, 2)  # the interpolants beside the models: affine and quadratic in the feed
+
+
+class Scored(Protocol):
+    """A held-out feed's scores: a model's :class:`Fold` or an :class:`InterpolantFold`."""
+
+    held_feed: float
+    mean_error: np.ndarray
+    r2: np.ndarray
 
 
 @dataclass
@@ -74,6 +90,22 @@ def held_out(fit: SlotFit, scenario: Scenario, spec: CalibrationSpec, recording:
     return (predicted_mean - recorded_mean) / np.abs(recorded_mean), np.array(r2), wave, predicted
 
 
+def _feeds(spec: CalibrationSpec, recordings: Sequence[datasets.Recording]) -> list[float]:
+    """The feeds of the recordings at the spindle speed and axial depth of the spec's first learning feed."""
+    first = next(r for r in recordings if r.feed == spec.slot_forces.learning_feeds[0])
+    return sorted(r.feed for r in recordings if r.rpm == first.rpm and r.axial_depth == first.axial_depth)
+
+
+def recorded_bound(spec: CalibrationSpec, folder: Path, n_flutes: int) -> dict[int, list[InterpolantFold]]:
+    """Per degree of :data:`BOUND_DEGREES`: leave one feed out with the feed interpolant of the recorded
+    waveforms (the feeds :func:`leave_one_feed_out` holds out, the same revolutions)."""
+    recordings = datasets.read_recordings(folder)
+    feeds = _feeds(spec, recordings)
+    data = SlotData([next(r for r in recordings if r.feed == f) for f in feeds], spec.slot_forces.revolutions, n_flutes)
+    return {degree: interpolant_folds(data.waves, feeds, degree) for degree in BOUND_DEGREES
+            if degree < len(feeds) - 1}
+
+
 def _identified(flags: Sequence[str]) -> bool:
     return not any(f.startswith(("not identifiable", "no effect", "at lower", "at upper")) for f in flags)
 
@@ -82,8 +114,7 @@ def leave_one_feed_out(spec: CalibrationSpec, scenario: Scenario, folder: Path, 
                        progress: Callable[[str], None] | None = None) -> list[Fold]:
     """One fold per feed of ``folder`` at the spindle speed and axial depth of the spec's learning feeds."""
     recordings = datasets.read_recordings(folder)
-    first = next(r for r in recordings if r.feed == spec.slot_forces.learning_feeds[0])
-    feeds = sorted(r.feed for r in recordings if r.rpm == first.rpm and r.axial_depth == first.axial_depth)
+    feeds = _feeds(spec, recordings)
     folds = []
     for held_feed in feeds:
         learning = tuple(f for f in feeds if f != held_feed)
@@ -122,14 +153,33 @@ def coverage(folds: Sequence[Fold]) -> dict[str, float]:
     return out
 
 
-def summary(folds: Sequence[Fold]) -> dict[str, object]:
+def summary(folds: Sequence[Scored]) -> dict[str, object]:
     """Mean |mean-force error| and mean r2 per axis over the folds, the worst fold's mean |error| over axes."""
     errors = np.abs(np.array([f.mean_error for f in folds]))
     r2 = np.array([f.r2 for f in folds])
     worst = int(np.argmax(errors.mean(axis=1)))
     return {"mean_abs_error": errors.mean(axis=0).tolist(), "mean_r2": r2.mean(axis=0).tolist(),
             "worst_fold_feed": folds[worst].held_feed, "worst_fold_error": float(errors[worst].mean()),
-            "worst_axis_error": float(errors.max()), "fit_time_s": [f.fit_time for f in folds]}
+            "worst_axis_error": float(errors.max())}
+
+
+def bound_table(bound: dict[int, list[InterpolantFold]]) -> Table:
+    """The report's table of :func:`recorded_bound`: per held-out feed, each interpolant's scores."""
+    names = {1: "affine in the feed", 2: "quadratic in the feed"}
+    rows = []
+    for degree, folds in bound.items():
+        name = names.get(degree, f"degree {degree} in the feed")
+        rows += [(name, f"{f.held_feed:g} mm/min", " / ".join(f"{100 * e:+.1f}" for e in f.mean_error),
+                  " / ".join(f"{v:.3f}" for v in f.r2)) for f in folds]
+        s = summary(folds)
+        rows.append((name, "mean |error|, mean r2", " / ".join(f"{100 * e:.1f}" for e in s["mean_abs_error"]),
+                     " / ".join(f"{v:.3f}" for v in s["mean_r2"])))
+    return Table("What the recordings allow: each feed predicted from the others' waveforms, angle by angle",
+                 ("interpolant", "held-out feed", "mean-force error Fx / Fy / Fz [%]", "waveform r2 Fx / Fy / Fz"),
+                 tuple(rows), "No model: every harmonic of the other feeds' per-revolution waveforms (brought to one "
+                              "phase) a least-squares polynomial in the feed. Any law linear in the chip through any "
+                              "linear measuring chain is affine in the feed at every angle (while both flutes cut): "
+                              "where the affine interpolant misses a target, such a model will too.")
 
 
 def lofo_tables(folds: Sequence[Fold], label: str) -> list[Table]:

@@ -13,16 +13,13 @@ from the y axis, slotting is phi = 0..pi.
 """
 from __future__ import annotations
 
-import contextlib
-import ctypes
-import functools
 import math
-import threading
-from collections.abc import Callable, Iterable, Iterator
+from collections.abc import Callable, Iterable
 from dataclasses import dataclass
-from pathlib import Path
 
 import numpy as np
+
+from milling_twin.models.blas_threads import one_blas_thread
 
 
 @dataclass(frozen=True)
@@ -239,68 +236,8 @@ class SemiDiscretization:
         return np.vstack([y] + [delayed[(start + k) % m] for k in range(m)])
 
     def spectral_radius(self, depth: float) -> float:
-        with _one_blas_thread():
+        with one_blas_thread():
             return float(np.max(np.abs(np.linalg.eigvals(self.monodromy(depth)))))
-
-
-class _OneBlasThread:
-    """The bundled OpenBLAS of numpy and of scipy on one thread while the monodromy's small dense problems are
-    solved (sizes 12 and ~300: threads only add synchronisation, and on a busy 2-core machine their spin-waits made
-    one speed take 10-100 times longer); nothing happens for another BLAS.
-
-    OpenBLAS's thread count belongs to the process, so the switch is counted: the first of any number of
-    concurrent users (threads of a study's worker, say) saves the count and sets one thread, the last restores it.
-    Without the count, two overlapping users restoring in the wrong order would leave the process on one thread."""
-
-    def __init__(self) -> None:
-        self._lock = threading.Lock()
-        self._users = 0
-        self._saved: list[int] = []
-
-    @contextlib.contextmanager
-    def __call__(self) -> Iterator[None]:
-        controls = _openblas_thread_controls()
-        with self._lock:
-            if self._users == 0:
-                self._saved = [get() for get, _ in controls]
-                for _, set_ in controls:
-                    set_(1)
-            self._users += 1
-        try:
-            yield
-        finally:
-            with self._lock:
-                self._users -= 1
-                if self._users == 0:
-                    for (_, set_), threads in zip(controls, self._saved):
-                        set_(threads)
-
-
-# One per process, like the thread count it guards.
-_one_blas_thread = _OneBlasThread()
-
-
-@functools.lru_cache(maxsize=1)
-def _openblas_thread_controls() -> tuple[tuple[Callable[[], int], Callable[[int], None]], ...]:
-    import scipy  # the semi-discretization's expm is scipy's
-
-    controls = []
-    for package in (np, scipy):
-        folder = Path(package.__file__).resolve().parent.parent / f"{package.__name__}.libs"
-        for library in sorted(folder.glob("lib*openblas*.so*")):
-            try:
-                handle = ctypes.CDLL(str(library))
-            except OSError:
-                continue
-            for prefix, suffix in (("scipy_openblas", "64_"), ("scipy_openblas", ""), ("openblas", "64_"),
-                                   ("openblas", "")):
-                get = getattr(handle, f"{prefix}_get_num_threads{suffix}", None)
-                set_ = getattr(handle, f"{prefix}_set_num_threads{suffix}", None)
-                if get is not None and set_ is not None:
-                    get.restype, set_.argtypes = ctypes.c_int, [ctypes.c_int]
-                    controls.append((get, set_))
-                    break
-    return tuple(controls)
 
 
 def _step_exponentials(a: np.ndarray, dt: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:

@@ -106,6 +106,23 @@ def test_the_model_waveform_through_the_chain_is_the_chains_time_domain_response
     assert np.all(np.abs(response - waveform).max(axis=0) < 0.03 * spread)
 
 
+def test_the_waveform_and_its_jacobian_in_threads_are_those_of_one_thread(setup, data: Path) -> None:
+    """The force mapped over the angles in several threads: every thread its own angles, the same numbers to the
+    bit (the waveform the fit differentiates, its Jacobian, the phase search's fine waveform)."""
+    spec, scenario = setup
+    learn = sf.load_slot_data(data, FEEDS[:1], "k", spec, 0, 2)
+    models = [replace(sf.slot_model(scenario, spec, learn.recordings, [100]), threads=n) for n in (1, 3)]
+    theta = np.array([LAW[n] for n in models[0].coefficients] + [CHAIN[n] for n in models[0].chain])
+    th, phase = ca.MX.sym("theta", theta.size), ca.MX.sym("phase")
+    values = []
+    for model in models:
+        w = model.waveform(th, 0, phase)
+        f = ca.Function("w", [th, phase], [w, ca.jacobian(w, ca.vertcat(th, phase))])
+        values.append([np.asarray(v) for v in f(theta, 0.7)] + [model.fine_waveform(theta, 0, 3600)])
+    for one, several in zip(*values):
+        assert np.array_equal(one, several)
+
+
 @pytest.mark.ipopt
 def test_leave_one_feed_out_with_the_right_law_and_chain(setup, data: Path) -> None:
     spec, scenario = setup

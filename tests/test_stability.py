@@ -4,7 +4,6 @@ highly interrupted cutting."""
 from __future__ import annotations
 
 import math
-import threading
 import time
 
 import numpy as np
@@ -182,28 +181,6 @@ def test_bad_input_names_the_value() -> None:
         semi_discretization_limit((), (), KTC, KRC, 2, 6000.0)
     with pytest.raises(ValueError, match="mode 1 in y"):
         semi_discretization_limit((MODE,), (Mode(900.0, 0.01, 0.0),), KTC, KRC, 2, 6000.0)
-
-
-def test_the_one_thread_blas_switch_holds_for_overlapping_users_and_restores_the_count():
-    controls = stability._openblas_thread_controls()
-    if not controls:
-        pytest.skip("numpy and scipy use another BLAS than their bundled OpenBLAS: nothing to switch")
-    before = [get() for get, _ in controls]
-    inside: list[list[int]] = []
-    barrier = threading.Barrier(3)
-
-    def user() -> None:
-        with stability._one_blas_thread():
-            barrier.wait()  # all three inside at once; then they leave in any order
-            inside.append([get() for get, _ in controls])
-
-    threads = [threading.Thread(target=user) for _ in range(3)]
-    for t in threads:
-        t.start()
-    for t in threads:
-        t.join()
-    assert inside == [[1] * len(controls)] * 3
-    assert [get() for get, _ in controls] == before
 
 
 @pytest.mark.parametrize("radius, root, smooth", [

@@ -23,6 +23,11 @@ relative decrease of the objective below ``tolerance``, or no decrease possible 
 with a projected step below 1e-8 of the parameters' size (what remains is the rounding of the
 evaluations). Equality constraints (multiple shooting) need IPOPT.
 
+BLAS threads: the Levenberg-Marquardt iterations run with numpy's bundled OpenBLAS on one thread
+(:mod:`milling_twin.models.blas_threads`). Their matrices are small (1,500 x 34 on the slot forces), and OpenBLAS's
+threads, which spin between calls, made each QR factoring of the step 10 to 25 times slower than one thread
+whenever another process kept a core busy.
+
 Robustness: before a start is handed to IPOPT the residuals and their Jacobian are evaluated at
 it; a non-finite value is reported with the residual and the parameter it concerns (or, when the
 model is evaluated by simulation, the simulation's failure) and the start is skipped. IPOPT failures
@@ -37,6 +42,8 @@ from dataclasses import dataclass, field, replace
 
 import casadi as ca
 import numpy as np
+
+from milling_twin.models.blas_threads import one_blas_thread
 
 __all__ = ["ALGORITHMS", "LeastSquaresProblem", "LeastSquaresSolver", "StartOutcome", "SUCCESS", "with_algorithm"]
 
@@ -204,7 +211,8 @@ class LeastSquaresSolver:
             return StartOutcome(index, x0, "failed", cause, wall_time=time.perf_counter() - t0)
         if self.problem.algorithm == "levenberg-marquardt":
             try:
-                outcome = self._levenberg_marquardt(x0, p, index, lbx, ubx)
+                with one_blas_thread():  # module text: small matrices
+                    outcome = self._levenberg_marquardt(x0, p, index, lbx, ubx)
             except Exception as exc:  # noqa: BLE001
                 outcome = StartOutcome(index, x0, "failed", f"solver failed: {type(exc).__name__}: {exc}")
             new_failures = self._failures_since(failed_before)

@@ -12,6 +12,10 @@ transformed back at the recorded samples' angles. That is the chain's periodic s
 MeasuringChain FMU reaches after its transient (the FMU holds the force over a step: its response is this one
 delayed by half a step, see models/measuring_chain.py).
 
+The force's evaluations over the angles (and their derivatives, most of a fit's time) run in ``threads`` threads
+of casadi's map (:func:`map_threads`: the CPUs this process may use, at most ``MAX_MAP_THREADS``): every thread
+computes its own angles, so the numbers are those of one thread to the bit.
+
 ``layout`` (:class:`SlotModel`) names the fitted parameters in order: the coefficients of the law (force
 instance), the runout offset (optional), the chain's modes (chain instance), then one spindle phase per recording
 (nuisance, last).
@@ -20,8 +24,9 @@ from __future__ import annotations
 
 import functools
 import math
+import os
 from collections.abc import Mapping, Sequence
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 import casadi as ca
 import numpy as np
@@ -34,7 +39,8 @@ from milling_twin.models.measuring_chain import (MEASURING_CHAIN, damping_name, 
                                                  parameter_vector, response_function)
 from milling_twin.orchestrator.validation.slot_milling import AXES  # recorded column -> model output
 
-__all__ = ["CHAIN_INSTANCE", "LAW_COEFFICIENTS", "OVERSAMPLE", "SlotModel", "chain_parameter_names"]
+__all__ = ["CHAIN_INSTANCE", "LAW_COEFFICIENTS", "OVERSAMPLE", "SlotModel", "chain_parameter_names",
+           "map_threads"]
 
 FORCE_INSTANCE = "force"
 CHAIN_INSTANCE = "chain"
@@ -44,8 +50,16 @@ LAW_COEFFICIENTS = {
     CHIP_LAW_EXPONENTIAL: ("Ktc", "Krc", "Kac", "mc_t", "mc_r", "mc_a"),
     CHIP_LAW_POWER_EDGE: ("Ktc", "Krc", "Kac", "Kte", "Kre", "Kae", "mc_t", "mc_r", "mc_a"),
 }
+MAX_MAP_THREADS = 4  # the force maps 100 to 1,000 angles per call: more threads cost more to start than they save
 RECORDED_AXES = tuple(AXES)  # the files' Fx, Fy, Fz
 MODEL_AXES = tuple(AXES[a] for a in RECORDED_AXES)  # the model's outputs compared with them
+
+
+def map_threads() -> int:
+    """Threads for the force's map over the angles: the CPUs this process may run on (its affinity, where the
+    platform tells it), at most :data:`MAX_MAP_THREADS`."""
+    usable = len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else (os.cpu_count() or 1)
+    return max(1, min(MAX_MAP_THREADS, usable))
 
 
 def chain_parameter_names(modes: int) -> list[str]:
@@ -82,6 +96,7 @@ class SlotModel:
     chain_modes: int
     spindle_hz: list[float]
     points: list[int]
+    threads: int = field(default_factory=map_threads)
 
     def __post_init__(self) -> None:
         self.chain = chain_parameter_names(self.chain_modes)
@@ -111,6 +126,11 @@ class SlotModel:
     def force_function(self, i: int) -> ca.Function:
         return self._functions[i]
 
+    def _mapped(self, i: int, angles: int) -> ca.Function:
+        """The force of recording ``i`` over ``angles`` angles at once, in :attr:`threads` threads."""
+        return (self._functions[i].map(angles, "thread", self.threads) if self.threads > 1
+                else self._functions[i].map(angles))
+
     # ---- the chain ----
     def chain_values(self, theta):  # type: ignore[no-untyped-def]
         """The MeasuringChain's parameters in the model part of ``theta`` (floats or casadi), with n_modes."""
@@ -126,7 +146,7 @@ class SlotModel:
         points = self.points[i]
         grid = points * (OVERSAMPLE if self.chain_modes else 1)
         base = ca.DM(2 * math.pi * np.arange(grid) / grid).T
-        force = self._functions[i].map(grid)(ca.repmat(theta[:len(self.coefficients)], 1, grid), phase + base).T
+        force = self._mapped(i, grid)(ca.repmat(theta[:len(self.coefficients)], 1, grid), phase + base).T
         if not self.chain_modes:
             return force
         # the harmonics the samples resolve (the recorder's anti-aliasing filter removes the others)
@@ -150,7 +170,7 @@ class SlotModel:
         the harmonics the recording resolves only, as :meth:`waveform` has them."""
         grid = 2 * math.pi * np.arange(fine) / fine
         n = len(self.coefficients)
-        force = np.asarray(self._functions[i].map(fine)(np.repeat(theta_model[:n, None], fine, axis=1),
+        force = np.asarray(self._mapped(i, fine)(np.repeat(theta_model[:n, None], fine, axis=1),
                                                          grid[None, :]), dtype=float).T
         if not self.chain_modes:
             return force

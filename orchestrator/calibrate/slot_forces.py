@@ -572,7 +572,8 @@ def calibrate_slot_forces(spec: CalibrationSpec, fmu_dir: Path, out_dir: Path, d
                                                    if result_fit.model.chain_modes else " law, no chain")
         tables += lofo_tables(folds, label)
         bound = recorded_bound(spec, folder, n_flutes)
-        tables.append(bound_table(bound))
+        if bound:  # three feeds at least
+            tables.append(bound_table(bound))
     figures = [Figure("Mean forces against the feed per tooth",
                       _means_png(learn, held, regression, waveform, n_flutes, result_fit.model.law),
                       "Recorded per-revolution means (learning filled, held-out open) and the closed-form means of "

@@ -32,8 +32,8 @@ from milling_twin.models.cutting_force import CHIP_LAWS
 from milling_twin.orchestrator.calibrate.scenario_fit import with_overrides
 from milling_twin.orchestrator.calibrate.slot_forces import fit_slot, load_slot_data
 from milling_twin.orchestrator.calibrate.slot_lofo import coverage, leave_one_feed_out, recorded_bound, summary
-from milling_twin.orchestrator.calibrate.spec import load_spec
-from milling_twin.orchestrator.scenario import load_scenario
+from milling_twin.orchestrator.calibrate.spec import CalibrationSpec, load_spec
+from milling_twin.orchestrator.scenario import Scenario, load_scenario
 from milling_twin.orchestrator.validation import slot_milling as sm
 
 REPO = Path(__file__).resolve().parents[2]
@@ -41,13 +41,29 @@ SPEC = REPO / "scenarios" / "calibration" / "slot_forces_chain.toml"
 VARIANTS = ("linear", "exponential", "power_edge", "linear+chain", "exponential+chain", "power_edge+chain")
 
 
+def slot_arguments(parser: argparse.ArgumentParser, out: str) -> None:
+    """The options the slot-forces benchmarks share (this one and calibrate_slot_speed.py)."""
+    parser.add_argument("--data", type=Path, default=None)
+    parser.add_argument("--fmu-dir", type=Path, default=Path(os.environ.get("MILLING_TWIN_FMU_DIR",
+                                                                            REPO / "build" / "fmus")))
+    parser.add_argument("--variants", default=",".join(VARIANTS))
+    parser.add_argument("--out", type=Path, default=REPO / "runs" / "benchmarks" / out)
+
+
+def variant_scenario(spec: CalibrationSpec, variant: str, chain_modes: int, fmu_dir: Path) -> Scenario:
+    """The spec's scenario with the variant's chip-thickness law and a chain of ``chain_modes`` modes ("law+chain")
+    or none ("law")."""
+    law, _, chain = variant.partition("+")
+    return with_overrides(load_scenario(spec.scenario, fmu_dir),
+                          {"force.chip_law": CHIP_LAWS[law], "chain.n_modes": chain_modes if chain else 0})
+
+
 def run_variant(variant: str, chain_modes: int, starts: int | None, fmu_dir: Path, folder: Path) -> dict:
     law, _, chain = variant.partition("+")
     spec = load_spec(SPEC)
     if starts is not None:
         spec = replace(spec, solver=replace(spec.solver, starts=starts))
-    scenario = with_overrides(load_scenario(spec.scenario, fmu_dir),
-                              {"force.chip_law": CHIP_LAWS[law], "chain.n_modes": chain_modes if chain else 0})
+    scenario = variant_scenario(spec, variant, chain_modes, fmu_dir)
     n_flutes = sm._n_flutes(scenario)
     print(f"\n### {variant}\n", flush=True)
     folds = leave_one_feed_out(spec, scenario, folder, n_flutes, progress=lambda s: print("  " + s, flush=True))
@@ -106,13 +122,9 @@ def print_variant(v: dict) -> None:
 
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
-    parser.add_argument("--data", type=Path, default=None)
-    parser.add_argument("--fmu-dir", type=Path, default=Path(os.environ.get("MILLING_TWIN_FMU_DIR",
-                                                                            REPO / "build" / "fmus")))
-    parser.add_argument("--variants", default=",".join(VARIANTS))
+    slot_arguments(parser, "calibrate_slot_lofo")
     parser.add_argument("--chain-modes", type=int, default=2)
     parser.add_argument("--starts", type=int, default=None, help="starts of each fit (default: the spec's)")
-    parser.add_argument("--out", type=Path, default=REPO / "runs" / "benchmarks" / "calibrate_slot_lofo")
     args = parser.parse_args()
     folder = datasets.data_dir(args.data)
     args.out.mkdir(parents=True, exist_ok=True)

@@ -25,20 +25,14 @@ import json
 import os
 import time
 from dataclasses import replace
-from pathlib import Path
 
+from calibrate_slot_lofo import SPEC, slot_arguments, variant_scenario
 from milling_twin import datasets
-from milling_twin.models.cutting_force import CHIP_LAWS
 from milling_twin.orchestrator.calibrate import lsq, slot_forces
-from milling_twin.orchestrator.calibrate.scenario_fit import with_overrides
 from milling_twin.orchestrator.calibrate.slot_model import map_threads
 from milling_twin.orchestrator.calibrate.spec import load_spec
-from milling_twin.orchestrator.scenario import load_scenario
 from milling_twin.orchestrator.validation import slot_milling as sm
 
-REPO = Path(__file__).resolve().parents[2]
-SPEC = REPO / "scenarios" / "calibration" / "slot_forces_chain.toml"
-VARIANTS = ("linear", "exponential", "power_edge", "linear+chain", "exponential+chain", "power_edge+chain")
 SETUPS = ("before", "one BLAS thread", "now")
 
 
@@ -58,13 +52,9 @@ def setup(name: str):  # type: ignore[no-untyped-def]
 
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
-    parser.add_argument("--data", type=Path, default=None)
-    parser.add_argument("--fmu-dir", type=Path, default=Path(os.environ.get("MILLING_TWIN_FMU_DIR",
-                                                                            REPO / "build" / "fmus")))
-    parser.add_argument("--variants", default=",".join(VARIANTS))
+    slot_arguments(parser, "calibrate_slot_speed")
     parser.add_argument("--rounds", type=int, default=1)
     parser.add_argument("--starts", type=int, default=2)
-    parser.add_argument("--out", type=Path, default=REPO / "runs" / "benchmarks" / "calibrate_slot_speed")
     args = parser.parse_args()
     folder = datasets.data_dir(args.data)
     args.out.mkdir(parents=True, exist_ok=True)
@@ -77,9 +67,7 @@ def main() -> None:
     rows = []
     for round_ in range(1, args.rounds + 1):
         for variant in args.variants.split(","):
-            law, _, chain = variant.partition("+")
-            scenario = with_overrides(load_scenario(spec.scenario, args.fmu_dir),
-                                      {"force.chip_law": CHIP_LAWS[law], "chain.n_modes": 2 if chain else 0})
+            scenario = variant_scenario(spec, variant, 2, args.fmu_dir)
             n_flutes = sm._n_flutes(scenario)
             data = slot_forces.load_slot_data(folder, feeds, "feeds", spec, spec.slot_forces.revolutions, n_flutes)
             for name in SETUPS:

@@ -4,12 +4,13 @@ The recorded per-revolution waveform of every feed, brought to one spindle phase
 as a polynomial in the feed (each harmonic per axis a complex polynomial, fitted by least squares to the other
 feeds) and the held-out feed is predicted from it, its phase found as a model's is (the rotation that fits best).
 
-Why it bounds the models: a chip-thickness law linear in the chip (edge and cutting terms), through any linear
-time-invariant measuring chain, with any helix, tool geometry and a runout that keeps both flutes cutting, gives a
-waveform that is *affine in the feed at every angle* (degree 1). The interpolant of degree 1 is the best such
-model can do when it has the recorded shapes exactly, so its held-out errors are a floor for all of them; degree
-2 shows what a law curved in the chip thickness could add. The kinematic runout chip (the thinnest surface of the
-flutes before) is not affine at feeds below the runout, nor is chatter: a model with those can differ either way.
+Why it is the reference for the models: a chip-thickness law linear in the chip (edge and cutting terms), through
+any linear time-invariant measuring chain, with any helix, tool geometry and a runout that keeps both flutes
+cutting, gives a waveform that is *affine in the feed at every angle* (degree 1). Such a model is the interpolant
+of degree 1 with fewer freedoms: it fits the other feeds no better, and it is not to be expected to predict the
+held-out one better, except by chance. Degree 2 shows what a law curved in the chip thickness could add. The
+kinematic runout chip (the thinnest surface of the flutes before) is not affine at feeds below the runout, nor is
+chatter: a model with those can differ either way.
 """
 from __future__ import annotations
 
@@ -20,7 +21,7 @@ from dataclasses import dataclass
 import numpy as np
 from scipy.optimize import least_squares
 
-__all__ = ["InterpolantFold", "align", "interpolant_folds", "rotate"]
+__all__ = ["InterpolantFold", "align", "interpolant_folds", "predict", "rotate"]
 
 PHASE_STEPS = 3600  # the phase search's grid: 0.1 degree of spindle angle, then Newton's method
 

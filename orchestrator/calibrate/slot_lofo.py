@@ -11,8 +11,9 @@ recording is unknown, a nuisance of every recording), everything else comes from
 * the estimates with their 95 % intervals (the revolution bootstrap of ``[slot_forces].bootstrap``).
 
 Beside the models, what the recordings allow (:mod:`.feed_interpolant`): the same held-out feeds predicted by a
-model-free interpolant of the other feeds' waveforms, a polynomial in the feed at every angle. Degree 1 is the floor
-of every law linear in the chip through any linear measuring chain; degree 2 a law curved in the chip.
+model-free interpolant of the other feeds' waveforms, a polynomial in the feed at every angle. Degree 1 has the
+form of every law linear in the chip through any linear measuring chain, with more freedom; degree 2 a law curved
+in the chip.
 
 Coverage: for every identified model parameter, the share of ordered pairs of folds (i, j), i != j, whose
 estimate i lies inside interval j. When the law and the chain are right and the intervals honest, the folds'
@@ -179,7 +180,8 @@ def bound_table(bound: dict[int, list[InterpolantFold]]) -> Table:
                  tuple(rows), "No model: every harmonic of the other feeds' per-revolution waveforms (brought to one "
                               "phase) a least-squares polynomial in the feed. Any law linear in the chip through any "
                               "linear measuring chain is affine in the feed at every angle (while both flutes cut): "
-                              "where the affine interpolant misses a target, such a model will too.")
+                              "where the affine interpolant misses a target, such a model is not to be expected to "
+                              "reach it.")
 
 
 def lofo_tables(folds: Sequence[Fold], label: str) -> list[Table]:

@@ -164,17 +164,22 @@ def summary(folds: Sequence[Scored]) -> dict[str, object]:
             "worst_axis_error": float(errors.max())}
 
 
+def _score_rows(folds: Sequence[Scored]) -> list[tuple[str, str, str]]:
+    """(held-out feed, mean-force errors, r2) per fold, then their means: the rows both reports' tables share."""
+    s = summary(folds)
+    return ([(f"{f.held_feed:g} mm/min", " / ".join(f"{100 * e:+.1f}" for e in f.mean_error),
+              " / ".join(f"{v:.3f}" for v in f.r2)) for f in folds]
+            + [("mean |error|, mean r2", " / ".join(f"{100 * e:.1f}" for e in s["mean_abs_error"]),
+                " / ".join(f"{v:.3f}" for v in s["mean_r2"]))])
+
+
 def bound_table(bound: dict[int, list[InterpolantFold]]) -> Table:
     """The report's table of :func:`recorded_bound`: per held-out feed, each interpolant's scores."""
     names = {1: "affine in the feed", 2: "quadratic in the feed"}
     rows = []
     for degree, folds in bound.items():
         name = names.get(degree, f"degree {degree} in the feed")
-        rows += [(name, f"{f.held_feed:g} mm/min", " / ".join(f"{100 * e:+.1f}" for e in f.mean_error),
-                  " / ".join(f"{v:.3f}" for v in f.r2)) for f in folds]
-        s = summary(folds)
-        rows.append((name, "mean |error|, mean r2", " / ".join(f"{100 * e:.1f}" for e in s["mean_abs_error"]),
-                     " / ".join(f"{v:.3f}" for v in s["mean_r2"])))
+        rows += [(name, *row) for row in _score_rows(folds)]
     return Table("What the recordings allow: each feed predicted from the others' waveforms, angle by angle",
                  ("interpolant", "held-out feed", "mean-force error Fx / Fy / Fz [%]", "waveform r2 Fx / Fy / Fz"),
                  tuple(rows), "No model: every harmonic of the other feeds' per-revolution waveforms (brought to one "
@@ -186,11 +191,9 @@ def bound_table(bound: dict[int, list[InterpolantFold]]) -> Table:
 
 def lofo_tables(folds: Sequence[Fold], label: str) -> list[Table]:
     """The report's tables: per held-out feed, and the coverage of the intervals."""
-    rows = [(f"{f.held_feed:g} mm/min", " / ".join(f"{100 * e:+.1f}" for e in f.mean_error),
-             " / ".join(f"{v:.3f}" for v in f.r2), f"{f.fit_time:.1f}") for f in folds]
+    rows = [(*row, f"{f.fit_time:.1f}" if f is not None else "")
+            for row, f in zip(_score_rows(folds), [*folds, None])]
     s = summary(folds)
-    rows.append(("mean |error|, mean r2", " / ".join(f"{100 * e:.1f}" for e in s["mean_abs_error"]),
-                 " / ".join(f"{v:.3f}" for v in s["mean_r2"]), ""))
     cov = coverage(folds)
     cov_rows = []
     for k, name in enumerate(folds[0].names):

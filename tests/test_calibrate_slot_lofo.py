@@ -106,21 +106,30 @@ def test_the_model_waveform_through_the_chain_is_the_chains_time_domain_response
     assert np.all(np.abs(response - waveform).max(axis=0) < 0.03 * spread)
 
 
-def test_the_waveform_and_its_jacobian_in_threads_are_those_of_one_thread(setup, data: Path) -> None:
-    """The force mapped over the angles in several threads: every thread its own angles, the same numbers to the
-    bit (the waveform the fit differentiates, its Jacobian, the phase search's fine waveform)."""
+def test_the_waveform_and_its_jacobian_compiled_and_in_threads_are_those_of_one_interpreted_thread(
+        setup, data: Path) -> None:
+    """The force mapped over the angles in several threads (every thread its own angles) and compiled to machine
+    code (the same operations in the same order): the same numbers to the bit as casadi's virtual machine in one
+    thread (the waveform the fit differentiates, its Jacobian, the phase search's fine waveform), for two
+    recordings through one function (the feed its input)."""
     spec, scenario = setup
-    learn = sf.load_slot_data(data, FEEDS[:1], "k", spec, 0, 2)
-    models = [replace(sf.slot_model(scenario, spec, learn.recordings, [100]), threads=n) for n in (1, 3)]
+    learn = sf.load_slot_data(data, FEEDS[:2], "k", spec, 0, 2)
+    model = sf.slot_model(scenario, spec, learn.recordings, [100, 100])
+    assert model.varying == ["feed_velocity_x"]
+    if not model.compile_options:
+        pytest.skip("no working C compiler: the force model is interpreted")
+    models = [replace(model, threads=n, compile_options=options)
+              for options in ({}, model.compile_options) for n in (1, 3)]
     theta = np.array([LAW[n] for n in models[0].coefficients] + [CHAIN[n] for n in models[0].chain])
     th, phase = ca.MX.sym("theta", theta.size), ca.MX.sym("phase")
     values = []
     for model in models:
-        w = model.waveform(th, 0, phase)
+        w = ca.vertcat(model.waveform(th, 0, phase), model.waveform(th, 1, phase + 1))
         f = ca.Function("w", [th, phase], [w, ca.jacobian(w, ca.vertcat(th, phase))])
-        values.append([np.asarray(v) for v in f(theta, 0.7)] + [model.fine_waveform(theta, 0, 3600)])
-    for one, several in zip(*values):
-        assert np.array_equal(one, several)
+        values.append([np.asarray(v) for v in f(theta, 0.7)] + [model.fine_waveform(theta, 1, 3600)])
+    for other in values[1:]:
+        for one, same in zip(values[0], other):
+            assert np.array_equal(one, same)
 
 
 @pytest.mark.ipopt

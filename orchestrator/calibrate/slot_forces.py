@@ -54,6 +54,7 @@ from matplotlib.figure import Figure as MplFigure
 from milling_twin import datasets
 from milling_twin.models.cutting_force import CHIP_LAW_POWER_EDGE, CUTTING_FORCE, mean_slot_forces
 from milling_twin.models.measuring_chain import MEASURING_CHAIN
+from milling_twin.orchestrator.calibrate.compiled import jit_options
 from milling_twin.orchestrator.calibrate.errors import CalibrationError
 from milling_twin.orchestrator.calibrate.fit import FitOutcome, fit
 from milling_twin.orchestrator.calibrate.graph import NO_DATA_DERIVATIVE
@@ -139,11 +140,13 @@ def _constants(scenario: Scenario, recording: datasets.Recording) -> dict[str, f
 def slot_model(scenario: Scenario, spec: CalibrationSpec, recordings: list[datasets.Recording],
                points: list[int]) -> SlotModel:
     """The model of ``recordings``: the force instance's chip-thickness law and, when the scenario has a
-    MeasuringChain instance named "chain", its n_modes modes (what :func:`fitted_names` lists is fitted)."""
+    MeasuringChain instance named "chain", its n_modes modes (what :func:`fitted_names` lists is fitted);
+    compiled to machine code unless ``[slot_forces] compile = false``."""
     names = fitted_names(scenario, spec)
     return SlotModel([_constants(scenario, r) for r in recordings], names[sm.INSTANCE],
                      len(names.get(CHAIN_INSTANCE, [])) // len(chain_parameter_names(1)),
-                     [r.rpm / 60 for r in recordings], points)
+                     [r.rpm / 60 for r in recordings], points,
+                     compile_options=jit_options() if spec.slot_forces is None or spec.slot_forces.compile else {})
 
 
 def waveform_model(model: SlotModel, data: SlotData, parameters: list[Parameter]) -> ResidualModel:

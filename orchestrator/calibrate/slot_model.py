@@ -97,39 +97,59 @@ class SlotModel:
     spindle_hz: list[float]
     points: list[int]
     threads: int = field(default_factory=map_threads)
+    compile_options: dict = field(default_factory=dict)  # casadi's options of the force function (compiled.py)
 
     def __post_init__(self) -> None:
         self.chain = chain_parameter_names(self.chain_modes)
         self.n_model = len(self.coefficients) + len(self.chain)
-        self._functions = [self._force_function(c) for c in self.constants]
+        # what differs between the recordings (speed, feed, depth) is an input of the one force function, the rest
+        # is folded in: one function (one compilation) serves every recording
+        self.varying = [a.name for a in CUTTING_FORCE.arguments
+                        if a.name not in self.coefficients and a.name != "angle"
+                        and len({float(c[a.name]) for c in self.constants}) > 1]
+        self._function = self._force_function()
 
     @property
     def law(self) -> int:
         return int(self.constants[0]["chip_law"])
 
     # ---- the force ----
-    def _force_function(self, constants: Mapping[str, float]) -> ca.Function:
-        """(force parameters, angle) -> forces in the recordings' axes, the rest folded in as constants."""
+    def _force_function(self) -> ca.Function:
+        """(force parameters, angle, conditions) -> forces in the recordings' axes: the conditions are the
+        :attr:`varying` constants, the others folded in."""
         theta = ca.SX.sym("theta", len(self.coefficients))
         angle = ca.SX.sym("angle")
+        conditions = ca.SX.sym("conditions", len(self.varying))
         values = {}
         for arg in CUTTING_FORCE.arguments:
             if arg.name in self.coefficients:
                 values[arg.name] = theta[self.coefficients.index(arg.name)]
             elif arg.name == "angle":
                 values[arg.name] = angle
+            elif arg.name in self.varying:
+                values[arg.name] = conditions[self.varying.index(arg.name)]
             else:
-                values[arg.name] = ca.SX(float(constants[arg.name]))
+                values[arg.name] = ca.SX(float(self.constants[0][arg.name]))
         out = equations(values)
-        return ca.Function("forces", [theta, angle], [ca.vertcat(*[out[a] for a in MODEL_AXES])])
+        return ca.Function("forces", [theta, angle, conditions], [ca.vertcat(*[out[a] for a in MODEL_AXES])],
+                           self.compile_options)
 
-    def force_function(self, i: int) -> ca.Function:
-        return self._functions[i]
+    def conditions(self, i: int) -> np.ndarray:
+        """The :attr:`varying` constants of recording ``i`` (the force function's third input)."""
+        return np.array([float(self.constants[i][name]) for name in self.varying])
 
-    def _mapped(self, i: int, angles: int) -> ca.Function:
-        """The force of recording ``i`` over ``angles`` angles at once, in :attr:`threads` threads."""
-        return (self._functions[i].map(angles, "thread", self.threads) if self.threads > 1
-                else self._functions[i].map(angles))
+    def _mapped(self, angles: int) -> ca.Function:
+        """The force over ``angles`` angles at once, in :attr:`threads` threads."""
+        return (self._function.map(angles, "thread", self.threads) if self.threads > 1
+                else self._function.map(angles))
+
+    def forces(self, i: int, theta_model: np.ndarray, angles: np.ndarray) -> np.ndarray:
+        """The force of recording ``i`` at ``angles`` (radians; len(angles) x 3, numpy)."""
+        n = len(self.coefficients)
+        return np.asarray(self._mapped(angles.size)(np.repeat(np.asarray(theta_model)[:n, None], angles.size, axis=1),
+                                                    angles[None, :],
+                                                    np.repeat(self.conditions(i)[:, None], angles.size, axis=1)),
+                          dtype=float).T
 
     # ---- the chain ----
     def chain_values(self, theta):  # type: ignore[no-untyped-def]
@@ -146,7 +166,8 @@ class SlotModel:
         points = self.points[i]
         grid = points * (OVERSAMPLE if self.chain_modes else 1)
         base = ca.DM(2 * math.pi * np.arange(grid) / grid).T
-        force = self._mapped(i, grid)(ca.repmat(theta[:len(self.coefficients)], 1, grid), phase + base).T
+        force = self._mapped(grid)(ca.repmat(theta[:len(self.coefficients)], 1, grid), phase + base,
+                                   ca.repmat(ca.DM(self.conditions(i)), 1, grid)).T
         if not self.chain_modes:
             return force
         # the harmonics the samples resolve (the recorder's anti-aliasing filter removes the others)
@@ -168,10 +189,7 @@ class SlotModel:
     def fine_waveform(self, theta_model: np.ndarray, i: int, fine: int) -> np.ndarray:
         """The waveform over ``fine`` equal angles from 0 (fine x 3, numpy): for the phase search. With a chain,
         the harmonics the recording resolves only, as :meth:`waveform` has them."""
-        grid = 2 * math.pi * np.arange(fine) / fine
-        n = len(self.coefficients)
-        force = np.asarray(self._mapped(i, fine)(np.repeat(theta_model[:n, None], fine, axis=1),
-                                                         grid[None, :]), dtype=float).T
+        force = self.forces(i, theta_model, 2 * math.pi * np.arange(fine) / fine)
         if not self.chain_modes:
             return force
         harmonics = self.points[i] // 2 + 1
@@ -257,13 +275,11 @@ def chain_harmonics(model: SlotModel, theta_model: np.ndarray, phases: Sequence[
                     waves: Sequence[np.ndarray], revolutions: Sequence[int]) -> ChainHarmonics:
     """The harmonics of the model force (without the chain) and of the recorded waveforms (module text)."""
     force, recorded, hz, weight = [], [], [], []
-    n = len(model.coefficients)
     for i, (phase, wave, revs) in enumerate(zip(phases, waves, revolutions)):
         points = len(wave)
         grid = points * OVERSAMPLE
         angles = phase + 2 * math.pi * np.arange(grid) / grid
-        f = np.asarray(model.force_function(i).map(grid)(np.repeat(theta_model[:n, None], grid, axis=1),
-                                                          angles[None, :]), dtype=float).T
+        f = model.forces(i, theta_model, angles)
         harmonics = np.arange(1, (points + 1) // 2)  # the Nyquist line (half of it unseen) is left out
         force.append(np.fft.rfft(f, axis=0)[harmonics] / grid)
         recorded.append(np.fft.rfft(wave, axis=0)[harmonics] / points)

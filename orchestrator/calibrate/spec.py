@@ -127,6 +127,8 @@ Kind "slot_forces" (the cutting-force coefficients from the slot-milling recordi
     revolutions = 0                   # whole revolutions used per recording (0: all)
     bootstrap = 200                   # intervals: replicates of the revolution bootstrap (0: i.i.d. intervals)
     leave_one_out = false             # also the leave-one-feed-out table over all feeds of the data folder
+    compile = true                    # the force model and its derivatives as machine code (C compiler, cached;
+                                      # orchestrator/calibrate/compiled.py), else casadi's virtual machine
     [parameters."force.Ktc"]          # the six coefficients (and runout ones): bounds, units, ...
 """
 from __future__ import annotations
@@ -233,6 +235,7 @@ class SlotForcesSpec:
     revolutions: int = 0
     bootstrap: int = 200  # replicates of the revolution bootstrap of the intervals (0: the i.i.d. intervals)
     leave_one_out: bool = False  # also fit every feed's complement and predict it (the leave-one-feed-out table)
+    compile: bool = True  # the force model compiled to machine code (compiled.py), the same numbers, faster
 
 
 @dataclass(frozen=True)
@@ -422,7 +425,7 @@ def _feeds(ctx: _Ctx, table: dict, name: str) -> tuple[float, ...]:
 def _slot_forces(ctx: _Ctx, raw: Any) -> SlotForcesSpec:
     key = "[slot_forces]"
     table = ctx.table(raw, key, ("learning_feeds", "validation_feeds", "runout", "revolutions", "bootstrap",
-                                 "leave_one_out"))
+                                 "leave_one_out", "compile"))
     learning, validation = _feeds(ctx, table, "learning_feeds"), _feeds(ctx, table, "validation_feeds")
     if len(learning) < 2:
         ctx.fail(f"{key}.learning_feeds", "give at least two feeds (a line per axis needs two)")
@@ -432,11 +435,13 @@ def _slot_forces(ctx: _Ctx, raw: Any) -> SlotForcesSpec:
     runout = table.get("runout", True)
     if not isinstance(runout, bool):
         ctx.fail(f"{key}.runout", f"expected true or false, got {runout!r}")
-    leave_one_out = table.get("leave_one_out", False)
-    if not isinstance(leave_one_out, bool):
-        ctx.fail(f"{key}.leave_one_out", f"expected true or false, got {leave_one_out!r}")
+    switches = {}
+    for name, default in (("leave_one_out", False), ("compile", True)):
+        switches[name] = table.get(name, default)
+        if not isinstance(switches[name], bool):
+            ctx.fail(f"{key}.{name}", f"expected true or false, got {switches[name]!r}")
     return SlotForcesSpec(learning, validation, runout, ctx.integer(table, key, "revolutions", 0, 0),
-                          ctx.integer(table, key, "bootstrap", 200, 0), leave_one_out)
+                          ctx.integer(table, key, "bootstrap", 200, 0), **switches)
 
 
 def _runs(ctx: _Ctx, raw: Any, base: Path, parameters: tuple[ParameterSpec, ...]) -> RunsSpec:

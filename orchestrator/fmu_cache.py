@@ -39,6 +39,8 @@ import zipfile
 from dataclasses import dataclass
 from pathlib import Path
 
+from milling_twin.orchestrator.user_cache import cache_folder
+
 __all__ = ["CACHE_ENV", "KEEP", "MANIFEST", "MAX_BYTES", "MAX_BYTES_ENV", "MAX_RATIO", "MAX_RATIO_ENV",
            "FmuArchiveError", "Limits", "Unpacked", "cache_root", "extract", "limits", "unpack"]
 
@@ -95,11 +97,7 @@ def limits() -> Limits:
 
 def cache_root() -> Path | None:
     """The cache folder, or None when the cache is switched off."""
-    env = os.environ.get(CACHE_ENV)
-    if env is not None:
-        return None if env.strip().lower() in ("", "off", "0", "none") else Path(env)
-    base = os.environ.get("XDG_CACHE_HOME") or str(Path.home() / ".cache")
-    return Path(base) / "milling_twin" / "fmus"
+    return cache_folder(CACHE_ENV, "fmus")
 
 
 def _safe_parts(fmu: str | os.PathLike[str], name: str) -> list[str]:

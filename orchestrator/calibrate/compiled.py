@@ -27,6 +27,8 @@ from pathlib import Path
 
 import casadi as ca
 
+from milling_twin.orchestrator.user_cache import cache_folder
+
 __all__ = ["CACHE_ENV", "FLAGS", "cache_root", "find_compiler", "jit_options"]
 
 log = logging.getLogger(__name__)
@@ -40,11 +42,7 @@ _FRONT = Path(__file__).with_name("compile_cache.py")
 
 def cache_root() -> Path | None:
     """The cache folder of compiled objects, or None when the cache is switched off."""
-    env = os.environ.get(CACHE_ENV)
-    if env is not None:
-        return None if env.strip().lower() in ("", "off", "0", "none") else Path(env)
-    base = os.environ.get("XDG_CACHE_HOME") or str(Path.home() / ".cache")
-    return Path(base) / "milling_twin" / "casadi_jit"
+    return cache_folder(CACHE_ENV, "casadi_jit")
 
 
 def find_compiler() -> str | None:

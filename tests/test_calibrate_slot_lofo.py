@@ -117,7 +117,7 @@ def test_the_waveform_and_its_jacobian_compiled_and_in_threads_are_those_of_one_
     model = sf.slot_model(scenario, spec, learn.recordings, [100, 100])
     assert model.varying == ["feed_velocity_x"]
     if not model.compile_options:
-        pytest.skip("no working C compiler: the force model is interpreted")
+        pytest.skip("the force model is not compiled here (no working C compiler, or a preloaded sanitizer runtime)")
     models = [replace(model, threads=n, compile_options=options)
               for options in ({}, model.compile_options) for n in (1, 3)]
     theta = np.array([LAW[n] for n in models[0].coefficients] + [CHAIN[n] for n in models[0].chain])

@@ -17,6 +17,8 @@ from milling_twin.orchestrator.calibrate import compiled
 from milling_twin.orchestrator.calibrate.compile_cache import cached_compile
 
 SOURCE = "double twice(double x) { return 2 * x; }\n"
+needs_jit = pytest.mark.skipif(compiled.sanitizer_preloaded(),
+                               reason="a preloaded AddressSanitizer runtime refuses casadi's compiler plugin")
 
 
 @pytest.fixture
@@ -75,6 +77,7 @@ def test_a_cache_that_cannot_be_written_still_compiles(counting_compiler, tmp_pa
     assert "not cached" in capfd.readouterr().err
 
 
+@needs_jit
 def test_compiled_functions_and_their_derivatives_run_through_the_cache(tmp_path, monkeypatch):
     if compiled.find_compiler() is None:
         pytest.skip("no C compiler on this machine")
@@ -96,12 +99,14 @@ def test_compiled_functions_and_their_derivatives_run_through_the_cache(tmp_path
 
 
 def test_without_a_compiler_the_functions_stay_interpreted_with_a_warning(monkeypatch, caplog):
+    monkeypatch.delenv("LD_PRELOAD", raising=False)  # the sanitizer stage's runtime is checked first
     monkeypatch.setattr(compiled, "find_compiler", lambda: None)
     with caplog.at_level(logging.WARNING):
         assert compiled.jit_options() == {}
     assert "no C compiler found" in caplog.text
 
 
+@needs_jit
 def test_a_compiler_that_fails_leaves_the_functions_interpreted(tmp_path, monkeypatch, caplog):
     broken = tmp_path / "broken-cc"
     broken.write_text("#!/bin/sh\nexit 1\n")
@@ -110,6 +115,16 @@ def test_a_compiler_that_fails_leaves_the_functions_interpreted(tmp_path, monkey
     with caplog.at_level(logging.WARNING):
         assert compiled.jit_options() == {}
     assert f"compiling with {broken} failed" in caplog.text
+
+
+def test_under_a_preloaded_sanitizer_the_functions_stay_interpreted(monkeypatch, caplog):
+    monkeypatch.setenv("LD_PRELOAD", "/usr/lib/gcc/x86_64-linux-gnu/12/libasan.so /usr/lib/libubsan.so")
+    assert compiled.sanitizer_preloaded()
+    with caplog.at_level(logging.WARNING):
+        assert compiled.jit_options() == {}
+    assert "AddressSanitizer" in caplog.text
+    monkeypatch.setenv("LD_PRELOAD", "libfaketime.so")
+    assert not compiled.sanitizer_preloaded()
 
 
 def test_the_cache_folder_follows_the_environment(monkeypatch, tmp_path):

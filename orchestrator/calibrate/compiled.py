@@ -6,8 +6,9 @@ hundreds of angles per recording. casadi's virtual machine interprets them; comp
 faster (``tests/benchmarks/calibrate_slot_speed.py``), to the same numbers (the generated C does the same
 operations in the same order; tested to the bit).
 
-* Compiler: ``$CC``, else ``cc``, else ``gcc`` (POSIX systems; elsewhere, and when no compiler works, the
-  functions stay interpreted and :func:`jit_options` logs why, once per process).
+* Compiler: ``$CC``, else ``cc``, else ``gcc`` (POSIX systems; elsewhere, when no compiler works and under a
+  preloaded AddressSanitizer runtime, the functions stay interpreted and :func:`jit_options` logs why, once per
+  process).
 * Cache: ``$MILLING_TWIN_JIT_CACHE`` (a folder; ``off`` or an empty value: compile every time), else
   ``$XDG_CACHE_HOME/milling_twin/casadi_jit``, else ``~/.cache/milling_twin/casadi_jit``. The compile step runs
   through ``compile_cache.py``, which keys the object by the source, flags and compiler, so the second fit of the
@@ -29,7 +30,7 @@ import casadi as ca
 
 from milling_twin.orchestrator.user_cache import cache_folder
 
-__all__ = ["CACHE_ENV", "FLAGS", "cache_root", "find_compiler", "jit_options"]
+__all__ = ["CACHE_ENV", "FLAGS", "cache_root", "find_compiler", "jit_options", "sanitizer_preloaded"]
 
 log = logging.getLogger(__name__)
 
@@ -55,14 +56,26 @@ def find_compiler() -> str | None:
     return None
 
 
+def sanitizer_preloaded() -> bool:
+    """Whether an AddressSanitizer runtime is preloaded (``LD_PRELOAD``): it aborts the process when casadi loads
+    its compiler plugin (casadi opens plugins with RTLD_DEEPBIND, which the runtime refuses,
+    google/sanitizers#611), so the functions stay interpreted then."""
+    return any("asan" in Path(entry).name for entry in os.environ.get("LD_PRELOAD", "").replace(":", " ").split())
+
+
 def jit_options() -> dict:
     """casadi's options that compile a Function and its derivatives (module text), or ``{}`` (interpreted) when
-    no compiler is found or it fails on a probe (logged once per process)."""
-    return dict(_checked_options(find_compiler(), cache_root()))
+    no compiler is found, it fails on a probe or a sanitizer runtime is preloaded (logged once per process)."""
+    return dict(_checked_options(find_compiler(), cache_root(), sanitizer_preloaded()))
 
 
 @functools.lru_cache(maxsize=8)
-def _checked_options(compiler: str | None, cache: Path | None) -> tuple[tuple[str, object], ...]:
+def _checked_options(compiler: str | None, cache: Path | None,
+                     sanitized: bool) -> tuple[tuple[str, object], ...]:
+    if sanitized:
+        log.warning("an AddressSanitizer runtime is preloaded, which refuses casadi's compiler plugin: the force "
+                    "model runs in casadi's virtual machine")
+        return ()
     if compiler is None:
         log.warning("no C compiler found ($CC, cc, gcc): the force model runs in casadi's virtual machine")
         return ()

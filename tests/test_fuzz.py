@@ -71,6 +71,10 @@ def test_committed_seeds_are_what_make_seeds_writes(tmp_path: Path) -> None:
             assert path.read_bytes() == data, f"{path} is stale: run python tests/fuzz/make_seeds.py"
 
 
+# One build folder (build-fuzz) for every target, which share objects (an FMU's generated equations serve its
+# FMI 2 and FMI 3 targets): the runs go to one pytest-xdist worker, one after the other (`--dist loadgroup`, as
+# `make test` runs), so that no two builds write the folder at once and each object is compiled once.
+@pytest.mark.xdist_group("libfuzzer")
 @pytest.mark.skipif(shutil.which("clang") is None, reason="clang not installed (make fuzz installs it)")
 @pytest.mark.parametrize("target", targets())
 def test_a_short_libfuzzer_run_finds_nothing(target: str, tmp_path: Path) -> None:

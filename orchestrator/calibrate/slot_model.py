@@ -14,7 +14,9 @@ delayed by half a step, see models/measuring_chain.py).
 
 The force's evaluations over the angles (and their derivatives, most of a fit's time) run in ``threads`` threads
 of casadi's map (:func:`map_threads`: the CPUs this process may use, at most ``MAX_MAP_THREADS``): every thread
-computes its own angles, so the numbers are those of one thread to the bit.
+computes its own angles, so the numbers are those of one thread to the bit. The recordings share one force
+function (what differs between them, :attr:`SlotModel.varying`, is its third input), compiled to machine code with
+its derivatives when ``compile_options`` hold casadi's just-in-time options (``compiled.py``): the same numbers.
 
 ``layout`` (:class:`SlotModel`) names the fitted parameters in order: the coefficients of the law (force
 instance), the runout offset (optional), the chain's modes (chain instance), then one spindle phase per recording
@@ -25,7 +27,7 @@ from __future__ import annotations
 import functools
 import math
 import os
-from collections.abc import Mapping, Sequence
+from collections.abc import Sequence
 from dataclasses import dataclass, field
 
 import casadi as ca

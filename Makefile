@@ -7,7 +7,8 @@ VENV_PYTHON := $(abspath $(VENV))/bin/python
 JOBS ?= 2
 # pytest's tests spread over JOBS processes (pytest-xdist): the suite is CPU-bound, so on the 2 cores of CI this
 # halves its time. `pytest tests/x.py` by hand stays one process. PYTEST_PARALLEL= runs `make test` serially.
-# loadgroup: tests marked with one xdist_group run on one worker (the libFuzzer runs, which share a build folder).
+# loadgroup: tests marked with one xdist_group run on one worker (the libFuzzer runs and the sanitizer tests, each
+# group building one folder).
 PYTEST_PARALLEL ?= -n $(JOBS) --dist loadgroup
 
 .PHONY: setup configure fmus build demo test test-sanitize clean fuzz test-tools wheel release

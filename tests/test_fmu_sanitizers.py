@@ -27,6 +27,9 @@ from fmu_helpers import (
 )
 
 BUILD_DIR = repo_root() / "build-asan"
+# The module's fixture configures and builds build-asan: its tests go to one pytest-xdist worker (`make test` runs
+# --dist loadgroup), or two workers would configure the new folder at once (cmake fails on the other's files).
+pytestmark = pytest.mark.xdist_group("build-asan")
 SANITIZER_REPORTS = ("ERROR: AddressSanitizer", "ERROR: LeakSanitizer", "runtime error:",
                      "SUMMARY: UndefinedBehaviorSanitizer")
 

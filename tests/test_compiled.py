@@ -17,6 +17,16 @@ from milling_twin.orchestrator.calibrate import compiled
 from milling_twin.orchestrator.calibrate.compile_cache import cached_compile
 
 SOURCE = "double twice(double x) { return 2 * x; }\n"
+
+
+@pytest.fixture(autouse=True)
+def fresh_probe():
+    """jit_options probes (and warns) once per process and set-up: each test starts without that memory."""
+    compiled._checked_options.cache_clear()
+    yield
+    compiled._checked_options.cache_clear()
+
+
 needs_jit = pytest.mark.skipif(compiled.sanitizer_preloaded(),
                                reason="a preloaded AddressSanitizer runtime refuses casadi's compiler plugin")
 
